@@ -1,0 +1,8 @@
+//! Benchmarks of the `filter` stage (criterion). Filled in by the issue that builds the stage.
+
+use criterion::{Criterion, criterion_group, criterion_main};
+
+fn placeholder(_c: &mut Criterion) {}
+
+criterion_group!(benches, placeholder);
+criterion_main!(benches);

@@ -1,0 +1,33 @@
+//! The crate's error type: one variant per domain, each wrapping that module's typed error.
+
+/// Any error of the library.
+#[derive(Debug, thiserror::Error)]
+pub enum Error {
+    /// Reading frames.
+    #[error(transparent)]
+    Frames(#[from] crate::frames::FrameError),
+    /// Reading or writing the project's file formats.
+    #[error(transparent)]
+    Format(#[from] crate::io::FormatError),
+    /// Synthetic sequences.
+    #[error(transparent)]
+    Synth(#[from] crate::synth::SynthError),
+    /// Scoring.
+    #[error(transparent)]
+    Eval(#[from] crate::eval::EvalError),
+    /// Features.
+    #[error(transparent)]
+    Features(#[from] crate::features::FeatureError),
+    /// Pose estimation.
+    #[error(transparent)]
+    Pose(#[from] crate::pose::PoseError),
+    /// Block matching and ellipse fitting.
+    #[error(transparent)]
+    Motion(#[from] crate::motion::MotionError),
+    /// Likelihood engines (CPU or GPU).
+    #[error(transparent)]
+    Likelihood(#[from] crate::likelihood::LikelihoodError),
+}
+
+/// Result with the crate's error.
+pub type Result<T, E = Error> = std::result::Result<T, E>;

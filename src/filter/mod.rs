@@ -1,0 +1,1 @@
+//! The particle filter over `(cx, cy, a, b, rx, ry, rz)`.

@@ -1,0 +1,97 @@
+//! OTB-style ground-truth boxes: one `x,y,w,h` per frame, separated by commas, tabs or spaces,
+//! CRLF or LF line ends (as in `../shared/data`).
+//!
+//! OTB boxes are 1-based: the box covers pixels `x ..= x + w - 1` in 1-based indices. In the
+//! project's convention (origin at the centre of the top-left pixel) those pixel centres are
+//! `x - 1 ..= x + w - 2`, so the box's edges are at `x - 1.5` and `x + w - 1.5`:
+//! [`otb_to_pixel`] shifts by `-1.5` and keeps the size.
+
+use std::path::Path;
+
+use super::{FormatError, parse_f64};
+use crate::geometry::BoxRect;
+
+/// Converts a 1-based OTB box to the project's pixel convention.
+pub fn otb_to_pixel(x: f64, y: f64, w: f64, h: f64) -> BoxRect {
+    BoxRect::new(x - 1.5, y - 1.5, w, h)
+}
+
+/// Converts a box in the project's pixel convention back to OTB's 1-based form.
+pub fn pixel_to_otb(b: &BoxRect) -> [f64; 4] {
+    [b.x + 1.5, b.y + 1.5, b.w, b.h]
+}
+
+/// Reads an OTB box file, converting every box with [`otb_to_pixel`]. Blank lines are
+/// ignored; any other line must hold exactly four finite numbers.
+pub fn read_otb_boxes(path: &Path) -> Result<Vec<BoxRect>, FormatError> {
+    let text = std::fs::read_to_string(path).map_err(|e| FormatError::io(path, e))?;
+    parse_otb_boxes(&text, path)
+}
+
+/// Parses the text of an OTB box file; `path` only names the source in errors.
+pub fn parse_otb_boxes(text: &str, path: &Path) -> Result<Vec<BoxRect>, FormatError> {
+    let mut out = Vec::new();
+    for (i, line) in text.lines().enumerate() {
+        let line = line.trim();
+        if line.is_empty() {
+            continue;
+        }
+        let f: Vec<&str> = line
+            .split(|c: char| c == ',' || c.is_whitespace())
+            .filter(|s| !s.is_empty())
+            .collect();
+        if f.len() != 4 {
+            return Err(FormatError::parse(
+                path,
+                i + 1,
+                format!("expected x,y,w,h, found '{line}'"),
+            ));
+        }
+        let mut v = [0.0; 4];
+        for (k, name) in ["x", "y", "w", "h"].iter().enumerate() {
+            v[k] = parse_f64(f[k], name).map_err(|m| FormatError::parse(path, i + 1, m))?;
+        }
+        out.push(otb_to_pixel(v[0], v[1], v[2], v[3]));
+    }
+    if out.is_empty() {
+        return Err(FormatError::Empty {
+            path: path.display().to_string(),
+        });
+    }
+    Ok(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn tabs_commas_crlf() {
+        let b = parse_otb_boxes("57\t21\t31\t45\r\n58\t22\t31\t45\r\n", Path::new("g")).unwrap();
+        assert_eq!(b.len(), 2);
+        assert_eq!(b[0], BoxRect::new(55.5, 19.5, 31.0, 45.0));
+        let c = parse_otb_boxes("70,202,83,36\r\n\r\n", Path::new("c")).unwrap();
+        assert_eq!(pixel_to_otb(&c[0]), [70.0, 202.0, 83.0, 36.0]);
+        assert!(parse_otb_boxes("1,2,3\n", Path::new("x")).is_err());
+        assert!(parse_otb_boxes("1,2,3,x\n", Path::new("x")).is_err());
+        assert!(parse_otb_boxes("\n\n", Path::new("x")).is_err());
+    }
+
+    #[test]
+    fn reads_the_real_girl_truth() {
+        let p = Path::new(concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/../shared/data/girl/groundtruth_rect.txt"
+        ));
+        if !p.exists() {
+            let _ = std::io::Write::write_all(
+                &mut std::io::stderr(),
+                b"skip: ../shared/data missing\n",
+            );
+            return;
+        }
+        let b = read_otb_boxes(p).unwrap();
+        assert_eq!(b.len(), 500);
+        assert!(b.iter().all(|r| r.w > 0.0 && r.h > 0.0));
+    }
+}

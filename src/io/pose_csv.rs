@@ -1,0 +1,285 @@
+//! Pose CSV: `frame,cx,cy,a,b,rx,ry,rz` then optional extra columns (`score,lost` from the
+//! tracker). Header required; `frame` counts from 0; angles in degrees in the file, radians in
+//! [`PoseRecord::state`].
+
+use std::io::Write;
+use std::path::Path;
+
+use super::{AtomicFile, FormatError, parse_f64};
+use crate::geometry::{PoseState, deg, rad};
+
+/// The required leading columns of a pose CSV.
+pub const POSE_COLUMNS: [&str; 8] = ["frame", "cx", "cy", "a", "b", "rx", "ry", "rz"];
+
+/// One row of a pose CSV.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct PoseRecord {
+    /// Frame index, from 0.
+    pub frame: usize,
+    /// The state, angles in radians.
+    pub state: PoseState,
+    /// The tracker's confidence in `[0, 1]`, when the file has a `score` column.
+    pub score: Option<f64>,
+    /// Whether the tracker declared the target lost, when the file has a `lost` column.
+    pub lost: Option<bool>,
+}
+
+/// Reads a pose CSV. Rows must have strictly increasing frame numbers; every value must be a
+/// finite number; `a` and `b` positive.
+pub fn read_pose_csv(path: &Path) -> Result<Vec<PoseRecord>, FormatError> {
+    let text = std::fs::read_to_string(path).map_err(|e| FormatError::io(path, e))?;
+    parse_pose_csv(&text, path)
+}
+
+/// Parses the text of a pose CSV; `path` only names the source in errors.
+pub fn parse_pose_csv(text: &str, path: &Path) -> Result<Vec<PoseRecord>, FormatError> {
+    let mut lines = text
+        .lines()
+        .enumerate()
+        .filter(|(_, l)| !l.trim().is_empty());
+    let (_, header) = lines.next().ok_or_else(|| FormatError::Empty {
+        path: path.display().to_string(),
+    })?;
+    let cols: Vec<String> = header
+        .split(',')
+        .map(|c| c.trim().to_ascii_lowercase())
+        .collect();
+    if cols.len() < POSE_COLUMNS.len() || cols[..POSE_COLUMNS.len()] != POSE_COLUMNS {
+        return Err(FormatError::parse(
+            path,
+            1,
+            format!(
+                "header must begin with '{}', found '{}'",
+                POSE_COLUMNS.join(","),
+                header.trim()
+            ),
+        ));
+    }
+    let score_col = cols.iter().position(|c| c == "score");
+    let lost_col = cols.iter().position(|c| c == "lost");
+    let mut out: Vec<PoseRecord> = Vec::new();
+    for (i, line) in lines {
+        let lineno = i + 1;
+        let f: Vec<&str> = line.split(',').map(str::trim).collect();
+        if f.len() != cols.len() {
+            return Err(FormatError::parse(
+                path,
+                lineno,
+                format!("expected {} fields, found {}", cols.len(), f.len()),
+            ));
+        }
+        let frame: usize = f[0].parse().map_err(|_| {
+            FormatError::parse(
+                path,
+                lineno,
+                format!("frame: '{}' is not a frame number", f[0]),
+            )
+        })?;
+        let mut v = [0.0; 7];
+        for (k, slot) in v.iter_mut().enumerate() {
+            *slot = parse_f64(f[k + 1], POSE_COLUMNS[k + 1])
+                .map_err(|m| FormatError::parse(path, lineno, m))?;
+        }
+        if v[2] <= 0.0 || v[3] <= 0.0 {
+            return Err(FormatError::parse(
+                path,
+                lineno,
+                "semi-axes a and b must be positive",
+            ));
+        }
+        if let Some(last) = out.last()
+            && frame <= last.frame
+        {
+            return Err(FormatError::parse(
+                path,
+                lineno,
+                format!("frame {frame} does not follow frame {}", last.frame),
+            ));
+        }
+        let score = match score_col {
+            Some(c) => {
+                Some(parse_f64(f[c], "score").map_err(|m| FormatError::parse(path, lineno, m))?)
+            }
+            None => None,
+        };
+        let lost = match lost_col {
+            Some(c) => Some(match f[c] {
+                "1" | "true" => true,
+                "0" | "false" => false,
+                other => {
+                    return Err(FormatError::parse(
+                        path,
+                        lineno,
+                        format!("lost: '{other}' is not 0 or 1"),
+                    ));
+                }
+            }),
+            None => None,
+        };
+        let state = PoseState {
+            cx: v[0],
+            cy: v[1],
+            a: v[2],
+            b: v[3],
+            rx: rad(v[4]),
+            ry: rad(v[5]),
+            rz: rad(v[6]),
+        };
+        out.push(PoseRecord {
+            frame,
+            state,
+            score,
+            lost,
+        });
+    }
+    if out.is_empty() {
+        return Err(FormatError::Empty {
+            path: path.display().to_string(),
+        });
+    }
+    Ok(out)
+}
+
+/// Formats one record as a CSV row (no newline) with the given extra columns.
+fn format_row(r: &PoseRecord, with_score: bool) -> String {
+    let s = &r.state;
+    let mut row = format!(
+        "{},{:.6},{:.6},{:.6},{:.6},{:.6},{:.6},{:.6}",
+        r.frame,
+        s.cx,
+        s.cy,
+        s.a,
+        s.b,
+        deg(s.rx),
+        deg(s.ry),
+        deg(s.rz)
+    );
+    if with_score {
+        row.push_str(&format!(
+            ",{:.6},{}",
+            r.score.unwrap_or(0.0),
+            u8::from(r.lost.unwrap_or(false))
+        ));
+    }
+    row
+}
+
+/// Writes a pose CSV row by row; the file appears under its name only on
+/// [`PoseCsvWriter::finish`] (see [`AtomicFile`]).
+#[derive(Debug)]
+pub struct PoseCsvWriter {
+    file: AtomicFile,
+    with_score: bool,
+}
+
+impl PoseCsvWriter {
+    /// Starts a pose CSV; `with_score` adds the `score,lost` columns.
+    pub fn create(path: &Path, with_score: bool) -> Result<Self, FormatError> {
+        let mut file = AtomicFile::create(path)?;
+        let mut header = POSE_COLUMNS.join(",");
+        if with_score {
+            header.push_str(",score,lost");
+        }
+        writeln!(file, "{header}").map_err(|e| FormatError::io(path, e))?;
+        Ok(Self { file, with_score })
+    }
+
+    /// Appends one record.
+    pub fn write(&mut self, r: &PoseRecord) -> Result<(), FormatError> {
+        let row = format_row(r, self.with_score);
+        writeln!(self.file, "{row}").map_err(|e| FormatError::io(self.file.path(), e))
+    }
+
+    /// Completes the file.
+    pub fn finish(self) -> Result<(), FormatError> {
+        self.file.commit()
+    }
+}
+
+/// Writes a whole pose CSV at once.
+pub fn write_pose_csv(
+    path: &Path,
+    records: &[PoseRecord],
+    with_score: bool,
+) -> Result<(), FormatError> {
+    let mut w = PoseCsvWriter::create(path, with_score)?;
+    for r in records {
+        w.write(r)?;
+    }
+    w.finish()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn rec(frame: usize, rx: f64) -> PoseRecord {
+        PoseRecord {
+            frame,
+            state: PoseState {
+                cx: 10.5,
+                cy: 20.25,
+                a: 5.0,
+                b: 6.0,
+                rx,
+                ry: -0.2,
+                rz: 0.05,
+            },
+            score: Some(0.75),
+            lost: Some(frame == 1),
+        }
+    }
+
+    #[test]
+    fn round_trip_through_a_file() {
+        let dir = std::env::temp_dir().join(format!("pftrack-posecsv-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let p = dir.join("poses.csv");
+        let recs = vec![rec(0, 0.1), rec(1, 0.3), rec(5, -1.0)];
+        write_pose_csv(&p, &recs, true).unwrap();
+        let text = std::fs::read_to_string(&p).unwrap();
+        assert!(text.starts_with("frame,cx,cy,a,b,rx,ry,rz,score,lost\n"));
+        let back = read_pose_csv(&p).unwrap();
+        assert_eq!(back.len(), 3);
+        for (a, b) in recs.iter().zip(&back) {
+            assert_eq!(a.frame, b.frame);
+            assert_eq!(a.lost, b.lost);
+            let (x, y) = (a.state.to_array(), b.state.to_array());
+            for k in 0..7 {
+                assert!((x[k] - y[k]).abs() < 1e-6, "{k}: {} vs {}", x[k], y[k]);
+            }
+        }
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn degrees_in_the_file() {
+        let recs = parse_pose_csv(
+            "frame,cx,cy,a,b,rx,ry,rz\n0,1,2,3,4,90,0,-45\n",
+            Path::new("t"),
+        )
+        .unwrap();
+        assert!((recs[0].state.rx - std::f64::consts::FRAC_PI_2).abs() < 1e-12);
+        assert!((recs[0].state.rz + std::f64::consts::FRAC_PI_4).abs() < 1e-12);
+        assert_eq!(recs[0].score, None);
+    }
+
+    #[test]
+    fn malformed_files_are_errors() {
+        let p = Path::new("t.csv");
+        let bad = [
+            "",
+            "x,y\n0,1\n",
+            "frame,cx,cy,a,b,rx,ry,rz\n",
+            "frame,cx,cy,a,b,rx,ry,rz\n0,1,2,3,4,5,6\n",
+            "frame,cx,cy,a,b,rx,ry,rz\n0,1,2,3,4,5,6,nan\n",
+            "frame,cx,cy,a,b,rx,ry,rz\n0,1,2,0,4,5,6,7\n",
+            "frame,cx,cy,a,b,rx,ry,rz\n1,1,2,3,4,5,6,7\n1,1,2,3,4,5,6,7\n",
+            "frame,cx,cy,a,b,rx,ry,rz\n-1,1,2,3,4,5,6,7\n",
+            "frame,cx,cy,a,b,rx,ry,rz,lost\n0,1,2,3,4,5,6,7,maybe\n",
+        ];
+        for text in bad {
+            assert!(parse_pose_csv(text, p).is_err(), "accepted: {text:?}");
+        }
+    }
+}

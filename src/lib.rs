@@ -1,0 +1,28 @@
+//! # pftrack
+//!
+//! Follows a rigid object through video and estimates its 3D rotation (tilt, pan, roll)
+//! directly from the 2D frames, with no 3D model and no training: the method of C. Chen and
+//! D. Schonfeld, "A Particle Filtering Framework for Joint Video Tracking and Pose Estimation".
+//!
+//! The modules follow the data flow:
+//! [`frames`] → [`features`] → [`pose`] → [`motion`] → [`likelihood`] (cpu | gpu) →
+//! [`filter`] → [`tracker`] → [`output`]; [`synth`], [`io`] and [`eval`] make and score
+//! ground truth. Conventions (axes, rotation order, CSV formats) live in [`geometry`] and
+//! [`io`].
+#![warn(missing_docs)]
+
+pub mod error;
+pub mod eval;
+pub mod features;
+pub mod filter;
+pub mod frames;
+pub mod geometry;
+pub mod io;
+pub mod likelihood;
+pub mod motion;
+pub mod output;
+pub mod pose;
+pub mod synth;
+pub mod tracker;
+
+pub use error::{Error, Result};

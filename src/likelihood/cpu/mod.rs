@@ -1,0 +1,1 @@
+//! CPU reference implementation of every likelihood stage.

@@ -1,0 +1,1 @@
+//! WGSL compute engine for the likelihood stages.

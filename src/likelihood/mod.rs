@@ -1,0 +1,170 @@
+//! Particle likelihoods `p(z | x) = p_colour · p_gradient · p_feature` (SPEC section 3), for all
+//! particles of a frame at once, behind one interface with two implementations: the CPU
+//! reference ([`cpu`]) and the WGSL compute engine ([`gpu`]).
+//!
+//! The data crossing this interface is flat and `Pod` so the GPU engine uploads it as is.
+
+pub mod cpu;
+pub mod gpu;
+
+use bytemuck::{Pod, Zeroable};
+
+/// One particle as the likelihood engines see it: the state `(cx, cy, a, b, rx, ry, rz)` in
+/// `f32` (pixels, radians), padded to 32 bytes. Mirrored in WGSL.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, Pod, Zeroable)]
+pub struct Particle {
+    /// Centre x (pixels).
+    pub cx: f32,
+    /// Centre y (pixels).
+    pub cy: f32,
+    /// Semi-axis a (pixels).
+    pub a: f32,
+    /// Semi-axis b (pixels).
+    pub b: f32,
+    /// Tilt (radians).
+    pub rx: f32,
+    /// Pan (radians).
+    pub ry: f32,
+    /// Roll (radians).
+    pub rz: f32,
+    /// Padding to 32 bytes.
+    pub _pad: f32,
+}
+
+/// The per-particle result: the log of each likelihood term and their sum. Mirrored in WGSL.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, Pod, Zeroable)]
+pub struct TermLogs {
+    /// `ln p_colour`.
+    pub colour: f32,
+    /// `ln p_gradient`.
+    pub gradient: f32,
+    /// `ln p_feature`.
+    pub feature: f32,
+    /// The sum of the enabled terms: the particle's log-likelihood.
+    pub total: f32,
+}
+
+/// A matched feature: its position in the previous frame `p` and in the current frame `q`.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, Pod, Zeroable)]
+pub struct FeaturePair {
+    /// Position in frame t-1 (pixels).
+    pub p: [f32; 2],
+    /// Position in frame t (pixels).
+    pub q: [f32; 2],
+}
+
+/// Number of bins of the colour histogram: 8×8×8 RGB.
+pub const HIST_BINS: usize = 512;
+
+/// A normalised 8×8×8 RGB histogram, bin `(r >> 5) * 64 + (g >> 5) * 8 + (b >> 5)`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ColourHistogram(pub Vec<f32>);
+
+/// What the likelihood of one frame depends on besides the particles.
+#[derive(Debug, Clone, Copy)]
+pub struct FrameInput<'a> {
+    /// The current frame.
+    pub image: &'a image::RgbImage,
+    /// Matched features between the previous and the current frame.
+    pub features: &'a [FeaturePair],
+    /// The previous frame's estimate: its centre, semi-axes and rotation. The feature term
+    /// lifts `p` to 3D with the ellipsoid prior of [`LikelihoodParams::depth_ratio`],
+    /// `X = (p − c_prev, z)`, and predicts `q̂ = c_particle + s · (ΔR X)_xy`, with
+    /// `ΔR = R_particle · R_prevᵀ` and `s = sqrt(a b / (a_prev b_prev))`.
+    pub prev: Particle,
+    /// Orientation of the ellipse in the reference pose (radians): a particle's ellipse is
+    /// turned by `theta0 + rz`.
+    pub theta0: f32,
+}
+
+/// Constants of the likelihood model. Mirrored in WGSL (as a uniform).
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, Pod, Zeroable)]
+pub struct LikelihoodParams {
+    /// σc of the colour term: `ln p_colour = -(1 - ρ) / (2 σc²)`.
+    pub sigma_colour: f32,
+    /// σz, contour noise of the gradient term (pixels).
+    pub sigma_z: f32,
+    /// γ, Poisson clutter density of edges along a normal line (per pixel).
+    pub clutter_density: f32,
+    /// p0, probability that no detected edge on a line is the contour.
+    pub p_no_contour: f32,
+    /// Threshold on the gradient magnitude for an edge (luma units per pixel).
+    pub edge_threshold: f32,
+    /// Half length of each normal line (pixels).
+    pub line_half_length: f32,
+    /// ε of the feature term `p_feature = Σ 1 / (ε + ‖q − q̂‖)` (pixels).
+    pub feature_eps: f32,
+    /// Depth of the visible surface relative to the ellipse size, for the feature term's
+    /// ellipsoid prior: a feature at normalised ellipse position `(u, v)` of the previous
+    /// ellipse is lifted to depth `z = -depth_ratio · sqrt(a b) · sqrt(max(0, 1 - u² - v²))`
+    /// (towards the camera) before the particle's rotation is applied. This is what lets the
+    /// feature term tell a tilt from its mirror (the Necker ambiguity). 0 disables it.
+    pub depth_ratio: f32,
+    /// Number L of normal lines.
+    pub num_lines: u32,
+    /// Bit flags of the enabled terms: [`TERM_COLOUR`], [`TERM_GRADIENT`], [`TERM_FEATURE`].
+    pub terms: u32,
+    /// Padding to a multiple of 16 bytes.
+    pub _pad: [u32; 2],
+}
+
+/// Flag of the colour term in [`LikelihoodParams::terms`].
+pub const TERM_COLOUR: u32 = 1;
+/// Flag of the gradient term in [`LikelihoodParams::terms`].
+pub const TERM_GRADIENT: u32 = 2;
+/// Flag of the feature term in [`LikelihoodParams::terms`].
+pub const TERM_FEATURE: u32 = 4;
+
+impl Default for LikelihoodParams {
+    /// Starting values; the tracking issue tunes and justifies them.
+    fn default() -> Self {
+        Self {
+            sigma_colour: 0.12,
+            sigma_z: 2.0,
+            clutter_density: 0.05,
+            p_no_contour: 0.1,
+            edge_threshold: 0.08,
+            line_half_length: 8.0,
+            feature_eps: 1.0,
+            depth_ratio: 0.7,
+            num_lines: 24,
+            terms: TERM_COLOUR | TERM_GRADIENT | TERM_FEATURE,
+            _pad: [0; 2],
+        }
+    }
+}
+
+/// Errors of the likelihood engines.
+#[derive(Debug, thiserror::Error)]
+pub enum LikelihoodError {
+    /// The engine has no colour model yet.
+    #[error("no colour model set")]
+    NoModel,
+}
+
+/// An engine that evaluates all particles' likelihoods for a frame.
+pub trait LikelihoodEngine {
+    /// A short human-readable name (for the GPU, the adapter's).
+    fn name(&self) -> String;
+
+    /// Sets the colour model (from the initial frame).
+    fn set_colour_model(&mut self, model: &ColourHistogram) -> Result<(), LikelihoodError>;
+
+    /// Evaluates every particle on one frame; `out` is resized to `particles.len()`.
+    fn evaluate(
+        &mut self,
+        frame: &FrameInput<'_>,
+        params: &LikelihoodParams,
+        particles: &[Particle],
+        out: &mut Vec<TermLogs>,
+    ) -> Result<(), LikelihoodError>;
+}
+
+/// The log-likelihood given to a degenerate particle (non-positive semi-axes or a non-finite
+/// component), by every engine: finite, so weights stay well defined, and far below any real
+/// particle's.
+pub const DEGENERATE: f32 = -1e30;

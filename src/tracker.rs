@@ -1,0 +1,1 @@
+//! The embeddable tracker: `Tracker::new`, `step`, `reinit`.
