@@ -1,1 +1,533 @@
-//! The particle filter over `(cx, cy, a, b, rx, ry, rz)`.
+//! The particle filter over `(cx, cy, a, b, rx, ry, rz)` (SPEC section 3; paper eq. 27).
+//!
+//! Each particle is a [`Hypothesis`]: the ellipse's centre and semi-axes and a rotation
+//! matrix (Euler angles are only produced at the boundary, for the likelihood engines and the
+//! output). Per frame:
+//!
+//! 1. [`ParticleFilter::propose`]: `x_k = x_{k-1} + Δx + υ`, `υ ~ N(0, Σ_G)`, with the rotation
+//!    part composed on SO(3): `R_k = exp(υ_r) · ΔR_c · R_{k-1}`, where `ΔR_c` is one of the
+//!    motion's rotation candidates (the two members of a Necker pair, say), drawn with their
+//!    probabilities. The proposal density of each particle is the mixture over the candidates
+//!    given its parent.
+//! 2. The caller evaluates `ln p(z | x)` for all particles ([`crate::likelihood`]).
+//! 3. [`ParticleFilter::update`]: `ln w_k = ln w_{k-1} + ln p(z|x) + ln p(x_k|x_{k-1}) − ln q(x_k)`
+//!    with the random-walk dynamics `N(x_{k-1}, Σ_P)`, normalised; the estimate is the weighted
+//!    mean (rotations averaged on SO(3)); systematic resampling when the effective sample size
+//!    falls below a fraction of N.
+
+pub mod resample;
+pub mod rotation_mean;
+
+use nalgebra::{Matrix3, Vector3};
+use rand::rngs::StdRng;
+use rand::{Rng, SeedableRng};
+use rand_distr::{Distribution, StandardNormal};
+
+use crate::geometry::{Euler, PoseState};
+use crate::likelihood::Particle;
+use rotation_mean::{exp_so3, log_so3, weighted_mean};
+
+/// One particle: the ellipse centre and semi-axes (pixels) and the rotation relative to the
+/// reference pose.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Hypothesis {
+    /// Centre x (pixels).
+    pub cx: f64,
+    /// Centre y (pixels).
+    pub cy: f64,
+    /// Semi-axis a (pixels).
+    pub a: f64,
+    /// Semi-axis b (pixels).
+    pub b: f64,
+    /// Rotation `R = Rx Ry Rz` relative to the reference pose.
+    pub rot: Matrix3<f64>,
+}
+
+impl Hypothesis {
+    /// A hypothesis from a state (angles in radians).
+    pub fn from_state(s: &PoseState) -> Self {
+        Self {
+            cx: s.cx,
+            cy: s.cy,
+            a: s.a,
+            b: s.b,
+            rot: s.euler().matrix(),
+        }
+    }
+
+    /// The state, with Euler angles read from the rotation.
+    pub fn to_state(&self) -> PoseState {
+        let e = Euler::from_matrix(&self.rot);
+        PoseState {
+            cx: self.cx,
+            cy: self.cy,
+            a: self.a,
+            b: self.b,
+            rx: e.rx,
+            ry: e.ry,
+            rz: e.rz,
+        }
+    }
+
+    /// The particle as the likelihood engines see it.
+    pub fn to_particle(&self) -> Particle {
+        let e = Euler::from_matrix(&self.rot);
+        Particle {
+            cx: self.cx as f32,
+            cy: self.cy as f32,
+            a: self.a as f32,
+            b: self.b as f32,
+            rx: e.rx as f32,
+            ry: e.ry as f32,
+            rz: e.rz as f32,
+            _pad: 0.0,
+        }
+    }
+}
+
+/// Standard deviations of a Gaussian over the state: centre and semi-axes in pixels, the
+/// rotation as a rotation vector about the camera axes (radians).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct StateSigma {
+    /// σ of cx and cy (pixels).
+    pub centre: f64,
+    /// σ of a and b (pixels).
+    pub axes: f64,
+    /// σ of the rotation vector's x, y, z components (radians).
+    pub rotation: [f64; 3],
+}
+
+impl StateSigma {
+    fn scaled(&self, k: f64) -> Self {
+        Self {
+            centre: self.centre * k,
+            axes: self.axes * k,
+            rotation: self.rotation.map(|r| r * k),
+        }
+    }
+}
+
+/// Settings of the filter.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FilterParams {
+    /// Number of particles N (the paper uses 200).
+    pub particles: usize,
+    /// Σ_G: the proposal's noise around `x_{k-1} + Δx`.
+    pub proposal: StateSigma,
+    /// Σ_P: the random-walk dynamics `p(x_k | x_{k-1})`.
+    pub dynamics: StateSigma,
+    /// Resample when the effective sample size falls below this fraction of N.
+    pub resample_below: f64,
+    /// Smallest semi-axis a particle may take (pixels); proposals are clamped to it.
+    pub min_axis: f64,
+}
+
+impl Default for FilterParams {
+    fn default() -> Self {
+        Self {
+            particles: 200,
+            proposal: StateSigma {
+                centre: 1.5,
+                axes: 0.4,
+                rotation: [0.03, 0.03, 0.02],
+            },
+            dynamics: StateSigma {
+                centre: 8.0,
+                axes: 3.0,
+                rotation: [0.2, 0.2, 0.15],
+            },
+            resample_below: 0.5,
+            min_axis: 2.0,
+        }
+    }
+}
+
+/// The deterministic part of the motion between two frames, `Δx`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Motion {
+    /// Translation of the centre (pixels).
+    pub dx: f64,
+    /// Translation of the centre (pixels).
+    pub dy: f64,
+    /// Scale factor of the semi-axes.
+    pub scale: f64,
+    /// Candidate inter-frame rotations `ΔR` with their probabilities (summing to 1): one
+    /// candidate when the rotation is known, the Necker pair when it is ambiguous.
+    pub rotations: Vec<(f64, Matrix3<f64>)>,
+}
+
+impl Motion {
+    /// No motion: zero translation, scale 1, identity rotation.
+    pub fn still() -> Self {
+        Self {
+            dx: 0.0,
+            dy: 0.0,
+            scale: 1.0,
+            rotations: vec![(1.0, Matrix3::identity())],
+        }
+    }
+}
+
+/// What one update did.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct UpdateInfo {
+    /// Effective sample size after weighting (before any resampling).
+    pub ess: f64,
+    /// Whether the particles were resampled.
+    pub resampled: bool,
+}
+
+/// The particle filter. Deterministic for a seed.
+#[derive(Debug, Clone)]
+pub struct ParticleFilter {
+    params: FilterParams,
+    rng: StdRng,
+    particles: Vec<Hypothesis>,
+    parents: Vec<Hypothesis>,
+    log_w: Vec<f64>,
+    /// `ln p(x_k | x_{k-1}) − ln q(x_k)` of each particle from the last proposal.
+    log_ratio: Vec<f64>,
+    weights: Vec<f64>,
+    estimate: Hypothesis,
+}
+
+/// `ln N(x; 0, σ²)` up to the constant `-½ ln 2π`.
+fn ln_gauss(x: f64, sigma: f64) -> f64 {
+    -0.5 * (x / sigma).powi(2) - sigma.ln()
+}
+
+/// `ln` density of a state difference under a [`StateSigma`] (constants dropped: they cancel
+/// in the normalised weights).
+fn ln_density(d: &[f64; 4], w: &Vector3<f64>, s: &StateSigma) -> f64 {
+    ln_gauss(d[0], s.centre)
+        + ln_gauss(d[1], s.centre)
+        + ln_gauss(d[2], s.axes)
+        + ln_gauss(d[3], s.axes)
+        + ln_gauss(w.x, s.rotation[0])
+        + ln_gauss(w.y, s.rotation[1])
+        + ln_gauss(w.z, s.rotation[2])
+}
+
+/// `ln Σ exp(xᵢ)`, stable.
+fn log_sum_exp(xs: &[f64]) -> f64 {
+    let m = xs.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+    if !m.is_finite() {
+        return m;
+    }
+    m + xs.iter().map(|x| (x - m).exp()).sum::<f64>().ln()
+}
+
+impl ParticleFilter {
+    /// N copies of the initial hypothesis with equal weights.
+    pub fn new(params: FilterParams, seed: u64, init: &Hypothesis) -> Self {
+        let n = params.particles.max(1);
+        Self {
+            params,
+            rng: StdRng::seed_from_u64(seed),
+            particles: vec![*init; n],
+            parents: vec![*init; n],
+            log_w: vec![0.0; n],
+            log_ratio: vec![0.0; n],
+            weights: vec![1.0 / n as f64; n],
+            estimate: *init,
+        }
+    }
+
+    /// The settings.
+    pub fn params(&self) -> &FilterParams {
+        &self.params
+    }
+
+    /// The current particles.
+    pub fn particles(&self) -> &[Hypothesis] {
+        &self.particles
+    }
+
+    /// The current normalised weights.
+    pub fn weights(&self) -> &[f64] {
+        &self.weights
+    }
+
+    /// Restarts the filter around a hypothesis: N copies, equal weights.
+    pub fn reset(&mut self, h: &Hypothesis) {
+        let n = self.particles.len();
+        self.particles = vec![*h; n];
+        self.parents = vec![*h; n];
+        self.log_w = vec![0.0; n];
+        self.log_ratio = vec![0.0; n];
+        self.weights = vec![1.0 / n as f64; n];
+        self.estimate = *h;
+    }
+
+    /// The estimate of the last update: the weighted mean of the particles (rotations averaged
+    /// on SO(3)), taken before resampling. Before any update, the initial hypothesis.
+    pub fn estimate(&self) -> Hypothesis {
+        self.estimate
+    }
+
+    fn normal(&mut self) -> f64 {
+        StandardNormal.sample(&mut self.rng)
+    }
+
+    /// Draws the new particles from the proposal around `x_{k-1} + Δx`; `spread` scales Σ_G
+    /// (1 normally, larger while searching for a lost target).
+    pub fn propose(&mut self, motion: &Motion, spread: f64) {
+        let sg = self.params.proposal.scaled(spread.max(1e-6));
+        let sp = self.params.dynamics;
+        let total_p: f64 = motion.rotations.iter().map(|(p, _)| p.max(0.0)).sum();
+        let cands: Vec<(f64, Matrix3<f64>)> = if motion.rotations.is_empty() || total_p <= 0.0 {
+            vec![(1.0, Matrix3::identity())]
+        } else {
+            motion
+                .rotations
+                .iter()
+                .map(|(p, r)| (p.max(0.0) / total_p, *r))
+                .collect()
+        };
+        let min_axis = self.params.min_axis;
+        let scale = if motion.scale.is_finite() && motion.scale > 0.0 {
+            motion.scale
+        } else {
+            1.0
+        };
+        std::mem::swap(&mut self.parents, &mut self.particles);
+        for i in 0..self.parents.len() {
+            let parent = self.parents[i];
+            // pick a rotation candidate
+            let u: f64 = self.rng.random();
+            let mut acc = 0.0;
+            let mut c = cands.len() - 1;
+            for (k, (p, _)) in cands.iter().enumerate() {
+                acc += p;
+                if u < acc {
+                    c = k;
+                    break;
+                }
+            }
+            let mean_cx = parent.cx + motion.dx;
+            let mean_cy = parent.cy + motion.dy;
+            let mean_a = parent.a * scale;
+            let mean_b = parent.b * scale;
+            let noise = [self.normal(), self.normal(), self.normal(), self.normal()];
+            let wn = Vector3::new(
+                self.normal() * sg.rotation[0],
+                self.normal() * sg.rotation[1],
+                self.normal() * sg.rotation[2],
+            );
+            let x = Hypothesis {
+                cx: mean_cx + noise[0] * sg.centre,
+                cy: mean_cy + noise[1] * sg.centre,
+                a: (mean_a + noise[2] * sg.axes).max(min_axis),
+                b: (mean_b + noise[3] * sg.axes).max(min_axis),
+                rot: exp_so3(&wn) * cands[c].1 * parent.rot,
+            };
+            // ln q: the mixture over the rotation candidates given this parent.
+            let d = [x.cx - mean_cx, x.cy - mean_cy, x.a - mean_a, x.b - mean_b];
+            let terms: Vec<f64> = cands
+                .iter()
+                .map(|(p, r)| {
+                    let w = log_so3(&(x.rot * (r * parent.rot).transpose()));
+                    p.ln() + ln_density(&d, &w, &sg)
+                })
+                .collect();
+            let ln_q = log_sum_exp(&terms);
+            // ln p(x_k | x_{k-1}): random walk around the parent.
+            let dp = [
+                x.cx - parent.cx,
+                x.cy - parent.cy,
+                x.a - parent.a,
+                x.b - parent.b,
+            ];
+            let wp = log_so3(&(x.rot * parent.rot.transpose()));
+            let ln_p = ln_density(&dp, &wp, &sp);
+            self.log_ratio[i] = ln_p - ln_q;
+            self.particles[i] = x;
+        }
+    }
+
+    /// The particles in the engines' layout.
+    pub fn particles_f32(&self, out: &mut Vec<Particle>) {
+        out.clear();
+        out.extend(self.particles.iter().map(Hypothesis::to_particle));
+    }
+
+    /// Weights the proposed particles with their log-likelihoods (one per particle, in
+    /// particle order), resampling when the effective sample size is low. Returns what it did.
+    /// The estimate ([`ParticleFilter::estimate`]) should be read before the next proposal;
+    /// resampling keeps it unchanged in expectation.
+    pub fn update(&mut self, log_lik: &[f32]) -> UpdateInfo {
+        let n = self.particles.len();
+        for i in 0..n {
+            let l = log_lik.get(i).copied().unwrap_or(f32::NEG_INFINITY) as f64;
+            self.log_w[i] += l + self.log_ratio[i];
+        }
+        self.weights = resample::normalise_log_weights(&self.log_w);
+        // Keep log-weights bounded: re-base them on the normalised weights.
+        for i in 0..n {
+            self.log_w[i] = if self.weights[i] > 0.0 {
+                self.weights[i].ln()
+            } else {
+                f64::NEG_INFINITY
+            };
+        }
+        let ess = resample::effective_sample_size(&self.weights);
+        let resampled = ess < self.params.resample_below * n as f64;
+        self.estimate = self.weighted_estimate();
+        if resampled {
+            let u0: f64 = self.rng.random();
+            let idx = resample::systematic(&self.weights, n, u0);
+            self.particles = idx.iter().map(|&i| self.particles[i]).collect();
+            self.log_w = vec![0.0; n];
+            self.weights = vec![1.0 / n as f64; n];
+        }
+        UpdateInfo { ess, resampled }
+    }
+
+    fn weighted_estimate(&self) -> Hypothesis {
+        let mut e = Hypothesis {
+            cx: 0.0,
+            cy: 0.0,
+            a: 0.0,
+            b: 0.0,
+            rot: Matrix3::identity(),
+        };
+        for (p, &w) in self.particles.iter().zip(&self.weights) {
+            e.cx += w * p.cx;
+            e.cy += w * p.cy;
+            e.a += w * p.a;
+            e.b += w * p.b;
+        }
+        let rots: Vec<Matrix3<f64>> = self.particles.iter().map(|p| p.rot).collect();
+        e.rot = weighted_mean(&rots, &self.weights);
+        e
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geometry::{angle_between, rot_x};
+
+    fn init() -> Hypothesis {
+        Hypothesis {
+            cx: 50.0,
+            cy: 40.0,
+            a: 20.0,
+            b: 25.0,
+            rot: Matrix3::identity(),
+        }
+    }
+
+    /// A likelihood peaked at `t`: what an ideal measurement gives.
+    fn loglik(f: &ParticleFilter, t: &Hypothesis) -> Vec<f32> {
+        f.particles()
+            .iter()
+            .map(|p| {
+                let d2 = (p.cx - t.cx).powi(2)
+                    + (p.cy - t.cy).powi(2)
+                    + (p.a - t.a).powi(2)
+                    + (p.b - t.b).powi(2);
+                let w = log_so3(&(p.rot * t.rot.transpose()));
+                (-d2 / 2.0 - w.norm_squared() / (2.0 * 0.02f64.powi(2))) as f32
+            })
+            .collect()
+    }
+
+    #[test]
+    fn follows_a_moving_target_with_the_right_motion() {
+        let mut f = ParticleFilter::new(FilterParams::default(), 7, &init());
+        let mut t = init();
+        let step = rot_x(0.03);
+        for _ in 0..30 {
+            t.cx += 2.0;
+            t.cy -= 1.0;
+            t.rot = step * t.rot;
+            let m = Motion {
+                dx: 2.0,
+                dy: -1.0,
+                scale: 1.0,
+                rotations: vec![(1.0, step)],
+            };
+            f.propose(&m, 1.0);
+            let l = loglik(&f, &t);
+            f.update(&l);
+        }
+        let e = f.estimate();
+        assert!(
+            (e.cx - t.cx).abs() < 0.5 && (e.cy - t.cy).abs() < 0.5,
+            "{e:?} vs {t:?}"
+        );
+        assert!(angle_between(&e.rot, &t.rot) < 0.02);
+    }
+
+    #[test]
+    fn the_likelihood_picks_the_right_member_of_a_necker_pair() {
+        let mut f = ParticleFilter::new(FilterParams::default(), 3, &init());
+        let mut t = init();
+        let good = rot_x(0.05);
+        let mirror = rot_x(-0.05);
+        for _ in 0..10 {
+            t.rot = good * t.rot;
+            let m = Motion {
+                dx: 0.0,
+                dy: 0.0,
+                scale: 1.0,
+                rotations: vec![(0.5, mirror), (0.5, good)],
+            };
+            f.propose(&m, 1.0);
+            let l = loglik(&f, &t);
+            f.update(&l);
+        }
+        assert!(angle_between(&f.estimate().rot, &t.rot) < 0.02);
+    }
+
+    #[test]
+    fn deterministic_for_a_seed() {
+        let run = |seed| {
+            let mut f = ParticleFilter::new(FilterParams::default(), seed, &init());
+            let t = Hypothesis { cx: 53.0, ..init() };
+            for _ in 0..5 {
+                f.propose(&Motion::still(), 1.0);
+                let l = loglik(&f, &t);
+                f.update(&l);
+            }
+            f.particles().to_vec()
+        };
+        assert_eq!(run(11), run(11));
+        assert_ne!(run(11), run(12));
+    }
+
+    #[test]
+    fn proposal_ratio_vanishes_when_dynamics_equal_proposal_and_no_motion() {
+        let mut p = FilterParams::default();
+        p.dynamics = p.proposal;
+        let mut f = ParticleFilter::new(p, 5, &init());
+        f.propose(&Motion::still(), 1.0);
+        assert!(f.log_ratio.iter().all(|r| r.abs() < 1e-9));
+        // then the weights are the normalised likelihoods
+        let l: Vec<f32> = (0..f.particles().len())
+            .map(|i| -(i as f32) * 0.01)
+            .collect();
+        f.params.resample_below = 0.0;
+        f.update(&l);
+        let w = f.weights();
+        assert!((w[0] / w[1] - (0.01f64).exp()).abs() < 1e-4);
+    }
+
+    #[test]
+    fn weighted_mean_estimate_uses_weights() {
+        let mut f = ParticleFilter::new(
+            FilterParams {
+                particles: 2,
+                ..FilterParams::default()
+            },
+            1,
+            &init(),
+        );
+        f.particles[1].cx = 60.0;
+        f.log_ratio = vec![0.0, 0.0];
+        f.params.resample_below = 0.0;
+        f.update(&[0.0, (3.0f32).ln()]);
+        assert!((f.estimate().cx - (0.25 * 50.0 + 0.75 * 60.0)).abs() < 1e-5);
+    }
+}

@@ -5,5 +5,5 @@ pub mod rotation;
 pub mod state;
 
 pub use ellipse::{BoxRect, Ellipse};
-pub use rotation::{Euler, angle_between, deg, rad, wrap_180, wrap_pi};
+pub use rotation::{Euler, angle_between, deg, rad, rot_x, rot_y, rot_z, wrap_180, wrap_pi};
 pub use state::PoseState;
