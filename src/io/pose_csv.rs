@@ -176,11 +176,7 @@ impl PoseCsvWriter {
     /// Starts a pose CSV; `with_score` adds the `score,lost` columns.
     pub fn create(path: &Path, with_score: bool) -> Result<Self, FormatError> {
         let mut file = AtomicFile::create(path)?;
-        let mut header = POSE_COLUMNS.join(",");
-        if with_score {
-            header.push_str(",score,lost");
-        }
-        writeln!(file, "{header}").map_err(|e| FormatError::io(path, e))?;
+        writeln!(file, "{}", header(with_score)).map_err(|e| FormatError::io(path, e))?;
         Ok(Self { file, with_score })
     }
 
@@ -194,6 +190,26 @@ impl PoseCsvWriter {
     pub fn finish(self) -> Result<(), FormatError> {
         self.file.commit()
     }
+}
+
+/// The header line (no newline) of a pose CSV.
+fn header(with_score: bool) -> String {
+    let mut h = POSE_COLUMNS.join(",");
+    if with_score {
+        h.push_str(",score,lost");
+    }
+    h
+}
+
+/// A whole pose CSV as text, header included (for standard output).
+pub fn format_pose_csv(records: &[PoseRecord], with_score: bool) -> String {
+    let mut s = header(with_score);
+    s.push('\n');
+    for r in records {
+        s.push_str(&format_row(r, with_score));
+        s.push('\n');
+    }
+    s
 }
 
 /// Writes a whole pose CSV at once.
@@ -239,6 +255,7 @@ mod tests {
         write_pose_csv(&p, &recs, true).unwrap();
         let text = std::fs::read_to_string(&p).unwrap();
         assert!(text.starts_with("frame,cx,cy,a,b,rx,ry,rz,score,lost\n"));
+        assert_eq!(text, format_pose_csv(&recs, true));
         let back = read_pose_csv(&p).unwrap();
         assert_eq!(back.len(), 3);
         for (a, b) in recs.iter().zip(&back) {
