@@ -16,12 +16,12 @@ pub use pose_csv::{PoseCsvWriter, PoseRecord, format_pose_csv, read_pose_csv, wr
 #[derive(Debug, thiserror::Error)]
 pub enum FormatError {
     /// The file could not be opened, read or written.
-    #[error("{path}: {source}")]
+    #[error("{path}: {cause}")]
     Io {
         /// The file.
         path: String,
-        /// The cause.
-        source: std::io::Error,
+        /// The cause (named so it is shown once, in this message, not again as a source).
+        cause: std::io::Error,
     },
     /// The content is malformed.
     #[error("{path}:{line}: {msg}")]
