@@ -170,8 +170,15 @@ mod tests {
     #[test]
     fn natural_order() {
         let mut v = vec![
-            "10.png", "2.png", "1.png", "frame_100.jpg", "frame_20.jpg", "B3.png", "a3.png",
-            "0002.png", "02.png",
+            "10.png",
+            "2.png",
+            "1.png",
+            "frame_100.jpg",
+            "frame_20.jpg",
+            "B3.png",
+            "a3.png",
+            "0002.png",
+            "02.png",
         ];
         v.sort_by(|a, b| natural_cmp(a, b));
         assert_eq!(

@@ -87,7 +87,11 @@ fn last_line(text: &str) -> String {
 pub fn probe(tools: &FfmpegTools, path: &Path) -> Result<(u32, u32, Option<usize>), FrameError> {
     let out = Command::new(&tools.ffprobe)
         .args(["-v", "error", "-select_streams", "v:0", "-show_entries"])
-        .args(["stream=width,height,nb_frames", "-of", "default=noprint_wrappers=1"])
+        .args([
+            "stream=width,height,nb_frames",
+            "-of",
+            "default=noprint_wrappers=1",
+        ])
         .arg(file_arg(path))
         .stdin(Stdio::null())
         .output()

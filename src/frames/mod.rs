@@ -293,9 +293,10 @@ impl FrameSource {
     /// One line saying what this source is.
     pub fn describe(&self) -> String {
         let (w, h) = self.native;
-        let n = self
-            .len_hint()
-            .map_or_else(|| "unknown frame count".to_string(), |n| format!("{n} frames"));
+        let n = self.len_hint().map_or_else(
+            || "unknown frame count".to_string(),
+            |n| format!("{n} frames"),
+        );
         let mut s = match &self.inner {
             Inner::Dir(_) => format!("image directory {} ({n}, {w}x{h})", self.path),
             Inner::Y4m(r, _) => {
@@ -383,7 +384,9 @@ mod tests {
     fn sizes() {
         assert_eq!(parse_size("128x96").unwrap(), (128, 96));
         assert_eq!(parse_size(" 160X120 ").unwrap(), (160, 120));
-        for bad in ["", "128", "x96", "128x", "0x96", "128x0", "-1x5", "1.5x2", "axb", "9x9x9"] {
+        for bad in [
+            "", "128", "x96", "128x", "0x96", "128x0", "-1x5", "1.5x2", "axb", "9x9x9",
+        ] {
             assert!(parse_size(bad).is_err(), "accepted {bad}");
         }
     }

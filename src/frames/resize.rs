@@ -91,11 +91,32 @@ mod tests {
     fn taps_are_centre_aligned() {
         // Halving: output pixel x sits between source pixels 2x and 2x + 1.
         let t = taps(8, 4);
-        assert_eq!(t[1], Tap { i0: 2, i1: 3, w1: 0.5 });
+        assert_eq!(
+            t[1],
+            Tap {
+                i0: 2,
+                i1: 3,
+                w1: 0.5
+            }
+        );
         // Doubling: output pixel 3 sits at source 1.25; the first clamps to 0.
         let t = taps(4, 8);
-        assert_eq!(t[3], Tap { i0: 1, i1: 2, w1: 0.25 });
-        assert_eq!(t[0], Tap { i0: 0, i1: 1, w1: 0.0 });
+        assert_eq!(
+            t[3],
+            Tap {
+                i0: 1,
+                i1: 2,
+                w1: 0.25
+            }
+        );
+        assert_eq!(
+            t[0],
+            Tap {
+                i0: 0,
+                i1: 1,
+                w1: 0.0
+            }
+        );
         assert_eq!(t[7].i0, 3);
     }
 
@@ -116,7 +137,10 @@ mod tests {
                 }
                 let want = 3.0 * sx + 10.0;
                 let got = r.get_pixel(x, 2).0;
-                assert!((got[0] as f64 - want).abs() <= 0.5 + 1e-3, "{dw} {x}: {got:?} {want}");
+                assert!(
+                    (got[0] as f64 - want).abs() <= 0.5 + 1e-3,
+                    "{dw} {x}: {got:?} {want}"
+                );
                 assert!((got[2] as f64 - (255.0 - want)).abs() <= 0.5 + 1e-3);
             }
         }

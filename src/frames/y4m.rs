@@ -495,7 +495,8 @@ mod tests {
         // Every strict prefix that cuts into a frame is an error.
         for cut in [data.len() - 1, data.len() - 12, data.len() - 16, 30] {
             let mut r = Y4mReader::new(&data[..cut], "mem").unwrap();
-            let res: Result<Vec<_>, _> = std::iter::from_fn(|| r.read_frame().transpose()).collect();
+            let res: Result<Vec<_>, _> =
+                std::iter::from_fn(|| r.read_frame().transpose()).collect();
             assert!(
                 matches!(res, Err(FrameError::Truncated { .. })),
                 "cut {cut}: {res:?}"
