@@ -605,7 +605,7 @@ mod fake {
         for _ in 0..50 {
             match FrameSource::from_video(p, &SourceOptions::default(), tools) {
                 Ok(s) => return s,
-                Err(FrameError::Io { source, .. }) if source.raw_os_error() == Some(26) => {
+                Err(FrameError::Io { cause, .. }) if cause.raw_os_error() == Some(26) => {
                     std::thread::sleep(std::time::Duration::from_millis(20));
                 }
                 Err(e) => panic!("{e}"),
@@ -690,7 +690,7 @@ mod fake {
         };
         let e = loop {
             match FrameSource::from_video(&input, &SourceOptions::default(), &tools) {
-                Err(FrameError::Io { source, .. }) if source.raw_os_error() == Some(26) => {
+                Err(FrameError::Io { cause, .. }) if cause.raw_os_error() == Some(26) => {
                     std::thread::sleep(std::time::Duration::from_millis(20));
                 }
                 other => break other.unwrap_err(),

@@ -43,13 +43,14 @@ pub const FFMPEG_HINT: &str = "install ffmpeg (Debian: apt-get install ffmpeg)";
 /// Errors of the frame sources.
 #[derive(Debug, thiserror::Error)]
 pub enum FrameError {
-    /// The input could not be read.
-    #[error("{path}: {source}")]
+    /// The input could not be read. (The cause is part of the message, not a separate
+    /// `source()`, so a printed error chain says it once.)
+    #[error("{path}: {cause}")]
     Io {
         /// The file or directory.
         path: String,
         /// The cause.
-        source: std::io::Error,
+        cause: std::io::Error,
     },
     /// The input does not exist.
     #[error("{path}: no such file or directory")]
@@ -133,10 +134,10 @@ pub enum FrameError {
 }
 
 impl FrameError {
-    pub(crate) fn io(path: impl AsRef<Path>, source: std::io::Error) -> Self {
+    pub(crate) fn io(path: impl AsRef<Path>, cause: std::io::Error) -> Self {
         Self::Io {
             path: path.as_ref().display().to_string(),
-            source,
+            cause,
         }
     }
 }
