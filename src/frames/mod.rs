@@ -382,6 +382,13 @@ mod tests {
     use super::*;
 
     #[test]
+    fn sources_can_move_to_another_thread() {
+        fn assert_send<T: Send>() {}
+        assert_send::<FrameSource>();
+        assert_send::<FrameError>();
+    }
+
+    #[test]
     fn sizes() {
         assert_eq!(parse_size("128x96").unwrap(), (128, 96));
         assert_eq!(parse_size(" 160X120 ").unwrap(), (160, 120));

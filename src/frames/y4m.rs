@@ -26,6 +26,12 @@ use super::{Frame, FrameError};
 /// reader buffer a whole file looking for a newline.
 const MAX_LINE: u64 = 4096;
 
+/// The largest width or height accepted.
+pub const MAX_SIDE: u32 = 1 << 15;
+
+/// The most pixels per frame accepted (a header cannot make the reader allocate gigabytes).
+pub const MAX_PIXELS: u64 = 1 << 26;
+
 /// The chroma layout of a y4m stream (the `C` tag).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Chroma {
@@ -125,7 +131,7 @@ impl Y4mHeader {
                     let n: u32 = v
                         .parse()
                         .ok()
-                        .filter(|&n| n > 0 && n <= 1 << 16)
+                        .filter(|&n| n > 0 && n <= MAX_SIDE)
                         .ok_or_else(|| format!("tag {tag}: bad frame size"))?;
                     if letter == 'W' { &mut w } else { &mut h }.replace(n);
                 }
@@ -149,6 +155,12 @@ impl Y4mHeader {
         }
         hdr.width = w.ok_or("header has no width (W)")?;
         hdr.height = h.ok_or("header has no height (H)")?;
+        if hdr.width as u64 * hdr.height as u64 > MAX_PIXELS {
+            return Err(format!(
+                "frame size {}x{} is larger than {MAX_PIXELS} pixels",
+                hdr.width, hdr.height
+            ));
+        }
         Ok(hdr)
     }
 
@@ -446,6 +458,8 @@ mod tests {
             "YUV4MPEG2 W5 H5 F0:1",
             "YUV4MPEG2 W5 H5 Iq",
             "YUV4MPEG2 W5 H5 Z9",
+            "YUV4MPEG2 W32768 H32768",
+            "YUV4MPEG2 W40000 H5",
         ] {
             assert!(Y4mHeader::parse(bad).is_err(), "accepted {bad}");
         }
