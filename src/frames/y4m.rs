@@ -401,23 +401,34 @@ impl<R: BufRead> Y4mReader<R> {
                 }
             }
             Chroma::C444 => {
-                for (i, px) in dst.chunks_exact_mut(3).enumerate() {
-                    px.copy_from_slice(&l.rgb(yp[i], cbp[i], crp[i]));
+                let planes = yp.iter().zip(cbp).zip(crp);
+                for (px, ((&y, &cb), &cr)) in dst.chunks_exact_mut(3).zip(planes) {
+                    px.copy_from_slice(&l.rgb(y, cb, cr));
                 }
             }
             _ => {
+                // Per output row: interpolate the two chroma rows vertically once (weights in
+                // quarters), then horizontally per pixel (quarters again: /16 in all).
+                let mut vcb = vec![0u16; cw];
+                let mut vcr = vec![0u16; cw];
                 for (y, ty) in self.yt.iter().enumerate() {
-                    let (cb0, cb1) = (&cbp[ty.i0 * cw..][..cw], &cbp[ty.i1 * cw..][..cw]);
-                    let (cr0, cr1) = (&crp[ty.i0 * cw..][..cw], &crp[ty.i1 * cw..][..cw]);
+                    let (a0, a1) = (&cbp[ty.i0 * cw..][..cw], &cbp[ty.i1 * cw..][..cw]);
+                    let (b0, b1) = (&crp[ty.i0 * cw..][..cw], &crp[ty.i1 * cw..][..cw]);
+                    let (w0, w1) = (ty.w0 as u16, ty.w1 as u16);
+                    let rows = a0.iter().zip(a1).zip(b0.iter().zip(b1));
+                    for ((vb, vr), ((&p0, &p1), (&q0, &q1))) in
+                        vcb.iter_mut().zip(vcr.iter_mut()).zip(rows)
+                    {
+                        *vb = w0 * p0 as u16 + w1 * p1 as u16;
+                        *vr = w0 * q0 as u16 + w1 * q1 as u16;
+                    }
                     let yrow = &yp[y * w..][..w];
                     let drow = &mut dst[y * w * 3..][..w * 3];
                     for ((px, tx), &yv) in drow.chunks_exact_mut(3).zip(&self.xt).zip(yrow) {
-                        let up = |r0: &[u8], r1: &[u8]| {
-                            let top = tx.w0 * r0[tx.i0] as u32 + tx.w1 * r0[tx.i1] as u32;
-                            let bot = tx.w0 * r1[tx.i0] as u32 + tx.w1 * r1[tx.i1] as u32;
-                            ((ty.w0 * top + ty.w1 * bot + 8) >> 4) as u8
-                        };
-                        px.copy_from_slice(&l.rgb(yv, up(cb0, cb1), up(cr0, cr1)));
+                        let (w0, w1) = (tx.w0 as u16, tx.w1 as u16);
+                        let cb = (w0 * vcb[tx.i0] + w1 * vcb[tx.i1] + 8) >> 4;
+                        let cr = (w0 * vcr[tx.i0] + w1 * vcr[tx.i1] + 8) >> 4;
+                        px.copy_from_slice(&l.rgb(yv, cb as u8, cr as u8));
                     }
                 }
             }
