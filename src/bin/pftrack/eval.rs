@@ -30,7 +30,7 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
     } else {
         println!("truth             {}", args.truth.display());
         println!(
-            "estimate          {} ({} frames)",
+            "estimate          {} ({} rows)",
             args.est.display(),
             est.len()
         );
