@@ -1,9 +1,542 @@
-//! Scoring an estimate against ground truth: angle RMSE/MAE, centre error, precision, success AUC.
+//! Scoring an estimate against ground truth: angle RMSE/MAE, centre error, precision, success
+//! AUC.
+//!
+//! Truth is either a pose CSV (exact angles: synthetic sequences) or an OTB box file (boxes
+//! only: real footage, frames indexed from 0 in file order). The estimate is a pose CSV.
+//!
+//! Measures, per truth frame `f` with an estimate:
+//! - angle errors `wrap_180(est − truth)` in degrees per axis (only when the truth has poses),
+//!   summarised as RMSE and MAE over the evaluated frames;
+//! - centre error: distance between the estimated centre `(cx, cy)` and the truth centre
+//!   (pose centre, or box centre), mean over the evaluated frames;
+//! - IoU between the estimate's box `state.ellipse(0).to_box() = (cx − a, cy − b, 2a, 2b)` and
+//!   the truth box (the same construction for a pose truth).
+//!
+//! Over all truth frames (OTB protocol), where a frame with no estimate is a failure (centre
+//! error infinite, IoU 0), not skipped:
+//! - precision: share of frames with centre error `≤ 20` px;
+//! - success rate at threshold `t`: share of frames with IoU `> t`, for the 21 thresholds
+//!   `t = 0, 0.05, …, 1`; the AUC is the mean of the 21 rates. As in OTB (and GOT-10k,
+//!   pytracking), IoU `> 1` never holds, so a perfect estimate scores `20/21 ≈ 0.952`, the
+//!   protocol's maximum, and published AUCs are comparable with ours.
+//!
+//! The averages (RMSE, MAE, mean centre error, mean IoU over evaluated frames) cover the frames
+//! present; [`Report::missing`] says how many truth frames had no estimate. Estimate frames
+//! with no truth frame are ignored and counted ([`Report::ignored`]). The tracker's `lost`
+//! flag does not change the scores: a lost frame is scored by its estimate like any other,
+//! and the number of lost frames is reported.
+
+use std::collections::BTreeMap;
+use std::fmt::Write as _;
+use std::path::Path;
+
+use serde::Serialize;
+
+use crate::geometry::{BoxRect, deg, wrap_180};
+use crate::io::boxes::parse_otb_boxes;
+use crate::io::pose_csv::parse_pose_csv;
+use crate::io::{FormatError, PoseRecord};
+
+/// Centre-error threshold of the precision score (pixels).
+pub const PRECISION_THRESHOLD_PX: f64 = 20.0;
+
+/// Number of IoU thresholds of the success plot: `0, 0.05, …, 1`.
+pub const SUCCESS_STEPS: usize = 21;
 
 /// Errors of this module.
 #[derive(Debug, thiserror::Error)]
 pub enum EvalError {
-    /// Placeholder until the module lands.
-    #[error("not implemented yet")]
-    Unimplemented,
+    /// The truth file could not be read. (The cause is part of the message, not a separate
+    /// `source()`, so a printed error chain says it once.)
+    #[error("{path}: {cause}")]
+    Io {
+        /// The file.
+        path: String,
+        /// The cause.
+        cause: std::io::Error,
+    },
+    /// A malformed truth or estimate file.
+    #[error(transparent)]
+    Format(#[from] FormatError),
+    /// The truth has no frames.
+    #[error("the truth has no frames")]
+    EmptyTruth,
+    /// A frame listed twice.
+    #[error("the {what} lists frame {frame} twice")]
+    DuplicateFrame {
+        /// `truth` or `estimate`.
+        what: &'static str,
+        /// The frame.
+        frame: usize,
+    },
+    /// Truth and estimate share no frame.
+    #[error(
+        "no frames in common: the truth has frames {}, the estimate {}",
+        span(*truth), span(*estimate)
+    )]
+    NoCommonFrames {
+        /// First and last truth frame.
+        truth: Option<(usize, usize)>,
+        /// First and last estimate frame (`None`: no records).
+        estimate: Option<(usize, usize)>,
+    },
+}
+
+fn span(s: Option<(usize, usize)>) -> String {
+    match s {
+        Some((a, b)) => format!("{a}..={b}"),
+        None => "(none)".into(),
+    }
+}
+
+/// Ground truth of a sequence.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Truth {
+    /// Full poses (a pose CSV): angles are scored.
+    Poses(Vec<PoseRecord>),
+    /// Boxes (an OTB file), frame `i` is the `i`-th box: only position and overlap are scored.
+    Boxes(Vec<BoxRect>),
+}
+
+/// What the truth holds.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum TruthKind {
+    /// A pose CSV.
+    Poses,
+    /// An OTB box file.
+    Boxes,
+}
+
+impl Truth {
+    /// Number of truth frames.
+    pub fn len(&self) -> usize {
+        match self {
+            Truth::Poses(p) => p.len(),
+            Truth::Boxes(b) => b.len(),
+        }
+    }
+
+    /// Whether there are no truth frames.
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// What the truth holds.
+    pub fn kind(&self) -> TruthKind {
+        match self {
+            Truth::Poses(_) => TruthKind::Poses,
+            Truth::Boxes(_) => TruthKind::Boxes,
+        }
+    }
+
+    /// Every truth frame.
+    fn frames(&self) -> Vec<TruthFrame> {
+        match self {
+            Truth::Poses(p) => p
+                .iter()
+                .map(|r| {
+                    let s = &r.state;
+                    TruthFrame {
+                        frame: r.frame,
+                        bbox: pose_box(r),
+                        centre: (s.cx, s.cy),
+                        angles: Some([s.rx, s.ry, s.rz]),
+                    }
+                })
+                .collect(),
+            Truth::Boxes(b) => b
+                .iter()
+                .enumerate()
+                .map(|(frame, bbox)| TruthFrame {
+                    frame,
+                    bbox: *bbox,
+                    centre: bbox.centre(),
+                    angles: None,
+                })
+                .collect(),
+        }
+    }
+}
+
+/// One truth frame, whatever the file held.
+struct TruthFrame {
+    frame: usize,
+    bbox: BoxRect,
+    centre: (f64, f64),
+    /// Radians, when the truth has poses.
+    angles: Option<[f64; 3]>,
+}
+
+/// The box a pose record is scored by: `state.ellipse(0).to_box()`.
+pub fn pose_box(r: &PoseRecord) -> BoxRect {
+    r.state.ellipse(0.0).to_box()
+}
+
+/// Reads ground truth: a pose CSV when the first non-blank line starts with `frame`, otherwise
+/// an OTB box file (see [`crate::io::boxes`]).
+pub fn load_truth(path: &Path) -> Result<Truth, EvalError> {
+    let text = std::fs::read_to_string(path).map_err(|cause| EvalError::Io {
+        path: path.display().to_string(),
+        cause,
+    })?;
+    let first = text
+        .lines()
+        .map(|l| l.trim_start_matches('\u{feff}').trim())
+        .find(|l| !l.is_empty())
+        .unwrap_or("");
+    if first.to_ascii_lowercase().starts_with("frame") {
+        Ok(Truth::Poses(parse_pose_csv(&text, path)?))
+    } else {
+        Ok(Truth::Boxes(parse_otb_boxes(&text, path)?))
+    }
+}
+
+/// Per-axis values in degrees.
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize)]
+pub struct Axes {
+    /// Tilt.
+    pub rx: f64,
+    /// Pan.
+    pub ry: f64,
+    /// Roll.
+    pub rz: f64,
+}
+
+impl Axes {
+    fn from_array(v: [f64; 3]) -> Self {
+        Self {
+            rx: v[0],
+            ry: v[1],
+            rz: v[2],
+        }
+    }
+}
+
+/// The scores of an estimate (see the module docs for the definitions).
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Report {
+    /// What the truth holds (`poses` or `boxes`).
+    pub truth_kind: TruthKind,
+    /// Frames in the truth.
+    pub truth_frames: usize,
+    /// Truth frames with an estimate.
+    pub evaluated: usize,
+    /// Truth frames with no estimate: failures in precision and success.
+    pub missing: usize,
+    /// The missing frames.
+    pub missing_frames: Vec<usize>,
+    /// Estimate frames with no truth frame (not scored).
+    pub ignored: usize,
+    /// Angle RMSE per axis (degrees, over evaluated frames); `None` for box truth.
+    pub angle_rmse_deg: Option<Axes>,
+    /// Angle MAE per axis (degrees, over evaluated frames); `None` for box truth.
+    pub angle_mae_deg: Option<Axes>,
+    /// Mean centre error over evaluated frames (pixels).
+    pub mean_centre_error_px: f64,
+    /// Share of truth frames with centre error `≤ 20` px (missing frames fail).
+    pub precision_20px: f64,
+    /// Success rates at IoU thresholds `0, 0.05, …, 1` (missing frames fail).
+    pub success_rates: Vec<f64>,
+    /// Mean of [`Report::success_rates`].
+    pub success_auc: f64,
+    /// Mean IoU over evaluated frames.
+    pub mean_iou: f64,
+    /// Evaluated frames the estimate flags as lost, when it has a `lost` column.
+    pub lost: Option<usize>,
+    /// Mean `score` over evaluated frames, when the estimate has a `score` column.
+    pub mean_score: Option<f64>,
+}
+
+/// The 21 IoU thresholds of the success plot.
+pub fn success_thresholds() -> [f64; SUCCESS_STEPS] {
+    std::array::from_fn(|k| k as f64 / (SUCCESS_STEPS - 1) as f64)
+}
+
+/// Success rates over `n` frames of which `ious` are the evaluated ones (the other
+/// `n − ious.len()` frames fail every threshold): share with IoU `> t` per threshold.
+pub fn success_rates(ious: &[f64], n: usize) -> Vec<f64> {
+    success_thresholds()
+        .iter()
+        .map(|&t| ious.iter().filter(|&&v| v > t).count() as f64 / n as f64)
+        .collect()
+}
+
+/// Angle error `wrap_180(est − truth)` in degrees, from angles in radians.
+pub fn angle_error_deg(est: f64, truth: f64) -> f64 {
+    wrap_180(deg(est) - deg(truth))
+}
+
+/// `(first, last)` of a sorted list of frames.
+fn first_last(frames: impl Iterator<Item = usize>) -> Option<(usize, usize)> {
+    let mut it = frames;
+    let first = it.next()?;
+    Some((first, it.last().unwrap_or(first)))
+}
+
+/// Scores `est` against `truth`.
+pub fn evaluate(truth: &Truth, est: &[PoseRecord]) -> Result<Report, EvalError> {
+    let tf = truth.frames();
+    if tf.is_empty() {
+        return Err(EvalError::EmptyTruth);
+    }
+    let mut seen = std::collections::BTreeSet::new();
+    for t in &tf {
+        if !seen.insert(t.frame) {
+            return Err(EvalError::DuplicateFrame {
+                what: "truth",
+                frame: t.frame,
+            });
+        }
+    }
+    let mut by_frame: BTreeMap<usize, &PoseRecord> = BTreeMap::new();
+    for r in est {
+        if by_frame.insert(r.frame, r).is_some() {
+            return Err(EvalError::DuplicateFrame {
+                what: "estimate",
+                frame: r.frame,
+            });
+        }
+    }
+    let n = tf.len();
+    let mut missing_frames = Vec::new();
+    let mut centre_errs = Vec::with_capacity(n);
+    let mut ious = Vec::with_capacity(n);
+    let mut sq = [0.0f64; 3];
+    let mut abs = [0.0f64; 3];
+    let (mut lost, mut any_lost_col) = (0usize, false);
+    let (mut score_sum, mut score_n) = (0.0f64, 0usize);
+    for t in &tf {
+        let Some(r) = by_frame.get(&t.frame) else {
+            missing_frames.push(t.frame);
+            continue;
+        };
+        let s = &r.state;
+        let (tcx, tcy) = t.centre;
+        centre_errs.push((s.cx - tcx).hypot(s.cy - tcy));
+        // Clamped: rounding can put the IoU of identical boxes a hair above 1.
+        ious.push(pose_box(r).iou(&t.bbox).clamp(0.0, 1.0));
+        if let Some(t) = t.angles {
+            for (k, e) in [s.rx, s.ry, s.rz].into_iter().enumerate() {
+                let d = angle_error_deg(e, t[k]);
+                sq[k] += d * d;
+                abs[k] += d.abs();
+            }
+        }
+        if let Some(l) = r.lost {
+            any_lost_col = true;
+            lost += usize::from(l);
+        }
+        if let Some(sc) = r.score {
+            score_sum += sc;
+            score_n += 1;
+        }
+    }
+    let evaluated = centre_errs.len();
+    if evaluated == 0 {
+        return Err(EvalError::NoCommonFrames {
+            truth: first_last(seen.iter().copied()),
+            estimate: first_last(by_frame.keys().copied()),
+        });
+    }
+    let ignored = by_frame.keys().filter(|f| !seen.contains(f)).count();
+    let m = evaluated as f64;
+    let has_angles = matches!(truth, Truth::Poses(_));
+    let rates = success_rates(&ious, n);
+    Ok(Report {
+        truth_kind: truth.kind(),
+        truth_frames: n,
+        evaluated,
+        missing: missing_frames.len(),
+        missing_frames,
+        ignored,
+        angle_rmse_deg: has_angles.then(|| Axes::from_array(sq.map(|v| (v / m).sqrt()))),
+        angle_mae_deg: has_angles.then(|| Axes::from_array(abs.map(|v| v / m))),
+        mean_centre_error_px: centre_errs.iter().sum::<f64>() / m,
+        precision_20px: centre_errs
+            .iter()
+            .filter(|&&e| e <= PRECISION_THRESHOLD_PX)
+            .count() as f64
+            / n as f64,
+        success_auc: rates.iter().sum::<f64>() / rates.len() as f64,
+        success_rates: rates,
+        mean_iou: ious.iter().sum::<f64>() / m,
+        lost: any_lost_col.then_some(lost),
+        mean_score: (score_n > 0).then(|| score_sum / score_n as f64),
+    })
+}
+
+impl Report {
+    /// A small aligned table for people.
+    pub fn to_table(&self) -> String {
+        let mut s = String::new();
+        let kind = match self.truth_kind {
+            TruthKind::Poses => "poses",
+            TruthKind::Boxes => "boxes",
+        };
+        let row = |s: &mut String, k: &str, v: String| {
+            let _ = writeln!(s, "{k:<18}{v}");
+        };
+        row(
+            &mut s,
+            "truth frames",
+            format!("{} ({kind})", self.truth_frames),
+        );
+        row(&mut s, "evaluated", self.evaluated.to_string());
+        let missing = if self.missing == 0 {
+            "0".to_string()
+        } else {
+            let shown: Vec<String> = self
+                .missing_frames
+                .iter()
+                .take(8)
+                .map(|f| f.to_string())
+                .collect();
+            let more = if self.missing > 8 { ", ..." } else { "" };
+            format!(
+                "{}  <-- counted as failures (frames {}{more})",
+                self.missing,
+                shown.join(", ")
+            )
+        };
+        row(&mut s, "MISSING", missing);
+        if self.ignored > 0 {
+            row(
+                &mut s,
+                "ignored",
+                format!("{} estimate frames with no truth", self.ignored),
+            );
+        }
+        row(
+            &mut s,
+            "centre error",
+            format!("{:.3} px (mean)", self.mean_centre_error_px),
+        );
+        row(
+            &mut s,
+            "precision@20px",
+            format!("{:.4}", self.precision_20px),
+        );
+        row(
+            &mut s,
+            "success AUC",
+            format!("{:.4}  (OTB: IoU > t, 21 t in [0, 1])", self.success_auc),
+        );
+        row(&mut s, "mean IoU", format!("{:.4}", self.mean_iou));
+        if let Some(l) = self.lost {
+            row(&mut s, "lost frames", l.to_string());
+        }
+        if let Some(sc) = self.mean_score {
+            row(&mut s, "mean score", format!("{sc:.4}"));
+        }
+        if let (Some(r), Some(m)) = (self.angle_rmse_deg, self.angle_mae_deg) {
+            let _ = writeln!(s, "\n{:<6}{:>12}{:>12}", "axis", "RMSE (deg)", "MAE (deg)");
+            for (name, a, b) in [("rx", r.rx, m.rx), ("ry", r.ry, m.ry), ("rz", r.rz, m.rz)] {
+                let _ = writeln!(s, "{name:<6}{a:>12.3}{b:>12.3}");
+            }
+        }
+        s
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geometry::{PoseState, rad};
+
+    fn rec(frame: usize, cx: f64, rx_deg: f64) -> PoseRecord {
+        PoseRecord {
+            frame,
+            state: PoseState {
+                cx,
+                cy: 40.0,
+                a: 10.0,
+                b: 15.0,
+                rx: rad(rx_deg),
+                ry: rad(-20.0),
+                rz: rad(5.0),
+            },
+            score: None,
+            lost: None,
+        }
+    }
+
+    #[test]
+    fn thresholds_and_rates() {
+        let t = success_thresholds();
+        assert_eq!(t[0], 0.0);
+        assert_eq!(t[20], 1.0);
+        assert!((t[1] - 0.05).abs() < 1e-15);
+        // IoU exactly 0 fails t = 0; IoU 1 fails t = 1; one missing frame (n = 3).
+        let r = success_rates(&[0.0, 1.0], 3);
+        assert_eq!(r[0], 1.0 / 3.0);
+        assert_eq!(r[19], 1.0 / 3.0);
+        assert_eq!(r[20], 0.0);
+    }
+
+    #[test]
+    fn angle_errors_wrap() {
+        assert!((angle_error_deg(rad(-179.0), rad(179.0)) - 2.0).abs() < 1e-9);
+        assert!((angle_error_deg(rad(10.0), rad(350.0)) - 20.0).abs() < 1e-9);
+        assert_eq!(angle_error_deg(rad(33.0), rad(33.0)), 0.0);
+    }
+
+    #[test]
+    fn wrapped_angles_in_a_report() {
+        let truth = Truth::Poses(vec![rec(0, 50.0, 179.0), rec(1, 50.0, -90.0)]);
+        let est = vec![rec(0, 50.0, -179.0), rec(1, 50.0, -94.0)];
+        let r = evaluate(&truth, &est).unwrap();
+        let rmse = r.angle_rmse_deg.unwrap();
+        assert!((rmse.rx - 10f64.sqrt()).abs() < 1e-9, "{}", rmse.rx);
+        assert!((r.angle_mae_deg.unwrap().rx - 3.0).abs() < 1e-9);
+        assert_eq!(rmse.ry, 0.0);
+    }
+
+    #[test]
+    fn errors() {
+        let truth = Truth::Poses(vec![rec(0, 1.0, 0.0), rec(1, 1.0, 0.0)]);
+        let e = evaluate(&truth, &[rec(5, 1.0, 0.0), rec(9, 1.0, 0.0)]).unwrap_err();
+        assert!(matches!(e, EvalError::NoCommonFrames { .. }));
+        assert_eq!(
+            e.to_string(),
+            "no frames in common: the truth has frames 0..=1, the estimate 5..=9"
+        );
+        let e = evaluate(&truth, &[]).unwrap_err();
+        assert!(e.to_string().contains("(none)"), "{e}");
+        assert!(matches!(
+            evaluate(&Truth::Boxes(vec![]), &[rec(0, 1.0, 0.0)]),
+            Err(EvalError::EmptyTruth)
+        ));
+        let e = evaluate(&truth, &[rec(0, 1.0, 0.0), rec(0, 1.0, 0.0)]).unwrap_err();
+        assert!(matches!(
+            e,
+            EvalError::DuplicateFrame {
+                what: "estimate",
+                frame: 0
+            }
+        ));
+        let dup = Truth::Poses(vec![rec(3, 1.0, 0.0), rec(3, 1.0, 0.0)]);
+        assert!(matches!(
+            evaluate(&dup, &[rec(3, 1.0, 0.0)]),
+            Err(EvalError::DuplicateFrame { what: "truth", .. })
+        ));
+    }
+
+    #[test]
+    fn lost_and_score_columns() {
+        let truth = Truth::Poses(vec![rec(0, 1.0, 0.0), rec(1, 1.0, 0.0), rec(2, 1.0, 0.0)]);
+        let mut est = vec![rec(0, 1.0, 0.0), rec(1, 1.0, 0.0), rec(7, 1.0, 0.0)];
+        for (i, r) in est.iter_mut().enumerate() {
+            r.score = Some(0.25 * i as f64);
+            r.lost = Some(i == 1 || i == 2);
+        }
+        let r = evaluate(&truth, &est).unwrap();
+        // Frame 7 has no truth: ignored, and neither its score nor its lost flag counts.
+        assert_eq!(r.ignored, 1);
+        assert_eq!(r.lost, Some(1));
+        assert_eq!(r.mean_score, Some(0.125));
+        assert_eq!(r.missing_frames, vec![2]);
+        let plain = evaluate(&truth, &[rec(0, 1.0, 0.0)]).unwrap();
+        assert_eq!((plain.lost, plain.mean_score), (None, None));
+    }
 }

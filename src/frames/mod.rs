@@ -1,22 +1,401 @@
 //! Frame sources: a streaming iterator of RGB8 frames from an image directory, a `.y4m` file,
-//! or any other video through an `ffmpeg` child process. Never the whole video in memory.
+//! or any other video through an `ffmpeg` child process. Never the whole video in memory:
+//! each frame is decoded when the iterator asks for it.
+//!
+//! ```no_run
+//! use pftrack::frames::{open, SourceOptions};
+//! let opts = SourceOptions { resize: Some((128, 96)) };
+//! let src = open(std::path::Path::new("clip.mp4"), &opts)?;
+//! println!("{} ({:?})", src.describe(), src.size());
+//! for frame in src {
+//!     let frame = frame?; // an RgbImage of 128x96
+//! #   let _ = frame;
+//! }
+//! # Ok::<(), pftrack::frames::FrameError>(())
+//! ```
+//!
+//! [`open`] picks the kind: a directory is an image sequence ([`dir`]), a `.y4m` file goes
+//! through the project's own parser ([`y4m`]), anything else through ffmpeg ([`ffmpeg`]).
+//! After the first error the iterator ends. A source that ends before its first frame is an
+//! error ([`FrameError::NoFrames`]).
 
+pub mod dir;
+pub mod ffmpeg;
 pub mod gray;
+pub mod resize;
+pub mod y4m;
 
+use std::fs::File;
+use std::io::BufReader;
+use std::path::Path;
+
+pub use ffmpeg::FfmpegTools;
 pub use gray::GrayF32;
+pub use resize::resize_bilinear;
+pub use y4m::{Y4mHeader, Y4mReader};
 
 /// One video frame, 8-bit RGB.
 pub type Frame = image::RgbImage;
 
+/// The hint printed when ffmpeg is needed but absent.
+pub const FFMPEG_HINT: &str = "install ffmpeg (Debian: apt-get install ffmpeg)";
+
 /// Errors of the frame sources.
 #[derive(Debug, thiserror::Error)]
 pub enum FrameError {
-    /// The input could not be read.
-    #[error("{path}: {source}")]
+    /// The input could not be read. (The cause is part of the message, not a separate
+    /// `source()`, so a printed error chain says it once.)
+    #[error("{path}: {cause}")]
     Io {
         /// The file or directory.
         path: String,
         /// The cause.
-        source: std::io::Error,
+        cause: std::io::Error,
     },
+    /// The input does not exist.
+    #[error("{path}: no such file or directory")]
+    NotFound {
+        /// The path given.
+        path: String,
+    },
+    /// A directory with no image files in it.
+    #[error("{path}: no image files (png, jpg, jpeg, bmp, pgm, ppm) in the directory")]
+    NoImages {
+        /// The directory.
+        path: String,
+    },
+    /// An image file failed to decode.
+    #[error("{path}: cannot decode the frame: {msg}")]
+    Decode {
+        /// The image file.
+        path: String,
+        /// The decoder's message.
+        msg: String,
+    },
+    /// A frame whose size differs from the first frame's.
+    #[error(
+        "{path}: frame is {}x{}, but the sequence is {}x{} (the size of its first frame)",
+        found.0, found.1, expected.0, expected.1
+    )]
+    SizeMismatch {
+        /// The offending frame.
+        path: String,
+        /// Its size.
+        found: (u32, u32),
+        /// The size of the first frame.
+        expected: (u32, u32),
+    },
+    /// A malformed or unsupported y4m stream.
+    #[error("{path}: y4m: {msg}")]
+    Y4m {
+        /// The file.
+        path: String,
+        /// What is wrong.
+        msg: String,
+    },
+    /// The input ends inside a frame.
+    #[error("{path}: truncated: frame {frame} is incomplete ({msg})")]
+    Truncated {
+        /// The file.
+        path: String,
+        /// Index of the incomplete frame (from 0).
+        frame: usize,
+        /// What was missing.
+        msg: String,
+    },
+    /// ffmpeg (or ffprobe) is not on `PATH`.
+    #[error("`{program}` not found: {FFMPEG_HINT}")]
+    FfmpegMissing {
+        /// The program that could not be started.
+        program: String,
+    },
+    /// ffmpeg or ffprobe failed.
+    #[error("{path}: {msg}")]
+    Ffmpeg {
+        /// The input.
+        path: String,
+        /// Exit status and the last line of its stderr.
+        msg: String,
+    },
+    /// The source ended before its first frame.
+    #[error("{path}: no frames")]
+    NoFrames {
+        /// The input.
+        path: String,
+    },
+    /// A bad `WxH` size.
+    #[error("bad size '{input}': {msg}")]
+    BadSize {
+        /// The text given.
+        input: String,
+        /// What is wrong.
+        msg: String,
+    },
+}
+
+impl FrameError {
+    pub(crate) fn io(path: impl AsRef<Path>, cause: std::io::Error) -> Self {
+        Self::Io {
+            path: path.as_ref().display().to_string(),
+            cause,
+        }
+    }
+}
+
+/// How to read a source.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct SourceOptions {
+    /// Resize every frame to `(width, height)` (bilinear, [`resize_bilinear`]).
+    pub resize: Option<(u32, u32)>,
+}
+
+/// Parses a size written `WxH` (e.g. `128x96`; `X` also accepted), both positive.
+pub fn parse_size(s: &str) -> Result<(u32, u32), FrameError> {
+    let bad = |msg: &str| FrameError::BadSize {
+        input: s.to_string(),
+        msg: msg.to_string(),
+    };
+    let (w, h) = s
+        .trim()
+        .split_once(['x', 'X'])
+        .ok_or_else(|| bad("expected WIDTHxHEIGHT, e.g. 128x96"))?;
+    let num = |v: &str| {
+        v.trim()
+            .parse::<u32>()
+            .map_err(|_| bad("expected WIDTHxHEIGHT, e.g. 128x96"))
+    };
+    let (w, h) = (num(w)?, num(h)?);
+    if w == 0 || h == 0 {
+        return Err(bad("width and height must be positive"));
+    }
+    if w > 1 << 15 || h > 1 << 15 {
+        return Err(bad("larger than 32768 pixels"));
+    }
+    Ok((w, h))
+}
+
+/// The kind of source behind a [`FrameSource`].
+#[derive(Debug)]
+enum Inner {
+    Dir(dir::DirSource),
+    Y4m(Box<Y4mReader<BufReader<File>>>, Option<usize>),
+    Ffmpeg(Box<ffmpeg::FfmpegSource>),
+}
+
+/// A stream of frames (see the module docs). Iterate it for `Result<Frame, FrameError>`.
+#[derive(Debug)]
+pub struct FrameSource {
+    inner: Inner,
+    path: String,
+    native: (u32, u32),
+    out: (u32, u32),
+    produced: usize,
+    done: bool,
+}
+
+/// Opens a frame source: a directory → image sequence; a `.y4m` file (extension
+/// case-insensitive) → the y4m parser; anything else → ffmpeg.
+pub fn open(path: &Path, opts: &SourceOptions) -> Result<FrameSource, FrameError> {
+    if path.is_dir() {
+        FrameSource::from_dir(path, opts)
+    } else if path
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("y4m"))
+    {
+        FrameSource::from_y4m(path, opts)
+    } else {
+        FrameSource::from_video(path, opts, &FfmpegTools::default())
+    }
+}
+
+impl FrameSource {
+    fn new(inner: Inner, path: &Path, native: (u32, u32), opts: &SourceOptions) -> Self {
+        Self {
+            inner,
+            path: path.display().to_string(),
+            native,
+            out: opts.resize.unwrap_or(native),
+            produced: 0,
+            done: false,
+        }
+    }
+
+    /// An image directory (see [`dir`]).
+    pub fn from_dir(path: &Path, opts: &SourceOptions) -> Result<Self, FrameError> {
+        check_resize(opts)?;
+        let d = dir::DirSource::open(path)?;
+        let size = d.size();
+        Ok(Self::new(Inner::Dir(d), path, size, opts))
+    }
+
+    /// A y4m file (see [`y4m`]).
+    pub fn from_y4m(path: &Path, opts: &SourceOptions) -> Result<Self, FrameError> {
+        check_resize(opts)?;
+        let file = File::open(path).map_err(|e| {
+            if e.kind() == std::io::ErrorKind::NotFound {
+                FrameError::NotFound {
+                    path: path.display().to_string(),
+                }
+            } else {
+                FrameError::io(path, e)
+            }
+        })?;
+        let file_len = file.metadata().map(|m| m.len()).ok();
+        let r = Y4mReader::new(
+            BufReader::with_capacity(1 << 16, file),
+            &path.display().to_string(),
+        )?;
+        let h = r.header();
+        let size = (h.width, h.height);
+        // A hint: assumes bare `FRAME\n` headers.
+        let hint = file_len.map(|n| {
+            (n as usize).saturating_sub(r.header_len()) / (h.frame_bytes() + "FRAME\n".len())
+        });
+        Ok(Self::new(Inner::Y4m(Box::new(r), hint), path, size, opts))
+    }
+
+    /// Any video ffmpeg reads, with the given programs (see [`ffmpeg`]).
+    pub fn from_video(
+        path: &Path,
+        opts: &SourceOptions,
+        tools: &FfmpegTools,
+    ) -> Result<Self, FrameError> {
+        check_resize(opts)?;
+        let f = ffmpeg::FfmpegSource::open(path, tools)?;
+        let size = f.size();
+        Ok(Self::new(Inner::Ffmpeg(Box::new(f)), path, size, opts))
+    }
+
+    /// Output frame size `(width, height)`, after any resize.
+    pub fn size(&self) -> (u32, u32) {
+        self.out
+    }
+
+    /// Size of the frames as stored, before any resize.
+    pub fn native_size(&self) -> (u32, u32) {
+        self.native
+    }
+
+    /// The number of frames, when known in advance (image count; y4m estimate from the file
+    /// size; the container's count for ffmpeg). Only a hint: the stream decides.
+    pub fn len_hint(&self) -> Option<usize> {
+        match &self.inner {
+            Inner::Dir(d) => Some(d.len()),
+            Inner::Y4m(_, hint) => *hint,
+            Inner::Ffmpeg(f) => f.len_hint(),
+        }
+    }
+
+    /// Frames delivered so far.
+    pub fn frames_read(&self) -> usize {
+        self.produced
+    }
+
+    /// One line saying what this source is.
+    pub fn describe(&self) -> String {
+        let (w, h) = self.native;
+        let n = self.len_hint().map_or_else(
+            || "unknown frame count".to_string(),
+            |n| format!("{n} frames"),
+        );
+        let mut s = match &self.inner {
+            Inner::Dir(_) => format!("image directory {} ({n}, {w}x{h})", self.path),
+            Inner::Y4m(r, _) => {
+                let hd = r.header();
+                let fps = hd
+                    .frame_rate
+                    .map_or_else(String::new, |(a, b)| format!(", {a}:{b} fps"));
+                format!(
+                    "y4m {} ({n}, {w}x{h}, C{}{fps})",
+                    self.path,
+                    hd.chroma.tag()
+                )
+            }
+            Inner::Ffmpeg(_) => format!("video {} via ffmpeg ({n}, {w}x{h})", self.path),
+        };
+        if self.out != self.native {
+            s.push_str(&format!(", resized to {}x{}", self.out.0, self.out.1));
+        }
+        s
+    }
+
+    fn next_native(&mut self) -> Result<Option<Frame>, FrameError> {
+        match &mut self.inner {
+            Inner::Dir(d) => d.next_frame(),
+            Inner::Y4m(r, _) => r.read_frame(),
+            Inner::Ffmpeg(f) => f.next_frame(),
+        }
+    }
+}
+
+fn check_resize(opts: &SourceOptions) -> Result<(), FrameError> {
+    match opts.resize {
+        Some((w, h)) if w == 0 || h == 0 => Err(FrameError::BadSize {
+            input: format!("{w}x{h}"),
+            msg: "width and height must be positive".into(),
+        }),
+        _ => Ok(()),
+    }
+}
+
+impl Iterator for FrameSource {
+    type Item = Result<Frame, FrameError>;
+
+    fn next(&mut self) -> Option<Self::Item> {
+        if self.done {
+            return None;
+        }
+        match self.next_native() {
+            Ok(Some(f)) => {
+                self.produced += 1;
+                let f = if self.out == self.native {
+                    f
+                } else {
+                    resize_bilinear(&f, self.out.0, self.out.1)
+                };
+                Some(Ok(f))
+            }
+            Ok(None) => {
+                self.done = true;
+                (self.produced == 0).then(|| {
+                    Err(FrameError::NoFrames {
+                        path: self.path.clone(),
+                    })
+                })
+            }
+            Err(e) => {
+                self.done = true;
+                Some(Err(e))
+            }
+        }
+    }
+
+    fn size_hint(&self) -> (usize, Option<usize>) {
+        (0, None)
+    }
+}
+
+impl std::iter::FusedIterator for FrameSource {}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn sources_can_move_to_another_thread() {
+        fn assert_send<T: Send>() {}
+        assert_send::<FrameSource>();
+        assert_send::<FrameError>();
+    }
+
+    #[test]
+    fn sizes() {
+        assert_eq!(parse_size("128x96").unwrap(), (128, 96));
+        assert_eq!(parse_size(" 160X120 ").unwrap(), (160, 120));
+        for bad in [
+            "", "128", "x96", "128x", "0x96", "128x0", "-1x5", "1.5x2", "axb", "9x9x9",
+        ] {
+            assert!(parse_size(bad).is_err(), "accepted {bad}");
+        }
+    }
 }

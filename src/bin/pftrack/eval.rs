@@ -1,12 +1,40 @@
 //! `pftrack eval`: scores an estimate against ground truth.
 
+use std::path::PathBuf;
+
+use anyhow::Context;
 use clap::Args;
+use pftrack::eval::{evaluate, load_truth};
+use pftrack::io::read_pose_csv;
 
 /// Arguments of `pftrack eval`.
 #[derive(Debug, Args)]
-pub struct EvalArgs {}
+pub struct EvalArgs {
+    /// Ground truth: a pose CSV (`frame,cx,cy,a,b,rx,ry,rz`) or an OTB box file (`x,y,w,h`
+    /// per frame, 1-based, commas or tabs).
+    pub truth: PathBuf,
+    /// The estimate: a pose CSV (e.g. from `pftrack track`).
+    pub est: PathBuf,
+    /// Print one JSON object instead of the table.
+    #[arg(long)]
+    pub json: bool,
+}
 
 /// Runs the command.
-pub fn run(_args: EvalArgs) -> anyhow::Result<()> {
-    anyhow::bail!("`pftrack eval` is not implemented yet")
+pub fn run(args: EvalArgs) -> anyhow::Result<()> {
+    let truth = load_truth(&args.truth).context("reading the truth")?;
+    let est = read_pose_csv(&args.est).context("reading the estimate")?;
+    let report = evaluate(&truth, &est)?;
+    if args.json {
+        println!("{}", serde_json::to_string(&report)?);
+    } else {
+        println!("truth             {}", args.truth.display());
+        println!(
+            "estimate          {} ({} rows)",
+            args.est.display(),
+            est.len()
+        );
+        print!("{}", report.to_table());
+    }
+    Ok(())
 }

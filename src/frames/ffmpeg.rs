@@ -1,0 +1,278 @@
+//! Any other video through an `ffmpeg` child process: raw RGB24 frames over a pipe.
+//!
+//! The size comes first from `ffprobe` (ships with ffmpeg); then
+//! `ffmpeg -v error -nostdin -noautorotate -i file:INPUT -map 0:v:0 -f rawvideo -pix_fmt rgb24 -`
+//! streams the first video stream. `-noautorotate` keeps frames as stored in the file, so their
+//! size is the one ffprobe reports (a rotation tag would otherwise transpose the frames while
+//! keeping the byte count, which cannot be detected). The `file:` prefix stops ffmpeg from
+//! reading a name like `http:x` as a protocol.
+//!
+//! Shutdown: dropping the source kills and waits the child. When ffmpeg exits non-zero, the
+//! iterator ends with an error carrying the last line of ffmpeg's stderr (never a short video
+//! presented as complete); a partial frame at the end is an error too.
+
+use std::ffi::OsString;
+use std::io::Read;
+use std::path::{Path, PathBuf};
+use std::process::{Child, ChildStdout, Command, Stdio};
+use std::thread::JoinHandle;
+
+use super::{Frame, FrameError};
+
+/// The most stderr text kept from a child (the tail), bytes.
+const STDERR_KEEP: usize = 16 * 1024;
+
+/// The programs used for video files; the default finds `ffmpeg` and `ffprobe` on `PATH`.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct FfmpegTools {
+    /// The `ffmpeg` program.
+    pub ffmpeg: PathBuf,
+    /// The `ffprobe` program.
+    pub ffprobe: PathBuf,
+}
+
+impl Default for FfmpegTools {
+    fn default() -> Self {
+        Self {
+            ffmpeg: PathBuf::from("ffmpeg"),
+            ffprobe: PathBuf::from("ffprobe"),
+        }
+    }
+}
+
+impl FfmpegTools {
+    /// Whether both programs can be started (runs `ffmpeg -version` and `ffprobe -version`).
+    pub fn available(&self) -> bool {
+        [&self.ffmpeg, &self.ffprobe].iter().all(|p| {
+            Command::new(p)
+                .arg("-version")
+                .stdin(Stdio::null())
+                .stdout(Stdio::null())
+                .stderr(Stdio::null())
+                .status()
+                .is_ok_and(|s| s.success())
+        })
+    }
+}
+
+/// The input argument for ffmpeg/ffprobe: `file:` then the path.
+fn file_arg(path: &Path) -> OsString {
+    let mut s = OsString::from("file:");
+    s.push(path.as_os_str());
+    s
+}
+
+/// Maps a failure to start a program to the right error.
+fn spawn_error(program: &Path, e: std::io::Error) -> FrameError {
+    if e.kind() == std::io::ErrorKind::NotFound {
+        FrameError::FfmpegMissing {
+            program: program.display().to_string(),
+        }
+    } else {
+        FrameError::io(program, e)
+    }
+}
+
+/// The last non-empty line of a program's stderr, or a fallback.
+fn last_line(text: &str) -> String {
+    text.lines()
+        .rev()
+        .map(str::trim)
+        .find(|l| !l.is_empty())
+        .unwrap_or("(no message)")
+        .to_string()
+}
+
+/// Width, height and (when the container says) frame count of the first video stream.
+pub fn probe(tools: &FfmpegTools, path: &Path) -> Result<(u32, u32, Option<usize>), FrameError> {
+    let out = Command::new(&tools.ffprobe)
+        .args(["-v", "error", "-select_streams", "v:0", "-show_entries"])
+        .args([
+            "stream=width,height,nb_frames",
+            "-of",
+            "default=noprint_wrappers=1",
+        ])
+        .arg(file_arg(path))
+        .stdin(Stdio::null())
+        .output()
+        .map_err(|e| spawn_error(&tools.ffprobe, e))?;
+    let err = |msg: String| FrameError::Ffmpeg {
+        path: path.display().to_string(),
+        msg,
+    };
+    if !out.status.success() {
+        return Err(err(format!(
+            "ffprobe failed ({}): {}",
+            out.status,
+            last_line(&String::from_utf8_lossy(&out.stderr))
+        )));
+    }
+    let text = String::from_utf8_lossy(&out.stdout);
+    let (mut w, mut h, mut n) = (None, None, None);
+    for line in text.lines() {
+        match line.trim().split_once('=') {
+            Some(("width", v)) => w = v.parse::<u32>().ok(),
+            Some(("height", v)) => h = v.parse::<u32>().ok(),
+            Some(("nb_frames", v)) => n = v.parse::<usize>().ok(),
+            _ => {}
+        }
+    }
+    match (w, h) {
+        (Some(w), Some(h)) if w > 0 && h > 0 => Ok((w, h, n)),
+        _ if text.trim().is_empty() => Err(err("no video stream".into())),
+        _ => Err(err(format!(
+            "ffprobe reports no frame size ({})",
+            text.trim().replace('\n', ", ")
+        ))),
+    }
+}
+
+/// A running ffmpeg decode.
+#[derive(Debug)]
+pub(crate) struct FfmpegSource {
+    path: PathBuf,
+    child: Child,
+    stdout: ChildStdout,
+    stderr: Option<JoinHandle<String>>,
+    size: (u32, u32),
+    frames_hint: Option<usize>,
+    frames: usize,
+    /// The child has been waited for.
+    reaped: bool,
+}
+
+impl FfmpegSource {
+    /// Probes the size, then starts the decode.
+    pub(crate) fn open(path: &Path, tools: &FfmpegTools) -> Result<Self, FrameError> {
+        if !path.is_file() {
+            return Err(FrameError::NotFound {
+                path: path.display().to_string(),
+            });
+        }
+        let (w, h, n) = probe(tools, path)?;
+        let mut child = Command::new(&tools.ffmpeg)
+            .args(["-v", "error", "-nostdin", "-noautorotate", "-i"])
+            .arg(file_arg(path))
+            .args(["-map", "0:v:0", "-f", "rawvideo", "-pix_fmt", "rgb24", "-"])
+            .stdin(Stdio::null())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .map_err(|e| spawn_error(&tools.ffmpeg, e))?;
+        let (Some(stdout), Some(mut stderr)) = (child.stdout.take(), child.stderr.take()) else {
+            let _ = child.kill();
+            let _ = child.wait();
+            return Err(FrameError::io(
+                &tools.ffmpeg,
+                std::io::Error::other("no pipes to the child process"),
+            ));
+        };
+        // Drain stderr on a thread (a chatty decoder would otherwise block on a full pipe),
+        // keeping only its tail.
+        let stderr = std::thread::spawn(move || {
+            let mut kept: Vec<u8> = Vec::new();
+            let mut buf = [0u8; 4096];
+            while let Ok(n) = stderr.read(&mut buf) {
+                if n == 0 {
+                    break;
+                }
+                kept.extend_from_slice(&buf[..n]);
+                if kept.len() > 2 * STDERR_KEEP {
+                    kept.drain(..kept.len() - STDERR_KEEP);
+                }
+            }
+            String::from_utf8_lossy(&kept).into_owned()
+        });
+        Ok(Self {
+            path: path.to_path_buf(),
+            child,
+            stdout,
+            stderr: Some(stderr),
+            size: (w, h),
+            frames_hint: n,
+            frames: 0,
+            reaped: false,
+        })
+    }
+
+    /// Frame size.
+    pub(crate) fn size(&self) -> (u32, u32) {
+        self.size
+    }
+
+    /// The container's frame count, when it states one.
+    pub(crate) fn len_hint(&self) -> Option<usize> {
+        self.frames_hint
+    }
+
+    /// Waits for the child and collects its stderr tail.
+    fn finish(&mut self) -> Result<(std::process::ExitStatus, String), FrameError> {
+        let status = self
+            .child
+            .wait()
+            .map_err(|e| FrameError::io(&self.path, e))?;
+        self.reaped = true;
+        let text = self
+            .stderr
+            .take()
+            .and_then(|t| t.join().ok())
+            .unwrap_or_default();
+        Ok((status, text))
+    }
+
+    /// Reads the next frame; `Ok(None)` when ffmpeg ends cleanly.
+    pub(crate) fn next_frame(&mut self) -> Result<Option<Frame>, FrameError> {
+        if self.reaped {
+            return Ok(None);
+        }
+        let (w, h) = self.size;
+        let mut buf = vec![0u8; w as usize * h as usize * 3];
+        let mut got = 0;
+        while got < buf.len() {
+            match self.stdout.read(&mut buf[got..]) {
+                Ok(0) => break,
+                Ok(k) => got += k,
+                Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
+                Err(e) => return Err(FrameError::io(&self.path, e)),
+            }
+        }
+        if got == buf.len() {
+            self.frames += 1;
+            return Frame::from_raw(w, h, buf).map(Some).ok_or_else(|| {
+                FrameError::io(&self.path, std::io::Error::other("frame buffer size"))
+            });
+        }
+        let (status, text) = self.finish()?;
+        let path = self.path.display().to_string();
+        if !status.success() {
+            return Err(FrameError::Ffmpeg {
+                path,
+                msg: format!(
+                    "ffmpeg failed ({status}) after {} frames: {}",
+                    self.frames,
+                    last_line(&text)
+                ),
+            });
+        }
+        if got > 0 {
+            return Err(FrameError::Truncated {
+                path,
+                frame: self.frames,
+                msg: format!("ffmpeg sent {got} of {} bytes", buf.len()),
+            });
+        }
+        Ok(None)
+    }
+}
+
+impl Drop for FfmpegSource {
+    fn drop(&mut self) {
+        if !self.reaped {
+            let _ = self.child.kill();
+            let _ = self.child.wait();
+        }
+        // The stderr thread ends when the pipe closes; it is detached rather than joined, so a
+        // grandchild holding the pipe open cannot hang the drop.
+        drop(self.stderr.take());
+    }
+}

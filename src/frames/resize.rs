@@ -1,0 +1,148 @@
+//! Bilinear resizing of RGB8 frames, pixel-centre aligned.
+//!
+//! Output pixel `x` samples the source at `sx = (x + 0.5) · sw / dw − 0.5` (and likewise in y):
+//! the centres of the first and last pixels of both images span the same extent of the scene,
+//! so the image does not shift by half a pixel. Positions outside `[0, sw − 1]` are clamped
+//! (edge replication). No anti-aliasing prefilter: a strong downscale aliases as bilinear does.
+
+use image::RgbImage;
+
+/// One output coordinate's two source taps and the weight of the second, `[0, 1]`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct Tap {
+    i0: usize,
+    i1: usize,
+    w1: f32,
+}
+
+/// The taps of every output coordinate for a `src → dst` resize along one axis.
+fn taps(src: u32, dst: u32) -> Vec<Tap> {
+    let scale = src as f64 / dst as f64;
+    let last = (src - 1) as f64;
+    (0..dst)
+        .map(|x| {
+            let s = ((x as f64 + 0.5) * scale - 0.5).clamp(0.0, last);
+            let i0 = s.floor();
+            let w1 = (s - i0) as f32;
+            let i0 = i0 as usize;
+            let i1 = (i0 + 1).min(src as usize - 1);
+            Tap { i0, i1, w1 }
+        })
+        .collect()
+}
+
+/// Resizes `img` to `w × h` by bilinear interpolation, pixel-centre aligned (see the module
+/// docs). An empty source or target size gives an empty image of the target size.
+pub fn resize_bilinear(img: &RgbImage, w: u32, h: u32) -> RgbImage {
+    let (sw, sh) = img.dimensions();
+    let mut out = RgbImage::new(w, h);
+    if sw == 0 || sh == 0 || w == 0 || h == 0 {
+        return out;
+    }
+    let xt = taps(sw, w);
+    let yt = taps(sh, h);
+    let src = img.as_raw();
+    let row_len = sw as usize * 3;
+    let dst: &mut [u8] = &mut out;
+    for (y, ty) in yt.iter().enumerate() {
+        let r0 = &src[ty.i0 * row_len..(ty.i0 + 1) * row_len];
+        let r1 = &src[ty.i1 * row_len..(ty.i1 + 1) * row_len];
+        let drow = &mut dst[y * w as usize * 3..(y + 1) * w as usize * 3];
+        let wy1 = ty.w1;
+        let wy0 = 1.0 - wy1;
+        for (px, tx) in drow.chunks_exact_mut(3).zip(&xt) {
+            let wx1 = tx.w1;
+            let wx0 = 1.0 - wx1;
+            let (a, b) = (tx.i0 * 3, tx.i1 * 3);
+            for c in 0..3 {
+                let top = r0[a + c] as f32 * wx0 + r0[b + c] as f32 * wx1;
+                let bot = r1[a + c] as f32 * wx0 + r1[b + c] as f32 * wx1;
+                let v = top * wy0 + bot * wy1;
+                px[c] = (v + 0.5).clamp(0.0, 255.0) as u8;
+            }
+        }
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn identity_size_is_identity() {
+        let img = RgbImage::from_fn(17, 9, |x, y| {
+            image::Rgb([(x * 13 + y * 7) as u8, (x * y) as u8, (255 - x * 5) as u8])
+        });
+        assert_eq!(resize_bilinear(&img, 17, 9), img);
+    }
+
+    #[test]
+    fn constant_stays_constant() {
+        let img = RgbImage::from_pixel(31, 23, image::Rgb([12, 200, 77]));
+        for (w, h) in [(10, 7), (64, 48), (1, 1), (31, 50)] {
+            let r = resize_bilinear(&img, w, h);
+            assert_eq!(r.dimensions(), (w, h));
+            assert!(r.pixels().all(|p| p.0 == [12, 200, 77]));
+        }
+    }
+
+    #[test]
+    fn taps_are_centre_aligned() {
+        // Halving: output pixel x sits between source pixels 2x and 2x + 1.
+        let t = taps(8, 4);
+        assert_eq!(
+            t[1],
+            Tap {
+                i0: 2,
+                i1: 3,
+                w1: 0.5
+            }
+        );
+        // Doubling: output pixel 3 sits at source 1.25; the first clamps to 0.
+        let t = taps(4, 8);
+        assert_eq!(
+            t[3],
+            Tap {
+                i0: 1,
+                i1: 2,
+                w1: 0.25
+            }
+        );
+        assert_eq!(
+            t[0],
+            Tap {
+                i0: 0,
+                i1: 1,
+                w1: 0.0
+            }
+        );
+        assert_eq!(t[7].i0, 3);
+    }
+
+    #[test]
+    fn linear_ramp_stays_linear() {
+        // v = 3 x + 10 along x (constant along y); upscale 60 → 150 and downscale → 40.
+        let src = RgbImage::from_fn(60, 5, |x, _| {
+            let v = (3 * x + 10) as u8;
+            image::Rgb([v, v / 2, 255 - v])
+        });
+        for dw in [150u32, 40, 97] {
+            let r = resize_bilinear(&src, dw, 5);
+            let scale = 60.0 / dw as f64;
+            for x in 0..dw {
+                let sx = (x as f64 + 0.5) * scale - 0.5;
+                if !(0.0..=59.0).contains(&sx) {
+                    continue; // clamped at the border: edge replication, not the ramp
+                }
+                let want = 3.0 * sx + 10.0;
+                let got = r.get_pixel(x, 2).0;
+                assert!(
+                    (got[0] as f64 - want).abs() <= 0.5 + 1e-3,
+                    "{dw} {x}: {got:?} {want}"
+                );
+                assert!((got[2] as f64 - (255.0 - want)).abs() <= 0.5 + 1e-3);
+            }
+        }
+    }
+}

@@ -1,0 +1,351 @@
+//! `pftrack eval`: exact answers on known perturbations, box truth, and the CLI.
+
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+use pftrack::eval::{Report, Truth, evaluate, load_truth};
+use pftrack::geometry::{BoxRect, Ellipse, Euler, PoseState, rad};
+use pftrack::io::pose_csv::write_pose_csv;
+use pftrack::io::{PoseRecord, read_pose_csv};
+
+fn scratch(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("pftrack-eval-{}-{name}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+/// A 10-frame truth: moving centre, 20×30 box, rx crossing ±180°.
+fn truth_records() -> Vec<PoseRecord> {
+    (0..10)
+        .map(|k| PoseRecord {
+            frame: k,
+            state: PoseState {
+                cx: 50.0 + 3.0 * k as f64,
+                cy: 40.0 - 0.5 * k as f64,
+                a: 10.0,
+                b: 15.0,
+                rx: rad(175.0 + k as f64),
+                ry: rad(-30.0 + 2.0 * k as f64),
+                rz: rad(10.0),
+            },
+            score: None,
+            lost: None,
+        })
+        .collect()
+}
+
+const AUC_MAX: f64 = 20.0 / 21.0;
+
+fn close(a: f64, b: f64, what: &str) {
+    assert!((a - b).abs() < 1e-9, "{what}: {a} vs {b}");
+}
+
+#[test]
+fn truth_against_itself_is_exactly_perfect() {
+    let d = scratch("self");
+    let p = d.join("truth.csv");
+    write_pose_csv(&p, &truth_records(), false).unwrap();
+    let truth = load_truth(&p).unwrap();
+    assert!(matches!(truth, Truth::Poses(_)));
+    let est = read_pose_csv(&p).unwrap();
+    let r = evaluate(&truth, &est).unwrap();
+    assert_eq!(
+        (r.truth_frames, r.evaluated, r.missing, r.ignored),
+        (10, 10, 0, 0)
+    );
+    let (rmse, mae) = (r.angle_rmse_deg.unwrap(), r.angle_mae_deg.unwrap());
+    for v in [rmse.rx, rmse.ry, rmse.rz, mae.rx, mae.ry, mae.rz] {
+        assert_eq!(v, 0.0);
+    }
+    assert_eq!(r.mean_centre_error_px, 0.0);
+    assert_eq!(r.precision_20px, 1.0);
+    assert_eq!(r.mean_iou, 1.0);
+    // OTB counts IoU > t: every threshold but t = 1 succeeds, the protocol's maximum.
+    assert!(r.success_rates[..20].iter().all(|&v| v == 1.0));
+    assert_eq!(r.success_rates[20], 0.0);
+    assert_eq!(r.success_auc, AUC_MAX);
+    assert_eq!((r.lost, r.mean_score), (None, None));
+    std::fs::remove_dir_all(&d).unwrap();
+}
+
+/// +3° on rx for every frame, +2 px in cx for frames 0..5, frame 9 dropped, and an extra
+/// estimate frame 12 beyond the truth.
+fn perturbed() -> Vec<PoseRecord> {
+    let mut est: Vec<PoseRecord> = truth_records()
+        .into_iter()
+        .filter(|r| r.frame != 9)
+        .map(|mut r| {
+            r.state.rx += rad(3.0);
+            if r.frame < 5 {
+                r.state.cx += 2.0;
+            }
+            r
+        })
+        .collect();
+    let mut extra = est[0].clone();
+    extra.frame = 12;
+    est.push(extra);
+    est
+}
+
+/// The numbers of [`perturbed`], worked out by hand:
+/// - 9 of 10 frames evaluated, frame 9 missing, 1 ignored;
+/// - rx: error 3° everywhere (175° + 3° wraps past 180° for the last frames: still 3°);
+/// - centre error 2 px in 5 frames, 0 in 4: mean 10/9 px; all within 20 px, but the missing
+///   frame fails: precision 9/10;
+/// - IoU of a 20×30 box shifted 2 px: (18·30)/(2·600 − 540) = 540/660 = 9/11 ≈ 0.818;
+///   success rate 9/10 for t = 0 … 0.80 (17 thresholds), 4/10 for t = 0.85, 0.90, 0.95
+///   (only the unshifted frames), 0 at t = 1; AUC = (17·0.9 + 3·0.4)/21 = 16.5/21.
+fn check_perturbed(r: &Report) {
+    assert_eq!(
+        (r.truth_frames, r.evaluated, r.missing, r.ignored),
+        (10, 9, 1, 1)
+    );
+    assert_eq!(r.missing_frames, vec![9]);
+    let (rmse, mae) = (r.angle_rmse_deg.unwrap(), r.angle_mae_deg.unwrap());
+    close(rmse.rx, 3.0, "rmse rx");
+    close(mae.rx, 3.0, "mae rx");
+    for v in [rmse.ry, rmse.rz, mae.ry, mae.rz] {
+        close(v, 0.0, "other axes");
+    }
+    close(r.mean_centre_error_px, 10.0 / 9.0, "centre error");
+    close(r.precision_20px, 0.9, "precision");
+    for (k, &v) in r.success_rates.iter().enumerate() {
+        let want = match k {
+            0..=16 => 0.9,
+            17..=19 => 0.4,
+            _ => 0.0,
+        };
+        close(v, want, &format!("success at t = {}", k as f64 / 20.0));
+    }
+    close(r.success_auc, 16.5 / 21.0, "auc");
+    close(r.mean_iou, (5.0 * 9.0 / 11.0 + 4.0) / 9.0, "mean iou");
+}
+
+#[test]
+fn known_perturbation_gives_known_numbers() {
+    let truth = Truth::Poses(truth_records());
+    check_perturbed(&evaluate(&truth, &perturbed()).unwrap());
+    // The same through files (6 decimals in the CSV).
+    let d = scratch("perturbed");
+    let (tp, ep) = (d.join("truth.csv"), d.join("est.csv"));
+    write_pose_csv(&tp, &truth_records(), false).unwrap();
+    write_pose_csv(&ep, &perturbed(), true).unwrap();
+    let r = evaluate(&load_truth(&tp).unwrap(), &read_pose_csv(&ep).unwrap()).unwrap();
+    check_perturbed(&r);
+    assert_eq!(r.lost, Some(0));
+    std::fs::remove_dir_all(&d).unwrap();
+}
+
+#[test]
+fn a_tilt_of_the_wrong_sign_costs_twice_the_tilt() {
+    // Estimating the mirror of a tilt (the Necker ambiguity) must cost 2|rx| on rx alone.
+    let with_rx = |rx_deg: f64| -> Vec<PoseRecord> {
+        truth_records()
+            .into_iter()
+            .map(|mut r| {
+                r.state.rx = rad(rx_deg);
+                r
+            })
+            .collect()
+    };
+    let rep = evaluate(&Truth::Poses(with_rx(12.0)), &with_rx(-12.0)).unwrap();
+    close(rep.angle_mae_deg.unwrap().rx, 24.0, "mirror mae");
+    close(rep.angle_rmse_deg.unwrap().rx, 24.0, "mirror rmse");
+    close(rep.angle_mae_deg.unwrap().ry, 0.0, "ry");
+    assert_eq!(rep.success_auc, AUC_MAX);
+}
+
+/// Writes an OTB box file (1-based `x<TAB>y<TAB>w<TAB>h`, CRLF) and returns the boxes in the
+/// project's pixel convention.
+fn write_otb(p: &Path, n: usize) -> Vec<BoxRect> {
+    let mut text = String::new();
+    let mut boxes = Vec::new();
+    for k in 0..n {
+        let (x, y, w, h) = (57 + k, 21 + k / 2, 31, 45 - k % 3);
+        text.push_str(&format!("{x}\t{y}\t{w}\t{h}\r\n"));
+        boxes.push(BoxRect::new(
+            x as f64 - 1.5,
+            y as f64 - 1.5,
+            w as f64,
+            h as f64,
+        ));
+    }
+    std::fs::write(p, text).unwrap();
+    boxes
+}
+
+fn from_boxes(boxes: &[BoxRect]) -> Vec<PoseRecord> {
+    boxes
+        .iter()
+        .enumerate()
+        .map(|(frame, b)| {
+            let e = Ellipse::from_box(b);
+            PoseRecord {
+                frame,
+                state: PoseState::from_parts(&e, Euler::default()),
+                score: Some(1.0),
+                lost: Some(false),
+            }
+        })
+        .collect()
+}
+
+#[test]
+fn otb_box_truth_against_the_same_boxes() {
+    let d = scratch("otb");
+    let p = d.join("groundtruth_rect.txt");
+    let boxes = write_otb(&p, 12);
+    let truth = load_truth(&p).unwrap();
+    assert_eq!(truth, Truth::Boxes(boxes.clone()));
+    let r = evaluate(&truth, &from_boxes(&boxes)).unwrap();
+    assert_eq!((r.truth_frames, r.evaluated, r.missing), (12, 12, 0));
+    assert!(r.angle_rmse_deg.is_none() && r.angle_mae_deg.is_none());
+    assert!(r.mean_centre_error_px < 1e-12);
+    assert_eq!(r.precision_20px, 1.0);
+    assert_eq!(r.success_auc, AUC_MAX);
+    assert_eq!((r.lost, r.mean_score), (Some(0), Some(1.0)));
+    // Frames count from 0 in file order: shifting the estimate by one frame misaligns it.
+    let mut shifted = from_boxes(&boxes);
+    for r in &mut shifted {
+        r.frame += 1;
+    }
+    let r = evaluate(&truth, &shifted).unwrap();
+    assert_eq!((r.evaluated, r.missing, r.ignored), (11, 1, 1));
+    assert!(r.mean_centre_error_px > 0.5);
+    std::fs::remove_dir_all(&d).unwrap();
+}
+
+#[test]
+fn real_girl_truth_against_itself() {
+    let p = Path::new(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../shared/data/girl/groundtruth_rect.txt"
+    ));
+    if !p.exists() {
+        let _ = writeln!(std::io::stderr(), "skip: {} missing", p.display());
+        return;
+    }
+    let truth = load_truth(p).unwrap();
+    let Truth::Boxes(boxes) = &truth else {
+        panic!("girl truth read as poses")
+    };
+    assert_eq!(boxes.len(), 500);
+    let r = evaluate(&truth, &from_boxes(boxes)).unwrap();
+    assert_eq!(r.evaluated, 500);
+    assert!(r.mean_centre_error_px < 1e-12);
+    assert_eq!(r.success_auc, AUC_MAX);
+}
+
+// ---------------------------------------------------------------- CLI
+
+fn pftrack(args: &[&Path]) -> (i32, String, String) {
+    let out = Command::new(env!("CARGO_BIN_EXE_pftrack"))
+        .arg("eval")
+        .args(args)
+        .output()
+        .unwrap();
+    (
+        out.status.code().unwrap_or(-1),
+        String::from_utf8_lossy(&out.stdout).into_owned(),
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+    )
+}
+
+#[test]
+fn cli_table_and_json() {
+    let d = scratch("cli");
+    let (tp, ep) = (d.join("truth.csv"), d.join("est.csv"));
+    write_pose_csv(&tp, &truth_records(), false).unwrap();
+    write_pose_csv(&ep, &perturbed(), true).unwrap();
+
+    let (code, out, err) = pftrack(&[&tp, &ep]);
+    assert_eq!(code, 0, "{err}");
+    for want in [
+        "truth frames",
+        "MISSING           1",
+        "precision@20px    0.9000",
+        "success AUC       0.7857",
+        "rx           3.000       3.000",
+        "ry           0.000       0.000",
+    ] {
+        assert!(out.contains(want), "missing '{want}' in:\n{out}");
+    }
+
+    let json = Path::new("--json");
+    let (code, out, err) = pftrack(&[&tp, &ep, json]);
+    assert_eq!(code, 0, "{err}");
+    assert_eq!(out.trim().lines().count(), 1, "one JSON object: {out}");
+    let v: serde_json::Value = serde_json::from_str(&out).unwrap();
+    assert_eq!(v["truth_kind"], "poses");
+    assert_eq!(v["missing"], 1);
+    assert_eq!(v["evaluated"], 9);
+    assert_eq!(v["ignored"], 1);
+    assert_eq!(v["success_rates"].as_array().unwrap().len(), 21);
+    close(v["success_auc"].as_f64().unwrap(), 16.5 / 21.0, "json auc");
+    close(
+        v["angle_rmse_deg"]["rx"].as_f64().unwrap(),
+        3.0,
+        "json rmse",
+    );
+
+    // OTB truth: no angle table, `null` angles in JSON.
+    let otb = d.join("boxes.txt");
+    let boxes = write_otb(&otb, 5);
+    let bp = d.join("boxes-est.csv");
+    write_pose_csv(&bp, &from_boxes(&boxes), false).unwrap();
+    let (code, out, _) = pftrack(&[&otb, &bp, json]);
+    assert_eq!(code, 0);
+    let v: serde_json::Value = serde_json::from_str(&out).unwrap();
+    assert_eq!(v["truth_kind"], "boxes");
+    assert!(v["angle_rmse_deg"].is_null());
+    let (code, out, _) = pftrack(&[&otb, &bp]);
+    assert_eq!(code, 0);
+    assert!(!out.contains("RMSE"), "{out}");
+    std::fs::remove_dir_all(&d).unwrap();
+}
+
+#[test]
+fn cli_bad_input_is_one_line_and_non_zero() {
+    let d = scratch("clibad");
+    let tp = d.join("truth.csv");
+    write_pose_csv(&tp, &truth_records(), false).unwrap();
+    let malformed = d.join("malformed.csv");
+    std::fs::write(&malformed, "frame,cx,cy,a,b,rx,ry,rz\n0,1,2,3,4,5,6\n").unwrap();
+    let bad_boxes = d.join("bad-boxes.txt");
+    std::fs::write(&bad_boxes, "1,2,3\n").unwrap();
+    let far = d.join("far.csv");
+    let far_recs: Vec<PoseRecord> = truth_records()
+        .into_iter()
+        .map(|mut r| {
+            r.frame += 100;
+            r
+        })
+        .collect();
+    write_pose_csv(&far, &far_recs, false).unwrap();
+    let empty = d.join("empty.csv");
+    std::fs::write(&empty, "").unwrap();
+    let absent = d.join("absent.csv");
+
+    let cases: [(&[&Path], &str); 7] = [
+        (&[&absent, &tp], "absent.csv"),
+        (&[&tp, &absent], "absent.csv"),
+        (&[&tp, &malformed], "malformed.csv:2"),
+        (&[&malformed, &tp], "malformed.csv:2"),
+        (&[&bad_boxes, &tp], "bad-boxes.txt:1"),
+        (&[&tp, &far], "no frames in common"),
+        (&[&tp, &empty], "empty.csv"),
+    ];
+    for (args, want) in cases {
+        let (code, out, err) = pftrack(args);
+        assert_ne!(code, 0, "{args:?}");
+        assert_eq!(err.trim().lines().count(), 1, "{args:?}: {err}");
+        assert!(err.starts_with("pftrack: error:"), "{err}");
+        assert!(err.contains(want), "{args:?}: want '{want}' in {err}");
+        assert!(!err.contains("panicked"), "{err}");
+        assert!(out.is_empty(), "{out}");
+    }
+    std::fs::remove_dir_all(&d).unwrap();
+}

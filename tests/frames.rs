@@ -1,0 +1,702 @@
+//! Frame sources on real files of each kind, y4m round trips, and every bad-input error.
+//!
+//! Real data comes from `../shared/data` (skipped with a printed reason when absent).
+//! ffmpeg-dependent tests skip when ffmpeg is not on PATH, except under `CI`, where they fail.
+
+use std::io::Write;
+use std::path::{Path, PathBuf};
+
+use image::{Rgb, RgbImage};
+use pftrack::frames::{
+    self, FfmpegTools, Frame, FrameError, FrameSource, SourceOptions, resize_bilinear,
+};
+
+fn say(msg: &str) {
+    let _ = writeln!(std::io::stderr(), "{msg}");
+}
+
+/// A path under `../shared/data`, or `None` (with a printed reason) when it is absent.
+fn data(rel: &str) -> Option<PathBuf> {
+    let p = Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/../shared/data")).join(rel);
+    if p.exists() {
+        Some(p)
+    } else {
+        say(&format!("skip: {} missing", p.display()));
+        None
+    }
+}
+
+/// Whether ffmpeg can be used; under `CI` its absence is a failure, not a skip.
+fn have_ffmpeg() -> bool {
+    if FfmpegTools::default().available() {
+        return true;
+    }
+    if std::env::var_os("CI").is_some() {
+        panic!("CI is set but ffmpeg/ffprobe are not on PATH (CI must install ffmpeg)");
+    }
+    say("skip: ffmpeg not on PATH");
+    false
+}
+
+/// A fresh, empty scratch directory for one test.
+fn scratch(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("pftrack-frames-{}-{name}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+fn collect(src: FrameSource) -> Result<Vec<Frame>, FrameError> {
+    src.collect()
+}
+
+// ---------------------------------------------------------------- image directories
+
+#[test]
+fn girl_jpg_directory() {
+    let Some(dir) = data("girl/img") else { return };
+    let src = frames::open(&dir, &SourceOptions::default()).unwrap();
+    assert_eq!(src.size(), (128, 96));
+    assert_eq!(src.len_hint(), Some(500));
+    assert!(src.describe().contains("500 frames"), "{}", src.describe());
+    let mut n = 0;
+    let mut first = None;
+    for f in src {
+        let f = f.unwrap();
+        assert_eq!(f.dimensions(), (128, 96));
+        if n == 0 {
+            first = Some(f);
+        }
+        n += 1;
+    }
+    assert_eq!(n, 500);
+    // The first frame is 0001.jpg, and it is colour.
+    let direct = image::open(dir.join("0001.jpg")).unwrap().into_rgb8();
+    let first = first.unwrap();
+    assert_eq!(first, direct);
+    assert!(first.pixels().any(|p| p[0] != p[1] || p[1] != p[2]));
+}
+
+#[test]
+fn car4_grayscale_becomes_equal_channels() {
+    let Some(dir) = data("car4/img") else { return };
+    let src = frames::open(&dir, &SourceOptions::default()).unwrap();
+    assert_eq!(src.size(), (360, 240));
+    let mut n = 0;
+    for f in src {
+        let f = f.unwrap();
+        assert_eq!(f.dimensions(), (360, 240));
+        assert!(
+            f.pixels().all(|p| p[0] == p[1] && p[1] == p[2]),
+            "frame {n}"
+        );
+        n += 1;
+    }
+    assert_eq!(n, 659);
+}
+
+#[test]
+fn resize_applies_to_every_frame() {
+    let Some(dir) = data("girl/img") else { return };
+    let opts = SourceOptions {
+        resize: Some((64, 40)),
+    };
+    let mut src = frames::open(&dir, &opts).unwrap();
+    assert_eq!(src.size(), (64, 40));
+    assert_eq!(src.native_size(), (128, 96));
+    assert!(src.describe().contains("resized to 64x40"));
+    let f0 = src.next().unwrap().unwrap();
+    let direct = image::open(dir.join("0001.jpg")).unwrap().into_rgb8();
+    assert_eq!(f0, resize_bilinear(&direct, 64, 40));
+    assert!(src.take(20).all(|f| f.unwrap().dimensions() == (64, 40)));
+}
+
+/// Writes a small image whose every pixel is `v`.
+fn save_flat(p: &Path, w: u32, h: u32, v: u8) {
+    RgbImage::from_pixel(w, h, Rgb([v, v, v])).save(p).unwrap();
+}
+
+#[test]
+fn natural_sort_and_ignored_files() {
+    let d = scratch("natural");
+    for (name, v) in [("10.png", 10), ("2.png", 2), ("1.PNG", 1), ("3.bmp", 3)] {
+        save_flat(&d.join(name), 4, 3, v);
+    }
+    image::GrayImage::from_pixel(4, 3, image::Luma([7]))
+        .save(d.join("7.pgm"))
+        .unwrap();
+    std::fs::write(d.join("notes.txt"), "not a frame").unwrap();
+    std::fs::write(d.join("0.gif.bak"), "not a frame").unwrap();
+    std::fs::create_dir(d.join("5.png")).unwrap(); // a directory named like a frame
+    let got: Vec<u8> = frames::open(&d, &SourceOptions::default())
+        .unwrap()
+        .map(|f| f.unwrap().get_pixel(0, 0)[0])
+        .collect();
+    assert_eq!(got, [1, 2, 3, 7, 10]);
+    std::fs::remove_dir_all(&d).unwrap();
+}
+
+#[test]
+fn directory_errors() {
+    let d = scratch("direrr");
+    // Missing.
+    let missing = d.join("nope");
+    let e = frames::open(&missing, &SourceOptions::default()).unwrap_err();
+    assert!(matches!(e, FrameError::NotFound { .. }), "{e}");
+    assert!(e.to_string().contains("nope"));
+    // Empty, and only non-image files.
+    let empty = d.join("empty");
+    std::fs::create_dir(&empty).unwrap();
+    let e = FrameSource::from_dir(&empty, &SourceOptions::default()).unwrap_err();
+    assert!(matches!(e, FrameError::NoImages { .. }), "{e}");
+    std::fs::write(empty.join("readme.txt"), "x").unwrap();
+    let e = FrameSource::from_dir(&empty, &SourceOptions::default()).unwrap_err();
+    assert!(matches!(e, FrameError::NoImages { .. }), "{e}");
+
+    // A frame that fails to decode: named in the error, and the stream stops there.
+    let bad = d.join("bad");
+    std::fs::create_dir(&bad).unwrap();
+    save_flat(&bad.join("1.png"), 4, 3, 1);
+    std::fs::write(bad.join("2.png"), b"\x89PNG\r\n\x1a\n garbage").unwrap();
+    save_flat(&bad.join("3.png"), 4, 3, 3);
+    let res: Vec<_> = frames::open(&bad, &SourceOptions::default())
+        .unwrap()
+        .collect();
+    assert_eq!(res.len(), 2, "the iterator ends after the error");
+    assert!(res[0].is_ok());
+    let e = res[1].as_ref().unwrap_err();
+    assert!(matches!(e, FrameError::Decode { .. }), "{e}");
+    assert!(e.to_string().contains("2.png"), "{e}");
+    // A first frame that cannot be read fails at open.
+    let bad0 = d.join("bad0");
+    std::fs::create_dir(&bad0).unwrap();
+    std::fs::write(bad0.join("1.jpg"), b"not a jpeg at all").unwrap();
+    assert!(frames::open(&bad0, &SourceOptions::default()).is_err());
+
+    // Frames of different sizes: the frame and both sizes named.
+    let mixed = d.join("mixed");
+    std::fs::create_dir(&mixed).unwrap();
+    save_flat(&mixed.join("1.png"), 4, 3, 1);
+    save_flat(&mixed.join("2.png"), 4, 3, 2);
+    save_flat(&mixed.join("10.png"), 5, 3, 10);
+    let res: Vec<_> = frames::open(&mixed, &SourceOptions::default())
+        .unwrap()
+        .collect();
+    assert_eq!(res.len(), 3);
+    let e = res[2].as_ref().unwrap_err();
+    let msg = e.to_string();
+    assert!(matches!(e, FrameError::SizeMismatch { .. }), "{msg}");
+    assert!(
+        msg.contains("10.png") && msg.contains("5x3") && msg.contains("4x3"),
+        "{msg}"
+    );
+    assert!(!msg.contains('\n'));
+    std::fs::remove_dir_all(&d).unwrap();
+}
+
+#[test]
+fn bad_resize_and_sizes() {
+    assert_eq!(frames::parse_size("160x120").unwrap(), (160, 120));
+    let e = frames::parse_size("160by120").unwrap_err();
+    assert!(e.to_string().contains("160by120"));
+    let d = scratch("badresize");
+    save_flat(&d.join("1.png"), 4, 3, 1);
+    let opts = SourceOptions {
+        resize: Some((0, 5)),
+    };
+    assert!(matches!(
+        frames::open(&d, &opts),
+        Err(FrameError::BadSize { .. })
+    ));
+    std::fs::remove_dir_all(&d).unwrap();
+}
+
+// ---------------------------------------------------------------- y4m
+
+/// BT.601 limited range, computed here independently of the library: (Y, Cb, Cr) as reals.
+fn ycbcr(rgb: [f64; 3]) -> [f64; 3] {
+    let [r, g, b] = rgb.map(|v| v / 255.0);
+    let e = 0.299 * r + 0.587 * g + 0.114 * b;
+    [
+        16.0 + 219.0 * e,
+        128.0 + 224.0 * (b - e) / 1.772,
+        128.0 + 224.0 * (r - e) / 1.402,
+    ]
+}
+
+fn q(v: f64) -> u8 {
+    v.round().clamp(0.0, 255.0) as u8
+}
+
+/// Where chroma sample (i, j) of a 4:2:0 layout sits, in luma pixel coordinates.
+fn chroma_site(tag: &str, i: u32, j: u32) -> (f64, f64) {
+    let (i, j) = (i as f64, j as f64);
+    match tag {
+        "420jpeg" | "420" => (2.0 * i + 0.5, 2.0 * j + 0.5),
+        "420mpeg2" => (2.0 * i, 2.0 * j + 0.5),
+        "420paldv" => (2.0 * i, 2.0 * j),
+        _ => unreachable!(),
+    }
+}
+
+/// The planes of one frame of content `f(x, y) → RGB` (reals, so chroma can be sampled where
+/// its layout puts it).
+fn planes(w: u32, h: u32, tag: &str, f: &dyn Fn(f64, f64) -> [f64; 3]) -> Vec<u8> {
+    let mut yp = Vec::new();
+    for y in 0..h {
+        for x in 0..w {
+            yp.push(q(ycbcr(f(x as f64, y as f64))[0]));
+        }
+    }
+    let (mut cb, mut cr) = (Vec::new(), Vec::new());
+    if tag == "444" {
+        for y in 0..h {
+            for x in 0..w {
+                let c = ycbcr(f(x as f64, y as f64));
+                cb.push(q(c[1]));
+                cr.push(q(c[2]));
+            }
+        }
+    } else {
+        for j in 0..h.div_ceil(2) {
+            for i in 0..w.div_ceil(2) {
+                let (sx, sy) = chroma_site(tag, i, j);
+                let c = ycbcr(f(sx, sy));
+                cb.push(q(c[1]));
+                cr.push(q(c[2]));
+            }
+        }
+    }
+    yp.extend(cb);
+    yp.extend(cr);
+    yp
+}
+
+fn write_y4m(p: &Path, w: u32, h: u32, tag: &str, frames: &[Vec<u8>]) {
+    let mut out = format!("YUV4MPEG2 W{w} H{h} F25:1 Ip A1:1 C{tag}\n").into_bytes();
+    for (k, f) in frames.iter().enumerate() {
+        if k % 2 == 1 {
+            out.extend_from_slice(b"FRAME Ixyz\n"); // a frame parameter, ignored
+        } else {
+            out.extend_from_slice(b"FRAME\n");
+        }
+        out.extend_from_slice(f);
+    }
+    std::fs::write(p, out).unwrap();
+}
+
+/// A smooth (affine) colour ramp: bilinear chroma upsampling reproduces it.
+fn ramp(k: f64) -> impl Fn(f64, f64) -> [f64; 3] {
+    move |x, y| [20.0 + 3.0 * x + k, 30.0 + 2.0 * y, 220.0 - 2.0 * x - y - k]
+}
+
+#[test]
+fn y4m_round_trip_420_and_444() {
+    let d = scratch("y4m");
+    // Odd size, to exercise ceil(W/2) chroma planes.
+    let (w, h) = (63u32, 45u32);
+    for tag in ["444", "420jpeg", "420", "420mpeg2", "420paldv"] {
+        let content: Vec<_> = (0..3).map(|k| ramp(5.0 * k as f64)).collect();
+        let fr: Vec<Vec<u8>> = content.iter().map(|f| planes(w, h, tag, f)).collect();
+        let p = d.join(format!("ramp-{tag}.Y4M"));
+        write_y4m(&p, w, h, tag, &fr);
+        let src = frames::open(&p, &SourceOptions::default()).unwrap();
+        assert_eq!(src.size(), (w, h));
+        assert_eq!(src.len_hint(), Some(3), "{tag}");
+        assert!(src.describe().contains("y4m"), "{}", src.describe());
+        let got = collect(src).unwrap();
+        assert_eq!(got.len(), 3, "{tag}");
+        for (img, f) in got.iter().zip(&content) {
+            let mut worst_inner: f64 = 0.0;
+            let mut worst: f64 = 0.0;
+            for (x, y, px) in img.enumerate_pixels() {
+                let want = f(x as f64, y as f64);
+                let err = (0..3)
+                    .map(|c| (px[c] as f64 - want[c]).abs())
+                    .fold(0.0, f64::max);
+                worst = worst.max(err);
+                if x > 0 && y > 0 && x < w - 1 && y < h - 1 {
+                    worst_inner = worst_inner.max(err);
+                }
+            }
+            // Quantisation of Y, Cb, Cr (and of upsampled chroma) costs up to ~3 levels.
+            assert!(worst_inner <= 3.0, "{tag}: inner error {worst_inner}");
+            // At the border 4:2:0 chroma is clamped (edge replication): a little more.
+            assert!(worst <= 6.0, "{tag}: border error {worst}");
+        }
+    }
+
+    // 4:4:4 with unstructured content: every pixel stands alone.
+    let noise = |x: f64, y: f64| {
+        let h = |s: f64| {
+            ((x * 12.9898 + y * 78.233 + s).sin() * 43758.5453)
+                .fract()
+                .abs()
+        };
+        [255.0 * h(0.0), 255.0 * h(1.0), 255.0 * h(2.0)]
+    };
+    let p = d.join("noise.y4m");
+    write_y4m(&p, 20, 10, "444", &[planes(20, 10, "444", &noise)]);
+    let got = collect(frames::open(&p, &SourceOptions::default()).unwrap()).unwrap();
+    for (x, y, px) in got[0].enumerate_pixels() {
+        let want = noise(x as f64, y as f64);
+        for c in 0..3 {
+            assert!(
+                (px[c] as f64 - want[c]).abs() <= 3.0,
+                "({x},{y}) {c}: {} vs {}",
+                px[c],
+                want[c]
+            );
+        }
+    }
+    std::fs::remove_dir_all(&d).unwrap();
+}
+
+#[test]
+fn y4m_errors() {
+    let d = scratch("y4merr");
+    let f = planes(8, 6, "420jpeg", &ramp(0.0));
+    let good = d.join("good.y4m");
+    write_y4m(&good, 8, 6, "420jpeg", &[f.clone(), f.clone()]);
+    let bytes = std::fs::read(&good).unwrap();
+
+    // Truncated: a partial last frame is an error after the complete ones.
+    let cut = d.join("cut.y4m");
+    std::fs::write(&cut, &bytes[..bytes.len() - 5]).unwrap();
+    let res: Vec<_> = frames::open(&cut, &SourceOptions::default())
+        .unwrap()
+        .collect();
+    assert_eq!(res.len(), 2);
+    assert!(res[0].is_ok());
+    let e = res[1].as_ref().unwrap_err();
+    assert!(matches!(e, FrameError::Truncated { frame: 1, .. }), "{e}");
+    assert!(e.to_string().contains("cut.y4m"));
+
+    // Malformed and unsupported headers.
+    let cases: [(&str, &[u8]); 7] = [
+        ("nosig", b"YUV4MPEG W8 H6\nFRAME\n"),
+        ("now", b"YUV4MPEG2 H6 C420jpeg\nFRAME\n"),
+        ("badw", b"YUV4MPEG2 Wabc H6\nFRAME\n"),
+        ("c422", b"YUV4MPEG2 W8 H6 C422\nFRAME\n"),
+        ("p10", b"YUV4MPEG2 W8 H6 C420p10\nFRAME\n"),
+        ("noline", b"YUV4MPEG2 W8 H6"),
+        ("empty", b""),
+    ];
+    for (name, content) in cases {
+        let p = d.join(format!("{name}.y4m"));
+        std::fs::write(&p, content).unwrap();
+        let e = frames::open(&p, &SourceOptions::default()).unwrap_err();
+        assert!(matches!(e, FrameError::Y4m { .. }), "{name}: {e}");
+        assert!(!e.to_string().contains('\n'));
+    }
+    let e = frames::open(&d.join("p10.y4m"), &SourceOptions::default()).unwrap_err();
+    assert!(e.to_string().contains("C420p10"), "{e}");
+
+    // Garbage where the second FRAME header belongs.
+    let mut bad = bytes.clone();
+    let second = bytes.len() - f.len() - 6;
+    bad[second..second + 5].copy_from_slice(b"JUNK!");
+    let badp = d.join("badframe.y4m");
+    std::fs::write(&badp, &bad).unwrap();
+    let res: Vec<_> = frames::open(&badp, &SourceOptions::default())
+        .unwrap()
+        .collect();
+    assert_eq!(res.len(), 2);
+    assert!(matches!(res[1], Err(FrameError::Y4m { .. })));
+
+    // A header and no frames.
+    let none = d.join("none.y4m");
+    std::fs::write(&none, b"YUV4MPEG2 W8 H6\n").unwrap();
+    let res: Vec<_> = frames::open(&none, &SourceOptions::default())
+        .unwrap()
+        .collect();
+    assert!(matches!(res[..], [Err(FrameError::NoFrames { .. })]));
+
+    // Missing file.
+    let e = frames::open(&d.join("absent.y4m"), &SourceOptions::default()).unwrap_err();
+    assert!(matches!(e, FrameError::NotFound { .. }), "{e}");
+    std::fs::remove_dir_all(&d).unwrap();
+}
+
+// ---------------------------------------------------------------- ffmpeg
+
+#[test]
+fn carphone_mp4_through_ffmpeg() {
+    let Some(p) = data("carphone/carphone_pristine.mp4") else {
+        return;
+    };
+    if !have_ffmpeg() {
+        return;
+    }
+    let src = frames::open(&p, &SourceOptions::default()).unwrap();
+    assert_eq!(src.size(), (176, 144));
+    assert_eq!(src.len_hint(), Some(120));
+    assert!(src.describe().contains("ffmpeg"));
+    let mut n = 0;
+    for f in src {
+        assert_eq!(f.unwrap().dimensions(), (176, 144));
+        n += 1;
+    }
+    assert_eq!(n, 120);
+    // With a resize to the paper's 128x96.
+    let opts = SourceOptions {
+        resize: Some((128, 96)),
+    };
+    let mut src = frames::open(&p, &opts).unwrap();
+    assert_eq!(src.size(), (128, 96));
+    assert_eq!(src.next().unwrap().unwrap().dimensions(), (128, 96));
+    // Dropping a source mid-stream shuts ffmpeg down (the test would hang otherwise).
+    drop(src);
+}
+
+/// Runs ffmpeg with `args`, failing the test when it fails.
+fn ffmpeg(args: &[&std::ffi::OsStr]) {
+    let out = std::process::Command::new("ffmpeg")
+        .args(["-v", "error", "-nostdin", "-y"])
+        .args(args)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+}
+
+/// Compares our parser's decode of `y4m` with ffmpeg's rgb24 decode of the same file (with
+/// `sws_flags`): (frames, mean |difference|, largest difference, share above 12 levels).
+fn compare_with_ffmpeg(y4m: &Path, sws_flags: &str) -> (usize, f64, u8, f64) {
+    let raw = y4m.with_extension("rgb");
+    ffmpeg(&[
+        "-i".as_ref(),
+        y4m.as_os_str(),
+        "-sws_flags".as_ref(),
+        sws_flags.as_ref(),
+        "-f".as_ref(),
+        "rawvideo".as_ref(),
+        "-pix_fmt".as_ref(),
+        "rgb24".as_ref(),
+        raw.as_os_str(),
+    ]);
+    let theirs = std::fs::read(&raw).unwrap();
+    let ours = frames::open(y4m, &SourceOptions::default()).unwrap();
+    assert!(ours.describe().starts_with("y4m"), "{}", ours.describe());
+    let (w, h) = ours.size();
+    let fb = (w * h * 3) as usize;
+    let (mut n, mut sum, mut worst, mut big) = (0usize, 0u64, 0u8, 0u64);
+    for f in ours {
+        let f = f.unwrap();
+        let reference = &theirs[n * fb..(n + 1) * fb];
+        for (x, y) in f.as_raw().iter().zip(reference) {
+            let d = x.abs_diff(*y);
+            sum += d as u64;
+            worst = worst.max(d);
+            big += u64::from(d > 12);
+        }
+        n += 1;
+    }
+    assert_eq!(theirs.len(), n * fb, "frame count differs from ffmpeg's");
+    let total = (n * fb) as f64;
+    (n, sum as f64 / total, worst, big as f64 / total)
+}
+
+#[test]
+fn y4m_parser_matches_ffmpeg_on_carphone() {
+    let Some(mp4) = data("carphone/carphone_pristine.mp4") else {
+        return;
+    };
+    if !have_ffmpeg() {
+        return;
+    }
+    let d = scratch("carphone-y4m");
+    // 4:4:4 isolates the colour matrix and range: no chroma upsampling on either side.
+    let y444 = d.join("carphone444.y4m");
+    ffmpeg(&[
+        "-i".as_ref(),
+        mp4.as_os_str(),
+        "-pix_fmt".as_ref(),
+        "yuv444p".as_ref(),
+        "-f".as_ref(),
+        "yuv4mpegpipe".as_ref(),
+        y444.as_os_str(),
+    ]);
+    let (n, mean, worst, _) = compare_with_ffmpeg(&y444, "accurate_rnd+full_chroma_int");
+    say(&format!(
+        "y4m 4:4:4 vs ffmpeg rgb24: {n} frames, mean |diff| {mean:.4}, max {worst}"
+    ));
+    assert_eq!(n, 120);
+    assert!(worst <= 1 && mean < 0.05, "mean {mean}, max {worst}");
+
+    // 4:2:0 (C420mpeg2, as ffmpeg writes it for this H.264 stream) against ffmpeg's
+    // interpolating conversion: the upsampling filters differ a little at colour edges.
+    let y420 = d.join("carphone420.y4m");
+    ffmpeg(&[
+        "-i".as_ref(),
+        mp4.as_os_str(),
+        "-pix_fmt".as_ref(),
+        "yuv420p".as_ref(),
+        "-f".as_ref(),
+        "yuv4mpegpipe".as_ref(),
+        y420.as_os_str(),
+    ]);
+    let (n, mean, worst, big) = compare_with_ffmpeg(&y420, "bilinear+accurate_rnd+full_chroma_int");
+    say(&format!(
+        "y4m 4:2:0 vs ffmpeg rgb24: {n} frames, mean |diff| {mean:.4}, max {worst}, \
+         share > 12 levels {big:.5}"
+    ));
+    assert_eq!(n, 120);
+    assert!(mean < 1.2, "mean |diff| {mean}");
+    assert!(big < 0.005, "share of differences above 12 levels {big}");
+    std::fs::remove_dir_all(&d).unwrap();
+}
+
+#[test]
+fn ffmpeg_missing_says_how_to_install() {
+    let d = scratch("noffmpeg");
+    let p = d.join("clip.mp4");
+    std::fs::write(&p, b"whatever").unwrap();
+    let tools = FfmpegTools {
+        ffmpeg: "pftrack-no-such-ffmpeg".into(),
+        ffprobe: "pftrack-no-such-ffprobe".into(),
+    };
+    let e = FrameSource::from_video(&p, &SourceOptions::default(), &tools).unwrap_err();
+    assert!(matches!(e, FrameError::FfmpegMissing { .. }), "{e}");
+    assert!(
+        e.to_string()
+            .contains("install ffmpeg (Debian: apt-get install ffmpeg)"),
+        "{e}"
+    );
+    std::fs::remove_dir_all(&d).unwrap();
+}
+
+#[test]
+fn ffmpeg_bad_inputs() {
+    if !have_ffmpeg() {
+        return;
+    }
+    let d = scratch("ffbad");
+    let e = frames::open(&d.join("absent.mp4"), &SourceOptions::default()).unwrap_err();
+    assert!(matches!(e, FrameError::NotFound { .. }), "{e}");
+    let junk = d.join("junk.mp4");
+    std::fs::write(&junk, b"this is not a video file at all").unwrap();
+    let e = frames::open(&junk, &SourceOptions::default()).unwrap_err();
+    assert!(matches!(e, FrameError::Ffmpeg { .. }), "{e}");
+    let msg = e.to_string();
+    assert!(msg.contains("junk.mp4") && !msg.contains('\n'), "{msg}");
+    std::fs::remove_dir_all(&d).unwrap();
+}
+
+/// Stand-in ffmpeg/ffprobe scripts, to test failure paths real ffmpeg rarely shows.
+#[cfg(unix)]
+mod fake {
+    use super::*;
+    use std::os::unix::fs::PermissionsExt;
+
+    fn script(dir: &Path, name: &str, body: &str) -> PathBuf {
+        let p = dir.join(name);
+        std::fs::write(&p, format!("#!/bin/sh\n{body}\n")).unwrap();
+        std::fs::set_permissions(&p, std::fs::Permissions::from_mode(0o755)).unwrap();
+        p
+    }
+
+    /// Opens with the fake tools, retrying while another test's fork briefly holds the
+    /// freshly written script open for writing (ETXTBSY).
+    fn open_fake(p: &Path, tools: &FfmpegTools) -> FrameSource {
+        for _ in 0..50 {
+            match FrameSource::from_video(p, &SourceOptions::default(), tools) {
+                Ok(s) => return s,
+                Err(FrameError::Io { cause, .. }) if cause.raw_os_error() == Some(26) => {
+                    std::thread::sleep(std::time::Duration::from_millis(20));
+                }
+                Err(e) => panic!("{e}"),
+            }
+        }
+        panic!("scripts stayed busy");
+    }
+
+    #[test]
+    fn failure_after_some_frames_partial_frames_and_drop() {
+        let d = scratch("fake");
+        let input = d.join("in.avi");
+        std::fs::write(&input, b"x").unwrap();
+        let ffprobe = script(
+            &d,
+            "ffprobe",
+            "echo width=2; echo height=2; echo nb_frames=N/A",
+        );
+        // Two whole 2x2 RGB frames (24 bytes), then a failure with a message.
+        let failing = script(
+            &d,
+            "ffmpeg-fail",
+            "head -c 24 /dev/zero; echo 'first line' >&2; echo 'decoder exploded' >&2; exit 3",
+        );
+        let tools = FfmpegTools {
+            ffmpeg: failing,
+            ffprobe: ffprobe.clone(),
+        };
+        let src = open_fake(&input, &tools);
+        assert_eq!(src.len_hint(), None);
+        let res: Vec<_> = src.collect();
+        assert_eq!(res.len(), 3);
+        assert!(res[0].is_ok() && res[1].is_ok());
+        let e = res[2].as_ref().unwrap_err();
+        let msg = e.to_string();
+        assert!(matches!(e, FrameError::Ffmpeg { .. }), "{msg}");
+        assert!(
+            msg.contains("decoder exploded") && msg.contains("after 2 frames"),
+            "{msg}"
+        );
+        assert!(!msg.contains('\n'));
+
+        // A clean exit with a partial trailing frame.
+        let partial = script(&d, "ffmpeg-partial", "head -c 30 /dev/zero");
+        let tools = FfmpegTools {
+            ffmpeg: partial,
+            ffprobe: ffprobe.clone(),
+        };
+        let res: Vec<_> = open_fake(&input, &tools).collect();
+        assert_eq!(res.len(), 3);
+        assert!(matches!(
+            res[2],
+            Err(FrameError::Truncated { frame: 2, .. })
+        ));
+
+        // Failing before any frame.
+        let none = script(&d, "ffmpeg-none", "echo 'no way' >&2; exit 1");
+        let tools = FfmpegTools {
+            ffmpeg: none,
+            ffprobe: ffprobe.clone(),
+        };
+        let res: Vec<_> = open_fake(&input, &tools).collect();
+        assert!(matches!(res[..], [Err(FrameError::Ffmpeg { .. })]));
+
+        // An endless stream: dropping the source mid-way kills and reaps the child.
+        let endless = script(&d, "ffmpeg-endless", "exec cat /dev/zero");
+        let tools = FfmpegTools {
+            ffmpeg: endless,
+            ffprobe: ffprobe.clone(),
+        };
+        let mut src = open_fake(&input, &tools);
+        for _ in 0..5 {
+            assert_eq!(src.next().unwrap().unwrap().dimensions(), (2, 2));
+        }
+        drop(src);
+
+        // ffprobe that finds no video stream.
+        let noprobe = script(&d, "ffprobe-empty", "exit 0");
+        let tools = FfmpegTools {
+            ffmpeg: "ffmpeg".into(),
+            ffprobe: noprobe,
+        };
+        let e = loop {
+            match FrameSource::from_video(&input, &SourceOptions::default(), &tools) {
+                Err(FrameError::Io { cause, .. }) if cause.raw_os_error() == Some(26) => {
+                    std::thread::sleep(std::time::Duration::from_millis(20));
+                }
+                other => break other.unwrap_err(),
+            }
+        };
+        assert!(e.to_string().contains("no video stream"), "{e}");
+        std::fs::remove_dir_all(&d).unwrap();
+    }
+}
