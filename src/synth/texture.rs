@@ -36,7 +36,7 @@ pub fn unit(h: u64) -> f64 {
 /// Approximately standard normal sensor noise for one (seed, frame, pixel, channel): the sum of
 /// four uniforms from independent hashes, scaled to unit variance (Irwin–Hall).
 pub fn noise(seed: u64, frame: u64, pixel: u64, channel: u64) -> f64 {
-    let h = hash(seed ^ 0x6E6F_6973_65, &[frame, pixel, channel]);
+    let h = hash(seed ^ 0x006E_6F69_7365, &[frame, pixel, channel]);
     // four 16-bit uniforms from one hash
     let mut s = 0.0;
     for k in 0..4 {
