@@ -769,7 +769,9 @@ fn written_frames_equal_the_in_memory_render() {
             );
         }
     }
-    // a shorter re-render removes the frames of the longer one
+    // a shorter re-render removes the frames of the longer one, and an interrupted frame's
+    // temporary file
+    std::fs::write(dir.join("frames/.00003.png.partial"), b"half").unwrap();
     write_sequence(&cfg(Scenario::Roll, 2, 64, 48), &dir, false).unwrap();
     let mut names: Vec<String> = std::fs::read_dir(dir.join("frames"))
         .unwrap()
@@ -876,5 +878,28 @@ fn cli_bad_input_is_a_one_line_error() {
         "plain-file",
         &under,
     );
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn a_failed_render_leaves_no_truth() {
+    let dir = tmp_dir("fail");
+    let c = cfg(Scenario::Pan, 3, 48, 36);
+    write_sequence(&c, &dir, false).unwrap();
+    assert!(dir.join("truth.csv").exists() && dir.join("init.txt").exists());
+    // frame 1 cannot be written: a non-empty directory stands in its place
+    std::fs::remove_file(dir.join("frames/00001.png")).unwrap();
+    std::fs::create_dir_all(dir.join("frames/00001.png/x")).unwrap();
+    let err = write_sequence(&c, &dir, false).unwrap_err().to_string();
+    assert!(err.contains("00001.png"), "{err}");
+    // the old truth is gone with the old sequence: nothing presents itself as complete
+    assert!(!dir.join("truth.csv").exists());
+    assert!(!dir.join("init.txt").exists());
+    let leftovers: Vec<_> = std::fs::read_dir(dir.join("frames"))
+        .unwrap()
+        .map(|e| e.unwrap().file_name().into_string().unwrap())
+        .filter(|n| n.ends_with(".partial"))
+        .collect();
+    assert!(leftovers.is_empty(), "{leftovers:?}");
     std::fs::remove_dir_all(&dir).unwrap();
 }

@@ -274,7 +274,7 @@ pub fn frame_name(k: usize) -> String {
 /// A render in progress is never mistaken for a finished one: any old `truth.csv` and
 /// `init.txt` are removed first, every PNG is written under a temporary name and renamed, and
 /// the truth and init files are written last (each atomically). Frames `00000.png`... left over
-/// from a longer earlier render are removed. Frames render in parallel (rayon); `progress` shows
+/// from a longer earlier render, and temporary files of an interrupted one, are removed. Frames render in parallel (rayon); `progress` shows
 /// an indicatif bar on stderr.
 pub fn write_sequence(
     cfg: &SynthConfig,
@@ -370,14 +370,21 @@ fn write_png(img: &image::RgbImage, path: &Path) -> Result<(), SynthError> {
     result
 }
 
-/// Removes `NNNNN.png` frames with an index of `frames` or more (from an earlier, longer render).
+/// Removes `NNNNN.png` frames with an index of `frames` or more (from an earlier, longer render)
+/// and the temporary files of frames an interrupted render left behind.
 fn remove_stale_frames(frames_dir: &Path, frames: usize) -> Result<(), SynthError> {
     let entries = std::fs::read_dir(frames_dir).map_err(|e| SynthError::io(frames_dir, e))?;
     for entry in entries {
         let entry = entry.map_err(|e| SynthError::io(frames_dir, e))?;
         let name = entry.file_name();
         let Some(name) = name.to_str() else { continue };
+        // the temporary file of a frame whose render was interrupted
+        let partial = name.starts_with('.') && name.ends_with(".png.partial");
         let Some(stem) = name.strip_suffix(".png") else {
+            if partial {
+                let p = entry.path();
+                std::fs::remove_file(&p).map_err(|e| SynthError::io(&p, e))?;
+            }
             continue;
         };
         if stem.len() == 5

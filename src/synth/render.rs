@@ -190,11 +190,13 @@ impl Renderer {
                 let mut s = [0.0; 6];
                 for j in 0..MOMENT_SS {
                     let sv = v as f64 + (j as f64 + 0.5) / MOMENT_SS as f64 - 0.5;
+                    // the ray direction is affine in (su, sv): d = d0 + su · du
+                    let d0 = mt * self.camera.ray(0.0, sv);
+                    let du = mt * Vector3::new(1.0 / self.camera.focal, 0.0, 0.0);
                     for u in u0..=u1 {
                         for i in 0..MOMENT_SS {
                             let su = u as f64 + (i as f64 + 0.5) / MOMENT_SS as f64 - 0.5;
-                            let d = mt * self.camera.ray(su, sv);
-                            if self.shape.intersect(&origin, &d).is_some() {
+                            if self.shape.hits(&origin, &(d0 + du * su)) {
                                 let (x, y) = (su - ru, sv - rv);
                                 s[0] += 1.0;
                                 s[1] += x;
@@ -262,7 +264,8 @@ impl Renderer {
         Ellipse::new(s.cx, s.cy, s.a, s.b)
     }
 
-    /// Frame `k` and its truth (angles in radians).
+    /// Frame `k` and its truth (angles in radians). Frames are independent: any `k` may be
+    /// rendered in any order (a `k` past the last frame extrapolates the trajectory).
     pub fn render(&self, k: usize) -> (RgbImage, PoseState) {
         (self.render_image(k), self.truth(k))
     }

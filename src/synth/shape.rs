@@ -48,6 +48,24 @@ impl Shape {
         }
     }
 
+    /// Whether the ray `origin + t · dir`, `t > 0`, meets the shape: [`Shape::intersect`]'s
+    /// answer without computing the hit (the silhouette's fast path).
+    pub fn hits(&self, origin: &Vector3<f64>, dir: &Vector3<f64>) -> bool {
+        match self {
+            Shape::Ellipsoid { semi } => {
+                let o = origin.component_div(semi);
+                let d = dir.component_div(semi);
+                let a = d.dot(&d);
+                let b = o.dot(&d);
+                let c = o.dot(&o) - 1.0;
+                let disc = b * b - a * c;
+                // roots -b/a ± sqrt(disc)/a: the larger is positive when c < 0 (inside) or b < 0
+                a > 0.0 && disc >= 0.0 && (c < 0.0 || b < 0.0)
+            }
+            Shape::Box { .. } => self.intersect(origin, dir).is_some(),
+        }
+    }
+
     /// Whether a point (object coordinates) lies on the surface, within `tol` (metres, roughly).
     pub fn on_surface(&self, p: &Vector3<f64>, tol: f64) -> bool {
         match self {
@@ -239,6 +257,26 @@ mod tests {
         assert!(h.point.z < 0.0); // the near side
         // A ray that misses.
         assert!(s.intersect(&o, &Vector3::new(0.2, 0.0, 1.0)).is_none());
+        // `hits` agrees with `intersect`, including rays pointing away and from inside.
+        for i in 0..400 {
+            let t = i as f64 * 0.37;
+            let d = Vector3::new(
+                t.sin() * 0.15,
+                (1.7 * t).cos() * 0.15,
+                if i % 3 == 0 { -1.0 } else { 1.0 },
+            );
+            for origin in [
+                o,
+                Vector3::new(0.0, 0.01, 0.02),
+                Vector3::new(0.0, 0.0, 1.0),
+            ] {
+                assert_eq!(
+                    s.hits(&origin, &d),
+                    s.intersect(&origin, &d).is_some(),
+                    "{origin:?} {d:?}"
+                );
+            }
+        }
         // From inside: the exit point.
         let h = s
             .intersect(&Vector3::zeros(), &Vector3::new(0.0, 0.0, 1.0))

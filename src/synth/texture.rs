@@ -312,7 +312,11 @@ impl Background {
         c = [c[0] + tint, c[1], c[2] - tint];
         for b in &self.blobs {
             let d2 = (x - b.x).powi(2) + (y - b.y).powi(2);
-            let w = (-d2 / (2.0 * b.sigma * b.sigma)).exp() as f32;
+            let s2 = b.sigma * b.sigma;
+            if d2 > 25.0 * s2 {
+                continue; // below 4e-6
+            }
+            let w = (-d2 / (2.0 * s2)).exp() as f32;
             for (ch, d) in c.iter_mut().zip(b.delta) {
                 *ch += w * d;
             }
