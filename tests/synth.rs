@@ -903,3 +903,49 @@ fn a_failed_render_leaves_no_truth() {
     assert!(leftovers.is_empty(), "{leftovers:?}");
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+/// Normalised 8×8×8 RGB histogram of the listed pixels.
+fn histogram(img: &image::RgbImage, pixels: &[(u32, u32)]) -> Vec<f64> {
+    let mut h = vec![0.0; 512];
+    for &(x, y) in pixels {
+        let p = img.get_pixel(x, y).0;
+        let bin = (p[0] as usize / 32) * 64 + (p[1] as usize / 32) * 8 + p[2] as usize / 32;
+        h[bin] += 1.0;
+    }
+    let n = pixels.len() as f64;
+    h.iter().map(|v| v / n).collect()
+}
+
+#[test]
+fn head_colours_differ_from_the_background_but_overlap() {
+    // The colour term of the likelihood needs a head whose colours differ from the background's
+    // (Bhattacharyya coefficient clearly below 1), but not a trivially separable one (a
+    // coefficient clearly above 0: skin and hair tones also occur in the background).
+    let r = Renderer::new(&SynthConfig::new(Scenario::Nod)).unwrap();
+    let img = r.render_image(0);
+    let (mut head, mut bg) = (vec![], vec![]);
+    for y in 0..img.height() {
+        for x in 0..img.width() {
+            let (u, v) = (x as f64, y as f64);
+            let corners = [(-0.5, -0.5), (0.5, -0.5), (-0.5, 0.5), (0.5, 0.5)];
+            let hits = corners
+                .iter()
+                .filter(|(du, dv)| r.cast(0, u + du, v + dv).is_some())
+                .count();
+            match hits {
+                4 => head.push((x, y)),
+                0 => bg.push((x, y)),
+                _ => {}
+            }
+        }
+    }
+    assert!(head.len() > 1000, "{}", head.len());
+    let (hh, hb) = (histogram(&img, &head), histogram(&img, &bg));
+    let rho: f64 = hh.iter().zip(&hb).map(|(p, q)| (p * q).sqrt()).sum();
+    eprintln!("Bhattacharyya coefficient head/background: {rho:.3}");
+    assert!(
+        rho < 0.8,
+        "head colours too close to the background's: {rho}"
+    );
+    assert!(rho > 0.15, "head trivially separable by colour: {rho}");
+}
