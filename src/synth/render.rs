@@ -390,6 +390,32 @@ mod tests {
     use super::*;
 
     #[test]
+    fn lighting_changes_slowly() {
+        let r = Renderer::new(&SynthConfig {
+            width: 16,
+            height: 16,
+            ..SynthConfig::new(Scenario::Long)
+        })
+        .unwrap();
+        let (mut lo, mut hi) = (f32::INFINITY, 0f32);
+        let mut turned: f64 = 0.0;
+        for k in 1..2400 {
+            let (d0, g0) = r.light(k - 1);
+            let (d1, g1) = r.light(k);
+            assert!((d1.norm() - 1.0).abs() < 1e-12);
+            // under 0.3° and 0.2 % per frame
+            assert!(d0.angle(&d1).to_degrees() < 0.3, "frame {k}");
+            assert!((g1 - g0).abs() < 2e-3, "frame {k}");
+            lo = lo.min(g1);
+            hi = hi.max(g1);
+            turned = turned.max(r.light(0).0.angle(&d1).to_degrees());
+        }
+        // but it does change: ±8 % exposure, the light turns by more than 10°
+        assert!(lo < 0.93 && hi > 1.07, "{lo} {hi}");
+        assert!(turned > 10.0, "{turned}");
+    }
+
+    #[test]
     fn moments_of_a_sampled_axis_aligned_rectangle() {
         // 4 × 2 grid of unit-spaced points: var x = (4² - 1)/12, var y = (2² - 1)/12.
         let mut s = [0.0; 6];
