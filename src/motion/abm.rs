@@ -120,11 +120,15 @@ impl AbmParams {
                 "block_size and search_radius must be at most 256",
             ));
         }
-        if !(self.max_sad.is_finite() && self.min_texture.is_finite())
-            || !(self.ambiguity_ratio > 0.0 && self.ambiguity_ratio <= 1.0)
-            || !(self.max_scale_change >= 1.0 && self.max_scale_change.is_finite())
-            || !(self.max_centre_disagreement >= 0.0 && self.max_centre_disagreement.is_finite())
-        {
+        let ok = self.max_sad.is_finite()
+            && self.min_texture.is_finite()
+            && self.ambiguity_ratio > 0.0
+            && self.ambiguity_ratio <= 1.0
+            && self.max_scale_change >= 1.0
+            && self.max_scale_change.is_finite()
+            && self.max_centre_disagreement >= 0.0
+            && self.max_centre_disagreement.is_finite();
+        if !ok {
             return Err(MotionError::InvalidParams(
                 "thresholds must be finite, ambiguity_ratio in (0, 1], max_scale_change >= 1",
             ));
@@ -293,18 +297,43 @@ impl Window {
     }
 }
 
-/// SAD of a contiguous `w × h` block against the window at offset `off`.
+/// SAD of two equally long rows. Fixed-size paths for the usual block widths let the
+/// compiler vectorise them.
+#[inline(always)]
+fn row_sad(a: &[u8], b: &[u8]) -> u32 {
+    #[inline(always)]
+    fn fixed<const N: usize>(a: &[u8; N], b: &[u8; N]) -> u32 {
+        let mut s = 0u32;
+        for i in 0..N {
+            s += a[i].abs_diff(b[i]) as u32;
+        }
+        s
+    }
+    if let (Ok(x), Ok(y)) = (<&[u8; 8]>::try_from(a), <&[u8; 8]>::try_from(b)) {
+        return fixed(x, y);
+    }
+    if let (Ok(x), Ok(y)) = (<&[u8; 16]>::try_from(a), <&[u8; 16]>::try_from(b)) {
+        return fixed(x, y);
+    }
+    if let (Ok(x), Ok(y)) = (<&[u8; 4]>::try_from(a), <&[u8; 4]>::try_from(b)) {
+        return fixed(x, y);
+    }
+    a.iter().zip(b).map(|(&p, &q)| p.abs_diff(q) as u32).sum()
+}
+
+/// SAD of a contiguous `w × h` block against the window at offset `off`, row by row; stops
+/// as soon as the partial sum exceeds `bound` and returns it (a value `> bound`), so the
+/// result is exact whenever it is `<= bound`.
 #[inline]
-fn sad(block: &[u8], w: usize, h: usize, win: &[u8], off: usize, stride: usize) -> u32 {
+fn sad(block: &[u8], w: usize, h: usize, win: &[u8], off: usize, stride: usize, bound: u32) -> u32 {
     let mut s = 0u32;
     for r in 0..h {
         let a = &block[r * w..r * w + w];
-        let b = &win[off + r * stride..off + r * stride + w];
-        s += a
-            .iter()
-            .zip(b)
-            .map(|(&p, &q)| p.abs_diff(q) as u32)
-            .sum::<u32>();
+        let o = off + r * stride;
+        s += row_sad(a, &win[o..o + w]);
+        if s > bound {
+            return s;
+        }
     }
     s
 }
@@ -327,13 +356,20 @@ struct Cell {
 
 /// Matches one cell; returns (dx, dy, sad per pixel in [0,1], status) with status one of
 /// Matched, Flat, Poor, Ambiguous, NoRoom.
+///
+/// Two passes with early termination, giving exactly the result of an exhaustive search:
+/// the best displacement (ties to the smaller `|dx| + |dy|`, then raster order), starting
+/// from `hint` (the previous block's displacement) so that the bound is tight early; then,
+/// unless the best is already poor or perfect, a search outside the 3x3 neighbourhood of the
+/// best for any displacement whose SAD is below `best / ambiguity_ratio`, stopping at the
+/// first one found.
 fn match_cell(
     c: &Cell,
     prev: &Window,
     cur: &Window,
     p: &AbmParams,
     buf: &mut Vec<u8>,
-    sads: &mut Vec<u32>,
+    hint: (i64, i64),
 ) -> (i32, i32, f32, BlockStatus) {
     let (w, h) = (c.w as usize, c.h as usize);
     buf.clear();
@@ -345,48 +381,64 @@ fn match_cell(
     if texture(buf) < p.min_texture * 255.0 {
         return (0, 0, f32::INFINITY, BlockStatus::Flat);
     }
+    let buf: &[u8] = buf;
     let r = p.search_radius as i64;
-    let side = (2 * r + 1) as usize;
-    sads.clear();
-    sads.resize(side * side, u32::MAX);
+    let stride = cur.w as usize;
+    let eval = |dx: i64, dy: i64, bound: u32| -> Option<u32> {
+        let (x, y) = (c.x + dx, c.y + dy);
+        if !cur.holds(x, y, c.w, c.h) {
+            return None;
+        }
+        Some(sad(buf, w, h, &cur.data, cur.offset(x, y), stride, bound))
+    };
+    // Pass 1: the best displacement. Order key: (SAD, |dx| + |dy|, dy, dx).
+    let key = |s: u32, dx: i64, dy: i64| (s, dx.abs() + dy.abs(), dy, dx);
     let mut best = (u32::MAX, i64::MAX, 0i64, 0i64);
+    let hint_ok = hint.0.abs() <= r && hint.1.abs() <= r;
+    if hint_ok && let Some(s) = eval(hint.0, hint.1, u32::MAX) {
+        best = key(s, hint.0, hint.1);
+    }
     for dy in -r..=r {
         for dx in -r..=r {
-            let (x, y) = (c.x + dx, c.y + dy);
-            if !cur.holds(x, y, c.w, c.h) {
+            if hint_ok && (dx, dy) == hint {
                 continue;
             }
-            let s = sad(buf, w, h, &cur.data, cur.offset(x, y), cur.w as usize);
-            sads[((dy + r) as usize) * side + (dx + r) as usize] = s;
-            // Ties go to the smaller displacement (then scan order): deterministic.
-            let key = (s, dx.abs() + dy.abs());
-            if key < (best.0, best.1) {
-                best = (s, dx.abs() + dy.abs(), dx, dy);
+            let Some(s) = eval(dx, dy, best.0) else {
+                continue;
+            };
+            let k = key(s, dx, dy);
+            if k < best {
+                best = k;
             }
         }
     }
     if best.0 == u32::MAX {
         return (0, 0, f32::INFINITY, BlockStatus::NoRoom);
     }
-    let (bdx, bdy) = (best.2, best.3);
-    let mut second = u32::MAX;
-    for dy in -r..=r {
-        for dx in -r..=r {
-            if (dx - bdx).abs() <= 1 && (dy - bdy).abs() <= 1 {
-                continue;
+    let (bdx, bdy) = (best.3, best.2);
+    let per_px = best.0 as f32 / (255.0 * npx);
+    if per_px > p.max_sad {
+        return (bdx as i32, bdy as i32, per_px, BlockStatus::Poor);
+    }
+    // Pass 2: is some displacement outside the best's neighbourhood nearly as good?
+    // Ambiguous iff best > ratio · second, i.e. second < best / ratio.
+    if best.0 > 0 {
+        let limit = best.0 as f32 / p.ambiguity_ratio;
+        let bound = limit.min(u32::MAX as f32 / 2.0) as u32 + 1;
+        for dy in -r..=r {
+            for dx in -r..=r {
+                if (dx - bdx).abs() <= 1 && (dy - bdy).abs() <= 1 {
+                    continue;
+                }
+                if let Some(s) = eval(dx, dy, bound)
+                    && best.0 as f32 > p.ambiguity_ratio * s as f32
+                {
+                    return (bdx as i32, bdy as i32, per_px, BlockStatus::Ambiguous);
+                }
             }
-            second = second.min(sads[((dy + r) as usize) * side + (dx + r) as usize]);
         }
     }
-    let per_px = best.0 as f32 / (255.0 * npx);
-    let status = if per_px > p.max_sad {
-        BlockStatus::Poor
-    } else if second != u32::MAX && best.0 as f32 > p.ambiguity_ratio * second as f32 {
-        BlockStatus::Ambiguous
-    } else {
-        BlockStatus::Matched
-    };
-    (bdx as i32, bdy as i32, per_px, status)
+    (bdx as i32, bdy as i32, per_px, BlockStatus::Matched)
 }
 
 /// Component-wise median of displacements (average of the two middle values when even).
@@ -513,9 +565,12 @@ pub fn block_match(
 
     let mut blocks: Vec<BlockMatch> = Vec::new();
     let mut buf = Vec::new();
-    let mut sads = Vec::new();
+    let mut hint = (0i64, 0i64);
     while let Some(c) = stack.pop() {
-        let (dx, dy, s, status) = match_cell(&c, &prev_win, &cur_win, params, &mut buf, &mut sads);
+        let (dx, dy, s, status) = match_cell(&c, &prev_win, &cur_win, params, &mut buf, hint);
+        if status == BlockStatus::Matched {
+            hint = (dx as i64, dy as i64);
+        }
         let can_split = c.w / 2 >= min_b && c.h / 2 >= min_b;
         if status != BlockStatus::Matched && status != BlockStatus::NoRoom && can_split {
             let (w1, h1) = (c.w / 2, c.h / 2);
@@ -702,11 +757,112 @@ mod tests {
         let a = [0u8, 10, 20, 30];
         let win = [1u8, 10, 25, 99, 0, 30, 30, 99];
         // 2x2 block against window stride 4 at offset 0: |0-1|+|10-10|+|20-0|+|30-30|
-        assert_eq!(sad(&a, 2, 2, &win, 0, 4), 21);
+        assert_eq!(sad(&a, 2, 2, &win, 0, 4, u32::MAX), 21);
+        // Early exit: a value above the bound, not necessarily the full sum.
+        assert!(sad(&a, 2, 2, &win, 0, 4, 0) > 0);
+        let r8: Vec<u8> = (0..8).collect();
+        let r8b: Vec<u8> = (0..8).map(|v| 2 * v).collect();
+        assert_eq!(row_sad(&r8, &r8b), 28);
+        let r5: Vec<u8> = (0..5).collect();
+        assert_eq!(row_sad(&r5, &[0; 5]), 10);
         assert_eq!(texture(&[5, 5, 5, 5]), 0.0);
         assert_eq!(texture(&[0, 10]), 5.0);
         assert_eq!(median2(&[[1.0, 4.0], [3.0, 2.0]]), [2.0, 3.0]);
         assert_eq!(median2(&[]), [0.0, 0.0]);
+    }
+
+    /// The pruned two-pass search equals an exhaustive one (best, tie-breaks, ambiguity).
+    #[test]
+    fn pruned_search_equals_exhaustive_search() {
+        use rand::rngs::StdRng;
+        use rand::{Rng, SeedableRng};
+        let mut rng = StdRng::seed_from_u64(9);
+        let mut seen = Vec::new();
+        for trial in 0..300 {
+            let (fw, fh) = (40u32, 36u32);
+            // Coarse values (few levels) make ties and ambiguity common.
+            let levels = if trial % 2 == 0 { 3.0 } else { 50.0 };
+            let mut img = |_: u32| {
+                let mut g = GrayF32::new(fw, fh);
+                for v in g.data.iter_mut() {
+                    *v = (rng.random_range(0.0..levels) as f32).floor() / levels as f32;
+                }
+                g
+            };
+            let prev = img(0);
+            let mut cur = img(1);
+            if trial % 3 == 0 {
+                // A near-copy: a clear match that is not perfect.
+                cur = prev.clone();
+                for _ in 0..40 {
+                    let i = rng.random_range(0..cur.data.len());
+                    cur.data[i] = (cur.data[i] + 0.02).min(1.0);
+                }
+            }
+            let p = AbmParams {
+                search_radius: 4,
+                max_sad: if trial % 4 == 1 { 0.05 } else { 0.6 },
+                min_texture: 0.0,
+                ambiguity_ratio: 0.9,
+                ..AbmParams::default()
+            };
+            let pw = Window::new(&prev, 0, 0, fw as i64, fh as i64);
+            let cw = Window::new(&cur, 0, 0, fw as i64, fh as i64);
+            let c = Cell {
+                x: (trial % 30) as i64,
+                y: (trial % 27) as i64,
+                w: 4 + (trial % 3) as i64 * 2,
+                h: 4,
+            };
+            let hint = ((trial % 5) as i64 - 2, (trial % 7) as i64 - 3);
+            let mut buf = Vec::new();
+            let got = match_cell(&c, &pw, &cw, &p, &mut buf, hint);
+            // Exhaustive reference.
+            let r = 4i64;
+            let mut all = Vec::new();
+            for dy in -r..=r {
+                for dx in -r..=r {
+                    if cw.holds(c.x + dx, c.y + dy, c.w, c.h) {
+                        let s: u32 = (0..c.h)
+                            .flat_map(|yy| (0..c.w).map(move |xx| (xx, yy)))
+                            .map(|(xx, yy)| {
+                                let a = pw.data[pw.offset(c.x + xx, c.y + yy)];
+                                let b = cw.data[cw.offset(c.x + dx + xx, c.y + dy + yy)];
+                                a.abs_diff(b) as u32
+                            })
+                            .sum();
+                        all.push((s, dx.abs() + dy.abs(), dy, dx));
+                    }
+                }
+            }
+            let best = *all.iter().min().unwrap();
+            let second = all
+                .iter()
+                .filter(|k| (k.3 - best.3).abs() > 1 || (k.2 - best.2).abs() > 1)
+                .map(|k| k.0)
+                .min();
+            let per_px = best.0 as f32 / (255.0 * (c.w * c.h) as f32);
+            let status = if per_px > p.max_sad {
+                BlockStatus::Poor
+            } else if second.is_some_and(|s2| best.0 as f32 > p.ambiguity_ratio * s2 as f32) {
+                BlockStatus::Ambiguous
+            } else {
+                BlockStatus::Matched
+            };
+            assert_eq!(
+                got,
+                (best.3 as i32, best.2 as i32, per_px, status),
+                "trial {trial}"
+            );
+            seen.push(status);
+        }
+        for st in [
+            BlockStatus::Matched,
+            BlockStatus::Ambiguous,
+            BlockStatus::Poor,
+        ] {
+            assert!(seen.contains(&st), "{st:?} never exercised");
+        }
     }
 
     #[test]

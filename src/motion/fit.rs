@@ -150,7 +150,7 @@ fn null_vector(k: &Matrix3<f64>) -> Option<Vector3<f64>> {
 pub(crate) fn conic_to_ellipse(c: &[f64; 6]) -> Option<Ellipse> {
     let [a, b, cc, d, e, f] = *c;
     let det = 4.0 * a * cc - b * b;
-    if !(det > 0.0) {
+    if det.is_nan() || det <= 0.0 {
         return None;
     }
     // Centre: gradient zero, [2A B; B 2C] [x y]ᵀ = −[D E]ᵀ.

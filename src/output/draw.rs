@@ -89,7 +89,7 @@ pub fn contour_distance(e: &Ellipse, x: f64, y: f64) -> Option<(f64, f64)> {
     let gx = 2.0 * (u * c / e.a - v * s / e.b);
     let gy = 2.0 * (u * s / e.a + v * c / e.b);
     let g = gx.hypot(gy);
-    if !(g > 0.0) {
+    if g.is_nan() || g <= 0.0 {
         return None;
     }
     Some((f.abs() / g, v.atan2(u)))
