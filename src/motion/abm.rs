@@ -264,6 +264,9 @@ struct Window {
     w: i64,
     h: i64,
     data: Vec<u8>,
+    /// Summed-area table, `(w + 1) × (h + 1)`: `sat[(y + 1)(w + 1) + x + 1]` is the sum of
+    /// the pixels above and left of `(x, y)` inclusive.
+    sat: Vec<u32>,
 }
 
 impl Window {
@@ -280,7 +283,31 @@ impl Window {
                 [(y * img.width as i64 + x0) as usize..(y * img.width as i64 + x1) as usize];
             data.extend(row.iter().map(|&v| (v.clamp(0.0, 1.0) * 255.0 + 0.5) as u8));
         }
-        Self { x0, y0, w, h, data }
+        let sw = (w + 1) as usize;
+        let mut sat = vec![0u32; sw * (h + 1) as usize];
+        for y in 0..h as usize {
+            let mut run = 0u32;
+            for x in 0..w as usize {
+                run += data[y * w as usize + x] as u32;
+                sat[(y + 1) * sw + x + 1] = sat[y * sw + x + 1] + run;
+            }
+        }
+        Self {
+            x0,
+            y0,
+            w,
+            h,
+            data,
+            sat,
+        }
+    }
+
+    /// Sum of the pixels of the rectangle `x, y, w, h` (image coordinates, inside).
+    fn box_sum(&self, x: i64, y: i64, w: i64, h: i64) -> u32 {
+        let sw = self.w + 1;
+        let (x, y) = (x - self.x0, y - self.y0);
+        let i = |xx: i64, yy: i64| self.sat[(yy * sw + xx) as usize];
+        i(x + w, y + h) + i(x, y) - i(x, y + h) - i(x + w, y)
     }
 
     /// Whether the rectangle `x, y, w, h` (image coordinates) lies inside the window.
@@ -363,7 +390,8 @@ struct Scratch {
 /// Matches one cell; returns (dx, dy, sad per pixel in [0,1], status) with status one of
 /// Matched, Flat, Poor, Ambiguous, NoRoom.
 ///
-/// Gives exactly the result of an exhaustive search, with early termination:
+/// Gives exactly the result of an exhaustive search, with early termination (successive
+/// elimination by block sums, then SAD row by row against the bound):
 /// pass 1 finds the best displacement (ties to the smaller `|dx| + |dy|`, then raster
 /// order), starting from `hint` (the previous block's displacement) so the bound is tight
 /// early, and records for every displacement its SAD or the lower bound where it stopped.
@@ -431,10 +459,18 @@ fn match_cell_w<const W: usize>(
         let s = sad::<W>(buf, w, h, data, at(hint.0, hint.1), stride, u32::MAX);
         best = key(s, hint.0, hint.1);
     }
+    // Successive elimination: |Σ block − Σ window| ≤ SAD, from the summed-area table, rules
+    // out most displacements without touching their pixels.
+    let block_sum = buf.iter().map(|&v| v as u32).sum::<u32>();
     for (j, dy) in (dyl..=dyh).enumerate() {
         let row = at(dxl, dy);
         let lrow = &mut lower[j * nx..(j + 1) * nx];
         for (i, dx) in (dxl..=dxh).enumerate() {
+            let lb = block_sum.abs_diff(cur.box_sum(c.x + dx, c.y + dy, c.w, c.h));
+            if lb > best.0 {
+                lrow[i] = lb;
+                continue;
+            }
             let s = sad::<W>(buf, w, h, data, row + i, stride, best.0);
             lrow[i] = s;
             if s <= best.0 {
