@@ -176,6 +176,11 @@ fn region_partly_outside_is_clipped_and_wholly_outside_is_an_error() {
         block_match(&prev, &cur, &far, &AbmParams::default()),
         Err(MotionError::RegionOutside)
     );
+    let tiny = Ellipse::new(64.0, 48.0, 1.0, 1.0);
+    assert_eq!(
+        block_match(&prev, &cur, &tiny, &AbmParams::default()),
+        Err(MotionError::RegionTooSmall)
+    );
     let bad = Ellipse::new(64.0, 48.0, 0.0, 20.0);
     assert_eq!(
         block_match(&prev, &cur, &bad, &AbmParams::default()),

@@ -540,7 +540,9 @@ fn median2(v: &[[f64; 2]]) -> [f64; 2] {
 /// Errors: frames of different or zero size ([`MotionError::FrameSize`]), an invalid region
 /// ([`MotionError::InvalidRegion`]) or parameters ([`MotionError::InvalidParams`]), and a
 /// region with no block inside the frame ([`MotionError::RegionOutside`]). A region partly
-/// outside the frame is matched with its blocks clipped to the frame. A textureless region is
+/// outside the frame is matched with its blocks clipped to the frame. A region inside the
+/// frame that holds no block (smaller than [`AbmParams::min_block`], or too thin) is
+/// [`MotionError::RegionTooSmall`]. A textureless region is
 /// not an error: the result has a low [`AbmResult::matched_fraction`] and a
 /// [`AbmResult::fallback`].
 pub fn block_match(
@@ -628,7 +630,11 @@ pub fn block_match(
         gy += bs;
     }
     if stack.is_empty() {
-        return Err(MotionError::RegionOutside);
+        return Err(if region.centre_inside(prev.width, prev.height) {
+            MotionError::RegionTooSmall
+        } else {
+            MotionError::RegionOutside
+        });
     }
     stack.reverse(); // process in raster order (stack pops from the end)
     let r = params.search_radius as i64;

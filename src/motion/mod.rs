@@ -34,6 +34,9 @@ pub enum MotionError {
     /// No block of the region lies inside the frame.
     #[error("target region lies outside the frame")]
     RegionOutside,
+    /// The region lies in the frame but holds no block of the minimum size.
+    #[error("target region is too small for block matching")]
+    RegionTooSmall,
     /// The parameters are unusable.
     #[error("invalid block matching parameters: {0}")]
     InvalidParams(&'static str),
