@@ -144,6 +144,87 @@ pub enum LikelihoodError {
     /// The engine has no colour model yet.
     #[error("no colour model set")]
     NoModel,
+    /// No Vulkan adapter: the driver (or the loader) is missing.
+    #[error(
+        "no Vulkan adapter found (install a Vulkan driver, e.g. `apt-get install mesa-vulkan-drivers libvulkan1`, or use --backend cpu)"
+    )]
+    NoAdapter,
+    /// `PFTRACK_ADAPTER` names no adapter.
+    #[error("no Vulkan adapter matches PFTRACK_ADAPTER={wanted:?}; available: {}", available.join("; "))]
+    AdapterNotFound {
+        /// The substring asked for.
+        wanted: String,
+        /// The adapters there are.
+        available: Vec<String>,
+    },
+    /// The GPU device was lost (driver reset, device destroyed); the engine is unusable.
+    #[error("GPU device lost ({0}); rerun with --backend cpu")]
+    DeviceLost(String),
+    /// The frame does not fit the adapter's buffer limits.
+    #[error(
+        "frame {width}x{height} needs a {bytes}-byte GPU buffer, beyond the adapter's limit of {limit} bytes (use --backend cpu or a smaller frame)"
+    )]
+    FrameTooLarge {
+        /// Frame width.
+        width: u32,
+        /// Frame height.
+        height: u32,
+        /// Bytes of the largest per-frame buffer.
+        bytes: u64,
+        /// The adapter's limit.
+        limit: u64,
+    },
+    /// More particles (or particle × line pairs) than the adapter's buffers hold.
+    #[error(
+        "{n} particles need a {bytes}-byte GPU buffer, beyond the adapter's limit of {limit} bytes"
+    )]
+    TooManyParticles {
+        /// Number of particles.
+        n: usize,
+        /// Bytes of the largest per-particle buffer.
+        bytes: u64,
+        /// The adapter's limit.
+        limit: u64,
+    },
+    /// Any other GPU failure (device request, validation, mapping).
+    #[error("GPU error: {0}")]
+    Gpu(String),
+}
+
+/// Which likelihood engine to run.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, clap::ValueEnum)]
+pub enum Backend {
+    /// The GPU when a Vulkan adapter exists, else the CPU (with a one-line notice).
+    #[default]
+    Auto,
+    /// The CPU reference engine.
+    Cpu,
+    /// The GPU engine; an error when there is no Vulkan adapter.
+    Gpu,
+}
+
+impl std::str::FromStr for Backend {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        match s.to_ascii_lowercase().as_str() {
+            "auto" => Ok(Backend::Auto),
+            "cpu" => Ok(Backend::Cpu),
+            "gpu" => Ok(Backend::Gpu),
+            other => Err(format!(
+                "unknown backend {other:?} (expected auto, cpu or gpu)"
+            )),
+        }
+    }
+}
+
+impl std::fmt::Display for Backend {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Backend::Auto => "auto",
+            Backend::Cpu => "cpu",
+            Backend::Gpu => "gpu",
+        })
+    }
 }
 
 /// An engine that evaluates all particles' likelihoods for a frame.
