@@ -144,6 +144,9 @@ pub enum LikelihoodError {
     /// The engine has no colour model yet.
     #[error("no colour model set")]
     NoModel,
+    /// Invalid input to an engine: parameters, frame data, colour model or thread count.
+    #[error("invalid likelihood input: {0}")]
+    Invalid(String),
 }
 
 /// An engine that evaluates all particles' likelihoods for a frame.
