@@ -290,7 +290,7 @@ mod tests {
         img.put_pixel(2, 0, image::Rgb([255, 0, 0]));
         let g = GradientImage::new(&img);
         assert_eq!(g.at(1, 0), [76245, 0]);
-        assert_eq!(g.at(2, 0), [0, 0]);
+        assert_eq!(g.at(2, 0), [76245, 0]); // L(2) - L(1), x + 1 clamped
         assert_eq!(g.at(0, 0), [0, 0]);
     }
 
