@@ -144,6 +144,9 @@ pub enum LikelihoodError {
     /// The engine has no colour model yet.
     #[error("no colour model set")]
     NoModel,
+    /// Invalid input to an engine: parameters, frame data, colour model or thread count.
+    #[error("invalid likelihood input: {0}")]
+    Invalid(String),
     /// No Vulkan adapter: the driver (or the loader) is missing.
     #[error(
         "no Vulkan adapter found (install a Vulkan driver, e.g. `apt-get install mesa-vulkan-drivers libvulkan1`, or use --backend cpu)"
