@@ -2,7 +2,10 @@
 // The 8x8x8 RGB histogram of the pixel centres inside the particle's ellipse is built in
 // workgroup memory with atomics (exact integer counts), then reduced in the same workgroup to
 // the Bhattacharyya coefficient against the model, rho = sum_k sqrt(p_k q_k), and
-// ln p_colour = -(1 - rho) / (2 sigma_c^2).
+// ln p_colour = -(1 - rho) / (2 sigma_c^2). As on the CPU, rho is divided by
+// sqrt(sum_k p_k * sum_k q_k) (1 in exact arithmetic; it cancels the rounding of the two
+// normalisations, so a histogram against itself gives exactly 1) and clamped to at most 1;
+// total == 0 or an empty model gives rho = 0. q_sum (bin order, f32) comes from the host.
 
 @group(0) @binding(2) var<storage, read> pixels: array<u32>;
 @group(0) @binding(4) var<storage, read> particles: array<Particle>;
@@ -17,6 +20,7 @@ const BINS_PER_THREAD: u32 = 8u; // BINS / WG
 var<workgroup> hist: array<atomic<u32>, 512>;
 var<workgroup> red_u: array<u32, 64>;
 var<workgroup> red_f: array<f32, 64>;
+var<workgroup> red_p: array<f32, 64>;
 
 @compute @workgroup_size(64)
 fn colour(
@@ -39,9 +43,9 @@ fn colour(
         ok = !is_degenerate(p);
     }
     if ok {
-        let theta = fu.theta0 + p.rz;
-        let c = cos(theta);
-        let s = sin(theta);
+        let sc = trig[i];
+        let s = sc.x;
+        let c = sc.y;
         // Bounding box of the rotated ellipse, one pixel generous (the inside test decides),
         // clamped to the frame in f32 before any integer conversion.
         let hw = sqrt((p.a * c) * (p.a * c) + (p.b * s) * (p.b * s));
@@ -98,18 +102,25 @@ fn colour(
 
     // rho = sum_k sqrt(p_k q_k), p_k = count_k / total.
     var acc = 0.0;
+    var psum = 0.0;
     if total > 0u {
         let tf = f32(total);
         for (var k = 0u; k < BINS_PER_THREAD; k++) {
-            let pk = f32(atomicLoad(&hist[k0 + k])) / tf;
-            acc += sqrt(pk * model[k0 + k]);
+            let cnt_k = atomicLoad(&hist[k0 + k]);
+            if cnt_k != 0u {
+                let pk = f32(cnt_k) / tf;
+                acc += sqrt(pk * model[k0 + k]);
+                psum += pk;
+            }
         }
     }
     red_f[lid] = acc;
+    red_p[lid] = psum;
     workgroupBarrier();
     for (var stride = WG / 2u; stride > 0u; stride /= 2u) {
         if lid < stride {
             red_f[lid] += red_f[lid + stride];
+            red_p[lid] += red_p[lid + stride];
         }
         workgroupBarrier();
     }
@@ -121,7 +132,10 @@ fn colour(
             }
         }
         if lid == 0u {
-            let rho = red_f[0];
+            var rho = 0.0;
+            if total > 0u && fu.q_sum > 0.0 {
+                rho = min(red_f[0] / sqrt(red_p[0] * fu.q_sum), 1.0);
+            }
             let sc = params.sigma_colour;
             terms[i].colour = -(1.0 - rho) / (2.0 * sc * sc);
         }

@@ -2,7 +2,8 @@
 // ln p_gradient = sum over lines (in line order) of ln(1 + K exp(-d^2 / (2 sigma_z^2))),
 // K = 1 / (sqrt(2 pi) sigma_z p0 gamma), 0 for a line without an edge; total = the sum of the
 // enabled terms (colour + gradient + feature), a disabled term is 0; a degenerate particle
-// gets 0 for each term and total = DEGENERATE.
+// gets 0 for each term and total = DEGENERATE, and so does a particle whose total is not
+// finite.
 
 @group(0) @binding(4) var<storage, read> particles: array<Particle>;
 @group(0) @binding(7) var<storage, read_write> terms: array<TermLogs>;
@@ -44,5 +45,9 @@ fn combine(
         out.feature = terms[i].feature;
     }
     out.total = out.colour + out.gradient + out.feature;
+    // Non-finite results never escape (as on the CPU).
+    if non_finite(out.total) {
+        out = TermLogs(0.0, 0.0, 0.0, DEGENERATE);
+    }
     terms[i] = out;
 }

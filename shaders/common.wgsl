@@ -55,7 +55,7 @@ struct FrameUniform {
     theta0: f32,
     line_h: i32,
     flags: u32,
-    pad: u32,
+    q_sum: f32,
 }
 
 const TERM_COLOUR: u32 = 1u;
@@ -71,6 +71,10 @@ const SKIPPED: i32 = -2;
 
 @group(0) @binding(0) var<uniform> params: LikelihoodParams;
 @group(0) @binding(1) var<uniform> fu: FrameUniform;
+// Per particle (sin, cos) of theta = theta0 + rz, computed on the host with Rust's f32
+// `sin_cos` exactly as the CPU twin: WGSL's sin/cos differ by a few ulp, which is enough to
+// move a pixel centre across an ellipse's boundary and break the exact histogram agreement.
+@group(0) @binding(10) var<storage, read> trig: array<vec2<f32>>;
 
 // Whether a float is NaN or infinite, from its bits (immune to fast-math folding of x != x).
 fn non_finite(x: f32) -> bool {

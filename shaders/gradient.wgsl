@@ -67,9 +67,9 @@ fn gradient_lines(
         line_d[idx] = SKIPPED;
         return;
     }
-    let theta = fu.theta0 + p.rz;
-    let c = cos(theta);
-    let s = sin(theta);
+    let sc = trig[i];
+    let s = sc.x;
+    let c = sc.y;
     let phi = 6.2831855 * f32(k) / f32(nl);
     let sp = sin(phi);
     let cp = cos(phi);

@@ -230,6 +230,31 @@ impl std::fmt::Display for Backend {
     }
 }
 
+/// The likelihood engine for `backend`, with a one-line notice when `Auto` fell back to the CPU.
+///
+/// `Auto` opens the GPU engine when a Vulkan adapter exists (`PFTRACK_ADAPTER` picks one by
+/// name) and otherwise returns the CPU engine with a notice saying why; `Gpu` fails when there
+/// is no adapter ([`LikelihoodError::NoAdapter`], naming the package to install); `Cpu` is the
+/// CPU engine on all threads. A GPU engine whose device is lost later fails every call with
+/// [`LikelihoodError::DeviceLost`]; it does not switch to the CPU behind the caller's back.
+pub fn create_engine(
+    backend: Backend,
+) -> Result<(Box<dyn LikelihoodEngine + Send>, Option<String>), LikelihoodError> {
+    match backend {
+        Backend::Cpu => Ok((Box::new(cpu::CpuEngine::new()), None)),
+        Backend::Gpu => Ok((Box::new(gpu::GpuEngine::new()?), None)),
+        Backend::Auto => match gpu::GpuEngine::new() {
+            Ok(g) => Ok((Box::new(g), None)),
+            // A named adapter that does not exist is the user's mistake: report it.
+            Err(e @ LikelihoodError::AdapterNotFound { .. }) => Err(e),
+            Err(e) => Ok((
+                Box::new(cpu::CpuEngine::new()),
+                Some(format!("note: likelihood on the CPU ({e})")),
+            )),
+        },
+    }
+}
+
 /// An engine that evaluates all particles' likelihoods for a frame.
 pub trait LikelihoodEngine {
     /// A short human-readable name (for the GPU, the adapter's).
@@ -252,3 +277,35 @@ pub trait LikelihoodEngine {
 /// component), by every engine: finite, so weights stay well defined, and far below any real
 /// particle's.
 pub const DEGENERATE: f32 = -1e30;
+
+#[cfg(test)]
+mod backend_tests {
+    use super::*;
+
+    #[test]
+    fn backend_parses_case_insensitively_and_rejects_others() {
+        assert_eq!("auto".parse::<Backend>(), Ok(Backend::Auto));
+        assert_eq!("CPU".parse::<Backend>(), Ok(Backend::Cpu));
+        assert_eq!("Gpu".parse::<Backend>(), Ok(Backend::Gpu));
+        assert!("vulkan".parse::<Backend>().is_err());
+        for b in [Backend::Auto, Backend::Cpu, Backend::Gpu] {
+            assert_eq!(b.to_string().parse::<Backend>(), Ok(b));
+        }
+    }
+
+    #[test]
+    fn cpu_backend_gives_the_cpu_engine_without_notice() {
+        let (e, notice) = create_engine(Backend::Cpu).unwrap();
+        assert!(e.name().starts_with("cpu"));
+        assert!(notice.is_none());
+    }
+
+    #[test]
+    fn no_adapter_error_names_the_fix() {
+        let msg = LikelihoodError::NoAdapter.to_string();
+        assert!(
+            msg.contains("apt-get install mesa-vulkan-drivers libvulkan1"),
+            "{msg}"
+        );
+    }
+}

@@ -5,6 +5,7 @@ use std::time::{Duration, Instant};
 
 use super::device::GpuDevice;
 use super::{FLAG_DEBUG_HIST, FrameUniform, STAGES, stage_source};
+use crate::likelihood::cpu;
 use crate::likelihood::{
     ColourHistogram, FeaturePair, FrameInput, HIST_BINS, LikelihoodEngine, LikelihoodError,
     LikelihoodParams, Particle, TERM_COLOUR, TERM_FEATURE, TERM_GRADIENT, TermLogs,
@@ -108,6 +109,7 @@ struct Buffers {
     pixels: GrowBuf,
     grad: GrowBuf,
     particles: GrowBuf,
+    trig: GrowBuf,
     model: wgpu::Buffer,
     features: GrowBuf,
     terms: GrowBuf,
@@ -130,8 +132,10 @@ pub struct GpuEngine {
     bufs: Buffers,
     bind_group: Option<wgpu::BindGroup>,
     has_model: bool,
+    q_sum: f32,
     timestamps: Option<Timestamps>,
     pixel_scratch: Vec<u32>,
+    trig_scratch: Vec<[f32; 2]>,
 }
 
 fn storage_entry(binding: u32, read_only: bool) -> wgpu::BindGroupLayoutEntry {
@@ -179,6 +183,16 @@ pub(crate) fn pack_pixels(raw: &[u8], out: &mut Vec<u32>) {
     );
 }
 
+/// `(sin, cos)` of each particle's `theta0 + rz` in `f32`, as the CPU twin computes them
+/// (`EllipseF32::from_particle(..).theta.sin_cos()`).
+pub(crate) fn particle_sin_cos(particles: &[Particle], theta0: f32, out: &mut Vec<[f32; 2]>) {
+    out.clear();
+    out.extend(particles.iter().map(|p| {
+        let (s, c) = (theta0 + p.rz).sin_cos();
+        [s, c]
+    }));
+}
+
 impl GpuEngine {
     /// Opens the GPU (see [`GpuDevice::open`]: `PFTRACK_ADAPTER` picks the adapter) and builds
     /// the pipelines.
@@ -189,6 +203,12 @@ impl GpuEngine {
     /// Builds the engine on an opened device.
     pub fn with_device(gpu: GpuDevice) -> Result<Self, LikelihoodError> {
         let device = &gpu.device;
+        if gpu.limits.max_storage_buffers_per_shader_stage < 9 {
+            return Err(LikelihoodError::Gpu(format!(
+                "the adapter binds {} storage buffers per stage, the engine needs 9",
+                gpu.limits.max_storage_buffers_per_shader_stage
+            )));
+        }
         let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
             label: Some("likelihood"),
             entries: &[
@@ -202,6 +222,7 @@ impl GpuEngine {
                 storage_entry(7, false),
                 storage_entry(8, false),
                 storage_entry(9, false),
+                storage_entry(10, true),
             ],
         });
         let pl = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
@@ -251,6 +272,7 @@ impl GpuEngine {
             pixels: GrowBuf::new(device, "pixels", st),
             grad: GrowBuf::new(device, "gradient image", st),
             particles: GrowBuf::new(device, "particles", st),
+            trig: GrowBuf::new(device, "particle sin cos", st),
             model: device.create_buffer(&wgpu::BufferDescriptor {
                 label: Some("model"),
                 size: (HIST_BINS * 4) as u64,
@@ -294,8 +316,10 @@ impl GpuEngine {
             bufs,
             bind_group: None,
             has_model: false,
+            q_sum: 0.0,
             timestamps,
             pixel_scratch: Vec::new(),
+            trig_scratch: Vec::new(),
         })
     }
 
@@ -406,9 +430,11 @@ impl GpuEngine {
     ) -> Result<(), LikelihoodError> {
         let t_start = Instant::now();
         self.gpu.check()?;
+        // The same input checks, and so the same errors, as the CPU engine.
+        cpu::validate(frame, params)?;
         let colour_on = params.terms & TERM_COLOUR != 0;
         let grad_on = params.terms & TERM_GRADIENT != 0 && params.num_lines > 0;
-        let feat_on = params.terms & TERM_FEATURE != 0;
+        let feat_on = params.terms & TERM_FEATURE != 0 && !frame.features.is_empty();
         if colour_on && !self.has_model {
             return Err(LikelihoodError::NoModel);
         }
@@ -432,6 +458,7 @@ impl GpuEngine {
         changed |= b.pixels.ensure(device, px * 4);
         changed |= b.grad.ensure(device, px * 8);
         changed |= b.particles.ensure(device, n64 * 32);
+        changed |= b.trig.ensure(device, n64 * 8);
         changed |= b.features.ensure(device, frame.features.len() as u64 * 16);
         changed |= b.terms.ensure(device, n64 * 16);
         changed |= b.line_d.ensure(device, n64 * num_lines as u64 * 4);
@@ -469,6 +496,7 @@ impl GpuEngine {
                     entry(7, &b.terms.buf),
                     entry(8, &b.line_d.buf),
                     entry(9, &b.hist.buf),
+                    entry(10, &b.trig.buf),
                 ],
             }));
         }
@@ -481,9 +509,9 @@ impl GpuEngine {
             n: n as u32,
             num_features: frame.features.len() as u32,
             theta0: frame.theta0,
-            line_h: params.line_half_length.round() as i32,
+            line_h: cpu::gradient::half_samples(params),
             flags: if debug.is_some() { FLAG_DEBUG_HIST } else { 0 },
-            _pad: 0,
+            q_sum: self.q_sum,
         };
         queue.write_buffer(&b.params, 0, bytemuck::bytes_of(params));
         queue.write_buffer(&b.frame, 0, bytemuck::bytes_of(&fu));
@@ -492,6 +520,10 @@ impl GpuEngine {
             queue.write_buffer(&b.pixels.buf, 0, bytemuck::cast_slice(&self.pixel_scratch));
         }
         queue.write_buffer(&b.particles.buf, 0, bytemuck::cast_slice(particles));
+        if colour_on || grad_on {
+            particle_sin_cos(particles, frame.theta0, &mut self.trig_scratch);
+            queue.write_buffer(&b.trig.buf, 0, bytemuck::cast_slice(&self.trig_scratch));
+        }
         if feat_on && !frame.features.is_empty() {
             let f: &[FeaturePair] = frame.features;
             queue.write_buffer(&b.features.buf, 0, bytemuck::cast_slice(f));
@@ -665,12 +697,23 @@ impl LikelihoodEngine for GpuEngine {
 
     fn set_colour_model(&mut self, model: &ColourHistogram) -> Result<(), LikelihoodError> {
         self.gpu.check()?;
+        // Same checks as the CPU engine, and the same f32 sum in bin order.
         if model.0.len() != HIST_BINS {
-            return Err(LikelihoodError::Gpu(format!(
+            return Err(LikelihoodError::Invalid(format!(
                 "colour model has {} bins, expected {HIST_BINS}",
                 model.0.len()
             )));
         }
+        if !model.0.iter().all(|v| v.is_finite() && *v >= 0.0) {
+            return Err(LikelihoodError::Invalid(
+                "colour model has a negative or non-finite bin".into(),
+            ));
+        }
+        let q_sum = cpu::colour::Model::new(&model.0).q_sum;
+        if !(q_sum > 0.0 && q_sum.is_finite()) {
+            return Err(LikelihoodError::Invalid("colour model is empty".into()));
+        }
+        self.q_sum = q_sum;
         self.gpu
             .queue
             .write_buffer(&self.bufs.model, 0, bytemuck::cast_slice(&model.0));

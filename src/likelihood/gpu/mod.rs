@@ -50,8 +50,8 @@ pub struct FrameUniform {
     pub line_h: i32,
     /// Bit flags: [`FLAG_DEBUG_HIST`].
     pub flags: u32,
-    /// Padding to a multiple of 16 bytes.
-    pub _pad: u32,
+    /// `Σ_k q_k` of the colour model, summed in bin order in `f32` (as the CPU twin).
+    pub q_sum: f32,
 }
 
 /// [`FrameUniform::flags`]: write each particle's histogram counts to the debug buffer.
@@ -239,7 +239,7 @@ mod tests {
                 ("theta0", offset_of!(FrameUniform, theta0)),
                 ("line_h", offset_of!(FrameUniform, line_h)),
                 ("flags", offset_of!(FrameUniform, flags)),
-                ("_pad", offset_of!(FrameUniform, _pad)),
+                ("q_sum", offset_of!(FrameUniform, q_sum)),
             ],
         );
     }
