@@ -20,6 +20,7 @@
 
 mod device;
 mod engine;
+pub mod workload;
 
 pub use device::{GpuDevice, adapter_names};
 pub use engine::{DebugOutput, GpuEngine, StageTimes, TimingSource};
