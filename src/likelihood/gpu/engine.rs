@@ -340,7 +340,7 @@ impl GpuEngine {
     }
 
     fn max_binding(&self) -> u64 {
-        (self.gpu.limits.max_storage_buffer_binding_size as u64)
+        self.gpu.limits.max_storage_buffer_binding_size
             .min(self.gpu.limits.max_buffer_size)
     }
 
@@ -425,8 +425,8 @@ impl GpuEngine {
         params: &LikelihoodParams,
         particles: &[Particle],
         out: &mut Vec<TermLogs>,
-        mut debug: Option<&mut DebugOutput>,
-        mut timing: Option<&mut StageTimes>,
+        debug: Option<&mut DebugOutput>,
+        timing: Option<&mut StageTimes>,
     ) -> Result<(), LikelihoodError> {
         let t_start = Instant::now();
         self.gpu.check()?;
@@ -603,7 +603,7 @@ impl GpuEngine {
         })?;
         let t_read = Instant::now();
 
-        if let Some(dbg) = debug.as_deref_mut() {
+        if let Some(dbg) = debug {
             dbg.histograms.clear();
             dbg.line_distances.clear();
             for (on, src, bytes) in [(colour_on, 0, hist_bytes), (grad_on, 1, line_bytes)] {
@@ -627,7 +627,7 @@ impl GpuEngine {
             }
         }
 
-        if let Some(times) = timing.as_deref_mut() {
+        if let Some(times) = timing {
             times.upload = t_uploaded - t_start;
             times.readback = t_read - t_gpu_done;
             times.kernels.clear();
