@@ -240,7 +240,7 @@ fn colour_without_a_model_is_an_error() {
 #[test]
 fn a_frame_beyond_the_buffer_limits_is_frame_too_large() {
     let Some(e) = engine() else { return };
-    let limit = e.device().limits.max_storage_buffer_binding_size as u64;
+    let limit = e.device().limits.max_storage_buffer_binding_size;
     // Checked before any allocation: no such frame is ever built on the host.
     let side = ((limit / 8) as f64).sqrt() as u32 + 16;
     match e.check_frame_size(side, side) {
