@@ -41,7 +41,9 @@ fn combine(
         }
         out.gradient = g;
     }
-    if (params.terms & TERM_FEATURE) != 0u {
+    // Without features the feature kernel does not run (its slot holds the previous frame's
+    // value): the term is 0, as on the CPU.
+    if (params.terms & TERM_FEATURE) != 0u && fu.num_features > 0u {
         out.feature = terms[i].feature;
     }
     out.total = out.colour + out.gradient + out.feature;

@@ -218,6 +218,38 @@ fn degenerate_particles_get_the_degenerate_total_and_zero_terms() {
 }
 
 #[test]
+fn a_frame_without_features_has_a_zero_feature_term_after_one_with_features() {
+    let Some(mut e) = engine() else { return };
+    let img = RgbImage::from_pixel(32, 32, Rgb([10, 200, 30]));
+    e.set_colour_model(&one_hot(bin_of(Rgb([10, 200, 30]))))
+        .unwrap();
+    let params = LikelihoodParams::default();
+    let features = [pftrack::likelihood::FeaturePair {
+        p: [16.0, 16.0],
+        q: [20.0, 16.0],
+    }];
+    let mut frame = FrameInput {
+        image: &img,
+        features: &features,
+        prev: particle(16.0, 16.0, 5.0, 5.0),
+        theta0: 0.0,
+    };
+    let ps = [particle(16.0, 16.0, 5.0, 5.0)];
+    let mut out = Vec::new();
+    e.evaluate(&frame, &params, &ps, &mut out).unwrap();
+    // 1 / (eps + 4) with eps = 1.
+    assert!(
+        (out[0].feature - (0.2f32).ln()).abs() < 1e-5,
+        "{:?}",
+        out[0]
+    );
+    frame.features = &[];
+    e.evaluate(&frame, &params, &ps, &mut out).unwrap();
+    assert_eq!(out[0].feature, 0.0);
+    assert_eq!(out[0].total, out[0].colour + out[0].gradient);
+}
+
+#[test]
 fn colour_without_a_model_is_an_error() {
     let Some(mut e) = engine() else { return };
     let img = RgbImage::new(8, 8);

@@ -340,7 +340,9 @@ impl GpuEngine {
     }
 
     fn max_binding(&self) -> u64 {
-        self.gpu.limits.max_storage_buffer_binding_size
+        self.gpu
+            .limits
+            .max_storage_buffer_binding_size
             .min(self.gpu.limits.max_buffer_size)
     }
 
