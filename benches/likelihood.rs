@@ -77,5 +77,10 @@ fn likelihood(c: &mut Criterion) {
     }
 }
 
-criterion_group!(benches, likelihood);
+criterion_group! {
+    name = benches;
+    // No plots: plotters needs system fonts that CI machines may lack.
+    config = Criterion::default().without_plots();
+    targets = likelihood
+}
 criterion_main!(benches);
