@@ -168,7 +168,7 @@ pub fn strength(grad: &GradientImage, x: f32, y: f32, nx: f32, ny: f32) -> f32 {
 }
 
 /// Longest line ([`line_edge_distance`]) whose strengths are gathered on the stack first.
-const STACK_SAMPLES: usize = 49;
+const STACK_SAMPLES: usize = 61;
 
 /// Distance `d = min |t|` to the nearest edge on the line through `(x, y)` along `(nx, ny)`,
 /// samples `t = -h ..= h`; `None` when the line has no edge.
@@ -187,23 +187,48 @@ pub fn line_edge_distance(
     };
     let n = (2 * h + 1) as usize;
     if n <= STACK_SAMPLES {
-        // Gather first (independent loads and divisions), then scan.
+        // Search outwards from the contour, d = 0, 1, 2, ..., and stop at the first edge:
+        // the same `min |t|`, usually from a fraction of the samples. Strengths are computed
+        // once each, on demand (slot i holds t = i - 1 - h; slots 0 and n + 1 are the zeros
+        // beyond the ends).
         let mut g = [0.0f32; STACK_SAMPLES + 2];
-        for (i, v) in g[1..=n].iter_mut().enumerate() {
-            *v = at(i as i32 - h);
-        }
-        let mut best: Option<u32> = None;
-        for i in 1..=n {
-            let cur = g[i];
-            if cur >= threshold && cur > g[i - 1] && cur >= g[i + 1] {
-                let d = (i as i32 - 1 - h).unsigned_abs();
-                if best.is_none_or(|b| d < b) {
-                    best = Some(d);
+        let mut known: u64 = 1 | (1 << (n + 1));
+        let mut get = |i: usize| -> f32 {
+            if known & (1 << i) == 0 {
+                known |= 1 << i;
+                g[i] = at(i as i32 - 1 - h);
+            }
+            g[i]
+        };
+        let centre = (h + 1) as usize;
+        for d in 0..=h as usize {
+            for i in [centre - d, centre + d] {
+                let cur = get(i);
+                if cur >= threshold && cur > get(i - 1) && cur >= get(i + 1) {
+                    return Some(d as u32);
                 }
             }
         }
-        return best;
+        return None;
     }
+    scan_edge_distance(grad, x, y, nx, ny, h, threshold)
+}
+
+/// [`line_edge_distance`] by a plain scan over every sample (the definition; used for long
+/// lines).
+fn scan_edge_distance(
+    grad: &GradientImage,
+    x: f32,
+    y: f32,
+    nx: f32,
+    ny: f32,
+    h: i32,
+    threshold: f32,
+) -> Option<u32> {
+    let at = |t: i32| {
+        let tf = t as f32;
+        strength(grad, x + tf * nx, y + tf * ny, nx, ny)
+    };
     let mut best: Option<u32> = None;
     let mut prev = 0.0f32;
     let mut cur = at(-h);
@@ -418,24 +443,29 @@ mod tests {
     }
 
     #[test]
-    fn long_lines_agree_with_the_stack_path() {
-        let img = RgbImage::from_fn(300, 40, |x, y| {
-            let v = ((x * 37 + y * 11) % 97) as u8;
+    fn outward_search_equals_the_full_scan() {
+        let img = RgbImage::from_fn(120, 90, |x, y| {
+            let v = ((x * 37 + y * 11 + (x * y) % 13) % 97) as u8;
             image::Rgb([v, v / 2, 255 - v])
         });
         let g = GradientImage::new(&img);
-        // h = 24 uses the stack, h = 25 the streaming scan; the lines share their middle,
-        // so the distance found within 24 must agree when an edge is that close.
-        for k in 0..50 {
-            let (x, y) = (100.0 + k as f32 * 1.3, 20.0 + (k % 7) as f32 * 0.7);
-            let (nx, ny) = (0.8f32, 0.6f32);
-            let short = line_edge_distance(&g, x, y, nx, ny, 24, 0.05);
-            let long = line_edge_distance(&g, x, y, nx, ny, 25, 0.05);
-            assert!(short.is_some());
-            if short.unwrap() < 24 {
-                assert_eq!(short, long);
+        let mut found = 0;
+        for k in 0..400 {
+            let (x, y) = (-10.0 + k as f32 * 0.37, 20.0 + (k % 17) as f32 * 3.1);
+            let ang = k as f32 * 0.7;
+            let (nx, ny) = (ang.cos(), ang.sin());
+            for h in [0, 1, 2, 5, 8, 13, 30] {
+                for thr in [0.0, 0.02, 0.1, 0.3] {
+                    let a = line_edge_distance(&g, x, y, nx, ny, h, thr);
+                    let b = scan_edge_distance(&g, x, y, nx, ny, h, thr);
+                    assert_eq!(a, b, "line {k} h {h} thr {thr}");
+                    found += a.is_some() as usize;
+                }
             }
         }
+        assert!(found > 1000, "{found}");
+        // Long lines take the scan.
+        assert!(line_edge_distance(&g, 60.0, 45.0, 1.0, 0.0, 40, 0.05).is_some());
     }
 
     #[test]
