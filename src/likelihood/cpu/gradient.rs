@@ -78,13 +78,26 @@ impl GradientImage {
             let up = &luma[y.saturating_sub(1) * w..][..w];
             let mid = &luma[y * w..][..w];
             let down = &luma[(y + 1).min(h - 1) * w..][..w];
-            for x in 0..w {
-                let xl = x.saturating_sub(1);
-                let xr = (x + 1).min(w - 1);
-                out[x] = [
+            let g = |xl: usize, x: usize, xr: usize| {
+                [
                     mid[xr] as i32 - mid[xl] as i32,
                     down[x] as i32 - up[x] as i32,
-                ];
+                ]
+            };
+            out[0] = g(0, 0, 1.min(w - 1));
+            if w > 1 {
+                out[w - 1] = g(w - 2, w - 1, w - 1);
+            }
+            if w > 2 {
+                // Interior: no clamping, written for the vectoriser.
+                for (((o, m), u), d) in out[1..w - 1]
+                    .iter_mut()
+                    .zip(mid.windows(3))
+                    .zip(&up[1..w - 1])
+                    .zip(&down[1..w - 1])
+                {
+                    *o = [m[2] as i32 - m[0] as i32, *d as i32 - *u as i32];
+                }
             }
         };
         if parallel {
@@ -142,19 +155,68 @@ pub fn contour_point(e: &EllipseF32, s: f32, c: f32, cp: f32, sp: f32) -> (f32, 
 /// Edge strength at the nearest pixel of `(x, y)` along `(nx, ny)`; 0 outside the frame.
 #[inline]
 pub fn strength(grad: &GradientImage, x: f32, y: f32, nx: f32, ny: f32) -> f32 {
-    let px = (x + 0.5).floor();
-    let py = (y + 0.5).floor();
-    // Written so that NaN positions fail the test too.
+    // Nearest pixel floor(x + 0.5): for px >= 0, the truncating cast is the floor, and
+    // floor(px) lies in [0, W) iff px does (W an integer). Written so NaN fails the test.
+    let px = x + 0.5;
+    let py = y + 0.5;
     if !(px >= 0.0 && py >= 0.0 && px < grad.width as f32 && py < grad.height as f32) {
         return 0.0;
     }
-    let [gx, gy] = grad.at(px as usize, py as usize);
+    // In range, so the (cheap) i32 cast is exact.
+    let [gx, gy] = grad.at(px as i32 as usize, py as i32 as usize);
     (gx as f32 * nx + gy as f32 * ny).abs() / STRENGTH_SCALE
 }
+
+/// Longest line ([`line_edge_distance`]) whose strengths are gathered on the stack first.
+const STACK_SAMPLES: usize = 61;
 
 /// Distance `d = min |t|` to the nearest edge on the line through `(x, y)` along `(nx, ny)`,
 /// samples `t = -h ..= h`; `None` when the line has no edge.
 pub fn line_edge_distance(
+    grad: &GradientImage,
+    x: f32,
+    y: f32,
+    nx: f32,
+    ny: f32,
+    h: i32,
+    threshold: f32,
+) -> Option<u32> {
+    let at = |t: i32| {
+        let tf = t as f32;
+        strength(grad, x + tf * nx, y + tf * ny, nx, ny)
+    };
+    let n = (2 * h + 1) as usize;
+    if n <= STACK_SAMPLES {
+        // Search outwards from the contour, d = 0, 1, 2, ..., and stop at the first edge:
+        // the same `min |t|`, usually from a fraction of the samples. Strengths are computed
+        // once each, on demand (slot i holds t = i - 1 - h; slots 0 and n + 1 are the zeros
+        // beyond the ends).
+        let mut g = [0.0f32; STACK_SAMPLES + 2];
+        let mut known: u64 = 1 | (1 << (n + 1));
+        let mut get = |i: usize| -> f32 {
+            if known & (1 << i) == 0 {
+                known |= 1 << i;
+                g[i] = at(i as i32 - 1 - h);
+            }
+            g[i]
+        };
+        let centre = (h + 1) as usize;
+        for d in 0..=h as usize {
+            for i in [centre - d, centre + d] {
+                let cur = get(i);
+                if cur >= threshold && cur > get(i - 1) && cur >= get(i + 1) {
+                    return Some(d as u32);
+                }
+            }
+        }
+        return None;
+    }
+    scan_edge_distance(grad, x, y, nx, ny, h, threshold)
+}
+
+/// [`line_edge_distance`] by a plain scan over every sample (the definition; used for long
+/// lines).
+fn scan_edge_distance(
     grad: &GradientImage,
     x: f32,
     y: f32,
@@ -295,6 +357,35 @@ mod tests {
     }
 
     #[test]
+    fn gradient_matches_the_clamped_definition_on_any_size() {
+        let mut seed = 1u32;
+        for (w, h) in [(1, 1), (1, 5), (5, 1), (2, 2), (3, 7), (17, 9)] {
+            let img = RgbImage::from_fn(w, h, |_, _| {
+                seed = seed.wrapping_mul(1664525).wrapping_add(1013904223);
+                let b = seed.to_le_bytes();
+                image::Rgb([b[1], b[2], b[3]])
+            });
+            let l = |x: i64, y: i64| {
+                let p = img.get_pixel(
+                    x.clamp(0, w as i64 - 1) as u32,
+                    y.clamp(0, h as i64 - 1) as u32,
+                );
+                luma_int(p[0], p[1], p[2]) as i32
+            };
+            for parallel in [false, true] {
+                let mut g = GradientImage::default();
+                g.fill(&img, &mut Vec::new(), parallel);
+                for y in 0..h as i64 {
+                    for x in 0..w as i64 {
+                        let want = [l(x + 1, y) - l(x - 1, y), l(x, y + 1) - l(x, y - 1)];
+                        assert_eq!(g.at(x as usize, y as usize), want, "{w}x{h} at ({x}, {y})");
+                    }
+                }
+            }
+        }
+    }
+
+    #[test]
     fn contour_point_matches_geometry() {
         let e64 = Ellipse {
             cx: 40.0,
@@ -349,6 +440,32 @@ mod tests {
             line_edge_distance(&g, f32::NAN, 1.0, 1.0, 0.0, 8, 0.0),
             None
         );
+    }
+
+    #[test]
+    fn outward_search_equals_the_full_scan() {
+        let img = RgbImage::from_fn(120, 90, |x, y| {
+            let v = ((x * 37 + y * 11 + (x * y) % 13) % 97) as u8;
+            image::Rgb([v, v / 2, 255 - v])
+        });
+        let g = GradientImage::new(&img);
+        let mut found = 0;
+        for k in 0..400 {
+            let (x, y) = (-10.0 + k as f32 * 0.37, 20.0 + (k % 17) as f32 * 3.1);
+            let ang = k as f32 * 0.7;
+            let (nx, ny) = (ang.cos(), ang.sin());
+            for h in [0, 1, 2, 5, 8, 13, 30] {
+                for thr in [0.0, 0.02, 0.1, 0.3] {
+                    let a = line_edge_distance(&g, x, y, nx, ny, h, thr);
+                    let b = scan_edge_distance(&g, x, y, nx, ny, h, thr);
+                    assert_eq!(a, b, "line {k} h {h} thr {thr}");
+                    found += a.is_some() as usize;
+                }
+            }
+        }
+        assert!(found > 1000, "{found}");
+        // Long lines take the scan.
+        assert!(line_edge_distance(&g, 60.0, 45.0, 1.0, 0.0, 40, 0.05).is_some());
     }
 
     #[test]
