@@ -286,6 +286,33 @@ fn a_frame_beyond_the_buffer_limits_is_frame_too_large() {
 }
 
 #[test]
+fn more_particle_lines_than_a_buffer_holds_is_too_many_particles() {
+    let Some(mut e) = engine() else { return };
+    let limit = e.device().limits.max_storage_buffer_binding_size;
+    let img = RgbImage::from_pixel(16, 16, Rgb([1, 2, 3]));
+    e.set_colour_model(&one_hot(0)).unwrap();
+    let params = LikelihoodParams {
+        num_lines: 4096,
+        ..Default::default()
+    };
+    // One i32 distance per (particle, line): just over the limit, checked before allocating.
+    let n = (limit / (4 * 4096)) as usize + 1;
+    let frame = FrameInput {
+        image: &img,
+        features: &[],
+        prev: particle(8.0, 8.0, 3.0, 3.0),
+        theta0: 0.0,
+    };
+    let ps = vec![frame.prev; n];
+    let mut out = Vec::new();
+    let r = e.evaluate(&frame, &params, &ps, &mut out);
+    assert!(
+        matches!(r, Err(LikelihoodError::TooManyParticles { .. })),
+        "{r:?}"
+    );
+}
+
+#[test]
 fn a_lost_device_is_a_clear_error_from_then_on() {
     let Some(mut e) = engine() else { return };
     let img = RgbImage::from_pixel(16, 16, Rgb([1, 2, 3]));
