@@ -144,6 +144,115 @@ pub enum LikelihoodError {
     /// The engine has no colour model yet.
     #[error("no colour model set")]
     NoModel,
+    /// Invalid input to an engine: parameters, frame data, colour model or thread count.
+    #[error("invalid likelihood input: {0}")]
+    Invalid(String),
+    /// No Vulkan adapter: the driver (or the loader) is missing.
+    #[error(
+        "no Vulkan adapter found (install a Vulkan driver, e.g. `apt-get install mesa-vulkan-drivers libvulkan1`, or use --backend cpu)"
+    )]
+    NoAdapter,
+    /// `PFTRACK_ADAPTER` names no adapter.
+    #[error("no Vulkan adapter matches PFTRACK_ADAPTER={wanted:?}; available: {}", available.join("; "))]
+    AdapterNotFound {
+        /// The substring asked for.
+        wanted: String,
+        /// The adapters there are.
+        available: Vec<String>,
+    },
+    /// The GPU device was lost (driver reset, device destroyed); the engine is unusable.
+    #[error("GPU device lost ({0}); rerun with --backend cpu")]
+    DeviceLost(String),
+    /// The frame does not fit the adapter's buffer limits.
+    #[error(
+        "frame {width}x{height} needs a {bytes}-byte GPU buffer, beyond the adapter's limit of {limit} bytes (use --backend cpu or a smaller frame)"
+    )]
+    FrameTooLarge {
+        /// Frame width.
+        width: u32,
+        /// Frame height.
+        height: u32,
+        /// Bytes of the largest per-frame buffer.
+        bytes: u64,
+        /// The adapter's limit.
+        limit: u64,
+    },
+    /// More particles (or particle × line pairs) than the adapter's buffers hold.
+    #[error(
+        "{n} particles need a {bytes}-byte GPU buffer, beyond the adapter's limit of {limit} bytes"
+    )]
+    TooManyParticles {
+        /// Number of particles.
+        n: usize,
+        /// Bytes of the largest per-particle buffer.
+        bytes: u64,
+        /// The adapter's limit.
+        limit: u64,
+    },
+    /// Any other GPU failure (device request, validation, mapping).
+    #[error("GPU error: {0}")]
+    Gpu(String),
+}
+
+/// Which likelihood engine to run.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, clap::ValueEnum)]
+pub enum Backend {
+    /// The GPU when a Vulkan adapter exists, else the CPU (with a one-line notice).
+    #[default]
+    Auto,
+    /// The CPU reference engine.
+    Cpu,
+    /// The GPU engine; an error when there is no Vulkan adapter.
+    Gpu,
+}
+
+impl std::str::FromStr for Backend {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        match s.to_ascii_lowercase().as_str() {
+            "auto" => Ok(Backend::Auto),
+            "cpu" => Ok(Backend::Cpu),
+            "gpu" => Ok(Backend::Gpu),
+            other => Err(format!(
+                "unknown backend {other:?} (expected auto, cpu or gpu)"
+            )),
+        }
+    }
+}
+
+impl std::fmt::Display for Backend {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Backend::Auto => "auto",
+            Backend::Cpu => "cpu",
+            Backend::Gpu => "gpu",
+        })
+    }
+}
+
+/// The likelihood engine for `backend`, with a one-line notice when `Auto` fell back to the CPU.
+///
+/// `Auto` opens the GPU engine when a Vulkan adapter exists (`PFTRACK_ADAPTER` picks one by
+/// name) and otherwise returns the CPU engine with a notice saying why; `Gpu` fails when there
+/// is no adapter ([`LikelihoodError::NoAdapter`], naming the package to install); `Cpu` is the
+/// CPU engine on all threads. A GPU engine whose device is lost later fails every call with
+/// [`LikelihoodError::DeviceLost`]; it does not switch to the CPU behind the caller's back.
+pub fn create_engine(
+    backend: Backend,
+) -> Result<(Box<dyn LikelihoodEngine + Send>, Option<String>), LikelihoodError> {
+    match backend {
+        Backend::Cpu => Ok((Box::new(cpu::CpuEngine::new()), None)),
+        Backend::Gpu => Ok((Box::new(gpu::GpuEngine::new()?), None)),
+        Backend::Auto => match gpu::GpuEngine::new() {
+            Ok(g) => Ok((Box::new(g), None)),
+            // A named adapter that does not exist is the user's mistake: report it.
+            Err(e @ LikelihoodError::AdapterNotFound { .. }) => Err(e),
+            Err(e) => Ok((
+                Box::new(cpu::CpuEngine::new()),
+                Some(format!("note: likelihood on the CPU ({e})")),
+            )),
+        },
+    }
 }
 
 /// An engine that evaluates all particles' likelihoods for a frame.
@@ -168,3 +277,35 @@ pub trait LikelihoodEngine {
 /// component), by every engine: finite, so weights stay well defined, and far below any real
 /// particle's.
 pub const DEGENERATE: f32 = -1e30;
+
+#[cfg(test)]
+mod backend_tests {
+    use super::*;
+
+    #[test]
+    fn backend_parses_case_insensitively_and_rejects_others() {
+        assert_eq!("auto".parse::<Backend>(), Ok(Backend::Auto));
+        assert_eq!("CPU".parse::<Backend>(), Ok(Backend::Cpu));
+        assert_eq!("Gpu".parse::<Backend>(), Ok(Backend::Gpu));
+        assert!("vulkan".parse::<Backend>().is_err());
+        for b in [Backend::Auto, Backend::Cpu, Backend::Gpu] {
+            assert_eq!(b.to_string().parse::<Backend>(), Ok(b));
+        }
+    }
+
+    #[test]
+    fn cpu_backend_gives_the_cpu_engine_without_notice() {
+        let (e, notice) = create_engine(Backend::Cpu).unwrap();
+        assert!(e.name().starts_with("cpu"));
+        assert!(notice.is_none());
+    }
+
+    #[test]
+    fn no_adapter_error_names_the_fix() {
+        let msg = LikelihoodError::NoAdapter.to_string();
+        assert!(
+            msg.contains("apt-get install mesa-vulkan-drivers libvulkan1"),
+            "{msg}"
+        );
+    }
+}

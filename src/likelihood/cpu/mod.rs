@@ -1,1 +1,347 @@
-//! CPU reference implementation of every likelihood stage.
+//! CPU reference implementation of every likelihood stage, the reference the GPU engine is
+//! checked against and what the tracker runs without a GPU.
+//!
+//! One file per stage, each the twin of the WGSL shader of the same name in `shaders/`:
+//! [`colour`], [`gradient`], [`feature`], [`combine`]. The exact semantics (shared with the
+//! GPU) are in `prompts/likelihood-spec.md` and in each file's documentation.
+//!
+//! [`CpuEngine`] evaluates all particles of a frame: it prepares the per-frame data once per
+//! [`LikelihoodEngine::evaluate`] call (histogram bins of every pixel, the integer gradient
+//! image, the lifted features; nothing is cached between calls, so evaluating the same frame
+//! twice recomputes them, which costs little next to the particles), then evaluates the
+//! particles in parallel with rayon. Each particle's result depends only on its own inputs,
+//! so the output is bit for bit the same for any number of threads.
+
+pub mod colour;
+pub mod combine;
+pub mod feature;
+pub mod gradient;
+
+use rayon::prelude::*;
+
+use super::{
+    ColourHistogram, FrameInput, HIST_BINS, LikelihoodEngine, LikelihoodError, LikelihoodParams,
+    Particle, TERM_COLOUR, TERM_FEATURE, TERM_GRADIENT, TermLogs,
+};
+use crate::geometry::Ellipse;
+
+/// An ellipse in `f32`, as the likelihood stages see a particle: `theta = theta0 + rz`.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct EllipseF32 {
+    /// Centre x.
+    pub cx: f32,
+    /// Centre y.
+    pub cy: f32,
+    /// Semi-axis a.
+    pub a: f32,
+    /// Semi-axis b.
+    pub b: f32,
+    /// Orientation (radians).
+    pub theta: f32,
+}
+
+impl EllipseF32 {
+    /// The ellipse of a particle: `theta = theta0 + rz` in `f32`.
+    pub fn from_particle(p: &Particle, theta0: f32) -> Self {
+        Self {
+            cx: p.cx,
+            cy: p.cy,
+            a: p.a,
+            b: p.b,
+            theta: theta0 + p.rz,
+        }
+    }
+
+    /// An `f64` ellipse rounded to `f32`.
+    pub fn from_ellipse(e: &Ellipse) -> Self {
+        Self {
+            cx: e.cx as f32,
+            cy: e.cy as f32,
+            a: e.a as f32,
+            b: e.b as f32,
+            theta: e.theta as f32,
+        }
+    }
+
+    /// Finite parameters and positive semi-axes.
+    pub fn is_valid(&self) -> bool {
+        [self.cx, self.cy, self.a, self.b, self.theta]
+            .iter()
+            .all(|v| v.is_finite())
+            && self.a > 0.0
+            && self.b > 0.0
+    }
+}
+
+/// Whether a particle is degenerate (`a <= 0`, `b <= 0` or a non-finite component among
+/// `cx, cy, a, b, rx, ry, rz`): it gets [`combine::DEGENERATE_LOGS`].
+pub fn is_degenerate(p: &Particle) -> bool {
+    let finite = [p.cx, p.cy, p.a, p.b, p.rx, p.ry, p.rz]
+        .iter()
+        .all(|v| v.is_finite());
+    !(finite && p.a > 0.0 && p.b > 0.0)
+}
+
+impl ColourHistogram {
+    /// The normalised colour model of the pixels of `image` inside `ellipse` (the same pixel
+    /// set as a particle's histogram, [`colour`]): `q_k = count_k / total` in `f32`.
+    ///
+    /// Errors when the ellipse is degenerate or holds no pixel of the frame.
+    pub fn from_ellipse(
+        image: &image::RgbImage,
+        ellipse: &Ellipse,
+    ) -> Result<Self, LikelihoodError> {
+        let e = EllipseF32::from_ellipse(ellipse);
+        if !e.is_valid() {
+            return Err(LikelihoodError::Invalid(format!(
+                "colour model ellipse is degenerate: {ellipse:?}"
+            )));
+        }
+        let (counts, total) = colour::histogram(image, &e);
+        if total == 0 {
+            return Err(LikelihoodError::Invalid(format!(
+                "colour model ellipse holds no pixel of the {}x{} frame: {ellipse:?}",
+                image.width(),
+                image.height()
+            )));
+        }
+        Ok(Self(colour::normalise(&counts, total)))
+    }
+}
+
+/// How an engine runs its parallel loops.
+#[derive(Debug)]
+enum Exec {
+    /// rayon's global pool (all threads).
+    Global,
+    /// The engine's own pool.
+    Pool(rayon::ThreadPool),
+    /// The calling thread only, no rayon.
+    Single,
+}
+
+/// The CPU likelihood engine (rayon).
+#[derive(Debug)]
+pub struct CpuEngine {
+    exec: Exec,
+    model: Option<colour::Model>,
+    bins: colour::BinImage,
+    grad: gradient::GradientImage,
+    luma: Vec<u32>,
+}
+
+impl Default for CpuEngine {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl CpuEngine {
+    /// An engine on rayon's global pool (all threads).
+    pub fn new() -> Self {
+        Self::with_exec(Exec::Global)
+    }
+
+    /// An engine on its own pool of `threads` threads; `1` runs on the calling thread alone.
+    /// Errors when `threads` is 0 or the pool cannot be created.
+    pub fn with_threads(threads: usize) -> Result<Self, LikelihoodError> {
+        match threads {
+            0 => Err(LikelihoodError::Invalid(
+                "the CPU engine needs at least one thread".into(),
+            )),
+            1 => Ok(Self::with_exec(Exec::Single)),
+            n => rayon::ThreadPoolBuilder::new()
+                .num_threads(n)
+                .build()
+                .map(|p| Self::with_exec(Exec::Pool(p)))
+                .map_err(|e| LikelihoodError::Invalid(format!("cannot start {n} threads: {e}"))),
+        }
+    }
+
+    fn with_exec(exec: Exec) -> Self {
+        Self {
+            exec,
+            model: None,
+            bins: Default::default(),
+            grad: Default::default(),
+            luma: Vec::new(),
+        }
+    }
+
+    /// Number of threads the engine uses.
+    pub fn threads(&self) -> usize {
+        match &self.exec {
+            Exec::Global => rayon::current_num_threads(),
+            Exec::Pool(p) => p.current_num_threads(),
+            Exec::Single => 1,
+        }
+    }
+
+    fn evaluate_inner(
+        &mut self,
+        frame: &FrameInput<'_>,
+        params: &LikelihoodParams,
+        particles: &[Particle],
+        out: &mut Vec<TermLogs>,
+        parallel: bool,
+    ) -> Result<(), LikelihoodError> {
+        let use_colour = params.terms & TERM_COLOUR != 0;
+        let use_gradient = params.terms & TERM_GRADIENT != 0;
+        let use_feature = params.terms & TERM_FEATURE != 0 && !frame.features.is_empty();
+        let model = match (&self.model, use_colour) {
+            (Some(m), true) => Some(m),
+            (None, true) => return Err(LikelihoodError::NoModel),
+            _ => None,
+        };
+        if use_colour {
+            self.bins.fill(frame.image);
+        }
+        if use_gradient {
+            self.grad.fill(frame.image, &mut self.luma, parallel);
+        }
+        let feats = use_feature
+            .then(|| feature::FeatureFrame::new(frame.features, &frame.prev, frame.theta0, params));
+        let angles = gradient::line_angles(params.num_lines);
+        let (bins, grad) = (&self.bins, &self.grad);
+        let theta0 = frame.theta0;
+
+        let one = |p: &Particle| -> TermLogs {
+            if is_degenerate(p) {
+                return combine::DEGENERATE_LOGS;
+            }
+            let e = EllipseF32::from_particle(p, theta0);
+            let c = match model {
+                Some(m) => {
+                    let mut counts = [0u32; HIST_BINS];
+                    let total = colour::histogram_bins(bins, &e, &mut counts);
+                    colour::log_from_rho(
+                        colour::bhattacharyya(&counts, total, m),
+                        params.sigma_colour,
+                    )
+                }
+                None => 0.0,
+            };
+            let g = if use_gradient {
+                gradient::log_likelihood_ellipse(grad, &e, &angles, params)
+            } else {
+                0.0
+            };
+            let f = match &feats {
+                Some(ff) => ff.log_likelihood(p, params.feature_eps),
+                None => 0.0,
+            };
+            combine::combine(c, g, f, params)
+        };
+
+        out.clear();
+        out.resize(particles.len(), TermLogs::default());
+        if parallel {
+            out.par_iter_mut()
+                .zip(particles.par_iter())
+                .with_min_len(8)
+                .for_each(|(o, p)| *o = one(p));
+        } else {
+            out.iter_mut().zip(particles).for_each(|(o, p)| *o = one(p));
+        }
+        Ok(())
+    }
+}
+
+/// Checks what a frame's evaluation depends on besides the particles.
+pub fn validate(frame: &FrameInput<'_>, params: &LikelihoodParams) -> Result<(), LikelihoodError> {
+    let bad = |what: &str| Err(LikelihoodError::Invalid(what.to_string()));
+    let pos = |v: f32| v.is_finite() && v > 0.0;
+    if params.terms & !(TERM_COLOUR | TERM_GRADIENT | TERM_FEATURE) != 0 {
+        return bad("unknown bits in the likelihood terms flags");
+    }
+    if !frame.theta0.is_finite() {
+        return bad("theta0 is not finite");
+    }
+    if params.terms & TERM_COLOUR != 0 && !pos(params.sigma_colour) {
+        return bad("sigma_colour must be positive and finite");
+    }
+    if params.terms & TERM_GRADIENT != 0 {
+        if !(pos(params.sigma_z) && pos(params.p_no_contour) && pos(params.clutter_density)) {
+            return bad("sigma_z, p_no_contour and clutter_density must be positive and finite");
+        }
+        if !gradient::clutter_gain(params).is_finite() {
+            return bad("1 / (sqrt(2 pi) sigma_z p0 gamma) overflows");
+        }
+        if !params.edge_threshold.is_finite() {
+            return bad("edge_threshold is not finite");
+        }
+        if !(params.line_half_length >= 0.0 && params.line_half_length <= 4096.0) {
+            return bad("line_half_length must be in [0, 4096]");
+        }
+        if params.num_lines > 4096 {
+            return bad("num_lines must be at most 4096");
+        }
+    }
+    if params.terms & TERM_FEATURE != 0 && !frame.features.is_empty() {
+        if !pos(params.feature_eps) {
+            return bad("feature_eps must be positive and finite");
+        }
+        if !(params.depth_ratio.is_finite() && params.depth_ratio >= 0.0) {
+            return bad("depth_ratio must be finite and non-negative");
+        }
+        if is_degenerate(&frame.prev) {
+            return bad("the previous estimate is degenerate");
+        }
+        if frame
+            .features
+            .iter()
+            .any(|f| !(f.p.iter().chain(&f.q).all(|v| v.is_finite())))
+        {
+            return bad("a feature position is not finite");
+        }
+    }
+    Ok(())
+}
+
+impl LikelihoodEngine for CpuEngine {
+    fn name(&self) -> String {
+        format!("cpu ({} threads)", self.threads())
+    }
+
+    fn set_colour_model(&mut self, model: &ColourHistogram) -> Result<(), LikelihoodError> {
+        if model.0.len() != HIST_BINS {
+            return Err(LikelihoodError::Invalid(format!(
+                "colour model has {} bins, expected {HIST_BINS}",
+                model.0.len()
+            )));
+        }
+        if !model.0.iter().all(|v| v.is_finite() && *v >= 0.0) {
+            return Err(LikelihoodError::Invalid(
+                "colour model has a negative or non-finite bin".into(),
+            ));
+        }
+        let m = colour::Model::new(&model.0);
+        if !(m.q_sum > 0.0 && m.q_sum.is_finite()) {
+            return Err(LikelihoodError::Invalid("colour model is empty".into()));
+        }
+        self.model = Some(m);
+        Ok(())
+    }
+
+    fn evaluate(
+        &mut self,
+        frame: &FrameInput<'_>,
+        params: &LikelihoodParams,
+        particles: &[Particle],
+        out: &mut Vec<TermLogs>,
+    ) -> Result<(), LikelihoodError> {
+        validate(frame, params)?;
+        match std::mem::replace(&mut self.exec, Exec::Single) {
+            Exec::Single => self.evaluate_inner(frame, params, particles, out, false),
+            Exec::Global => {
+                self.exec = Exec::Global;
+                self.evaluate_inner(frame, params, particles, out, true)
+            }
+            Exec::Pool(pool) => {
+                let r = pool.install(|| self.evaluate_inner(frame, params, particles, out, true));
+                self.exec = Exec::Pool(pool);
+                r
+            }
+        }
+    }
+}

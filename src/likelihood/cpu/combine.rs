@@ -1,0 +1,104 @@
+//! Combination of the terms into one log-likelihood per particle (CPU twin of
+//! `shaders/combine.wgsl`).
+
+use crate::likelihood::{
+    DEGENERATE, LikelihoodParams, TERM_COLOUR, TERM_FEATURE, TERM_GRADIENT, TermLogs,
+};
+
+/// The result given to a degenerate particle: `total = DEGENERATE`, every term 0.
+pub const DEGENERATE_LOGS: TermLogs = TermLogs {
+    colour: 0.0,
+    gradient: 0.0,
+    feature: 0.0,
+    total: DEGENERATE,
+};
+
+/// Combines the three term logs: a disabled term's slot is 0; `total` is the sum of the
+/// enabled terms in the order colour, gradient, feature (`((0 + c) + g) + f` in `f32`).
+///
+/// Non-finite results never escape: if the total is not finite (a finite but absurd particle,
+/// e.g. a centre at 1e38 whose feature prediction overflows), the particle is treated as
+/// degenerate ([`DEGENERATE_LOGS`]).
+pub fn combine(colour: f32, gradient: f32, feature: f32, params: &LikelihoodParams) -> TermLogs {
+    let colour = if params.terms & TERM_COLOUR != 0 {
+        colour
+    } else {
+        0.0
+    };
+    let gradient = if params.terms & TERM_GRADIENT != 0 {
+        gradient
+    } else {
+        0.0
+    };
+    let feature = if params.terms & TERM_FEATURE != 0 {
+        feature
+    } else {
+        0.0
+    };
+    let mut total = 0.0f32;
+    total += colour;
+    total += gradient;
+    total += feature;
+    if !total.is_finite() {
+        return DEGENERATE_LOGS;
+    }
+    TermLogs {
+        colour,
+        gradient,
+        feature,
+        total,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn sums_enabled_terms_and_zeroes_disabled_ones() {
+        let mut p = LikelihoodParams::default();
+        p.terms = TERM_COLOUR | TERM_GRADIENT | TERM_FEATURE;
+        let t = combine(-1.0, -2.0, 0.5, &p);
+        assert_eq!(
+            t,
+            TermLogs {
+                colour: -1.0,
+                gradient: -2.0,
+                feature: 0.5,
+                total: -2.5
+            }
+        );
+        p.terms = TERM_GRADIENT;
+        let t = combine(-1.0, -2.0, 0.5, &p);
+        assert_eq!(
+            t,
+            TermLogs {
+                colour: 0.0,
+                gradient: -2.0,
+                feature: 0.0,
+                total: -2.0
+            }
+        );
+        p.terms = TERM_COLOUR | TERM_FEATURE;
+        let t = combine(-1.0, f32::NAN, 0.5, &p);
+        assert_eq!(
+            t,
+            TermLogs {
+                colour: -1.0,
+                gradient: 0.0,
+                feature: 0.5,
+                total: -0.5
+            }
+        );
+        p.terms = 0;
+        assert_eq!(combine(-1.0, -2.0, 0.5, &p), TermLogs::default());
+    }
+
+    #[test]
+    fn non_finite_totals_become_degenerate() {
+        let p = LikelihoodParams::default();
+        assert_eq!(combine(-1.0, 0.0, f32::NEG_INFINITY, &p), DEGENERATE_LOGS);
+        assert_eq!(combine(f32::NAN, 0.0, 0.0, &p), DEGENERATE_LOGS);
+        assert_eq!(combine(-3e38, -3e38, 0.0, &p), DEGENERATE_LOGS);
+    }
+}

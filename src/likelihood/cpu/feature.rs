@@ -1,0 +1,197 @@
+//! Feature term (CPU twin of `shaders/feature.wgsl`): the matched features of the previous
+//! frame, lifted to 3D on an ellipsoid prior, moved with the particle's rotation relative to
+//! the previous estimate, compared with where they were matched in the current frame.
+//!
+//! # Semantics (exact, shared with the GPU)
+//! For each pair `(p, q)`: `(u, v) = E_prev.to_unit(p)` (theta = `theta0 + prev.rz`);
+//! `X = (p.x - prev.cx, p.y - prev.cy, z)`, `z = (-depth_ratio · sqrt(a_prev b_prev)) ·
+//! sqrt(max(0, (1 - u²) - v²))`; `ΔR = R_i R_prevᵀ` with `R = (Rx Ry) Rz` in `f32`;
+//! `s = sqrt((a b) / (a_prev b_prev))`; `q̂ = (cx, cy) + s (ΔR X)_xy`;
+//! `ln p_feature = ln Σ_j 1 / (ε + ‖q_j − q̂_j‖)`; no features: 0.
+
+use super::EllipseF32;
+use crate::likelihood::{FeaturePair, LikelihoodParams, Particle};
+
+/// A 3×3 matrix, row-major, `f32`.
+pub type Mat3 = [[f32; 3]; 3];
+
+/// `a · b`, each entry summed as `(a0 b0 + a1 b1) + a2 b2`.
+pub fn mat_mul(a: &Mat3, b: &Mat3) -> Mat3 {
+    let mut m = [[0.0f32; 3]; 3];
+    for (i, row) in m.iter_mut().enumerate() {
+        for (j, v) in row.iter_mut().enumerate() {
+            *v = a[i][0] * b[0][j] + a[i][1] * b[1][j] + a[i][2] * b[2][j];
+        }
+    }
+    m
+}
+
+/// Transpose.
+pub fn transpose(a: &Mat3) -> Mat3 {
+    let mut m = [[0.0f32; 3]; 3];
+    for (i, row) in m.iter_mut().enumerate() {
+        for (j, v) in row.iter_mut().enumerate() {
+            *v = a[j][i];
+        }
+    }
+    m
+}
+
+/// `R = (Rx(rx) · Ry(ry)) · Rz(rz)` in `f32` (the project's convention, `geometry::Euler`).
+pub fn rotation(rx: f32, ry: f32, rz: f32) -> Mat3 {
+    let (sa, ca) = rx.sin_cos();
+    let (sb, cb) = ry.sin_cos();
+    let (sc, cc) = rz.sin_cos();
+    let mx = [[1.0, 0.0, 0.0], [0.0, ca, -sa], [0.0, sa, ca]];
+    let my = [[cb, 0.0, sb], [0.0, 1.0, 0.0], [-sb, 0.0, cb]];
+    let mz = [[cc, -sc, 0.0], [sc, cc, 0.0], [0.0, 0.0, 1.0]];
+    mat_mul(&mat_mul(&mx, &my), &mz)
+}
+
+/// A feature prepared once per frame: its lifted previous position `X` and its current `q`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Lifted {
+    /// `X = (p - c_prev, z)`.
+    pub x: [f32; 3],
+    /// Matched position in the current frame.
+    pub q: [f32; 2],
+}
+
+/// What the feature term needs per frame: the lifted features and `R_prevᵀ`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FeatureFrame {
+    /// Lifted features.
+    pub lifted: Vec<Lifted>,
+    /// `R_prevᵀ`.
+    pub r_prev_t: Mat3,
+    /// `a_prev · b_prev`.
+    pub ab_prev: f32,
+}
+
+/// Lifts one feature `p` onto the ellipsoid prior of the previous estimate.
+pub fn lift(p: [f32; 2], prev: &Particle, theta0: f32, depth_ratio: f32) -> [f32; 3] {
+    let e = EllipseF32::from_particle(prev, theta0);
+    let (s, c) = e.theta.sin_cos();
+    let dx = p[0] - prev.cx;
+    let dy = p[1] - prev.cy;
+    let u = (c * dx + s * dy) / prev.a;
+    let v = (-s * dx + c * dy) / prev.b;
+    let r2 = (1.0 - u * u - v * v).max(0.0);
+    let z = -depth_ratio * (prev.a * prev.b).sqrt() * r2.sqrt();
+    [dx, dy, z]
+}
+
+impl FeatureFrame {
+    /// Prepares the features of a frame against the previous estimate.
+    pub fn new(
+        features: &[FeaturePair],
+        prev: &Particle,
+        theta0: f32,
+        params: &LikelihoodParams,
+    ) -> Self {
+        let lifted = features
+            .iter()
+            .map(|f| Lifted {
+                x: lift(f.p, prev, theta0, params.depth_ratio),
+                q: f.q,
+            })
+            .collect();
+        Self {
+            lifted,
+            r_prev_t: transpose(&rotation(prev.rx, prev.ry, prev.rz)),
+            ab_prev: prev.a * prev.b,
+        }
+    }
+
+    /// `ln p_feature` of a particle (0 without features).
+    pub fn log_likelihood(&self, particle: &Particle, eps: f32) -> f32 {
+        if self.lifted.is_empty() {
+            return 0.0;
+        }
+        let dr = mat_mul(
+            &rotation(particle.rx, particle.ry, particle.rz),
+            &self.r_prev_t,
+        );
+        let s = ((particle.a * particle.b) / self.ab_prev).sqrt();
+        let mut sum = 0.0f32;
+        for f in &self.lifted {
+            let [x, y, z] = f.x;
+            let px = dr[0][0] * x + dr[0][1] * y + dr[0][2] * z;
+            let py = dr[1][0] * x + dr[1][1] * y + dr[1][2] * z;
+            let qx = particle.cx + s * px;
+            let qy = particle.cy + s * py;
+            let ex = f.q[0] - qx;
+            let ey = f.q[1] - qy;
+            sum += 1.0 / (eps + (ex * ex + ey * ey).sqrt());
+        }
+        sum.ln()
+    }
+}
+
+/// `ln p_feature` of one particle (convenience over [`FeatureFrame`], same result).
+pub fn log_likelihood(
+    features: &[FeaturePair],
+    particle: &Particle,
+    prev: &Particle,
+    theta0: f32,
+    params: &LikelihoodParams,
+) -> f32 {
+    FeatureFrame::new(features, prev, theta0, params).log_likelihood(particle, params.feature_eps)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geometry::Euler;
+
+    #[test]
+    fn rotation_matches_geometry() {
+        for &(rx, ry, rz) in &[(0.3, -0.2, 1.1), (-1.0, 0.5, 0.0), (2.0, 1.2, -2.5)] {
+            let m = rotation(rx, ry, rz);
+            let r = Euler::new(rx as f64, ry as f64, rz as f64).matrix();
+            for i in 0..3 {
+                for j in 0..3 {
+                    assert!((m[i][j] as f64 - r[(i, j)]).abs() < 1e-6);
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn lift_puts_the_centre_forward_and_the_rim_at_zero() {
+        let prev = Particle {
+            cx: 10.0,
+            cy: 20.0,
+            a: 4.0,
+            b: 9.0,
+            ..Default::default()
+        };
+        let z = lift([10.0, 20.0], &prev, 0.0, 0.5);
+        assert_eq!(z, [0.0, 0.0, -0.5 * 6.0]);
+        assert_eq!(lift([14.0, 20.0], &prev, 0.0, 0.5), [4.0, 0.0, 0.0]);
+        // outside the ellipse: clamped to the rim
+        assert_eq!(lift([10.0, 40.0], &prev, 0.0, 0.5)[2], 0.0);
+        // theta turns the ellipse: (0, 4) is the end of the a axis at theta = pi/2
+        let z = lift([10.0, 24.0], &prev, std::f32::consts::FRAC_PI_2, 0.5)[2];
+        assert!(z.abs() < 1e-3, "{z}");
+    }
+
+    #[test]
+    fn identity_motion_with_exact_matches_scores_sum_of_inverse_eps() {
+        let prev = Particle {
+            cx: 50.0,
+            cy: 40.0,
+            a: 20.0,
+            b: 20.0,
+            ..Default::default()
+        };
+        let feats: Vec<FeaturePair> = [[45.0, 38.0], [55.0, 47.0], [50.0, 30.0]]
+            .iter()
+            .map(|&p| FeaturePair { p, q: p })
+            .collect();
+        let params = LikelihoodParams::default();
+        let l = log_likelihood(&feats, &prev, &prev, 0.0, &params);
+        assert!((l - (3.0 / params.feature_eps).ln()).abs() < 1e-5, "{l}");
+        assert_eq!(log_likelihood(&[], &prev, &prev, 0.0, &params), 0.0);
+    }
+}

@@ -1,0 +1,481 @@
+//! Gradient (contour) term (CPU twin of `shaders/gradient.wgsl`): edges along `L` normal lines
+//! of the particle's ellipse, scored with the clutter model of SPEC section 3.
+//!
+//! # Semantics (exact, shared with the GPU)
+//! - Gradient image in exact integers: `L = 299 r + 587 g + 114 b`, `gx = L(x+1,y) - L(x-1,y)`,
+//!   `gy = L(x,y+1) - L(x,y-1)`, indices clamped to the frame.
+//! - Line `k` (of `L = num_lines`): `phi = (2π · k) / L`; contour point and outward unit normal
+//!   as `geometry::Ellipse::point_at` / `normal_at`, in `f32`.
+//! - Samples `t = -H ..= H`, `H = round(line_half_length)`, at `lambda + t · n`, nearest pixel
+//!   `floor(x + 0.5)`; a sample outside the frame (or at a non-finite position) has strength 0.
+//!   Strength `g(t) = |gx nx + gy ny| / 510000` (luma per pixel).
+//! - Edge at `t` iff `g(t) >= threshold`, `g(t) > g(t-1)`, `g(t) >= g(t+1)`, with `g = 0`
+//!   beyond both ends. `d = min |t|` over the edges.
+//!
+//! # Likelihood of a line
+//! `ln p_line = ln(1 + K exp(-d² / (2 σz²)))`, `K = 1 / (sqrt(2π) σz p0 γ)`, and `0` for a
+//! line without edges. This is the contour likelihood of MacCormick & Blake with Poisson
+//! clutter (density γ) and probability p0 that the contour is not detected, up to a constant
+//! factor, keeping only the nearest edge: its leading term is the SPEC's
+//! `1/(sqrt(2π) σz p0 γ) exp(-d²/(2σz²))`, and the `1 +` is the floor for a line whose edges
+//! are all clutter (or which has none), so that one missing edge cannot veto a particle.
+//! `ln p_gradient = Σ_k ln p_line`, always `>= 0`.
+
+use image::RgbImage;
+
+use super::EllipseF32;
+use crate::likelihood::{LikelihoodParams, Particle};
+
+/// `2 · 255 · 1000`: turns `gx · n` into luma units per pixel (central difference over 2 px).
+pub const STRENGTH_SCALE: f32 = 510000.0;
+
+/// The integer gradient image of a frame.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct GradientImage {
+    /// Width.
+    pub width: u32,
+    /// Height.
+    pub height: u32,
+    /// Row-major `(gx, gy)`.
+    pub g: Vec<[i32; 2]>,
+}
+
+/// `299 r + 587 g + 114 b`: luma × 1000 × 255, exact.
+#[inline]
+pub fn luma_int(r: u8, g: u8, b: u8) -> u32 {
+    299 * r as u32 + 587 * g as u32 + 114 * b as u32
+}
+
+impl GradientImage {
+    /// The gradient image of `image`.
+    pub fn new(image: &RgbImage) -> Self {
+        let mut g = Self::default();
+        g.fill(image, &mut Vec::new(), false);
+        g
+    }
+
+    /// Recomputes the gradient for `image`, reusing allocations (`luma` is scratch space);
+    /// rows in parallel (rayon, current pool) when `parallel`. Same result either way.
+    pub fn fill(&mut self, image: &RgbImage, luma: &mut Vec<u32>, parallel: bool) {
+        use rayon::prelude::*;
+        let (w, h) = (image.width() as usize, image.height() as usize);
+        self.width = w as u32;
+        self.height = h as u32;
+        luma.clear();
+        luma.extend(
+            image
+                .as_raw()
+                .chunks_exact(3)
+                .map(|p| luma_int(p[0], p[1], p[2])),
+        );
+        self.g.clear();
+        self.g.resize(w * h, [0, 0]);
+        if w == 0 || h == 0 {
+            return;
+        }
+        let luma = &luma[..];
+        let row = |y: usize, out: &mut [[i32; 2]]| {
+            let up = &luma[y.saturating_sub(1) * w..][..w];
+            let mid = &luma[y * w..][..w];
+            let down = &luma[(y + 1).min(h - 1) * w..][..w];
+            let g = |xl: usize, x: usize, xr: usize| {
+                [
+                    mid[xr] as i32 - mid[xl] as i32,
+                    down[x] as i32 - up[x] as i32,
+                ]
+            };
+            out[0] = g(0, 0, 1.min(w - 1));
+            if w > 1 {
+                out[w - 1] = g(w - 2, w - 1, w - 1);
+            }
+            if w > 2 {
+                // Interior: no clamping, written for the vectoriser.
+                for (((o, m), u), d) in out[1..w - 1]
+                    .iter_mut()
+                    .zip(mid.windows(3))
+                    .zip(&up[1..w - 1])
+                    .zip(&down[1..w - 1])
+                {
+                    *o = [m[2] as i32 - m[0] as i32, *d as i32 - *u as i32];
+                }
+            }
+        };
+        if parallel {
+            self.g
+                .par_chunks_mut(w)
+                .enumerate()
+                .for_each(|(y, out)| row(y, out));
+        } else {
+            self.g
+                .chunks_mut(w)
+                .enumerate()
+                .for_each(|(y, out)| row(y, out));
+        }
+    }
+
+    /// `(gx, gy)` at a pixel of the frame.
+    #[inline]
+    pub fn at(&self, x: usize, y: usize) -> [i32; 2] {
+        self.g[y * self.width as usize + x]
+    }
+}
+
+/// `(cos phi_k, sin phi_k)` of the `L` normal lines, `phi_k = (2π · k) / L` in `f32`.
+pub fn line_angles(num_lines: u32) -> Vec<(f32, f32)> {
+    (0..num_lines)
+        .map(|k| {
+            let phi = std::f32::consts::TAU * k as f32 / num_lines as f32;
+            let (sp, cp) = phi.sin_cos();
+            (cp, sp)
+        })
+        .collect()
+}
+
+/// `H = round(line_half_length)` (half away from zero), at least 0.
+pub fn half_samples(params: &LikelihoodParams) -> i32 {
+    params.line_half_length.round().max(0.0) as i32
+}
+
+/// Contour point and outward unit normal of the ellipse at `(cos phi, sin phi)`, given
+/// `(s, c) = sin_cos(theta)`: `(x, y, nx, ny)`.
+#[inline]
+pub fn contour_point(e: &EllipseF32, s: f32, c: f32, cp: f32, sp: f32) -> (f32, f32, f32, f32) {
+    let ex = e.a * cp;
+    let ey = e.b * sp;
+    let x = e.cx + c * ex - s * ey;
+    let y = e.cy + s * ex + c * ey;
+    let mx = cp / e.a;
+    let my = sp / e.b;
+    let n = (mx * mx + my * my).sqrt();
+    let mx = mx / n;
+    let my = my / n;
+    (x, y, c * mx - s * my, s * mx + c * my)
+}
+
+/// Edge strength at the nearest pixel of `(x, y)` along `(nx, ny)`; 0 outside the frame.
+#[inline]
+pub fn strength(grad: &GradientImage, x: f32, y: f32, nx: f32, ny: f32) -> f32 {
+    // Nearest pixel floor(x + 0.5): for px >= 0, the truncating cast is the floor, and
+    // floor(px) lies in [0, W) iff px does (W an integer). Written so NaN fails the test.
+    let px = x + 0.5;
+    let py = y + 0.5;
+    if !(px >= 0.0 && py >= 0.0 && px < grad.width as f32 && py < grad.height as f32) {
+        return 0.0;
+    }
+    // In range, so the (cheap) i32 cast is exact.
+    let [gx, gy] = grad.at(px as i32 as usize, py as i32 as usize);
+    (gx as f32 * nx + gy as f32 * ny).abs() / STRENGTH_SCALE
+}
+
+/// Longest line ([`line_edge_distance`]) whose strengths are gathered on the stack first.
+const STACK_SAMPLES: usize = 61;
+
+/// Distance `d = min |t|` to the nearest edge on the line through `(x, y)` along `(nx, ny)`,
+/// samples `t = -h ..= h`; `None` when the line has no edge.
+pub fn line_edge_distance(
+    grad: &GradientImage,
+    x: f32,
+    y: f32,
+    nx: f32,
+    ny: f32,
+    h: i32,
+    threshold: f32,
+) -> Option<u32> {
+    let at = |t: i32| {
+        let tf = t as f32;
+        strength(grad, x + tf * nx, y + tf * ny, nx, ny)
+    };
+    let n = (2 * h + 1) as usize;
+    if n <= STACK_SAMPLES {
+        // Search outwards from the contour, d = 0, 1, 2, ..., and stop at the first edge:
+        // the same `min |t|`, usually from a fraction of the samples. Strengths are computed
+        // once each, on demand (slot i holds t = i - 1 - h; slots 0 and n + 1 are the zeros
+        // beyond the ends).
+        let mut g = [0.0f32; STACK_SAMPLES + 2];
+        let mut known: u64 = 1 | (1 << (n + 1));
+        let mut get = |i: usize| -> f32 {
+            if known & (1 << i) == 0 {
+                known |= 1 << i;
+                g[i] = at(i as i32 - 1 - h);
+            }
+            g[i]
+        };
+        let centre = (h + 1) as usize;
+        for d in 0..=h as usize {
+            for i in [centre - d, centre + d] {
+                let cur = get(i);
+                if cur >= threshold && cur > get(i - 1) && cur >= get(i + 1) {
+                    return Some(d as u32);
+                }
+            }
+        }
+        return None;
+    }
+    scan_edge_distance(grad, x, y, nx, ny, h, threshold)
+}
+
+/// [`line_edge_distance`] by a plain scan over every sample (the definition; used for long
+/// lines).
+fn scan_edge_distance(
+    grad: &GradientImage,
+    x: f32,
+    y: f32,
+    nx: f32,
+    ny: f32,
+    h: i32,
+    threshold: f32,
+) -> Option<u32> {
+    let at = |t: i32| {
+        let tf = t as f32;
+        strength(grad, x + tf * nx, y + tf * ny, nx, ny)
+    };
+    let mut best: Option<u32> = None;
+    let mut prev = 0.0f32;
+    let mut cur = at(-h);
+    for t in -h..=h {
+        let next = if t < h { at(t + 1) } else { 0.0 };
+        if cur >= threshold && cur > prev && cur >= next {
+            let d = t.unsigned_abs();
+            if best.is_none_or(|b| d < b) {
+                best = Some(d);
+            }
+        }
+        prev = cur;
+        cur = next;
+    }
+    best
+}
+
+/// The per-line edge distances of an ellipse (`None`: no edge on that line), in line order.
+pub fn edge_distances_ellipse(
+    grad: &GradientImage,
+    e: &EllipseF32,
+    params: &LikelihoodParams,
+) -> Vec<Option<u32>> {
+    let (s, c) = e.theta.sin_cos();
+    let h = half_samples(params);
+    line_angles(params.num_lines)
+        .into_iter()
+        .map(|(cp, sp)| {
+            let (x, y, nx, ny) = contour_point(e, s, c, cp, sp);
+            line_edge_distance(grad, x, y, nx, ny, h, params.edge_threshold)
+        })
+        .collect()
+}
+
+/// The per-line edge distances of a particle (ellipse turned by `theta0 + rz`).
+pub fn edge_distances(
+    grad: &GradientImage,
+    particle: &Particle,
+    theta0: f32,
+    params: &LikelihoodParams,
+) -> Vec<Option<u32>> {
+    edge_distances_ellipse(grad, &EllipseF32::from_particle(particle, theta0), params)
+}
+
+/// `K = 1 / (sqrt(2π) σz p0 γ)`, evaluated as `1 / (((sqrt(2π) σz) p0) γ)`.
+pub fn clutter_gain(params: &LikelihoodParams) -> f32 {
+    let sqrt_2pi = (2.0 * std::f32::consts::PI).sqrt();
+    1.0 / (sqrt_2pi * params.sigma_z * params.p_no_contour * params.clutter_density)
+}
+
+/// `ln p_line` of a line whose nearest edge is at distance `d` (`None`: no edge -> 0).
+#[inline]
+pub fn line_log(d: Option<u32>, k_gain: f32, sigma_z: f32) -> f32 {
+    match d {
+        None => 0.0,
+        Some(d) => {
+            let d = d as f32;
+            (1.0 + k_gain * (-(d * d) / (2.0 * sigma_z * sigma_z)).exp()).ln()
+        }
+    }
+}
+
+/// `ln p_gradient` of an ellipse, with the line directions precomputed by [`line_angles`].
+pub fn log_likelihood_ellipse(
+    grad: &GradientImage,
+    e: &EllipseF32,
+    angles: &[(f32, f32)],
+    params: &LikelihoodParams,
+) -> f32 {
+    let (s, c) = e.theta.sin_cos();
+    let h = half_samples(params);
+    let k_gain = clutter_gain(params);
+    let mut sum = 0.0f32;
+    for &(cp, sp) in angles {
+        let (x, y, nx, ny) = contour_point(e, s, c, cp, sp);
+        let d = line_edge_distance(grad, x, y, nx, ny, h, params.edge_threshold);
+        sum += line_log(d, k_gain, params.sigma_z);
+    }
+    sum
+}
+
+/// `ln p_gradient` of a particle (ellipse turned by `theta0 + rz`).
+pub fn log_likelihood(
+    grad: &GradientImage,
+    particle: &Particle,
+    theta0: f32,
+    params: &LikelihoodParams,
+) -> f32 {
+    log_likelihood_ellipse(
+        grad,
+        &EllipseF32::from_particle(particle, theta0),
+        &line_angles(params.num_lines),
+        params,
+    )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geometry::Ellipse;
+
+    #[test]
+    fn integer_gradient_of_a_3x3_image() {
+        // Channels equal: L = 1000 v.
+        let v = [[0u8, 10, 20], [30, 40, 50], [60, 70, 200]];
+        let img = RgbImage::from_fn(3, 3, |x, y| {
+            let c = v[y as usize][x as usize];
+            image::Rgb([c, c, c])
+        });
+        let g = GradientImage::new(&img);
+        let l = |x: usize, y: usize| 1000 * v[y][x] as i32;
+        // centre: central differences
+        assert_eq!(g.at(1, 1), [l(2, 1) - l(0, 1), l(1, 2) - l(1, 0)]);
+        assert_eq!(g.at(1, 1), [20000, 60000]);
+        // corners: replicated edges
+        assert_eq!(g.at(0, 0), [10000, 30000]);
+        assert_eq!(g.at(2, 2), [130000, 150000]);
+        assert_eq!(g.at(2, 0), [10000, 30000]);
+        // A coloured pixel: 299*255 = 76245 on the red channel alone.
+        let mut img = RgbImage::new(3, 1);
+        img.put_pixel(2, 0, image::Rgb([255, 0, 0]));
+        let g = GradientImage::new(&img);
+        assert_eq!(g.at(1, 0), [76245, 0]);
+        assert_eq!(g.at(2, 0), [76245, 0]); // L(2) - L(1), x + 1 clamped
+        assert_eq!(g.at(0, 0), [0, 0]);
+    }
+
+    #[test]
+    fn gradient_matches_the_clamped_definition_on_any_size() {
+        let mut seed = 1u32;
+        for (w, h) in [(1, 1), (1, 5), (5, 1), (2, 2), (3, 7), (17, 9)] {
+            let img = RgbImage::from_fn(w, h, |_, _| {
+                seed = seed.wrapping_mul(1664525).wrapping_add(1013904223);
+                let b = seed.to_le_bytes();
+                image::Rgb([b[1], b[2], b[3]])
+            });
+            let l = |x: i64, y: i64| {
+                let p = img.get_pixel(
+                    x.clamp(0, w as i64 - 1) as u32,
+                    y.clamp(0, h as i64 - 1) as u32,
+                );
+                luma_int(p[0], p[1], p[2]) as i32
+            };
+            for parallel in [false, true] {
+                let mut g = GradientImage::default();
+                g.fill(&img, &mut Vec::new(), parallel);
+                for y in 0..h as i64 {
+                    for x in 0..w as i64 {
+                        let want = [l(x + 1, y) - l(x - 1, y), l(x, y + 1) - l(x, y - 1)];
+                        assert_eq!(g.at(x as usize, y as usize), want, "{w}x{h} at ({x}, {y})");
+                    }
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn contour_point_matches_geometry() {
+        let e64 = Ellipse {
+            cx: 40.0,
+            cy: 30.0,
+            a: 15.0,
+            b: 9.0,
+            theta: 0.7,
+        };
+        let e = EllipseF32::from_ellipse(&e64);
+        let (s, c) = e.theta.sin_cos();
+        for (k, (cp, sp)) in line_angles(16).into_iter().enumerate() {
+            let phi = std::f64::consts::TAU * k as f64 / 16.0;
+            let (x, y, nx, ny) = contour_point(&e, s, c, cp, sp);
+            let (px, py) = e64.point_at(phi);
+            let (qx, qy) = e64.normal_at(phi);
+            assert!((x as f64 - px).abs() < 1e-4 && (y as f64 - py).abs() < 1e-4);
+            assert!((nx as f64 - qx).abs() < 1e-5 && (ny as f64 - qy).abs() < 1e-5);
+        }
+    }
+
+    #[test]
+    fn edges_are_local_maxima_above_threshold() {
+        // A vertical step at x = 10 | 11 in a 21-px-wide strip: gradient at x = 10 and 11.
+        let img = RgbImage::from_fn(21, 3, |x, _| {
+            if x <= 10 {
+                image::Rgb([0, 0, 0])
+            } else {
+                image::Rgb([255, 255, 255])
+            }
+        });
+        let g = GradientImage::new(&img);
+        // Line along +x from x = 5: samples x = 5 + t, t in -3..=8 -> edges at x 10, 11:
+        // equal strengths, the first one (t = 5) is the maximum (> left, >= right).
+        assert_eq!(line_edge_distance(&g, 5.0, 1.0, 1.0, 0.0, 8, 0.1), Some(5));
+        // Along -x from x = 15: samples x = 15 - t; x = 11 (t = 4) comes first.
+        assert_eq!(
+            line_edge_distance(&g, 15.0, 1.0, -1.0, 0.0, 8, 0.1),
+            Some(4)
+        );
+        // Too short a line.
+        assert_eq!(line_edge_distance(&g, 5.0, 1.0, 1.0, 0.0, 4, 0.1), None);
+        // Threshold above the strength (1000 * 255 / 510000 = 0.5).
+        assert_eq!(line_edge_distance(&g, 5.0, 1.0, 1.0, 0.0, 8, 0.51), None);
+        assert_eq!(line_edge_distance(&g, 5.0, 1.0, 1.0, 0.0, 8, 0.5), Some(5));
+        // Perpendicular line: no gradient along it.
+        assert_eq!(line_edge_distance(&g, 5.0, 1.0, 0.0, 1.0, 8, 0.1), None);
+        // An edge at the very end of the line compares against 0 beyond it.
+        assert_eq!(line_edge_distance(&g, 5.0, 1.0, 1.0, 0.0, 5, 0.1), Some(5));
+        // Entirely outside the frame: nothing.
+        assert_eq!(line_edge_distance(&g, -50.0, 1.0, 1.0, 0.0, 8, 0.0), None);
+        assert_eq!(
+            line_edge_distance(&g, f32::NAN, 1.0, 1.0, 0.0, 8, 0.0),
+            None
+        );
+    }
+
+    #[test]
+    fn outward_search_equals_the_full_scan() {
+        let img = RgbImage::from_fn(120, 90, |x, y| {
+            let v = ((x * 37 + y * 11 + (x * y) % 13) % 97) as u8;
+            image::Rgb([v, v / 2, 255 - v])
+        });
+        let g = GradientImage::new(&img);
+        let mut found = 0;
+        for k in 0..400 {
+            let (x, y) = (-10.0 + k as f32 * 0.37, 20.0 + (k % 17) as f32 * 3.1);
+            let ang = k as f32 * 0.7;
+            let (nx, ny) = (ang.cos(), ang.sin());
+            for h in [0, 1, 2, 5, 8, 13, 30] {
+                for thr in [0.0, 0.02, 0.1, 0.3] {
+                    let a = line_edge_distance(&g, x, y, nx, ny, h, thr);
+                    let b = scan_edge_distance(&g, x, y, nx, ny, h, thr);
+                    assert_eq!(a, b, "line {k} h {h} thr {thr}");
+                    found += a.is_some() as usize;
+                }
+            }
+        }
+        assert!(found > 1000, "{found}");
+        // Long lines take the scan.
+        assert!(line_edge_distance(&g, 60.0, 45.0, 1.0, 0.0, 40, 0.05).is_some());
+    }
+
+    #[test]
+    fn line_log_peaks_at_the_contour() {
+        let p = LikelihoodParams::default();
+        let k = clutter_gain(&p);
+        assert_eq!(line_log(None, k, p.sigma_z), 0.0);
+        let l0 = line_log(Some(0), k, p.sigma_z);
+        assert!((l0 - (1.0 + k).ln()).abs() < 1e-6);
+        let l3 = line_log(Some(3), k, p.sigma_z);
+        assert!(l0 > l3 && l3 > 0.0);
+    }
+}

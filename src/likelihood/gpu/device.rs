@@ -1,0 +1,203 @@
+//! The wgpu instance, adapter and device of one engine (Vulkan only).
+
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex};
+
+use crate::likelihood::LikelihoodError;
+
+/// Environment variable that picks an adapter by a substring of its name.
+pub const ADAPTER_ENV: &str = "PFTRACK_ADAPTER";
+
+/// An opened GPU: adapter, device and queue, with what the adapter offers.
+pub struct GpuDevice {
+    /// The device.
+    pub device: wgpu::Device,
+    /// Its queue.
+    pub queue: wgpu::Queue,
+    /// The adapter's description.
+    pub info: wgpu::AdapterInfo,
+    /// The limits the device was created with (the adapter's own).
+    pub limits: wgpu::Limits,
+    /// Whether timestamp queries (at pass boundaries) are enabled.
+    pub timestamps: bool,
+    lost: Arc<Mutex<Option<String>>>,
+    uncaptured: Arc<Mutex<Option<String>>>,
+    lost_flag: Arc<AtomicBool>,
+}
+
+fn vulkan_instance() -> wgpu::Instance {
+    let mut desc = wgpu::InstanceDescriptor::new_without_display_handle();
+    desc.backends = wgpu::Backends::VULKAN;
+    wgpu::Instance::new(desc)
+}
+
+fn describe(info: &wgpu::AdapterInfo) -> String {
+    format!("{} ({:?}, {:?})", info.name, info.backend, info.device_type)
+}
+
+/// Names of the Vulkan adapters on this machine (empty when there is no Vulkan driver).
+pub fn adapter_names() -> Vec<String> {
+    let instance = vulkan_instance();
+    pollster::block_on(instance.enumerate_adapters(wgpu::Backends::VULKAN))
+        .iter()
+        .map(|a| describe(&a.get_info()))
+        .collect()
+}
+
+/// Picks the adapter: the first whose name contains `wanted` (case-insensitive) when given,
+/// else the first discrete GPU, integrated GPU, other, CPU, in that order.
+fn pick_adapter(
+    adapters: Vec<wgpu::Adapter>,
+    wanted: Option<&str>,
+) -> Result<wgpu::Adapter, LikelihoodError> {
+    if adapters.is_empty() {
+        return Err(LikelihoodError::NoAdapter);
+    }
+    if let Some(w) = wanted {
+        let lw = w.to_lowercase();
+        let names: Vec<String> = adapters.iter().map(|a| describe(&a.get_info())).collect();
+        return adapters
+            .into_iter()
+            .find(|a| a.get_info().name.to_lowercase().contains(&lw))
+            .ok_or_else(|| LikelihoodError::AdapterNotFound {
+                wanted: w.to_string(),
+                available: names,
+            });
+    }
+    let rank = |t: wgpu::DeviceType| match t {
+        wgpu::DeviceType::DiscreteGpu => 0,
+        wgpu::DeviceType::IntegratedGpu => 1,
+        wgpu::DeviceType::VirtualGpu => 2,
+        wgpu::DeviceType::Other => 3,
+        wgpu::DeviceType::Cpu => 4,
+    };
+    adapters
+        .into_iter()
+        .min_by_key(|a| rank(a.get_info().device_type))
+        .ok_or(LikelihoodError::NoAdapter)
+}
+
+impl GpuDevice {
+    /// Opens the adapter chosen by `PFTRACK_ADAPTER` (a substring of its name) or the best
+    /// Vulkan adapter, with the adapter's own limits and, when offered, timestamp queries.
+    pub fn open() -> Result<Self, LikelihoodError> {
+        let wanted = std::env::var(ADAPTER_ENV).ok().filter(|s| !s.is_empty());
+        Self::open_matching(wanted.as_deref())
+    }
+
+    /// Opens the first Vulkan adapter whose name contains `wanted`, or the best one.
+    pub fn open_matching(wanted: Option<&str>) -> Result<Self, LikelihoodError> {
+        let instance = vulkan_instance();
+        let adapters = pollster::block_on(instance.enumerate_adapters(wgpu::Backends::VULKAN));
+        let adapter = pick_adapter(adapters, wanted)?;
+        let info = adapter.get_info();
+        if info.backend != wgpu::Backend::Vulkan {
+            return Err(LikelihoodError::NoAdapter);
+        }
+        let limits = adapter.limits();
+        let offered = adapter.features();
+        let timestamps = offered.contains(wgpu::Features::TIMESTAMP_QUERY);
+        let mut features = wgpu::Features::empty();
+        if timestamps {
+            features |= wgpu::Features::TIMESTAMP_QUERY;
+            if offered.contains(wgpu::Features::TIMESTAMP_QUERY_INSIDE_PASSES) {
+                features |= wgpu::Features::TIMESTAMP_QUERY_INSIDE_PASSES;
+            }
+        }
+        let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
+            label: Some("pftrack likelihood"),
+            required_features: features,
+            required_limits: limits.clone(),
+            experimental_features: wgpu::ExperimentalFeatures::disabled(),
+            memory_hints: wgpu::MemoryHints::Performance,
+            trace: wgpu::Trace::Off,
+        }))
+        .map_err(|e| LikelihoodError::Gpu(format!("requesting a device: {e}")))?;
+
+        let lost = Arc::new(Mutex::new(None));
+        let lost_flag = Arc::new(AtomicBool::new(false));
+        {
+            let lost = lost.clone();
+            let flag = lost_flag.clone();
+            device.set_device_lost_callback(move |reason, msg| {
+                flag.store(true, Ordering::SeqCst);
+                if let Ok(mut l) = lost.lock() {
+                    *l = Some(format!("{reason:?}: {msg}"));
+                }
+            });
+        }
+        // Validation and out-of-memory errors become typed errors of the next call, not
+        // panics (wgpu's default handler panics).
+        let uncaptured = Arc::new(Mutex::new(None));
+        {
+            let uncaptured = uncaptured.clone();
+            device.on_uncaptured_error(Arc::new(move |e: wgpu::Error| {
+                if let Ok(mut u) = uncaptured.lock() {
+                    u.get_or_insert_with(|| e.to_string());
+                }
+            }));
+        }
+        Ok(Self {
+            device,
+            queue,
+            info,
+            limits,
+            timestamps,
+            lost,
+            uncaptured,
+            lost_flag,
+        })
+    }
+
+    /// `adapter name (backend)`, e.g. `llvmpipe (LLVM 15.0.6, 256 bits) (Vulkan)`.
+    pub fn name(&self) -> String {
+        format!("{} ({:?})", self.info.name, self.info.backend)
+    }
+
+    /// An error if the device was lost or an uncaptured wgpu error happened since the last
+    /// check (which clears the latter).
+    pub fn check(&self) -> Result<(), LikelihoodError> {
+        if self.lost_flag.load(Ordering::SeqCst) {
+            let msg = self
+                .lost
+                .lock()
+                .ok()
+                .and_then(|l| l.clone())
+                .unwrap_or_default();
+            return Err(LikelihoodError::DeviceLost(msg));
+        }
+        if let Some(e) = self.uncaptured.lock().ok().and_then(|mut u| u.take()) {
+            return Err(LikelihoodError::Gpu(e));
+        }
+        Ok(())
+    }
+
+    /// Whether the device has been lost.
+    pub fn is_lost(&self) -> bool {
+        self.lost_flag.load(Ordering::SeqCst)
+    }
+
+    /// Destroys the device (as a driver reset would): every later call fails with
+    /// [`LikelihoodError::DeviceLost`]. For tests of the lost-device path.
+    pub fn destroy(&self) {
+        self.device.destroy();
+        let _ = self.device.poll(wgpu::PollType::wait_indefinitely());
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn no_adapters_is_the_no_adapter_error() {
+        assert!(matches!(
+            pick_adapter(Vec::new(), None),
+            Err(LikelihoodError::NoAdapter)
+        ));
+        assert!(matches!(
+            pick_adapter(Vec::new(), Some("x")),
+            Err(LikelihoodError::NoAdapter)
+        ));
+    }
+}

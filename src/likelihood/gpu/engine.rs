@@ -1,0 +1,757 @@
+//! [`GpuEngine`]: buffers, pipelines and the per-frame submission.
+
+use std::borrow::Cow;
+use std::time::{Duration, Instant};
+
+use super::device::GpuDevice;
+use super::{FLAG_DEBUG_HIST, FrameUniform, STAGES, stage_source};
+use crate::likelihood::cpu;
+use crate::likelihood::{
+    ColourHistogram, FeaturePair, FrameInput, HIST_BINS, LikelihoodEngine, LikelihoodError,
+    LikelihoodParams, Particle, TERM_COLOUR, TERM_FEATURE, TERM_GRADIENT, TermLogs,
+};
+
+/// Invocations per workgroup of the per-particle and per-line kernels (as in the shaders).
+const WG: u32 = 64;
+/// Tile of the gradient-image kernel (as in the shader).
+const TILE: u32 = 16;
+/// Kernels in submission order.
+const KERNELS: [&str; 5] = [
+    "gradient_image",
+    "colour",
+    "gradient_lines",
+    "feature",
+    "combine",
+];
+
+/// How [`StageTimes`] were measured.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum TimingSource {
+    /// Kernel times from GPU timestamp queries at pass boundaries, one submission.
+    Timestamps,
+    /// Kernel times from the wall clock, one submission and wait per kernel.
+    WallClock,
+}
+
+/// Where the time of one [`GpuEngine::evaluate_timed`] call went.
+#[derive(Debug, Clone, Default)]
+pub struct StageTimes {
+    /// Host side of the upload: packing the frame and writing frame, particles, features and
+    /// uniforms into the queue's staging memory (wall clock).
+    pub upload: Duration,
+    /// Each kernel: `(name, time)`; a disabled stage is absent.
+    pub kernels: Vec<(&'static str, Duration)>,
+    /// From the end of the GPU work to the results in host memory: map and copy (wall clock).
+    pub readback: Duration,
+    /// The whole call (wall clock).
+    pub total: Duration,
+    /// How kernel times were measured (`None` before any call).
+    pub source: Option<TimingSource>,
+}
+
+/// Everything the GPU computed for one frame, for tests: terms, histograms and line distances.
+#[derive(Debug, Clone, Default)]
+pub struct DebugOutput {
+    /// Per-particle results, as [`LikelihoodEngine::evaluate`] returns them.
+    pub terms: Vec<TermLogs>,
+    /// Histogram counts, `HIST_BINS` per particle (empty when the colour term is disabled).
+    pub histograms: Vec<u32>,
+    /// Per (particle, line) the smallest |t| of an edge, [`super::NO_EDGE`] without one,
+    /// [`super::SKIPPED`] for a degenerate particle (empty when the gradient term is disabled).
+    pub line_distances: Vec<i32>,
+}
+
+/// A storage buffer that grows (never shrinks) to the size asked for.
+struct GrowBuf {
+    buf: wgpu::Buffer,
+    size: u64,
+    usage: wgpu::BufferUsages,
+    label: &'static str,
+}
+
+impl GrowBuf {
+    fn new(device: &wgpu::Device, label: &'static str, usage: wgpu::BufferUsages) -> Self {
+        let size = 256;
+        let buf = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some(label),
+            size,
+            usage,
+            mapped_at_creation: false,
+        });
+        Self {
+            buf,
+            size,
+            usage,
+            label,
+        }
+    }
+
+    /// Makes room for `bytes`; true when the buffer was replaced.
+    fn ensure(&mut self, device: &wgpu::Device, bytes: u64) -> bool {
+        let bytes = bytes.max(16).next_multiple_of(256);
+        if bytes <= self.size {
+            return false;
+        }
+        self.buf = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some(self.label),
+            size: bytes,
+            usage: self.usage,
+            mapped_at_creation: false,
+        });
+        self.size = bytes;
+        true
+    }
+}
+
+struct Buffers {
+    params: wgpu::Buffer,
+    frame: wgpu::Buffer,
+    pixels: GrowBuf,
+    grad: GrowBuf,
+    particles: GrowBuf,
+    trig: GrowBuf,
+    model: wgpu::Buffer,
+    features: GrowBuf,
+    terms: GrowBuf,
+    line_d: GrowBuf,
+    hist: GrowBuf,
+    staging: GrowBuf,
+}
+
+struct Timestamps {
+    set: wgpu::QuerySet,
+    resolve: wgpu::Buffer,
+    read: wgpu::Buffer,
+}
+
+/// The GPU likelihood engine: one device, pipelines and buffers created once.
+pub struct GpuEngine {
+    gpu: GpuDevice,
+    layout: wgpu::BindGroupLayout,
+    pipelines: Vec<wgpu::ComputePipeline>,
+    bufs: Buffers,
+    bind_group: Option<wgpu::BindGroup>,
+    has_model: bool,
+    q_sum: f32,
+    timestamps: Option<Timestamps>,
+    pixel_scratch: Vec<u32>,
+    trig_scratch: Vec<[f32; 2]>,
+}
+
+fn storage_entry(binding: u32, read_only: bool) -> wgpu::BindGroupLayoutEntry {
+    wgpu::BindGroupLayoutEntry {
+        binding,
+        visibility: wgpu::ShaderStages::COMPUTE,
+        ty: wgpu::BindingType::Buffer {
+            ty: wgpu::BufferBindingType::Storage { read_only },
+            has_dynamic_offset: false,
+            min_binding_size: None,
+        },
+        count: None,
+    }
+}
+
+fn uniform_entry(binding: u32) -> wgpu::BindGroupLayoutEntry {
+    wgpu::BindGroupLayoutEntry {
+        binding,
+        visibility: wgpu::ShaderStages::COMPUTE,
+        ty: wgpu::BindingType::Buffer {
+            ty: wgpu::BufferBindingType::Uniform,
+            has_dynamic_offset: false,
+            min_binding_size: None,
+        },
+        count: None,
+    }
+}
+
+/// Lays `groups` workgroups out as `(x, y)` with `x, y <= max_dim` (`x * y >= groups`), or
+/// `None` when even a square grid cannot hold them.
+pub(crate) fn grid(groups: u32, max_dim: u32) -> Option<(u32, u32)> {
+    if groups <= max_dim {
+        return Some((groups, 1));
+    }
+    let y = groups.div_ceil(max_dim);
+    (y <= max_dim).then_some((max_dim, y))
+}
+
+/// Packs RGB8 pixels as one `u32` each: `r | g << 8 | b << 16`.
+pub(crate) fn pack_pixels(raw: &[u8], out: &mut Vec<u32>) {
+    out.clear();
+    out.extend(
+        raw.chunks_exact(3)
+            .map(|p| p[0] as u32 | (p[1] as u32) << 8 | (p[2] as u32) << 16),
+    );
+}
+
+/// `(sin, cos)` of each particle's `theta0 + rz` in `f32`, as the CPU twin computes them
+/// (`EllipseF32::from_particle(..).theta.sin_cos()`).
+pub(crate) fn particle_sin_cos(particles: &[Particle], theta0: f32, out: &mut Vec<[f32; 2]>) {
+    out.clear();
+    out.extend(particles.iter().map(|p| {
+        let (s, c) = (theta0 + p.rz).sin_cos();
+        [s, c]
+    }));
+}
+
+impl GpuEngine {
+    /// Opens the GPU (see [`GpuDevice::open`]: `PFTRACK_ADAPTER` picks the adapter) and builds
+    /// the pipelines.
+    pub fn new() -> Result<Self, LikelihoodError> {
+        Self::with_device(GpuDevice::open()?)
+    }
+
+    /// Builds the engine on an opened device.
+    pub fn with_device(gpu: GpuDevice) -> Result<Self, LikelihoodError> {
+        let device = &gpu.device;
+        if gpu.limits.max_storage_buffers_per_shader_stage < 9 {
+            return Err(LikelihoodError::Gpu(format!(
+                "the adapter binds {} storage buffers per stage, the engine needs 9",
+                gpu.limits.max_storage_buffers_per_shader_stage
+            )));
+        }
+        let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("likelihood"),
+            entries: &[
+                uniform_entry(0),
+                uniform_entry(1),
+                storage_entry(2, true),
+                storage_entry(3, false),
+                storage_entry(4, true),
+                storage_entry(5, true),
+                storage_entry(6, true),
+                storage_entry(7, false),
+                storage_entry(8, false),
+                storage_entry(9, false),
+                storage_entry(10, true),
+            ],
+        });
+        let pl = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+            label: Some("likelihood"),
+            bind_group_layouts: &[Some(&layout)],
+            immediate_size: 0,
+        });
+        let mut by_entry = Vec::new();
+        for (name, src, entries) in STAGES {
+            let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+                label: Some(name),
+                source: wgpu::ShaderSource::Wgsl(Cow::Owned(stage_source(src))),
+            });
+            for e in entries {
+                let p = device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+                    label: Some(e),
+                    layout: Some(&pl),
+                    module: &module,
+                    entry_point: Some(e),
+                    compilation_options: Default::default(),
+                    cache: None,
+                });
+                by_entry.push((*e, p));
+            }
+        }
+        let mut pipelines = Vec::new();
+        for k in KERNELS {
+            let i = by_entry
+                .iter()
+                .position(|(e, _)| *e == k)
+                .ok_or_else(|| LikelihoodError::Gpu(format!("no pipeline {k}")))?;
+            pipelines.push(by_entry.swap_remove(i).1);
+        }
+        use wgpu::BufferUsages as U;
+        let uniform = |label| {
+            device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some(label),
+                size: 64,
+                usage: U::UNIFORM | U::COPY_DST,
+                mapped_at_creation: false,
+            })
+        };
+        let st = U::STORAGE | U::COPY_DST;
+        let bufs = Buffers {
+            params: uniform("params"),
+            frame: uniform("frame"),
+            pixels: GrowBuf::new(device, "pixels", st),
+            grad: GrowBuf::new(device, "gradient image", st),
+            particles: GrowBuf::new(device, "particles", st),
+            trig: GrowBuf::new(device, "particle sin cos", st),
+            model: device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some("model"),
+                size: (HIST_BINS * 4) as u64,
+                usage: st,
+                mapped_at_creation: false,
+            }),
+            features: GrowBuf::new(device, "features", st),
+            terms: GrowBuf::new(device, "terms", st | U::COPY_SRC),
+            line_d: GrowBuf::new(device, "line distances", st | U::COPY_SRC),
+            hist: GrowBuf::new(device, "histograms", st | U::COPY_SRC),
+            staging: GrowBuf::new(device, "readback", U::MAP_READ | U::COPY_DST),
+        };
+        let timestamps = gpu.timestamps.then(|| {
+            let count = 2 * KERNELS.len() as u32;
+            let bytes = 8 * count as u64;
+            Timestamps {
+                set: device.create_query_set(&wgpu::QuerySetDescriptor {
+                    label: Some("stage timestamps"),
+                    ty: wgpu::QueryType::Timestamp,
+                    count,
+                }),
+                resolve: device.create_buffer(&wgpu::BufferDescriptor {
+                    label: Some("timestamp resolve"),
+                    size: bytes,
+                    usage: U::QUERY_RESOLVE | U::COPY_SRC,
+                    mapped_at_creation: false,
+                }),
+                read: device.create_buffer(&wgpu::BufferDescriptor {
+                    label: Some("timestamp read"),
+                    size: bytes,
+                    usage: U::MAP_READ | U::COPY_DST,
+                    mapped_at_creation: false,
+                }),
+            }
+        });
+        gpu.check()?;
+        Ok(Self {
+            gpu,
+            layout,
+            pipelines,
+            bufs,
+            bind_group: None,
+            has_model: false,
+            q_sum: 0.0,
+            timestamps,
+            pixel_scratch: Vec::new(),
+            trig_scratch: Vec::new(),
+        })
+    }
+
+    /// The opened device (adapter description, limits).
+    pub fn device(&self) -> &GpuDevice {
+        &self.gpu
+    }
+
+    /// Whether kernel times come from GPU timestamps.
+    pub fn has_timestamps(&self) -> bool {
+        self.timestamps.is_some()
+    }
+
+    /// Destroys the device, as a driver reset would; every later call returns
+    /// [`LikelihoodError::DeviceLost`]. For tests of that path.
+    pub fn simulate_device_loss(&self) {
+        self.gpu.destroy();
+    }
+
+    fn max_binding(&self) -> u64 {
+        self.gpu
+            .limits
+            .max_storage_buffer_binding_size
+            .min(self.gpu.limits.max_buffer_size)
+    }
+
+    /// Whether a `width × height` frame fits the adapter's buffers and dispatch limits, checked
+    /// before anything is allocated.
+    pub fn check_frame_size(&self, width: u32, height: u32) -> Result<(), LikelihoodError> {
+        let limit = self.max_binding();
+        // The gradient image (two i32 per pixel) is the largest per-frame buffer.
+        let bytes = width as u64 * height as u64 * 8;
+        let max_dim = self.gpu.limits.max_compute_workgroups_per_dimension;
+        if bytes > limit
+            || width.div_ceil(TILE) > max_dim
+            || height.div_ceil(TILE) > max_dim
+            || width as u64 * height as u64 > u32::MAX as u64
+        {
+            return Err(LikelihoodError::FrameTooLarge {
+                width,
+                height,
+                bytes,
+                limit,
+            });
+        }
+        Ok(())
+    }
+
+    fn check_particles(
+        &self,
+        n: usize,
+        num_lines: u32,
+        debug: bool,
+    ) -> Result<(), LikelihoodError> {
+        let limit = self.max_binding();
+        let n64 = n as u64;
+        let mut bytes = (n64 * 32).max(n64 * num_lines as u64 * 4);
+        if debug {
+            bytes = bytes.max(n64 * HIST_BINS as u64 * 4);
+        }
+        let max_dim = self.gpu.limits.max_compute_workgroups_per_dimension;
+        let lines = n64 * num_lines as u64;
+        let too_many = bytes > limit
+            || lines > u32::MAX as u64 - WG as u64
+            || n64 > u32::MAX as u64
+            || grid(n as u32, max_dim).is_none()
+            || grid((lines as u32).div_ceil(WG), max_dim).is_none();
+        if too_many {
+            return Err(LikelihoodError::TooManyParticles { n, bytes, limit });
+        }
+        Ok(())
+    }
+
+    /// [`LikelihoodEngine::evaluate`] that also reports where the time went.
+    pub fn evaluate_timed(
+        &mut self,
+        frame: &FrameInput<'_>,
+        params: &LikelihoodParams,
+        particles: &[Particle],
+        out: &mut Vec<TermLogs>,
+    ) -> Result<StageTimes, LikelihoodError> {
+        let mut times = StageTimes::default();
+        self.run(frame, params, particles, out, None, Some(&mut times))?;
+        Ok(times)
+    }
+
+    /// Evaluates like [`LikelihoodEngine::evaluate`] and also reads back each particle's
+    /// histogram counts and line distances (tests).
+    pub fn evaluate_debug(
+        &mut self,
+        frame: &FrameInput<'_>,
+        params: &LikelihoodParams,
+        particles: &[Particle],
+    ) -> Result<DebugOutput, LikelihoodError> {
+        let mut dbg = DebugOutput::default();
+        let mut terms = Vec::new();
+        self.run(frame, params, particles, &mut terms, Some(&mut dbg), None)?;
+        dbg.terms = terms;
+        Ok(dbg)
+    }
+
+    fn run(
+        &mut self,
+        frame: &FrameInput<'_>,
+        params: &LikelihoodParams,
+        particles: &[Particle],
+        out: &mut Vec<TermLogs>,
+        debug: Option<&mut DebugOutput>,
+        timing: Option<&mut StageTimes>,
+    ) -> Result<(), LikelihoodError> {
+        let t_start = Instant::now();
+        self.gpu.check()?;
+        // The same input checks, and so the same errors, as the CPU engine.
+        cpu::validate(frame, params)?;
+        let colour_on = params.terms & TERM_COLOUR != 0;
+        let grad_on = params.terms & TERM_GRADIENT != 0 && params.num_lines > 0;
+        let feat_on = params.terms & TERM_FEATURE != 0 && !frame.features.is_empty();
+        if colour_on && !self.has_model {
+            return Err(LikelihoodError::NoModel);
+        }
+        let (w, h) = frame.image.dimensions();
+        self.check_frame_size(w, h)?;
+        let n = particles.len();
+        let num_lines = if grad_on { params.num_lines } else { 0 };
+        self.check_particles(n, num_lines, debug.is_some())?;
+        out.clear();
+        if n == 0 {
+            return Ok(());
+        }
+        let device = &self.gpu.device;
+        let queue = &self.gpu.queue;
+
+        // Buffers (grown when needed; the bind group follows them).
+        let b = &mut self.bufs;
+        let px = w as u64 * h as u64;
+        let n64 = n as u64;
+        let mut changed = false;
+        changed |= b.pixels.ensure(device, px * 4);
+        changed |= b.grad.ensure(device, px * 8);
+        changed |= b.particles.ensure(device, n64 * 32);
+        changed |= b.trig.ensure(device, n64 * 8);
+        changed |= b.features.ensure(device, frame.features.len() as u64 * 16);
+        changed |= b.terms.ensure(device, n64 * 16);
+        changed |= b.line_d.ensure(device, n64 * num_lines as u64 * 4);
+        let hist_bytes = if debug.is_some() && colour_on {
+            n64 * HIST_BINS as u64 * 4
+        } else {
+            0
+        };
+        changed |= b.hist.ensure(device, hist_bytes);
+        let line_bytes = if debug.is_some() {
+            n64 * num_lines as u64 * 4
+        } else {
+            0
+        };
+        b.staging
+            .ensure(device, (n64 * 16).max(hist_bytes).max(line_bytes));
+        if changed || self.bind_group.is_none() {
+            fn entry(binding: u32, buf: &wgpu::Buffer) -> wgpu::BindGroupEntry<'_> {
+                wgpu::BindGroupEntry {
+                    binding,
+                    resource: buf.as_entire_binding(),
+                }
+            }
+            self.bind_group = Some(device.create_bind_group(&wgpu::BindGroupDescriptor {
+                label: Some("likelihood"),
+                layout: &self.layout,
+                entries: &[
+                    entry(0, &b.params),
+                    entry(1, &b.frame),
+                    entry(2, &b.pixels.buf),
+                    entry(3, &b.grad.buf),
+                    entry(4, &b.particles.buf),
+                    entry(5, &b.model),
+                    entry(6, &b.features.buf),
+                    entry(7, &b.terms.buf),
+                    entry(8, &b.line_d.buf),
+                    entry(9, &b.hist.buf),
+                    entry(10, &b.trig.buf),
+                ],
+            }));
+        }
+
+        // Upload: uniforms, frame, particles, features.
+        let fu = FrameUniform {
+            prev: frame.prev,
+            width: w,
+            height: h,
+            n: n as u32,
+            num_features: frame.features.len() as u32,
+            theta0: frame.theta0,
+            line_h: cpu::gradient::half_samples(params),
+            flags: if debug.is_some() { FLAG_DEBUG_HIST } else { 0 },
+            q_sum: self.q_sum,
+        };
+        queue.write_buffer(&b.params, 0, bytemuck::bytes_of(params));
+        queue.write_buffer(&b.frame, 0, bytemuck::bytes_of(&fu));
+        if colour_on || grad_on {
+            pack_pixels(frame.image.as_raw(), &mut self.pixel_scratch);
+            queue.write_buffer(&b.pixels.buf, 0, bytemuck::cast_slice(&self.pixel_scratch));
+        }
+        queue.write_buffer(&b.particles.buf, 0, bytemuck::cast_slice(particles));
+        if colour_on || grad_on {
+            particle_sin_cos(particles, frame.theta0, &mut self.trig_scratch);
+            queue.write_buffer(&b.trig.buf, 0, bytemuck::cast_slice(&self.trig_scratch));
+        }
+        if feat_on && !frame.features.is_empty() {
+            let f: &[FeaturePair] = frame.features;
+            queue.write_buffer(&b.features.buf, 0, bytemuck::cast_slice(f));
+        }
+        let t_uploaded = Instant::now();
+
+        // Dispatches.
+        let max_dim = self.gpu.limits.max_compute_workgroups_per_dimension;
+        let too_many = || LikelihoodError::TooManyParticles {
+            n,
+            bytes: 0,
+            limit: 0,
+        };
+        let per_particle = grid((n as u32).div_ceil(WG), max_dim).ok_or_else(too_many)?;
+        let dispatches: [(bool, (u32, u32)); 5] = [
+            (grad_on, (w.div_ceil(TILE), h.div_ceil(TILE))),
+            (colour_on, grid(n as u32, max_dim).ok_or_else(too_many)?),
+            (
+                grad_on,
+                grid((n as u32 * num_lines).div_ceil(WG), max_dim).ok_or_else(too_many)?,
+            ),
+            (feat_on, per_particle),
+            (true, per_particle),
+        ];
+        let bind_group = self
+            .bind_group
+            .as_ref()
+            .ok_or_else(|| LikelihoodError::Gpu("no bind group".into()))?;
+        let wall_mode = timing.is_some() && self.timestamps.is_none();
+        let ts = if timing.is_some() {
+            self.timestamps.as_ref()
+        } else {
+            None
+        };
+        let mut kernel_wall = Vec::new();
+        let mut encoder = device.create_command_encoder(&Default::default());
+        for (k, (on, (gx, gy))) in dispatches.iter().enumerate() {
+            if !on || *gx == 0 || *gy == 0 {
+                continue;
+            }
+            {
+                let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                    label: Some(KERNELS[k]),
+                    timestamp_writes: ts.map(|t| wgpu::ComputePassTimestampWrites {
+                        query_set: &t.set,
+                        beginning_of_pass_write_index: Some(2 * k as u32),
+                        end_of_pass_write_index: Some(2 * k as u32 + 1),
+                    }),
+                });
+                pass.set_pipeline(&self.pipelines[k]);
+                pass.set_bind_group(0, bind_group, &[]);
+                pass.dispatch_workgroups(*gx, *gy, 1);
+            }
+            if wall_mode {
+                let t0 = Instant::now();
+                let done = std::mem::replace(
+                    &mut encoder,
+                    device.create_command_encoder(&Default::default()),
+                );
+                queue.submit([done.finish()]);
+                wait(device)?;
+                kernel_wall.push((KERNELS[k], t0.elapsed()));
+            }
+        }
+        let terms_bytes = n64 * 16;
+        encoder.copy_buffer_to_buffer(&b.terms.buf, 0, &b.staging.buf, 0, terms_bytes);
+        if let Some(t) = ts {
+            let count = 2 * KERNELS.len() as u32;
+            encoder.resolve_query_set(&t.set, 0..count, &t.resolve, 0);
+            encoder.copy_buffer_to_buffer(&t.resolve, 0, &t.read, 0, 8 * count as u64);
+        }
+        queue.submit([encoder.finish()]);
+        wait(device)?;
+        let t_gpu_done = Instant::now();
+        read_into(device, &b.staging.buf, terms_bytes, |bytes| {
+            out.extend_from_slice(bytemuck::cast_slice::<u8, TermLogs>(bytes));
+        })?;
+        let t_read = Instant::now();
+
+        if let Some(dbg) = debug {
+            dbg.histograms.clear();
+            dbg.line_distances.clear();
+            for (on, src, bytes) in [(colour_on, 0, hist_bytes), (grad_on, 1, line_bytes)] {
+                if !on || bytes == 0 {
+                    continue;
+                }
+                let from = if src == 0 { &b.hist.buf } else { &b.line_d.buf };
+                let mut enc = device.create_command_encoder(&Default::default());
+                enc.copy_buffer_to_buffer(from, 0, &b.staging.buf, 0, bytes);
+                queue.submit([enc.finish()]);
+                wait(device)?;
+                read_into(device, &b.staging.buf, bytes, |raw| {
+                    if src == 0 {
+                        dbg.histograms
+                            .extend_from_slice(bytemuck::cast_slice::<u8, u32>(raw));
+                    } else {
+                        dbg.line_distances
+                            .extend_from_slice(bytemuck::cast_slice::<u8, i32>(raw));
+                    }
+                })?;
+            }
+        }
+
+        if let Some(times) = timing {
+            times.upload = t_uploaded - t_start;
+            times.readback = t_read - t_gpu_done;
+            times.kernels.clear();
+            if let Some(t) = ts {
+                let count = 2 * KERNELS.len() as u64;
+                let period = self.gpu.queue.get_timestamp_period() as f64;
+                let mut stamps = Vec::new();
+                read_into(device, &t.read, 8 * count, |raw| {
+                    stamps.extend_from_slice(bytemuck::cast_slice::<u8, u64>(raw));
+                })?;
+                for (k, (on, (gx, gy))) in dispatches.iter().enumerate() {
+                    if *on && *gx > 0 && *gy > 0 {
+                        let ns = stamps[2 * k + 1].saturating_sub(stamps[2 * k]) as f64 * period;
+                        times
+                            .kernels
+                            .push((KERNELS[k], Duration::from_nanos(ns as u64)));
+                    }
+                }
+                times.source = Some(TimingSource::Timestamps);
+            } else {
+                times.kernels = kernel_wall;
+                times.source = Some(TimingSource::WallClock);
+            }
+            times.total = t_start.elapsed();
+        }
+        self.gpu.check()
+    }
+}
+
+/// Waits for all submitted work.
+fn wait(device: &wgpu::Device) -> Result<(), LikelihoodError> {
+    device
+        .poll(wgpu::PollType::wait_indefinitely())
+        .map(|_| ())
+        .map_err(|e| LikelihoodError::DeviceLost(format!("waiting for the GPU: {e}")))
+}
+
+/// Maps the first `bytes` of a MAP_READ buffer, hands them to `f`, unmaps.
+fn read_into(
+    device: &wgpu::Device,
+    buf: &wgpu::Buffer,
+    bytes: u64,
+    f: impl FnOnce(&[u8]),
+) -> Result<(), LikelihoodError> {
+    let (tx, rx) = std::sync::mpsc::channel();
+    buf.map_async(wgpu::MapMode::Read, 0..bytes, move |r| {
+        let _ = tx.send(r);
+    });
+    wait(device)?;
+    rx.recv()
+        .map_err(|_| LikelihoodError::DeviceLost("mapping callback dropped".into()))?
+        .map_err(|e| LikelihoodError::DeviceLost(format!("mapping the readback buffer: {e}")))?;
+    {
+        let view = buf
+            .get_mapped_range(0..bytes)
+            .map_err(|e| LikelihoodError::Gpu(format!("reading the readback buffer: {e}")))?;
+        f(&view);
+    }
+    buf.unmap();
+    Ok(())
+}
+
+impl LikelihoodEngine for GpuEngine {
+    fn name(&self) -> String {
+        self.gpu.name()
+    }
+
+    fn set_colour_model(&mut self, model: &ColourHistogram) -> Result<(), LikelihoodError> {
+        self.gpu.check()?;
+        // Same checks as the CPU engine, and the same f32 sum in bin order.
+        if model.0.len() != HIST_BINS {
+            return Err(LikelihoodError::Invalid(format!(
+                "colour model has {} bins, expected {HIST_BINS}",
+                model.0.len()
+            )));
+        }
+        if !model.0.iter().all(|v| v.is_finite() && *v >= 0.0) {
+            return Err(LikelihoodError::Invalid(
+                "colour model has a negative or non-finite bin".into(),
+            ));
+        }
+        let q_sum = cpu::colour::Model::new(&model.0).q_sum;
+        if !(q_sum > 0.0 && q_sum.is_finite()) {
+            return Err(LikelihoodError::Invalid("colour model is empty".into()));
+        }
+        self.q_sum = q_sum;
+        self.gpu
+            .queue
+            .write_buffer(&self.bufs.model, 0, bytemuck::cast_slice(&model.0));
+        self.has_model = true;
+        Ok(())
+    }
+
+    fn evaluate(
+        &mut self,
+        frame: &FrameInput<'_>,
+        params: &LikelihoodParams,
+        particles: &[Particle],
+        out: &mut Vec<TermLogs>,
+    ) -> Result<(), LikelihoodError> {
+        self.run(frame, params, particles, out, None, None)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn grid_covers_every_group_within_the_limit() {
+        assert_eq!(grid(0, 65535), Some((0, 1)));
+        assert_eq!(grid(65535, 65535), Some((65535, 1)));
+        let (x, y) = grid(70000, 65535).unwrap();
+        assert!(x <= 65535 && y <= 65535 && x as u64 * y as u64 >= 70000);
+        assert_eq!((x, y), (65535, 2));
+        assert_eq!(grid(u32::MAX, 100), None);
+    }
+
+    #[test]
+    fn pixels_pack_as_r_g_b_bytes_of_a_word() {
+        let mut out = Vec::new();
+        pack_pixels(&[1, 2, 3, 255, 0, 128], &mut out);
+        assert_eq!(out, vec![0x030201, 0x8000ff]);
+    }
+}

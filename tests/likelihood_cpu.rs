@@ -1,0 +1,652 @@
+//! The CPU likelihood engine and its stages on real and synthetic frames (issue 4, CPU path;
+//! the reference of the GPU engine, issue 5).
+
+use std::io::Write;
+use std::path::PathBuf;
+
+use image::{Rgb, RgbImage};
+use pftrack::geometry::{Ellipse, Euler};
+use pftrack::likelihood::cpu::{self, CpuEngine, EllipseF32, colour, feature, gradient};
+use pftrack::likelihood::{
+    ColourHistogram, DEGENERATE, FeaturePair, FrameInput, HIST_BINS, LikelihoodEngine,
+    LikelihoodError, LikelihoodParams, Particle, TERM_COLOUR, TERM_FEATURE, TERM_GRADIENT,
+    TermLogs,
+};
+use rand::{Rng, SeedableRng, rngs::StdRng};
+
+/// `../shared/data` beside the checkout (CI, main), or two levels up (a worktree under `wt/`).
+fn data_dir() -> Option<PathBuf> {
+    let root = env!("CARGO_MANIFEST_DIR");
+    [
+        format!("{root}/../shared/data"),
+        format!("{root}/../../shared/data"),
+    ]
+    .into_iter()
+    .map(PathBuf::from)
+    .find(|p| p.join("girl").is_dir())
+}
+
+/// Girl frame 1 and its ground-truth ellipse, or `None` (with a printed reason).
+fn girl_first() -> Option<(RgbImage, Ellipse)> {
+    let Some(dir) = data_dir() else {
+        let _ = writeln!(
+            std::io::stderr(),
+            "skipping: ../shared/data/girl not found beside the checkout"
+        );
+        return None;
+    };
+    let img = image::open(dir.join("girl/img/0001.jpg"))
+        .unwrap()
+        .to_rgb8();
+    let boxes = pftrack::io::read_otb_boxes(&dir.join("girl/groundtruth_rect.txt")).unwrap();
+    Some((img, Ellipse::from_box(&boxes[0])))
+}
+
+fn particle_of(e: &Ellipse) -> (Particle, f32) {
+    (
+        Particle {
+            cx: e.cx as f32,
+            cy: e.cy as f32,
+            a: e.a as f32,
+            b: e.b as f32,
+            ..Default::default()
+        },
+        e.theta as f32,
+    )
+}
+
+fn brute_histogram(img: &RgbImage, e: &EllipseF32) -> ([u32; HIST_BINS], u32) {
+    let mut counts = [0u32; HIST_BINS];
+    let mut total = 0;
+    let (s, c) = e.theta.sin_cos();
+    for y in 0..img.height() {
+        for x in 0..img.width() {
+            // The spec's test, written out here independently of the crate.
+            let dx = x as f32 - e.cx;
+            let dy = y as f32 - e.cy;
+            let u = (c * dx + s * dy) / e.a;
+            let v = (-s * dx + c * dy) / e.b;
+            if u * u + v * v <= 1.0 {
+                let p = img.get_pixel(x, y).0;
+                let k = (p[0] as usize >> 5) * 64 + (p[1] as usize >> 5) * 8 + (p[2] as usize >> 5);
+                counts[k] += 1;
+                total += 1;
+            }
+        }
+    }
+    (counts, total)
+}
+
+fn model_of(img: &RgbImage, e: &Ellipse) -> colour::Model {
+    colour::Model::new(&ColourHistogram::from_ellipse(img, e).unwrap().0)
+}
+
+#[test]
+fn colour_model_particle_has_rho_one_and_rho_falls_off_target() {
+    let Some((img, e)) = girl_first() else { return };
+    let model = model_of(&img, &e);
+    let (p, theta0) = particle_of(&e);
+    let ef = EllipseF32::from_particle(&p, theta0);
+    let (c, t) = colour::histogram(&img, &ef);
+    assert!(t > 500, "{t}");
+    assert_eq!(colour::bhattacharyya(&c, t, &model), 1.0);
+    assert_eq!(colour::log_likelihood(&img, &ef, &model, 0.1), 0.0);
+
+    // Moving off the target in each direction: rho falls, and further falls further.
+    for (ux, uy) in [(1.0f32, 0.0f32), (-1.0, 0.0), (0.0, 1.0), (0.0, -1.0)] {
+        let rho_at = |d: f32| {
+            let q = EllipseF32 {
+                cx: ef.cx + ux * d,
+                cy: ef.cy + uy * d,
+                ..ef
+            };
+            let (c, t) = colour::histogram(&img, &q);
+            colour::bhattacharyya(&c, t, &model)
+        };
+        let rhos: Vec<f32> = [0.0, 4.0, 10.0, 20.0].iter().map(|&d| rho_at(d)).collect();
+        assert!(
+            rhos.windows(2).all(|w| w[1] < w[0]),
+            "direction ({ux}, {uy}): {rhos:?}"
+        );
+    }
+}
+
+#[test]
+fn colour_histograms_equal_brute_force_on_random_ellipses() {
+    let Some((img, _)) = girl_first() else { return };
+    let bins = colour::BinImage::new(&img);
+    let mut rng = StdRng::seed_from_u64(42);
+    let (w, h) = (img.width() as f32, img.height() as f32);
+    for i in 0..1000 {
+        let e = EllipseF32 {
+            cx: rng.random_range(-20.0..w + 20.0),
+            cy: rng.random_range(-20.0..h + 20.0),
+            a: rng.random_range(0.3..60.0),
+            b: rng.random_range(0.3..60.0),
+            theta: if i % 4 == 0 {
+                0.0
+            } else {
+                rng.random_range(-7.0..7.0)
+            },
+        };
+        let want = brute_histogram(&img, &e);
+        assert_eq!(colour::histogram(&img, &e), want, "{e:?}");
+        let mut counts = [0; HIST_BINS];
+        let t = colour::histogram_bins(&bins, &e, &mut counts);
+        assert_eq!((counts, t), want, "{e:?}");
+    }
+}
+
+#[test]
+fn colour_histograms_equal_brute_force_on_large_ellipses() {
+    // Big frames and big ellipses stress the f64 span solver against the f32 test.
+    let mut rng = StdRng::seed_from_u64(9);
+    let img = RgbImage::from_fn(640, 480, |x, y| {
+        Rgb([(x * 7) as u8, (y * 3) as u8, (x ^ y) as u8])
+    });
+    for _ in 0..40 {
+        let e = EllipseF32 {
+            cx: rng.random_range(-100.0..740.0),
+            cy: rng.random_range(-100.0..580.0),
+            a: rng.random_range(50.0..900.0),
+            b: rng.random_range(0.5..900.0),
+            theta: rng.random_range(-4.0..4.0),
+        };
+        assert_eq!(
+            colour::histogram(&img, &e),
+            brute_histogram(&img, &e),
+            "{e:?}"
+        );
+    }
+}
+
+#[test]
+fn colour_model_errors_on_empty_or_degenerate_ellipses() {
+    let img = RgbImage::new(20, 20);
+    assert!(ColourHistogram::from_ellipse(&img, &Ellipse::new(100.0, 100.0, 5.0, 5.0)).is_err());
+    assert!(ColourHistogram::from_ellipse(&img, &Ellipse::new(10.0, 10.0, 0.0, 5.0)).is_err());
+    assert!(ColourHistogram::from_ellipse(&img, &Ellipse::new(f64::NAN, 10.0, 3.0, 5.0)).is_err());
+    let m = ColourHistogram::from_ellipse(&img, &Ellipse::new(10.0, 10.0, 3.0, 5.0)).unwrap();
+    assert_eq!(m.0.len(), HIST_BINS);
+    assert_eq!(m.0[0], 1.0);
+}
+
+/// A white filled ellipse (the spec's pixel set) on black.
+fn filled_ellipse(w: u32, h: u32, e: &EllipseF32) -> RgbImage {
+    let (s, c) = e.theta.sin_cos();
+    RgbImage::from_fn(w, h, |x, y| {
+        if colour::inside(e, s, c, x as i64, y as i64) {
+            Rgb([255, 255, 255])
+        } else {
+            Rgb([0, 0, 0])
+        }
+    })
+}
+
+#[test]
+fn gradient_edges_sit_on_the_contour_of_a_filled_ellipse() {
+    let params = LikelihoodParams::default();
+    // Axis-aligned circle with its contour points on the axes between pixel centres, nearer
+    // the inner one: the inner pixel (first of the two-pixel plateau that central differences
+    // give a sharp step) is the sample at t = 0, so every axis line has d = 0.
+    let e = EllipseF32 {
+        cx: 40.0,
+        cy: 30.0,
+        a: 15.4,
+        b: 15.4,
+        theta: 0.0,
+    };
+    let img = filled_ellipse(80, 60, &e);
+    let grad = gradient::GradientImage::new(&img);
+    let p4 = LikelihoodParams {
+        num_lines: 4,
+        ..params
+    };
+    assert_eq!(
+        gradient::edge_distances_ellipse(&grad, &e, &p4),
+        vec![Some(0); 4]
+    );
+
+    // A rotated ellipse with the default lines: on every line the edge is within the one
+    // pixel of the step (d = 0 or 1, depending on which side of the contour the nearest
+    // pixel of the contour point lies), never missing.
+    let e = EllipseF32 {
+        cx: 40.3,
+        cy: 29.6,
+        a: 20.0,
+        b: 14.0,
+        theta: 0.5,
+    };
+    let img = filled_ellipse(80, 60, &e);
+    let grad = gradient::GradientImage::new(&img);
+    let d = gradient::edge_distances_ellipse(&grad, &e, &params);
+    assert_eq!(d.len(), params.num_lines as usize);
+    assert!(d.iter().all(|d| matches!(d, Some(0) | Some(1))), "{d:?}");
+    assert!(
+        d.iter().filter(|d| **d == Some(0)).count() >= d.len() / 3,
+        "{d:?}"
+    );
+
+    // The true ellipse scores above every 3-px shift and every 3-px change of size.
+    let p = Particle {
+        cx: e.cx,
+        cy: e.cy,
+        a: e.a,
+        b: e.b,
+        ..Default::default()
+    };
+    let best = gradient::log_likelihood(&grad, &p, e.theta, &params);
+    let k = gradient::clutter_gain(&params);
+    let floor = params.num_lines as f32 * gradient::line_log(Some(1), k, params.sigma_z);
+    assert!(best >= floor, "{best} < {floor}");
+    for (dx, dy, da, db) in [
+        (3.0, 0.0, 0.0, 0.0),
+        (-3.0, 0.0, 0.0, 0.0),
+        (0.0, 3.0, 0.0, 0.0),
+        (0.0, -3.0, 0.0, 0.0),
+        (2.1, 2.1, 0.0, 0.0),
+        (0.0, 0.0, 3.0, 0.0),
+        (0.0, 0.0, -3.0, -3.0),
+        (0.0, 0.0, 0.0, 3.0),
+    ] {
+        let q = Particle {
+            cx: p.cx + dx,
+            cy: p.cy + dy,
+            a: p.a + da,
+            b: p.b + db,
+            ..p
+        };
+        let l = gradient::log_likelihood(&grad, &q, e.theta, &params);
+        assert!(l < best, "shift ({dx}, {dy}, {da}, {db}): {l} vs {best}");
+    }
+}
+
+#[test]
+fn gradient_of_an_image_without_edges_is_zero() {
+    let img = RgbImage::from_pixel(64, 48, Rgb([120, 30, 200]));
+    let grad = gradient::GradientImage::new(&img);
+    assert!(grad.g.iter().all(|g| *g == [0, 0]));
+    let p = Particle {
+        cx: 30.0,
+        cy: 20.0,
+        a: 12.0,
+        b: 9.0,
+        rz: 0.3,
+        ..Default::default()
+    };
+    let params = LikelihoodParams::default();
+    assert_eq!(gradient::log_likelihood(&grad, &p, 0.1, &params), 0.0);
+    assert!(
+        gradient::edge_distances(&grad, &p, 0.1, &params)
+            .iter()
+            .all(|d| d.is_none())
+    );
+}
+
+/// Features generated by exactly the spec's model (in f64, independently of the crate):
+/// previous points `p` on the previous ellipse, current points `q = c + s ΔR X`.
+fn model_features(
+    prev: &Particle,
+    truth: &Particle,
+    depth_ratio: f64,
+    n: usize,
+) -> Vec<FeaturePair> {
+    let mut rng = StdRng::seed_from_u64(11);
+    let r_prev = Euler::new(prev.rx as f64, prev.ry as f64, prev.rz as f64).matrix();
+    let r = Euler::new(truth.rx as f64, truth.ry as f64, truth.rz as f64).matrix();
+    let dr = r * r_prev.transpose();
+    let s = ((truth.a * truth.b) as f64 / (prev.a * prev.b) as f64).sqrt();
+    let e = Ellipse {
+        cx: prev.cx as f64,
+        cy: prev.cy as f64,
+        a: prev.a as f64,
+        b: prev.b as f64,
+        theta: prev.rz as f64,
+    };
+    (0..n)
+        .map(|_| {
+            let (u, v): (f64, f64) = loop {
+                let u = rng.random_range(-1.0..1.0);
+                let v = rng.random_range(-1.0..1.0);
+                if u * u + v * v < 0.9 {
+                    break (u, v);
+                }
+            };
+            // point at unit coordinates (u, v) of the previous ellipse
+            let (sn, cs) = e.theta.sin_cos();
+            let (ex, ey) = (e.a * u, e.b * v);
+            let dx = cs * ex - sn * ey;
+            let dy = sn * ex + cs * ey;
+            let z = -depth_ratio * (e.a * e.b).sqrt() * (1.0 - u * u - v * v).max(0.0).sqrt();
+            let x = nalgebra::Vector3::new(dx, dy, z);
+            let m = dr * x;
+            FeaturePair {
+                p: [(e.cx + dx) as f32, (e.cy + dy) as f32],
+                q: [
+                    (truth.cx as f64 + s * m.x) as f32,
+                    (truth.cy as f64 + s * m.y) as f32,
+                ],
+            }
+        })
+        .collect()
+}
+
+#[test]
+fn feature_term_is_highest_at_the_generating_particle() {
+    let params = LikelihoodParams::default();
+    let prev = Particle {
+        cx: 60.0,
+        cy: 50.0,
+        a: 20.0,
+        b: 24.0,
+        rx: 0.1,
+        ry: -0.05,
+        rz: 0.2,
+        _pad: 0.0,
+    };
+    let truth = Particle {
+        cx: 63.0,
+        cy: 48.0,
+        a: 22.0,
+        b: 25.0,
+        rx: 0.25,
+        ry: -0.2,
+        rz: 0.3,
+        _pad: 0.0,
+    };
+    let feats = model_features(&prev, &truth, params.depth_ratio as f64, 30);
+    let best = feature::log_likelihood(&feats, &truth, &prev, 0.0, &params);
+    // Every match is exact up to f32 rounding: ln(30 / eps).
+    assert!(
+        (best - (30.0 / params.feature_eps).ln()).abs() < 1e-2,
+        "{best}"
+    );
+    let deltas = [
+        [1.5, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0],
+        [0.0, -1.5, 0.0, 0.0, 0.0, 0.0, 0.0],
+        [0.0, 0.0, 2.0, 0.0, 0.0, 0.0, 0.0],
+        [0.0, 0.0, 0.0, -2.0, 0.0, 0.0, 0.0],
+        [0.0, 0.0, 0.0, 0.0, 0.1, 0.0, 0.0],
+        [0.0, 0.0, 0.0, 0.0, -0.1, 0.0, 0.0],
+        [0.0, 0.0, 0.0, 0.0, 0.0, 0.1, 0.0],
+        [0.0, 0.0, 0.0, 0.0, 0.0, -0.1, 0.0],
+        [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.05],
+        [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, -0.05],
+    ];
+    for d in deltas {
+        let q = Particle {
+            cx: truth.cx + d[0],
+            cy: truth.cy + d[1],
+            a: truth.a + d[2],
+            b: truth.b + d[3],
+            rx: truth.rx + d[4],
+            ry: truth.ry + d[5],
+            rz: truth.rz + d[6],
+            _pad: 0.0,
+        };
+        let l = feature::log_likelihood(&feats, &q, &prev, 0.0, &params);
+        assert!(l < best, "{d:?}: {l} vs {best}");
+    }
+}
+
+#[test]
+fn feature_term_separates_the_necker_mirror_only_with_depth() {
+    let prev = Particle {
+        cx: 60.0,
+        cy: 50.0,
+        a: 20.0,
+        b: 20.0,
+        ..Default::default()
+    };
+    let truth = Particle {
+        cx: 61.0,
+        cy: 50.0,
+        a: 20.0,
+        b: 20.0,
+        rx: 0.3,
+        ..Default::default()
+    };
+    let mirror = Particle { rx: -0.3, ..truth };
+    let params = LikelihoodParams::default();
+    assert!(params.depth_ratio > 0.0);
+    let feats = model_features(&prev, &truth, params.depth_ratio as f64, 25);
+    let lt = feature::log_likelihood(&feats, &truth, &prev, 0.0, &params);
+    let lm = feature::log_likelihood(&feats, &mirror, &prev, 0.0, &params);
+    assert!(lt > lm + 0.5, "{lt} vs {lm}");
+
+    let flat = LikelihoodParams {
+        depth_ratio: 0.0,
+        ..params
+    };
+    let feats = model_features(&prev, &truth, 0.0, 25);
+    let lt = feature::log_likelihood(&feats, &truth, &prev, 0.0, &flat);
+    let lm = feature::log_likelihood(&feats, &mirror, &prev, 0.0, &flat);
+    assert_eq!(lt, lm);
+}
+
+/// A frame, features, model and 1000 random particles around the girl's head.
+fn girl_setup() -> Option<(RgbImage, Ellipse, Vec<FeaturePair>, Vec<Particle>)> {
+    let (img, e) = girl_first()?;
+    let (prev, _) = particle_of(&e);
+    let mut rng = StdRng::seed_from_u64(3);
+    let truth = Particle {
+        cx: prev.cx + 1.0,
+        rx: 0.1,
+        ry: 0.05,
+        ..prev
+    };
+    let feats = model_features(&prev, &truth, 0.5, 20);
+    let mut particles: Vec<Particle> = (0..1000)
+        .map(|_| Particle {
+            cx: prev.cx + rng.random_range(-15.0..15.0),
+            cy: prev.cy + rng.random_range(-15.0..15.0),
+            a: prev.a * rng.random_range(0.7..1.3),
+            b: prev.b * rng.random_range(0.7..1.3),
+            rx: rng.random_range(-0.5..0.5),
+            ry: rng.random_range(-0.5..0.5),
+            rz: rng.random_range(-0.5..0.5),
+            _pad: 0.0,
+        })
+        .collect();
+    particles[0] = prev;
+    particles[1].a = 0.0;
+    particles[2].b = -3.0;
+    particles[3].rx = f32::NAN;
+    particles[4].cy = f32::INFINITY;
+    particles[5].cx = 3e38;
+    Some((img, e, feats, particles))
+}
+
+#[test]
+fn engine_is_deterministic_and_thread_count_independent() {
+    let Some((img, e, feats, particles)) = girl_setup() else {
+        return;
+    };
+    let (prev, theta0) = particle_of(&e);
+    let frame = FrameInput {
+        image: &img,
+        features: &feats,
+        prev,
+        theta0,
+    };
+    let params = LikelihoodParams::default();
+    let model = ColourHistogram::from_ellipse(&img, &e).unwrap();
+
+    let mut one = CpuEngine::with_threads(1).unwrap();
+    let mut all = CpuEngine::new();
+    let mut two = CpuEngine::with_threads(2).unwrap();
+    for eng in [&mut one, &mut all, &mut two] {
+        eng.set_colour_model(&model).unwrap();
+    }
+    let (mut r1, mut r2, mut r3, mut r4) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+    one.evaluate(&frame, &params, &particles, &mut r1).unwrap();
+    all.evaluate(&frame, &params, &particles, &mut r2).unwrap();
+    two.evaluate(&frame, &params, &particles, &mut r3).unwrap();
+    all.evaluate(&frame, &params, &particles, &mut r4).unwrap();
+    assert_eq!(r1.len(), particles.len());
+    let bits = |r: &[TermLogs]| -> Vec<[u32; 4]> {
+        r.iter()
+            .map(|t| {
+                [
+                    t.colour.to_bits(),
+                    t.gradient.to_bits(),
+                    t.feature.to_bits(),
+                    t.total.to_bits(),
+                ]
+            })
+            .collect()
+    };
+    assert_eq!(bits(&r1), bits(&r2));
+    assert_eq!(bits(&r1), bits(&r3));
+    assert_eq!(bits(&r2), bits(&r4));
+
+    // Degenerate particles, and nothing non-finite anywhere.
+    let degenerate = TermLogs {
+        colour: 0.0,
+        gradient: 0.0,
+        feature: 0.0,
+        total: DEGENERATE,
+    };
+    for i in 1..=5 {
+        assert_eq!(r1[i], degenerate, "particle {i}");
+    }
+    assert!(
+        r1.iter()
+            .all(|t| t.total.is_finite() && t.colour.is_finite())
+    );
+    // The true ellipse has the best colour term.
+    assert_eq!(r1[0].colour, 0.0);
+    assert!(r1.iter().all(|t| t.colour <= 0.0 && t.gradient >= 0.0));
+
+    // The engine equals the stage functions called one by one.
+    let grad = gradient::GradientImage::new(&img);
+    let cm = colour::Model::new(&model.0);
+    for (p, t) in particles.iter().zip(&r1).skip(6).take(100) {
+        let ef = EllipseF32::from_particle(p, theta0);
+        let c = colour::log_likelihood(&img, &ef, &cm, params.sigma_colour);
+        let g = gradient::log_likelihood(&grad, p, theta0, &params);
+        let f = feature::log_likelihood(&feats, p, &prev, theta0, &params);
+        assert_eq!(*t, cpu::combine::combine(c, g, f, &params));
+    }
+}
+
+#[test]
+fn engine_terms_flags_and_errors() {
+    let img = RgbImage::from_fn(32, 24, |x, y| Rgb([(x * 8) as u8, (y * 10) as u8, 50]));
+    let e = Ellipse::new(16.0, 12.0, 6.0, 5.0);
+    let (prev, theta0) = particle_of(&e);
+    let feats = [FeaturePair {
+        p: [15.0, 12.0],
+        q: [15.5, 12.0],
+    }];
+    let frame = FrameInput {
+        image: &img,
+        features: &feats,
+        prev,
+        theta0,
+    };
+    let mut eng = CpuEngine::with_threads(1).unwrap();
+    let mut out = vec![TermLogs::default(); 7];
+    let params = LikelihoodParams::default();
+    assert!(matches!(
+        eng.evaluate(&frame, &params, &[prev], &mut out),
+        Err(LikelihoodError::NoModel)
+    ));
+    // Without the colour term no model is needed; the disabled slot is 0.
+    let no_colour = LikelihoodParams {
+        terms: TERM_GRADIENT | TERM_FEATURE,
+        ..params
+    };
+    eng.evaluate(&frame, &no_colour, &[prev, prev], &mut out)
+        .unwrap();
+    assert_eq!(out.len(), 2);
+    assert_eq!(out[0].colour, 0.0);
+    assert_eq!(out[0].total, out[0].gradient + out[0].feature);
+    eng.set_colour_model(&ColourHistogram::from_ellipse(&img, &e).unwrap())
+        .unwrap();
+    let only_colour = LikelihoodParams {
+        terms: TERM_COLOUR,
+        ..params
+    };
+    eng.evaluate(&frame, &only_colour, &[prev], &mut out)
+        .unwrap();
+    assert_eq!(out[0], TermLogs::default());
+    eng.evaluate(&frame, &params, &[], &mut out).unwrap();
+    assert!(out.is_empty());
+    let only_feature = LikelihoodParams {
+        terms: TERM_FEATURE,
+        ..params
+    };
+    eng.evaluate(&frame, &only_feature, &[prev], &mut out)
+        .unwrap();
+    assert!(
+        (out[0].feature - (1.0 / 1.5f32).ln()).abs() < 1e-6,
+        "{:?}",
+        out[0]
+    );
+
+    let bad = |p: LikelihoodParams, eng: &mut CpuEngine| {
+        let mut o = Vec::new();
+        matches!(
+            eng.evaluate(&frame, &p, &[prev], &mut o),
+            Err(LikelihoodError::Invalid(_))
+        )
+    };
+    assert!(bad(
+        LikelihoodParams {
+            sigma_colour: 0.0,
+            ..params
+        },
+        &mut eng
+    ));
+    assert!(bad(
+        LikelihoodParams {
+            sigma_z: f32::NAN,
+            ..params
+        },
+        &mut eng
+    ));
+    assert!(bad(
+        LikelihoodParams {
+            clutter_density: -1.0,
+            ..params
+        },
+        &mut eng
+    ));
+    assert!(bad(
+        LikelihoodParams {
+            feature_eps: 0.0,
+            ..params
+        },
+        &mut eng
+    ));
+    assert!(bad(
+        LikelihoodParams {
+            line_half_length: 1e9,
+            ..params
+        },
+        &mut eng
+    ));
+    assert!(bad(LikelihoodParams { terms: 8, ..params }, &mut eng));
+    let nan_frame = FrameInput {
+        theta0: f32::NAN,
+        ..frame
+    };
+    let mut o = Vec::new();
+    assert!(eng.evaluate(&nan_frame, &params, &[prev], &mut o).is_err());
+    assert!(CpuEngine::with_threads(0).is_err());
+    assert!(
+        eng.set_colour_model(&ColourHistogram(vec![0.0; 10]))
+            .is_err()
+    );
+    assert!(
+        eng.set_colour_model(&ColourHistogram(vec![0.0; HIST_BINS]))
+            .is_err()
+    );
+    assert!(
+        eng.set_colour_model(&ColourHistogram(vec![f32::NAN; HIST_BINS]))
+            .is_err()
+    );
+    assert!(eng.name().contains("cpu"));
+    let _ = TERM_FEATURE;
+}
