@@ -18,13 +18,18 @@
 //! Sylvester's equation, which reuses the same Kronecker matrix) and a backtracking line search
 //! on the residual norm.
 //!
-//! Start (the paper's): `Λ0 = B - A` with its off-diagonal pair averaged. `c0` comes from
+//! Starts. (1) The paper's: `Λ0 = B - A` with its off-diagonal pair averaged, and `c0` from
 //! `R2(Λ0)`: `c0 c0^T = I - R2 R2^T` after projecting `R2(Λ0)` onto the valid blocks, so
 //! `|c0_i| = sqrt(1 - |R_i|^2)` and the relative sign of `c0` is the sign of `-R1·R2` (the
 //! "sign follows the direction of rotation" of the paper). If that leaves `c0 ≈ 0` (an
 //! in-plane first guess), `c0` is seeded with `1e-3` in that sign pattern, so that an
 //! out-of-plane solution stays reachable (at `c = 0` exactly, Newton never leaves the in-plane
-//! family). The overall sign of `c` is the Necker ambiguity and does not affect `R2`.
+//! family). (2) Because `Λ0` assumes `R2 ≈ I` and Newton from it can end on another stationary
+//! point for larger rotations, a second start is taken from the projected unconstrained fit
+//! `M = proj(B A^-1)`: `c` from `M` as above and the Λ consistent with it,
+//! `Λ = sym((B - M A) M^-1)` (exact on noise-free data, where `Λ* = 0`). Of the converged
+//! results the one with the lower objective is returned. The overall sign of `c` is the Necker
+//! ambiguity and does not affect `R2`.
 //!
 //! Convergence: residual norm below `tol` (default `1e-12`, in units where `tr A = 1`).
 //! Without convergence in `max_iter` iterations, the iterate with the smallest residual is
@@ -178,17 +183,52 @@ impl Sea {
         let off = 0.5 * (l0[(0, 1)] + l0[(1, 0)]);
         let lam0 = Matrix2::new(l0[(0, 0)], off, off, l0[(1, 1)]);
         let m0 = sylvester_block(&a, &b, &lam0)?;
-        let mv = nearest_valid_block(&m0)?;
-        let e = Matrix2::identity() - mv * mv.transpose();
-        let (e11, e22, e12) = (e[(0, 0)].max(0.0), e[(1, 1)].max(0.0), e[(0, 1)]);
-        // relative sign of c1 c2 = -R1·R2 (the paper's sign rule)
-        let sign = if e12 < 0.0 { -1.0 } else { 1.0 };
-        let mut c0 = Vector2::new(e11.sqrt(), sign * e22.sqrt());
-        if c0.norm() < 1e-3 {
-            c0 = Vector2::new(1e-3, sign * 1e-3);
+        let mut starts = vec![Vector5::new(
+            lam0[(0, 0)],
+            lam0[(1, 1)],
+            off,
+            0.0,
+            0.0,
+        )];
+        let c0 = out_of_plane_guess(&m0)?;
+        starts[0][3] = c0[0];
+        starts[0][4] = c0[1];
+        // second start: the projected unconstrained fit and the Λ consistent with it
+        let ml = nearest_valid_block(&(b * a.try_inverse().ok_or(PoseError::Singular("SEA: A"))?))?;
+        if let Some(inv) = ml.try_inverse() {
+            let l1 = (b - ml * a) * inv;
+            let off1 = 0.5 * (l1[(0, 1)] + l1[(1, 0)]);
+            let c1 = out_of_plane_guess(&ml)?;
+            starts.push(Vector5::new(l1[(0, 0)], l1[(1, 1)], off1, c1[0], c1[1]));
         }
-        let mut x = Vector5::new(lam0[(0, 0)], lam0[(1, 1)], off, c0[0], c0[1]);
-        let (mut f, mut jac, mut m) = kkt(&a, &b, &x).ok_or(PoseError::Singular("SEA start"))?;
+        let mut best: Option<(f64, SeaSolution)> = None;
+        for x0 in starts {
+            let Some(sol) = self.newton(&a, &b, x0, s) else {
+                continue;
+            };
+            let value = mo.objective(&sol.r2);
+            let better = match &best {
+                None => true,
+                Some((v, b)) => {
+                    (sol.converged && !b.converged) || (sol.converged == b.converged && value < *v)
+                }
+            };
+            if better {
+                best = Some((value, sol));
+            }
+        }
+        best.map(|(_, s)| s).ok_or(PoseError::Singular("SEA start"))
+    }
+
+    /// Newton on the KKT system from `x0 = (λ1, λ2, λ3, c1, c2)` (normalised units).
+    fn newton(
+        &self,
+        a: &Matrix2<f64>,
+        b: &Matrix2<f64>,
+        mut x: Vector5<f64>,
+        scale: f64,
+    ) -> Option<SeaSolution> {
+        let (mut f, mut jac, mut m) = kkt(a, b, &x)?;
         let mut best = (f.norm(), x, m);
         let mut iterations = 0;
         while iterations < self.max_iter && best.0 > self.tol {
@@ -201,7 +241,7 @@ impl Sea {
             let mut accepted = false;
             for _ in 0..30 {
                 let xn = x + step * t;
-                if let Some((fn_, jn, mn)) = kkt(&a, &b, &xn)
+                if let Some((fn_, jn, mn)) = kkt(a, b, &xn)
                     && fn_.norm() < f0
                 {
                     x = xn;
@@ -221,9 +261,9 @@ impl Sea {
             }
         }
         let (res, x, m) = best;
-        Ok(SeaSolution {
-            r2: nearest_valid_block(&m)?,
-            lambda: lambda_of(&x) * s,
+        Some(SeaSolution {
+            r2: nearest_valid_block(&m).ok()?,
+            lambda: lambda_of(&x) * scale,
             c: Vector2::new(x[3], x[4]),
             iterations,
             converged: res <= self.tol,
@@ -240,6 +280,23 @@ impl Sea {
         let mo = moments(p, q, 3)?;
         Ok((self.solve_moments(&mo)?, mo))
     }
+}
+
+/// `c0` with `c0 c0^T = I - M M^T` after projecting `M` onto the valid blocks: magnitudes
+/// `sqrt(1 - |R_i|^2)`, relative sign that of `-R1·R2` (the paper's sign rule). A vanishing
+/// guess is seeded with `1e-3` in that sign pattern (at `c = 0` exactly Newton never leaves the
+/// in-plane family).
+fn out_of_plane_guess(m: &Matrix2<f64>) -> Result<Vector2<f64>, PoseError> {
+    let mv = nearest_valid_block(m)?;
+    let e = Matrix2::identity() - mv * mv.transpose();
+    let (e11, e22, e12) = (e[(0, 0)].max(0.0), e[(1, 1)].max(0.0), e[(0, 1)]);
+    let sign = if e12 < 0.0 { -1.0 } else { 1.0 };
+    let c = Vector2::new(e11.sqrt(), sign * e22.sqrt());
+    Ok(if c.norm() < 1e-3 {
+        Vector2::new(1e-3, sign * 1e-3)
+    } else {
+        c
+    })
 }
 
 impl RotationSolver for Sea {
