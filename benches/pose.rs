@@ -28,7 +28,12 @@ fn solvers(c: &mut Criterion) {
             });
         }
     }
-    let t = make_trial(&NoiseConfig::default(), &mut StdRng::seed_from_u64(1), Some(20.0)).unwrap();
+    let t = make_trial(
+        &NoiseConfig::default(),
+        &mut StdRng::seed_from_u64(1),
+        Some(20.0),
+    )
+    .unwrap();
     let r2 = solver(SolverKind::Sea).solve(&t.p, &t.q).unwrap().r2;
     c.bench_function("pose/complete_rotation", |b| {
         b.iter(|| black_box(complete_rotation(black_box(&r2)).unwrap()))

@@ -7,8 +7,8 @@ use pftrack::pose::noise::{NoiseConfig, block_error, fig3a, fig3b, make_trial, t
 use pftrack::pose::optimal::Optimal;
 use pftrack::pose::sea::Sea;
 use pftrack::pose::{
-    PoseError, SolverKind, complete_rotation, interframe, moments,
-    resolve_by_continuity, resolve_by_parallax, solver,
+    PoseError, SolverKind, complete_rotation, interframe, moments, resolve_by_continuity,
+    resolve_by_parallax, solver,
 };
 use rand::{Rng, SeedableRng, rngs::StdRng};
 
@@ -134,8 +134,16 @@ fn optimal_agrees_with_dense_search() {
         let opt = Optimal::default().solve_moments(&mo).unwrap();
         let dense = dense_min(&mo);
         let scale = mo.k + mo.a.trace();
-        assert!(opt.value <= dense + 1e-9 * scale, "case {case}: {} > {dense}", opt.value);
-        assert!(opt.value >= dense - 1e-6 * scale, "case {case}: dense {dense} < {}", opt.value);
+        assert!(
+            opt.value <= dense + 1e-9 * scale,
+            "case {case}: {} > {dense}",
+            opt.value
+        );
+        assert!(
+            opt.value >= dense - 1e-6 * scale,
+            "case {case}: dense {dense} < {}",
+            opt.value
+        );
     }
 }
 
@@ -156,7 +164,10 @@ fn fig3_small_run_orders_the_solvers_and_repeats() {
         assert!(opt < lsm * 1.01, "{r:?}");
         assert_eq!(r.failures, [0; 4], "{r:?}");
     }
-    assert!(rows[0].mean_deg[0] > rows[2].mean_deg[0], "error falls with SNR");
+    assert!(
+        rows[0].mean_deg[0] > rows[2].mean_deg[0],
+        "error falls with SNR"
+    );
     assert_eq!(rows, fig3b(&cfg), "deterministic for a seed");
     let lam = fig3a(&cfg);
     assert!(lam[0].sea_deg > lam[1].sea_deg, "{lam:?}");
@@ -166,17 +177,19 @@ fn fig3_small_run_orders_the_solvers_and_repeats() {
 /// Points on the visible hemisphere of an ellipsoid centred at the rotation centre.
 fn ellipsoid_front(rng: &mut StdRng, n: usize) -> Vec<Vector3<f64>> {
     (0..n)
-        .map(|_| loop {
-            let v = Vector3::new(
-                rng.random_range(-1.0..1.0),
-                rng.random_range(-1.0..1.0),
-                rng.random_range(-1.0..1.0),
-            );
-            let r = v.norm();
-            if r > 0.1 && r <= 1.0 {
-                let u: Vector3<f64> = v / r;
-                let z = -u[2].abs(); // towards the camera: z < 0 relative to the centre
-                break Vector3::new(40.0 * u[0], 50.0 * u[1], 30.0 * z);
+        .map(|_| {
+            loop {
+                let v = Vector3::new(
+                    rng.random_range(-1.0..1.0),
+                    rng.random_range(-1.0..1.0),
+                    rng.random_range(-1.0..1.0),
+                );
+                let r = v.norm();
+                if r > 0.1 && r <= 1.0 {
+                    let u: Vector3<f64> = v / r;
+                    let z = -u[2].abs(); // towards the camera: z < 0 relative to the centre
+                    break Vector3::new(40.0 * u[0], 50.0 * u[1], 30.0 * z);
+                }
             }
         })
         .collect()

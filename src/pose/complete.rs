@@ -121,9 +121,7 @@ pub fn complete_rotation(r2: &Matrix2<f64>) -> Result<NeckerPair, PoseError> {
     }
     let (s1, _) = singular_values(r2);
     if !(0.5..=2.0).contains(&s1) {
-        return Err(PoseError::InvalidBlock(
-            "largest singular value far from 1",
-        ));
+        return Err(PoseError::InvalidBlock("largest singular value far from 1"));
     }
     let m = nearest_valid_block(r2)?;
     let e = Matrix2::identity() - m * m.transpose();
@@ -257,7 +255,11 @@ mod tests {
         assert!(complete_rotation(&block(&rot_z(0.3))).unwrap().is_unique());
         // the larger out-of-plane component of `a` is non-negative
         let (c1, c2) = (pair.a[(0, 2)], pair.a[(1, 2)]);
-        assert!(if c1.abs() >= c2.abs() { c1 >= 0.0 } else { c2 >= 0.0 });
+        assert!(if c1.abs() >= c2.abs() {
+            c1 >= 0.0
+        } else {
+            c2 >= 0.0
+        });
     }
 
     #[test]

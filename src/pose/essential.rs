@@ -48,7 +48,11 @@ pub struct EssentialPose {
 
 fn hartley(x: &[Vector3<f64>]) -> (Vec<Vector2<f64>>, Matrix3<f64>) {
     let n = x.len() as f64;
-    let m = x.iter().map(|v| Vector2::new(v[0], v[1])).sum::<Vector2<f64>>() / n;
+    let m = x
+        .iter()
+        .map(|v| Vector2::new(v[0], v[1]))
+        .sum::<Vector2<f64>>()
+        / n;
     let d = x
         .iter()
         .map(|v| (Vector2::new(v[0], v[1]) - m).norm())
@@ -180,7 +184,9 @@ pub fn essential_rotation(
     }
     match best {
         Some(b) if b.in_front > 0 => Ok(b),
-        _ => Err(PoseError::NoSolution("no decomposition has points in front")),
+        _ => Err(PoseError::NoSolution(
+            "no decomposition has points in front",
+        )),
     }
 }
 

@@ -18,10 +18,7 @@ type V9 = SVector<f64, 9>;
 type M6 = SMatrix<f64, 6, 6>;
 type V6 = SVector<f64, 6>;
 
-fn moments3(
-    p: &[[f64; 3]],
-    q: &[[f64; 3]],
-) -> Result<(Matrix3<f64>, Matrix3<f64>), PoseError> {
+fn moments3(p: &[[f64; 3]], q: &[[f64; 3]]) -> Result<(Matrix3<f64>, Matrix3<f64>), PoseError> {
     if p.len() != q.len() {
         return Err(PoseError::LengthMismatch {
             p: p.len(),
@@ -164,12 +161,14 @@ pub fn sea_3d(p3: &[[f64; 3]], q3: &[[f64; 3]]) -> Result<Matrix3<f64>, PoseErro
     for k in 1..=steps {
         let tau = k as f64 / steps as f64;
         let bt = a * (1.0 - tau) + b * tau;
-        let (xn, _) = newton3(&a, &bt, x)
-            .ok_or(PoseError::NoSolution("3D SEA did not converge to a rotation"))?;
+        let (xn, _) = newton3(&a, &bt, x).ok_or(PoseError::NoSolution(
+            "3D SEA did not converge to a rotation",
+        ))?;
         x = xn;
     }
-    let (_, r) =
-        newton3(&a, &b, x).ok_or(PoseError::NoSolution("3D SEA did not converge to a rotation"))?;
+    let (_, r) = newton3(&a, &b, x).ok_or(PoseError::NoSolution(
+        "3D SEA did not converge to a rotation",
+    ))?;
     Ok(r)
 }
 
@@ -258,7 +257,10 @@ mod tests {
     fn bad_3d_input() {
         assert!(kabsch(&[[0.0; 3]; 2], &[[0.0; 3]; 2]).is_err());
         let line: Vec<[f64; 3]> = (0..5).map(|i| [i as f64, 0.0, 0.0]).collect();
-        assert!(matches!(kabsch(&line, &line), Err(PoseError::Degenerate(_))));
+        assert!(matches!(
+            kabsch(&line, &line),
+            Err(PoseError::Degenerate(_))
+        ));
         let mut p = line.clone();
         p[1][1] = f64::NAN;
         assert_eq!(kabsch(&p, &line), Err(PoseError::NonFinite));

@@ -29,8 +29,7 @@ pub mod sea;
 
 pub use accumulate::PoseAccumulator;
 pub use complete::{
-    NeckerPair, complete_rotation, nearest_valid_block, resolve_by_continuity,
-    resolve_by_parallax,
+    NeckerPair, complete_rotation, nearest_valid_block, resolve_by_continuity, resolve_by_parallax,
 };
 pub use essential::{Intrinsics, essential_rotation};
 pub use kabsch::{kabsch, sea_3d};
@@ -196,7 +195,10 @@ pub fn moments(p: &[[f64; 2]], q: &[[f64; 2]], need: usize) -> Result<Moments, P
     if p.len() < need {
         return Err(PoseError::TooFewMatches { got: p.len(), need });
     }
-    if p.iter().chain(q).any(|x| !x[0].is_finite() || !x[1].is_finite()) {
+    if p.iter()
+        .chain(q)
+        .any(|x| !x[0].is_finite() || !x[1].is_finite())
+    {
         return Err(PoseError::NonFinite);
     }
     let n = p.len() as f64;

@@ -168,8 +168,10 @@ pub fn make_trial(
         return Err(PoseError::NonFinite);
     }
     let to_arr = |v: &Vector2<f64>| [v[0], v[1]];
-    let (mut pa, mut qa): (Vec<[f64; 2]>, Vec<[f64; 2]>) =
-        (p.iter().map(to_arr).collect(), q.iter().map(to_arr).collect());
+    let (mut pa, mut qa): (Vec<[f64; 2]>, Vec<[f64; 2]>) = (
+        p.iter().map(to_arr).collect(),
+        q.iter().map(to_arr).collect(),
+    );
     if sigma > 0.0 {
         let nd = Normal::new(0.0, sigma).map_err(|_| PoseError::NonFinite)?;
         let noisy_p: &mut [[f64; 2]] = match cfg.noise_on {
@@ -198,7 +200,12 @@ pub fn block_error(r2: &Matrix2<f64>, truth: &Matrix3<f64>) -> Result<f64, PoseE
 }
 
 /// The solver of a kind as used in the experiment (RLS threshold from the noise level).
-fn trial_solver(kind: SolverKind, t: &Trial, cfg: &NoiseConfig, seed: u64) -> Box<dyn RotationSolver> {
+fn trial_solver(
+    kind: SolverKind,
+    t: &Trial,
+    cfg: &NoiseConfig,
+    seed: u64,
+) -> Box<dyn RotationSolver> {
     match kind {
         SolverKind::Sea => Box::new(Sea::default()),
         SolverKind::Optimal => Box::new(Optimal::default()),

@@ -191,8 +191,14 @@ impl Trig {
         let th1 = c[1] - c[2] + self.mu;
         let enc = |v: f64, w: f64| (v.abs() + w).min(1.0);
         let (s1b, c1b) = (enc(th1.sin(), ha + hb), enc(th1.cos(), ha + hb));
-        let (szb, czb) = (enc((c[1] - self.phz).sin(), ha), enc((c[1] - self.phz).cos(), ha));
-        let (swb, cwb) = (enc((c[2] - self.phw).sin(), hb), enc((c[2] - self.phw).cos(), hb));
+        let (szb, czb) = (
+            enc((c[1] - self.phz).sin(), ha),
+            enc((c[1] - self.phz).cos(), ha),
+        );
+        let (swb, cwb) = (
+            enc((c[2] - self.phw).sin(), hb),
+            enc((c[2] - self.phw).cos(), hb),
+        );
         let p1 = (1.0 - 2.0 * rl).abs().max((1.0 - 2.0 * ru).abs());
         let (m, gz, gw) = (self.m, self.gz, self.gw);
         let d_rra = 4.0 * m * s1b;
@@ -328,10 +334,7 @@ impl Optimal {
         let eps = self.eps_rel * (t.k + t.n);
         // Upper bound from closed-form candidates: projected LSM, best pure rotation
         // (ρ = 1, α = arg g_z), best pure reflection (ρ = 0, β = arg g_w).
-        let mut cands = vec![
-            Vector3::new(1.0, t.phz, 0.0),
-            Vector3::new(0.0, 0.0, t.phw),
-        ];
+        let mut cands = vec![Vector3::new(1.0, t.phz, 0.0), Vector3::new(0.0, 0.0, t.phw)];
         if let Ok(l) = lsm_block(mo).and_then(|l| nearest_valid_block(&l)) {
             cands.push(Trig::coords(&l));
         }
@@ -357,7 +360,12 @@ impl Optimal {
                     if f < best.1 {
                         best = (c, f);
                     }
-                    heap.push(Node { lb, c, h: h0, share });
+                    heap.push(Node {
+                        lb,
+                        c,
+                        h: h0,
+                        share,
+                    });
                 }
             }
         }

@@ -49,7 +49,7 @@ impl RotationSolver for Rls {
 
     fn solve(&self, p: &[[f64; 2]], q: &[[f64; 2]]) -> Result<BlockEstimate, PoseError> {
         moments(p, q, 3)?;
-        if !(self.threshold > 0.0) {
+        if self.threshold.is_nan() || self.threshold <= 0.0 {
             return Err(PoseError::NoSolution("RANSAC threshold must be positive"));
         }
         let n = p.len();
@@ -69,8 +69,8 @@ impl RotationSolver for Rls {
             let mut count = 0;
             let mut err = 0.0;
             for (jj, (x, y)) in p.iter().zip(q).enumerate() {
-                let e = (Vector2::new(y[0], y[1]) - r2 * Vector2::new(x[0], x[1]) - l)
-                    .norm_squared();
+                let e =
+                    (Vector2::new(y[0], y[1]) - r2 * Vector2::new(x[0], x[1]) - l).norm_squared();
                 if e < t2 {
                     mask[jj] = true;
                     count += 1;
@@ -124,7 +124,10 @@ mod tests {
         let mut p = Vec::new();
         let mut q = Vec::new();
         for i in 0..30 {
-            let x = [(i as f64 * 7.3) % 40.0 - 20.0, (i as f64 * 3.1) % 30.0 - 15.0];
+            let x = [
+                (i as f64 * 7.3) % 40.0 - 20.0,
+                (i as f64 * 3.1) % 30.0 - 15.0,
+            ];
             let y = m * Vector2::new(x[0], x[1]) + Vector2::new(3.0, -1.0);
             p.push(x);
             q.push([y[0], y[1]]);

@@ -183,13 +183,7 @@ impl Sea {
         let off = 0.5 * (l0[(0, 1)] + l0[(1, 0)]);
         let lam0 = Matrix2::new(l0[(0, 0)], off, off, l0[(1, 1)]);
         let m0 = sylvester_block(&a, &b, &lam0)?;
-        let mut starts = vec![Vector5::new(
-            lam0[(0, 0)],
-            lam0[(1, 1)],
-            off,
-            0.0,
-            0.0,
-        )];
+        let mut starts = vec![Vector5::new(lam0[(0, 0)], lam0[(1, 1)], off, 0.0, 0.0)];
         let c0 = out_of_plane_guess(&m0)?;
         starts[0][3] = c0[0];
         starts[0][4] = c0[1];
@@ -340,7 +334,12 @@ mod tests {
             xm[k] -= h;
             let d = (kkt(&a, &b, &xp).unwrap().0 - kkt(&a, &b, &xm).unwrap().0) / (2.0 * h);
             for r in 0..5 {
-                assert!((d[r] - j[(r, k)]).abs() < 1e-6, "({r},{k}) {} {}", d[r], j[(r, k)]);
+                assert!(
+                    (d[r] - j[(r, k)]).abs() < 1e-6,
+                    "({r},{k}) {} {}",
+                    d[r],
+                    j[(r, k)]
+                );
             }
         }
     }

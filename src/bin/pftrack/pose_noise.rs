@@ -35,10 +35,18 @@ pub struct PoseNoiseArgs {
     #[arg(long, default_value_t = 5000)]
     pub trials: usize,
     /// Input SNRs in dB (Fig. 3b), comma-separated.
-    #[arg(long, value_delimiter = ',', default_value = "0,5,10,15,20,25,30,35,40")]
+    #[arg(
+        long,
+        value_delimiter = ',',
+        default_value = "0,5,10,15,20,25,30,35,40"
+    )]
     pub snr: Vec<f64>,
     /// SNRs in dB of the perturbation of SEA's multiplier Λ (Fig. 3a), comma-separated.
-    #[arg(long, value_delimiter = ',', default_value = "0,5,10,15,20,25,30,35,40")]
+    #[arg(
+        long,
+        value_delimiter = ',',
+        default_value = "0,5,10,15,20,25,30,35,40"
+    )]
     pub lambda_snr: Vec<f64>,
     /// Input SNR (dB) of the Λ experiment (Fig. 3a).
     #[arg(long, default_value_t = 10.0)]
@@ -129,7 +137,10 @@ pub fn run(args: PoseNoiseArgs) -> anyhow::Result<()> {
         "Fig. 3b: mean rotation error (deg), {} points, {} trials per SNR",
         cfg.points, cfg.trials
     );
-    println!("{:>7} {:>9} {:>9} {:>9} {:>9}", "snr_db", "sea", "optimal", "lsm", "rls");
+    println!(
+        "{:>7} {:>9} {:>9} {:>9} {:>9}",
+        "snr_db", "sea", "optimal", "lsm", "rls"
+    );
     for r in &b {
         println!(
             "{:>7.1} {:>9.4} {:>9.4} {:>9.4} {:>9.4}",
@@ -214,11 +225,18 @@ fn plot(path: &Path, b: &[SnrRow], a: &[LambdaRow], cfg: &NoiseConfig) -> anyhow
 
     // panel (a)
     let xs: Vec<f64> = a.iter().map(|r| r.lambda_snr_db).collect();
-    let ys: Vec<f64> = a.iter().map(|r| r.sea_deg).filter(|v| v.is_finite()).collect();
+    let ys: Vec<f64> = a
+        .iter()
+        .map(|r| r.sea_deg)
+        .filter(|v| v.is_finite())
+        .collect();
     let (x0, x1) = range(&xs);
     let (_, y1) = range(&ys);
     let mut builder = ChartBuilder::on(&left);
-    builder.margin(20).x_label_area_size(45).y_label_area_size(60);
+    builder
+        .margin(20)
+        .x_label_area_size(45)
+        .y_label_area_size(60);
     if text {
         builder.caption(
             format!(
@@ -233,9 +251,13 @@ fn plot(path: &Path, b: &[SnrRow], a: &[LambdaRow], cfg: &NoiseConfig) -> anyhow
         .map_err(|e| anyhow::anyhow!("{e}"))?;
     let mut mesh = chart.configure_mesh();
     if text {
-        mesh.x_desc("SNR of Λ (dB)").y_desc("mean rotation error (deg)");
+        mesh.x_desc("SNR of Λ (dB)")
+            .y_desc("mean rotation error (deg)");
     } else {
-        mesh.disable_x_mesh().disable_y_mesh().x_labels(0).y_labels(0);
+        mesh.disable_x_mesh()
+            .disable_y_mesh()
+            .x_labels(0)
+            .y_labels(0);
     }
     mesh.draw().map_err(|e| anyhow::anyhow!("{e}"))?;
     let pts: Vec<(f64, f64)> = a
@@ -260,7 +282,10 @@ fn plot(path: &Path, b: &[SnrRow], a: &[LambdaRow], cfg: &NoiseConfig) -> anyhow
     let (x0, x1) = range(&xs);
     let (_, y1) = range(&ys);
     let mut builder = ChartBuilder::on(&right);
-    builder.margin(20).x_label_area_size(45).y_label_area_size(60);
+    builder
+        .margin(20)
+        .x_label_area_size(45)
+        .y_label_area_size(60);
     if text {
         builder.caption(
             format!("(b) error vs input SNR ({} points)", cfg.points),
@@ -272,9 +297,13 @@ fn plot(path: &Path, b: &[SnrRow], a: &[LambdaRow], cfg: &NoiseConfig) -> anyhow
         .map_err(|e| anyhow::anyhow!("{e}"))?;
     let mut mesh = chart.configure_mesh();
     if text {
-        mesh.x_desc("input SNR (dB)").y_desc("mean rotation error (deg)");
+        mesh.x_desc("input SNR (dB)")
+            .y_desc("mean rotation error (deg)");
     } else {
-        mesh.disable_x_mesh().disable_y_mesh().x_labels(0).y_labels(0);
+        mesh.disable_x_mesh()
+            .disable_y_mesh()
+            .x_labels(0)
+            .y_labels(0);
     }
     mesh.draw().map_err(|e| anyhow::anyhow!("{e}"))?;
     for (i, (c, name)) in colours.iter().zip(names).enumerate() {
