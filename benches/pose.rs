@@ -50,5 +50,11 @@ fn solvers(c: &mut Criterion) {
     });
 }
 
-criterion_group!(benches, solvers);
+// No plots: criterion's plotters backend needs a registered font (plotters is built with
+// ab_glyph here and has no system font lookup), so plotting would panic.
+criterion_group! {
+    name = benches;
+    config = Criterion::default().without_plots();
+    targets = solvers
+}
 criterion_main!(benches);
