@@ -1,9 +1,361 @@
-//! Rotation from 2D correspondences: Sylvester's equation (SEA), the optimal solver and the baselines.
+//! Rotation from 2D correspondences: Sylvester's equation (SEA), the optimal solver and the
+//! baselines (SPEC section 2).
+//!
+//! Model: matched points `p_j` (frame t) and `q_j` (frame t+1) under weak perspective,
+//! `q_j = R2 p_j + l`, `R2` the top-left 2x2 block of the inter-frame rotation `ΔR`.
+//! Both sets are centred (`P' = P - mean(P)`, `Q' = Q - mean(Q)`), `A = P' P'^T`,
+//! `B = Q' P'^T`, and every solver minimises (or approximates the minimum of)
+//! `f(R2) = Σ_j |q'_j - R2 p'_j|^2 = tr(Q'Q'^T) - 2 tr(R2^T B) + tr(R2 A R2^T)`.
+//!
+//! * [`sea::Sea`]: the paper's Sylvester-equation algorithm (iterated Lagrange multiplier Λ).
+//! * [`optimal::Optimal`]: the certified global minimiser of `f` over the blocks of rotations.
+//! * [`lsm::Lsm`]: unconstrained least squares `R2 = B A^-1`.
+//! * [`ransac::Rls`]: RANSAC on the matches, then least squares on the inliers.
+//! * [`kabsch`]: the 3D-3D case (SVD and SEA's equation in 3D).
+//! * [`essential`]: the essential-matrix (8-point) baseline on calibrated perspective points.
+//!
+//! A block determines the rotation up to the Necker pair ([`complete`]); inter-frame rotations
+//! are chained by [`accumulate::PoseAccumulator`]; [`noise`] reproduces the paper's Fig. 3.
+
+pub mod accumulate;
+pub mod complete;
+pub mod essential;
+pub mod kabsch;
+pub mod lsm;
+pub mod noise;
+pub mod optimal;
+pub mod ransac;
+pub mod sea;
+
+pub use accumulate::PoseAccumulator;
+pub use complete::{
+    NeckerPair, complete_rotation, nearest_valid_block, resolve_by_continuity, resolve_by_parallax,
+};
+pub use essential::{Intrinsics, essential_rotation};
+pub use kabsch::{kabsch, sea_3d};
+pub use lsm::Lsm;
+pub use optimal::Optimal;
+pub use ransac::Rls;
+pub use sea::Sea;
+
+use nalgebra::{Matrix2, Vector2};
 
 /// Errors of this module.
-#[derive(Debug, thiserror::Error)]
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum PoseError {
-    /// Placeholder until the module lands.
-    #[error("not implemented yet")]
-    Unimplemented,
+    /// Fewer matches than the solver needs.
+    #[error("too few matches: {got} (need at least {need})")]
+    TooFewMatches {
+        /// Matches given.
+        got: usize,
+        /// Matches needed.
+        need: usize,
+    },
+    /// The two point sets differ in length.
+    #[error("point sets differ in length: {p} vs {q}")]
+    LengthMismatch {
+        /// Length of the first set.
+        p: usize,
+        /// Length of the second set.
+        q: usize,
+    },
+    /// A coordinate is NaN or infinite.
+    #[error("non-finite coordinate in the input")]
+    NonFinite,
+    /// The points are all identical or collinear: the rotation is not determined.
+    #[error("degenerate point configuration ({0})")]
+    Degenerate(&'static str),
+    /// A linear system of a solver is singular.
+    #[error("singular system in {0}")]
+    Singular(&'static str),
+    /// A matrix is not (close to) the block of a rotation and cannot be completed.
+    #[error("not a valid rotation block: {0}")]
+    InvalidBlock(&'static str),
+    /// An unknown solver name.
+    #[error("unknown solver `{0}` (expected sea, optimal, lsm or rls)")]
+    UnknownSolver(String),
+    /// No consistent solution (e.g. RANSAC found no model, chirality failed).
+    #[error("no solution: {0}")]
+    NoSolution(&'static str),
+}
+
+/// The estimate of one 2D solver: the rotation block, the translation and the fit quality.
+#[derive(Debug, Clone, PartialEq)]
+pub struct BlockEstimate {
+    /// Estimated top-left 2x2 block `R2` of the inter-frame rotation.
+    pub r2: Matrix2<f64>,
+    /// Translation `l = mean(Q) - R2 mean(P)` (pixels), so that `q ≈ R2 p + l`.
+    pub translation: Vector2<f64>,
+    /// RMS reprojection error `sqrt(mean_j |q_j - R2 p_j - l|^2)` over the inliers (pixels).
+    pub residual: f64,
+    /// Which matches were used (all `true` except for RANSAC).
+    pub inliers: Vec<bool>,
+}
+
+/// A solver of the rotation block from 2D matches.
+pub trait RotationSolver {
+    /// Short name (`sea`, `optimal`, `lsm`, `rls`).
+    fn name(&self) -> &'static str;
+    /// Estimates `R2` and `l` from matches `p[j] -> q[j]`.
+    fn solve(&self, p: &[[f64; 2]], q: &[[f64; 2]]) -> Result<BlockEstimate, PoseError>;
+}
+
+/// The solvers by name.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum SolverKind {
+    /// The paper's Sylvester-equation algorithm.
+    Sea,
+    /// The certified global minimiser.
+    Optimal,
+    /// Unconstrained least squares.
+    Lsm,
+    /// RANSAC then least squares.
+    Rls,
+}
+
+impl SolverKind {
+    /// All kinds, in the order of the Fig. 3 CSV.
+    pub const ALL: [SolverKind; 4] = [
+        SolverKind::Sea,
+        SolverKind::Optimal,
+        SolverKind::Lsm,
+        SolverKind::Rls,
+    ];
+
+    /// Parses `sea`, `optimal`, `lsm`, `rls` (case-insensitive).
+    pub fn from_name(name: &str) -> Result<Self, PoseError> {
+        match name.to_ascii_lowercase().as_str() {
+            "sea" => Ok(Self::Sea),
+            "optimal" | "opt" => Ok(Self::Optimal),
+            "lsm" => Ok(Self::Lsm),
+            "rls" | "ransac" => Ok(Self::Rls),
+            _ => Err(PoseError::UnknownSolver(name.to_string())),
+        }
+    }
+
+    /// The short name.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Sea => "sea",
+            Self::Optimal => "optimal",
+            Self::Lsm => "lsm",
+            Self::Rls => "rls",
+        }
+    }
+}
+
+/// The solver of a kind with its default settings.
+pub fn solver(kind: SolverKind) -> Box<dyn RotationSolver + Send + Sync> {
+    match kind {
+        SolverKind::Sea => Box::new(Sea::default()),
+        SolverKind::Optimal => Box::new(Optimal::default()),
+        SolverKind::Lsm => Box::new(Lsm),
+        SolverKind::Rls => Box::new(Rls::default()),
+    }
+}
+
+/// Centred moments of a set of matches: the means and `A = P'P'^T`, `B = Q'P'^T`,
+/// `K = tr(Q'Q'^T)`. Shared by the solvers.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Moments {
+    /// Mean of `p`.
+    pub mean_p: Vector2<f64>,
+    /// Mean of `q`.
+    pub mean_q: Vector2<f64>,
+    /// `A = Σ p'_j p'_j^T`.
+    pub a: Matrix2<f64>,
+    /// `B = Σ q'_j p'_j^T`.
+    pub b: Matrix2<f64>,
+    /// `K = Σ |q'_j|^2`.
+    pub k: f64,
+    /// Number of matches.
+    pub n: usize,
+}
+
+impl Moments {
+    /// The objective `f(R2) = Σ |q'_j - R2 p'_j|^2` from the moments.
+    pub fn objective(&self, r2: &Matrix2<f64>) -> f64 {
+        self.k - 2.0 * (r2.transpose() * self.b).trace() + (r2 * self.a * r2.transpose()).trace()
+    }
+}
+
+/// Checks the input (lengths, at least `need` matches, finite, not degenerate) and returns the
+/// centred moments.
+///
+/// Degenerate: the frame-t points are all identical or collinear (`A` singular relative to its
+/// scale), or the frame-t+1 points are all identical (no rotation can map a spread set to a
+/// point).
+pub fn moments(p: &[[f64; 2]], q: &[[f64; 2]], need: usize) -> Result<Moments, PoseError> {
+    if p.len() != q.len() {
+        return Err(PoseError::LengthMismatch {
+            p: p.len(),
+            q: q.len(),
+        });
+    }
+    if p.len() < need {
+        return Err(PoseError::TooFewMatches { got: p.len(), need });
+    }
+    if p.iter()
+        .chain(q)
+        .any(|x| !x[0].is_finite() || !x[1].is_finite())
+    {
+        return Err(PoseError::NonFinite);
+    }
+    let n = p.len() as f64;
+    let mut mp = Vector2::zeros();
+    let mut mq = Vector2::zeros();
+    for (a, b) in p.iter().zip(q) {
+        mp += Vector2::new(a[0], a[1]);
+        mq += Vector2::new(b[0], b[1]);
+    }
+    mp /= n;
+    mq /= n;
+    let mut a = Matrix2::zeros();
+    let mut b = Matrix2::zeros();
+    let mut k = 0.0;
+    for (x, y) in p.iter().zip(q) {
+        let pp = Vector2::new(x[0], x[1]) - mp;
+        let qq = Vector2::new(y[0], y[1]) - mq;
+        a += pp * pp.transpose();
+        b += qq * pp.transpose();
+        k += qq.norm_squared();
+    }
+    let ta = a.trace();
+    let scale = mp.norm().max(mq.norm()).max(1.0);
+    if ta <= n * (1e-12 * scale).powi(2) {
+        return Err(PoseError::Degenerate("frame-t points coincide"));
+    }
+    if a.determinant() <= 1e-10 * ta * ta {
+        return Err(PoseError::Degenerate("frame-t points are collinear"));
+    }
+    if k <= 1e-10 * ta {
+        return Err(PoseError::Degenerate("frame-t+1 points coincide"));
+    }
+    Ok(Moments {
+        mean_p: mp,
+        mean_q: mq,
+        a,
+        b,
+        k,
+        n: p.len(),
+    })
+}
+
+/// Builds a [`BlockEstimate`] for a block fitted on all matches: `l = mean(Q) - R2 mean(P)` and
+/// the RMS residual.
+pub fn estimate_from_block(
+    r2: Matrix2<f64>,
+    m: &Moments,
+    p: &[[f64; 2]],
+    q: &[[f64; 2]],
+) -> BlockEstimate {
+    let translation = m.mean_q - r2 * m.mean_p;
+    BlockEstimate {
+        r2,
+        translation,
+        residual: rms_residual(&r2, &translation, p, q, None),
+        inliers: vec![true; p.len()],
+    }
+}
+
+/// RMS of `|q_j - R2 p_j - l|` over all matches (or over those with `mask[j]`).
+pub fn rms_residual(
+    r2: &Matrix2<f64>,
+    l: &Vector2<f64>,
+    p: &[[f64; 2]],
+    q: &[[f64; 2]],
+    mask: Option<&[bool]>,
+) -> f64 {
+    let mut s = 0.0;
+    let mut c = 0usize;
+    for (j, (x, y)) in p.iter().zip(q).enumerate() {
+        if mask.is_some_and(|m| !m[j]) {
+            continue;
+        }
+        let e = Vector2::new(y[0], y[1]) - r2 * Vector2::new(x[0], x[1]) - l;
+        s += e.norm_squared();
+        c += 1;
+    }
+    if c == 0 { 0.0 } else { (s / c as f64).sqrt() }
+}
+
+/// One inter-frame estimate, ready for the tracker.
+#[derive(Debug, Clone, PartialEq)]
+pub struct InterFrame {
+    /// The solver's block estimate.
+    pub block: BlockEstimate,
+    /// The two rotations consistent with the block (Necker pair).
+    pub pair: NeckerPair,
+    /// Image motion of the point `centre_prev` under the fitted map `x -> R2 x + l`:
+    /// `R2 centre_prev + l - centre_prev` (pixels). Subtract the motion of the object's
+    /// centre (e.g. the silhouette/ellipse centre) to get the parallax offset of
+    /// [`resolve_by_parallax`].
+    pub translation: Vector2<f64>,
+}
+
+/// Estimates the inter-frame rotation from matches `p -> q` with the solver `kind`, completes
+/// it to the Necker pair and reports the feature translation relative to `centre_prev`.
+///
+/// Errors: fewer than 3 matches ([`PoseError::TooFewMatches`]), NaN/inf
+/// ([`PoseError::NonFinite`]), coincident or collinear points ([`PoseError::Degenerate`]).
+pub fn interframe(
+    p: &[[f64; 2]],
+    q: &[[f64; 2]],
+    centre_prev: [f64; 2],
+    kind: SolverKind,
+) -> Result<InterFrame, PoseError> {
+    if !centre_prev[0].is_finite() || !centre_prev[1].is_finite() {
+        return Err(PoseError::NonFinite);
+    }
+    moments(p, q, 3)?;
+    let block = solver(kind).solve(p, q)?;
+    let pair = complete_rotation(&block.r2)?;
+    let c = Vector2::new(centre_prev[0], centre_prev[1]);
+    let translation = block.r2 * c + block.translation - c;
+    Ok(InterFrame {
+        block,
+        pair,
+        translation,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn moments_reject_bad_input() {
+        let p = [[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]];
+        assert!(matches!(
+            moments(&p[..2], &p[..2], 3),
+            Err(PoseError::TooFewMatches { got: 2, need: 3 })
+        ));
+        assert!(matches!(
+            moments(&p, &p[..2], 3),
+            Err(PoseError::LengthMismatch { .. })
+        ));
+        let nan = [[0.0, 0.0], [f64::NAN, 0.0], [0.0, 1.0]];
+        assert_eq!(moments(&nan, &p, 3), Err(PoseError::NonFinite));
+        let same = [[2.0, 3.0]; 4];
+        assert!(matches!(
+            moments(&same, &same, 3),
+            Err(PoseError::Degenerate(_))
+        ));
+        let line = [[0.0, 0.0], [1.0, 1.0], [2.0, 2.0], [5.0, 5.0]];
+        assert!(matches!(
+            moments(&line, &line, 3),
+            Err(PoseError::Degenerate(_))
+        ));
+        let m = moments(&p, &p, 3).unwrap();
+        assert!(m.objective(&Matrix2::identity()).abs() < 1e-12);
+    }
+
+    #[test]
+    fn solver_names_round_trip() {
+        for k in SolverKind::ALL {
+            assert_eq!(SolverKind::from_name(k.name()).unwrap(), k);
+            assert_eq!(solver(k).name(), k.name());
+        }
+        assert!(SolverKind::from_name("nope").is_err());
+    }
 }

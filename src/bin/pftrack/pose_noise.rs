@@ -1,12 +1,364 @@
 //! `pftrack pose-noise`: reproduces the paper's Fig. 3 (rotation error against noise).
+//!
+//! The experiment itself lives in `pftrack::pose::noise` (its docs define the SNR, the noise
+//! model and the error measure); this file parses arguments, prints the tables and writes the
+//! CSV files and the plot.
 
-use clap::Args;
+use std::io::Write;
+use std::path::{Path, PathBuf};
+
+use anyhow::Context;
+use clap::{Args, ValueEnum};
+use pftrack::io::AtomicFile;
+use pftrack::pose::noise::{LambdaRow, NoiseConfig, NoiseOn, SnrRow, fig3a, fig3b};
+
+/// Which frames receive the noise.
+#[derive(Debug, Clone, Copy, ValueEnum)]
+pub enum NoiseFrames {
+    /// Frame t+1 only: the regression model of the least-squares objective.
+    Next,
+    /// Both frames (errors in variables; every least-squares fit is then biased).
+    Both,
+}
 
 /// Arguments of `pftrack pose-noise`.
+///
+/// SNR (dB) = 10 log10(P_s / σ²), P_s the mean square of the centred frame-t point
+/// coordinates, σ the noise standard deviation per coordinate. Error = angle of
+/// R_est · R_trueᵀ in degrees, scoring for every solver the Necker branch nearer the truth.
 #[derive(Debug, Args)]
-pub struct PoseNoiseArgs {}
+pub struct PoseNoiseArgs {
+    /// Points per trial.
+    #[arg(long, default_value_t = 20)]
+    pub points: usize,
+    /// Trials per SNR value.
+    #[arg(long, default_value_t = 5000)]
+    pub trials: usize,
+    /// Input SNRs in dB (Fig. 3b), comma-separated.
+    #[arg(
+        long,
+        value_delimiter = ',',
+        default_value = "0,5,10,15,20,25,30,35,40"
+    )]
+    pub snr: Vec<f64>,
+    /// SNRs in dB of the perturbation of SEA's multiplier Λ (Fig. 3a), comma-separated.
+    #[arg(
+        long,
+        value_delimiter = ',',
+        default_value = "0,5,10,15,20,25,30,35,40"
+    )]
+    pub lambda_snr: Vec<f64>,
+    /// Input SNR (dB) of the Λ experiment (Fig. 3a).
+    #[arg(long, default_value_t = 10.0)]
+    pub lambda_input_snr: f64,
+    /// Largest random rotation angle (degrees).
+    #[arg(long, default_value_t = 30.0)]
+    pub max_angle: f64,
+    /// Depth spread of the points relative to their lateral extent (0: one depth, the model
+    /// under which q = R2 p + l is exact).
+    #[arg(long, default_value_t = 0.0)]
+    pub depth_spread: f64,
+    /// Which frames receive the noise.
+    #[arg(long, value_enum, default_value_t = NoiseFrames::Next)]
+    pub noise_on: NoiseFrames,
+    /// Master seed (each trial has its own generator seeded from it).
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// Write Fig. 3b as CSV `snr_db,sea,optimal,lsm,rls` (mean error, degrees) to this file,
+    /// and Fig. 3a as `lambda_snr_db,sea` to the same name with `_lambda` before the extension
+    /// (e.g. fig3.csv and fig3_lambda.csv).
+    #[arg(long)]
+    pub csv: Option<PathBuf>,
+    /// Write a PNG with both panels (a: error vs Λ SNR, b: error vs input SNR).
+    #[arg(long)]
+    pub plot: Option<PathBuf>,
+}
+
+/// `F.csv` → `F_lambda.csv` (a name without extension gets `_lambda` appended).
+pub fn lambda_path(p: &Path) -> PathBuf {
+    let stem = p
+        .file_stem()
+        .map(|s| s.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    let name = match p.extension() {
+        Some(ext) => format!("{stem}_lambda.{}", ext.to_string_lossy()),
+        None => format!("{stem}_lambda"),
+    };
+    p.with_file_name(name)
+}
+
+fn check_list(name: &str, v: &[f64]) -> anyhow::Result<()> {
+    if v.is_empty() {
+        anyhow::bail!("--{name} is empty");
+    }
+    if let Some(x) = v.iter().find(|x| !x.is_finite()) {
+        anyhow::bail!("--{name}: {x} is not a finite number");
+    }
+    Ok(())
+}
 
 /// Runs the command.
-pub fn run(_args: PoseNoiseArgs) -> anyhow::Result<()> {
-    anyhow::bail!("`pftrack pose-noise` is not implemented yet")
+pub fn run(args: PoseNoiseArgs) -> anyhow::Result<()> {
+    if args.points < 3 {
+        anyhow::bail!("--points must be at least 3 (got {})", args.points);
+    }
+    if args.trials == 0 {
+        anyhow::bail!("--trials must be positive");
+    }
+    check_list("snr", &args.snr)?;
+    check_list("lambda-snr", &args.lambda_snr)?;
+    for (n, v) in [
+        ("lambda-input-snr", args.lambda_input_snr),
+        ("max-angle", args.max_angle),
+        ("depth-spread", args.depth_spread),
+    ] {
+        if !v.is_finite() || (n != "lambda-input-snr" && v < 0.0) {
+            anyhow::bail!("--{n}: {v} is not a valid value");
+        }
+    }
+    let cfg = NoiseConfig {
+        noise_on: match args.noise_on {
+            NoiseFrames::Next => NoiseOn::Next,
+            NoiseFrames::Both => NoiseOn::Both,
+        },
+        depth_spread: args.depth_spread,
+        points: args.points,
+        trials: args.trials,
+        snr_db: args.snr.clone(),
+        lambda_snr_db: args.lambda_snr.clone(),
+        lambda_input_snr_db: args.lambda_input_snr,
+        max_angle: args.max_angle.to_radians(),
+        seed: args.seed,
+        ..NoiseConfig::default()
+    };
+    let b = fig3b(&cfg);
+    let a = fig3a(&cfg);
+    println!(
+        "Fig. 3b: mean rotation error (deg), {} points, {} trials per SNR",
+        cfg.points, cfg.trials
+    );
+    println!(
+        "{:>7} {:>9} {:>9} {:>9} {:>9}",
+        "snr_db", "sea", "optimal", "lsm", "rls"
+    );
+    for r in &b {
+        println!(
+            "{:>7.1} {:>9.4} {:>9.4} {:>9.4} {:>9.4}",
+            r.snr_db, r.mean_deg[0], r.mean_deg[1], r.mean_deg[2], r.mean_deg[3]
+        );
+        if r.failures.iter().any(|f| *f > 0) {
+            eprintln!(
+                "  failures at {} dB (sea, optimal, lsm, rls): {:?}",
+                r.snr_db, r.failures
+            );
+        }
+    }
+    println!(
+        "Fig. 3a: SEA error (deg) with perturbed Λ, input SNR {} dB",
+        cfg.lambda_input_snr_db
+    );
+    println!("{:>14} {:>9}", "lambda_snr_db", "sea");
+    for r in &a {
+        println!("{:>14.1} {:>9.4}", r.lambda_snr_db, r.sea_deg);
+        if r.failures > 0 {
+            eprintln!("  failures at Λ-SNR {} dB: {}", r.lambda_snr_db, r.failures);
+        }
+    }
+    if let Some(path) = &args.csv {
+        write_csv(path, &b, &a)?;
+    }
+    if let Some(path) = &args.plot {
+        plot(path, &b, &a, &cfg).with_context(|| format!("writing {}", path.display()))?;
+    }
+    Ok(())
+}
+
+fn write_csv(path: &Path, b: &[SnrRow], a: &[LambdaRow]) -> anyhow::Result<()> {
+    let mut f = AtomicFile::create(path).with_context(|| format!("creating {}", path.display()))?;
+    writeln!(f, "snr_db,sea,optimal,lsm,rls")?;
+    for r in b {
+        writeln!(
+            f,
+            "{},{},{},{},{}",
+            r.snr_db, r.mean_deg[0], r.mean_deg[1], r.mean_deg[2], r.mean_deg[3]
+        )?;
+    }
+    f.commit()
+        .with_context(|| format!("writing {}", path.display()))?;
+    let lp = lambda_path(path);
+    let mut f = AtomicFile::create(&lp).with_context(|| format!("creating {}", lp.display()))?;
+    writeln!(f, "lambda_snr_db,sea")?;
+    for r in a {
+        writeln!(f, "{},{}", r.lambda_snr_db, r.sea_deg)?;
+    }
+    f.commit()
+        .with_context(|| format!("writing {}", lp.display()))?;
+    Ok(())
+}
+
+/// Registers DejaVu Sans from the system fonts if present; returns whether text can be drawn.
+fn register_font() -> bool {
+    use plotters::style::{FontStyle, register_font};
+    for p in [
+        "/usr/share/fonts/truetype/dejavu/DejaVuSans.ttf",
+        "/usr/share/fonts/TTF/DejaVuSans.ttf",
+        "/usr/share/fonts/dejavu/DejaVuSans.ttf",
+    ] {
+        if let Ok(bytes) = std::fs::read(p) {
+            let leaked: &'static [u8] = Box::leak(bytes.into_boxed_slice());
+            if register_font("sans-serif", FontStyle::Normal, leaked).is_ok() {
+                return true;
+            }
+        }
+    }
+    false
+}
+
+fn plot(path: &Path, b: &[SnrRow], a: &[LambdaRow], cfg: &NoiseConfig) -> anyhow::Result<()> {
+    use plotters::prelude::*;
+    let text = register_font();
+    let root = BitMapBackend::new(path, (1400, 560)).into_drawing_area();
+    root.fill(&WHITE).map_err(|e| anyhow::anyhow!("{e}"))?;
+    let (left, right) = root.split_horizontally(700);
+    let colours = [RED, BLUE, GREEN, MAGENTA];
+    let names = ["SEA", "Optimal", "LSM", "RLS"];
+
+    // panel (a)
+    let xs: Vec<f64> = a.iter().map(|r| r.lambda_snr_db).collect();
+    let ys: Vec<f64> = a
+        .iter()
+        .map(|r| r.sea_deg)
+        .filter(|v| v.is_finite())
+        .collect();
+    let (x0, x1) = range(&xs);
+    let (_, y1) = range(&ys);
+    let mut builder = ChartBuilder::on(&left);
+    builder
+        .margin(20)
+        .x_label_area_size(45)
+        .y_label_area_size(60);
+    if text {
+        builder.caption(
+            format!(
+                "(a) SEA, perturbed Λ (input SNR {} dB)",
+                cfg.lambda_input_snr_db
+            ),
+            ("sans-serif", 22),
+        );
+    }
+    let mut chart = builder
+        .build_cartesian_2d(x0..x1, 0.0..y1 * 1.1)
+        .map_err(|e| anyhow::anyhow!("{e}"))?;
+    let mut mesh = chart.configure_mesh();
+    if text {
+        mesh.x_desc("SNR of Λ (dB)")
+            .y_desc("mean rotation error (deg)");
+    } else {
+        mesh.disable_x_mesh()
+            .disable_y_mesh()
+            .x_labels(0)
+            .y_labels(0);
+    }
+    mesh.draw().map_err(|e| anyhow::anyhow!("{e}"))?;
+    let pts: Vec<(f64, f64)> = a
+        .iter()
+        .filter(|r| r.sea_deg.is_finite())
+        .map(|r| (r.lambda_snr_db, r.sea_deg))
+        .collect();
+    chart
+        .draw_series(LineSeries::new(pts.clone(), RED.stroke_width(2)))
+        .map_err(|e| anyhow::anyhow!("{e}"))?;
+    chart
+        .draw_series(pts.iter().map(|p| Circle::new(*p, 4, RED.filled())))
+        .map_err(|e| anyhow::anyhow!("{e}"))?;
+
+    // panel (b)
+    let xs: Vec<f64> = b.iter().map(|r| r.snr_db).collect();
+    let ys: Vec<f64> = b
+        .iter()
+        .flat_map(|r| r.mean_deg)
+        .filter(|v| v.is_finite())
+        .collect();
+    let (x0, x1) = range(&xs);
+    let (_, y1) = range(&ys);
+    let mut builder = ChartBuilder::on(&right);
+    builder
+        .margin(20)
+        .x_label_area_size(45)
+        .y_label_area_size(60);
+    if text {
+        builder.caption(
+            format!("(b) error vs input SNR ({} points)", cfg.points),
+            ("sans-serif", 22),
+        );
+    }
+    let mut chart = builder
+        .build_cartesian_2d(x0..x1, 0.0..y1 * 1.1)
+        .map_err(|e| anyhow::anyhow!("{e}"))?;
+    let mut mesh = chart.configure_mesh();
+    if text {
+        mesh.x_desc("input SNR (dB)")
+            .y_desc("mean rotation error (deg)");
+    } else {
+        mesh.disable_x_mesh()
+            .disable_y_mesh()
+            .x_labels(0)
+            .y_labels(0);
+    }
+    mesh.draw().map_err(|e| anyhow::anyhow!("{e}"))?;
+    for (i, (c, name)) in colours.iter().zip(names).enumerate() {
+        let pts: Vec<(f64, f64)> = b
+            .iter()
+            .filter(|r| r.mean_deg[i].is_finite())
+            .map(|r| (r.snr_db, r.mean_deg[i]))
+            .collect();
+        let series = chart
+            .draw_series(LineSeries::new(pts.clone(), c.stroke_width(2)))
+            .map_err(|e| anyhow::anyhow!("{e}"))?;
+        if text {
+            let c = *c;
+            series
+                .label(name)
+                .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], c));
+        }
+        chart
+            .draw_series(pts.iter().map(|p| Circle::new(*p, 3, c.filled())))
+            .map_err(|e| anyhow::anyhow!("{e}"))?;
+    }
+    if text {
+        chart
+            .configure_series_labels()
+            .background_style(WHITE.mix(0.8))
+            .border_style(BLACK)
+            .draw()
+            .map_err(|e| anyhow::anyhow!("{e}"))?;
+    }
+    root.present().map_err(|e| anyhow::anyhow!("{e}"))?;
+    Ok(())
+}
+
+fn range(v: &[f64]) -> (f64, f64) {
+    let lo = v.iter().copied().fold(f64::INFINITY, f64::min);
+    let hi = v.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+    if !lo.is_finite() || !hi.is_finite() {
+        (0.0, 1.0)
+    } else if hi - lo < 1e-9 {
+        (lo - 0.5, hi + 0.5)
+    } else {
+        (lo, hi)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn lambda_path_inserts_suffix() {
+        assert_eq!(
+            lambda_path(Path::new("out/fig3.csv")),
+            PathBuf::from("out/fig3_lambda.csv")
+        );
+        assert_eq!(lambda_path(Path::new("fig3")), PathBuf::from("fig3_lambda"));
+    }
 }

@@ -1,0 +1,268 @@
+//! The 3D-3D case (paper Sec. III-G): Kabsch/SVD and SEA's equation solved in 3D.
+//!
+//! With centred 3D points, `A = P'P'^T`, `B = Q'P'^T` (3x3), the constrained least squares
+//! `min_R Σ|q'_j - R p'_j|^2`, `R ∈ SO(3)`, has the stationarity condition `Λ R + R A = B`
+//! with symmetric Λ. Right-multiplying by `R^T`: `Λ + R A R^T = B R^T`, so `S = B R^T` is
+//! symmetric and `B = S R`: a polar decomposition, solved by the SVD `B = U Σ V^T`,
+//! `R = U diag(1, 1, det(U V^T)) V^T` ([`kabsch`]). [`sea_3d`] instead solves Sylvester's
+//! equation for `R(Λ)` by the Kronecker product and iterates Λ (Newton on its 6 entries against
+//! the 6 equations `R R^T = I`), starting from `Λ0 = sym(B - A)` as in 2D; the tests show both
+//! give the same rotation.
+
+use nalgebra::{Matrix3, SMatrix, SVector, Vector3};
+
+use super::PoseError;
+
+type M9 = SMatrix<f64, 9, 9>;
+type V9 = SVector<f64, 9>;
+type M6 = SMatrix<f64, 6, 6>;
+type V6 = SVector<f64, 6>;
+
+fn moments3(p: &[[f64; 3]], q: &[[f64; 3]]) -> Result<(Matrix3<f64>, Matrix3<f64>), PoseError> {
+    if p.len() != q.len() {
+        return Err(PoseError::LengthMismatch {
+            p: p.len(),
+            q: q.len(),
+        });
+    }
+    if p.len() < 3 {
+        return Err(PoseError::TooFewMatches {
+            got: p.len(),
+            need: 3,
+        });
+    }
+    if p.iter().chain(q).flatten().any(|x| !x.is_finite()) {
+        return Err(PoseError::NonFinite);
+    }
+    let n = p.len() as f64;
+    let mp = p.iter().map(|x| Vector3::from(*x)).sum::<Vector3<f64>>() / n;
+    let mq = q.iter().map(|x| Vector3::from(*x)).sum::<Vector3<f64>>() / n;
+    let mut a = Matrix3::zeros();
+    let mut b = Matrix3::zeros();
+    for (x, y) in p.iter().zip(q) {
+        let pp = Vector3::from(*x) - mp;
+        let qq = Vector3::from(*y) - mq;
+        a += pp * pp.transpose();
+        b += qq * pp.transpose();
+    }
+    let ta = a.trace();
+    if ta <= 0.0 {
+        return Err(PoseError::Degenerate("3D points coincide"));
+    }
+    // rank of A at least 2 (not collinear)
+    let ev = a.symmetric_eigenvalues();
+    let mut e = [ev[0], ev[1], ev[2]];
+    e.sort_by(f64::total_cmp);
+    if e[1] <= 1e-10 * ta {
+        return Err(PoseError::Degenerate("3D points are collinear"));
+    }
+    Ok((a, b))
+}
+
+/// Rotation minimising `Σ|q'_j - R p'_j|^2` (centred sets) by the SVD (Kabsch):
+/// `B = U S V^T`, `R = U diag(1, 1, det(U V^T)) V^T`.
+pub fn kabsch(p3: &[[f64; 3]], q3: &[[f64; 3]]) -> Result<Matrix3<f64>, PoseError> {
+    let (_, b) = moments3(p3, q3)?;
+    let svd = b.svd(true, true);
+    let (u, vt) = (
+        svd.u.ok_or(PoseError::Singular("SVD"))?,
+        svd.v_t.ok_or(PoseError::Singular("SVD"))?,
+    );
+    // make the smallest singular value the one that takes the sign
+    let sv = svd.singular_values;
+    let mut imin = 0;
+    for i in 1..3 {
+        if sv[i] < sv[imin] {
+            imin = i;
+        }
+    }
+    let mut d = Vector3::new(1.0, 1.0, 1.0);
+    d[imin] = (u * vt).determinant().signum();
+    Ok(u * Matrix3::from_diagonal(&d) * vt)
+}
+
+fn vec3(m: &Matrix3<f64>) -> V9 {
+    V9::from_column_slice(m.as_slice())
+}
+
+fn unvec3(v: &V9) -> Matrix3<f64> {
+    Matrix3::from_column_slice(v.as_slice())
+}
+
+fn kron3(a: &Matrix3<f64>, lam: &Matrix3<f64>) -> M9 {
+    let mut k = M9::zeros();
+    for i in 0..3 {
+        for r in 0..3 {
+            for s in 0..3 {
+                k[(3 * i + r, 3 * i + s)] += lam[(r, s)];
+            }
+        }
+        for j in 0..3 {
+            for r in 0..3 {
+                k[(3 * i + r, 3 * j + r)] += a[(j, i)];
+            }
+        }
+    }
+    k
+}
+
+const SYM: [(usize, usize); 6] = [(0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2)];
+
+fn sym_of(x: &V6) -> Matrix3<f64> {
+    Matrix3::new(x[0], x[3], x[4], x[3], x[1], x[5], x[4], x[5], x[2])
+}
+
+fn residual3(a: &Matrix3<f64>, b: &Matrix3<f64>, x: &V6) -> Option<(V6, M6, Matrix3<f64>)> {
+    let lam = sym_of(x);
+    let lu = kron3(a, &lam).lu();
+    let r = unvec3(&lu.solve(&vec3(b))?);
+    if r.iter().any(|v| !v.is_finite()) {
+        return None;
+    }
+    let g = r * r.transpose() - Matrix3::identity();
+    let f = V6::from_fn(|i, _| g[SYM[i]]);
+    let mut j = M6::zeros();
+    for k in 0..6 {
+        let mut e = V6::zeros();
+        e[k] = 1.0;
+        let de = sym_of(&e);
+        let dr = unvec3(&lu.solve(&(-vec3(&(de * r))))?);
+        let dg = dr * r.transpose() + r * dr.transpose();
+        for i in 0..6 {
+            j[(i, k)] = dg[SYM[i]];
+        }
+    }
+    Some((f, j, r))
+}
+
+/// SEA's equation `Λ R + R A = B` solved in 3D: Kronecker solution for `R(Λ)`, Newton on the
+/// six entries of the symmetric Λ against `R R^T = I`, from `Λ0 = sym(B - A)`, with a
+/// backtracking line search that accepts a step only if it lowers `|R R^T - I|` and keeps
+/// `det R(Λ) > 0`. If that fails (large rotations, where `Λ0` is far), the solution is followed
+/// by continuation from the trivial problem `B = A` (`Λ = 0`, `R = I`) along
+/// `B_τ = (1 - τ) A + τ B`, Newton correcting at each of 16 steps.
+///
+/// Errors: bad input as in [`kabsch`]; [`PoseError::NoSolution`] if Newton does not converge
+/// or ends on a reflection.
+pub fn sea_3d(p3: &[[f64; 3]], q3: &[[f64; 3]]) -> Result<Matrix3<f64>, PoseError> {
+    let (a, b) = moments3(p3, q3)?;
+    let s = a.trace();
+    let (a, b) = (a / s, b / s);
+    let l0 = b - a;
+    let l0 = (l0 + l0.transpose()) * 0.5;
+    let x0 = V6::from_fn(|i, _| l0[SYM[i]]);
+    if let Some((_, r)) = newton3(&a, &b, x0) {
+        return Ok(r);
+    }
+    // Continuation: B_τ = (1 - τ) A + τ B joins the trivial problem (B = A, Λ = 0, R = I) to
+    // ours; follow the solution in τ with Newton as the corrector.
+    let mut x = V6::zeros();
+    let steps = 16;
+    for k in 1..=steps {
+        let tau = k as f64 / steps as f64;
+        let bt = a * (1.0 - tau) + b * tau;
+        let (xn, _) = newton3(&a, &bt, x).ok_or(PoseError::NoSolution(
+            "3D SEA did not converge to a rotation",
+        ))?;
+        x = xn;
+    }
+    let (_, r) = newton3(&a, &b, x).ok_or(PoseError::NoSolution(
+        "3D SEA did not converge to a rotation",
+    ))?;
+    Ok(r)
+}
+
+/// Newton on Λ for `R(Λ) R(Λ)^T = I`; `None` without convergence to a proper rotation.
+fn newton3(a: &Matrix3<f64>, b: &Matrix3<f64>, mut x: V6) -> Option<(V6, Matrix3<f64>)> {
+    let (mut f, mut jac, mut r) = residual3(a, b, &x)?;
+    for _ in 0..100 {
+        if f.norm() < 1e-13 {
+            break;
+        }
+        let step = jac.lu().solve(&(-f))?;
+        let f0 = f.norm();
+        let mut t = 1.0;
+        let mut ok = false;
+        for _ in 0..40 {
+            let xn = x + step * t;
+            // accept only steps that reduce the residual and keep det R(Λ) > 0 (the iterate
+            // must not jump to the reflection branch of the polar equation)
+            if let Some((fnew, jn, rn)) = residual3(a, b, &xn)
+                && fnew.norm() < f0
+                && rn.determinant() > 0.0
+            {
+                (x, f, jac, r) = (xn, fnew, jn, rn);
+                ok = true;
+                break;
+            }
+            t *= 0.5;
+        }
+        if !ok {
+            break;
+        }
+    }
+    (f.norm() <= 1e-9 && r.determinant() > 0.0).then_some((x, r))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geometry::{Euler, angle_between};
+    use rand::{Rng, SeedableRng, rngs::StdRng};
+
+    fn cloud(rng: &mut StdRng, r: &Matrix3<f64>, noise: f64) -> (Vec<[f64; 3]>, Vec<[f64; 3]>) {
+        let mut p = Vec::new();
+        let mut q = Vec::new();
+        for _ in 0..15 {
+            let x = Vector3::new(
+                rng.random_range(-1.0..1.0),
+                rng.random_range(-1.0..1.0),
+                rng.random_range(-1.0..1.0),
+            );
+            let y = r * x
+                + Vector3::new(0.5, -0.2, 3.0)
+                + Vector3::new(
+                    rng.random_range(-noise..=noise),
+                    rng.random_range(-noise..=noise),
+                    rng.random_range(-noise..=noise),
+                );
+            p.push([x[0], x[1], x[2]]);
+            q.push([y[0], y[1], y[2]]);
+        }
+        (p, q)
+    }
+
+    #[test]
+    fn kabsch_and_sea_3d_agree() {
+        let mut rng = StdRng::seed_from_u64(1);
+        for i in 0..100 {
+            let r = Euler::new(
+                rng.random_range(-0.8..0.8),
+                rng.random_range(-0.8..0.8),
+                rng.random_range(-0.8..0.8),
+            )
+            .matrix();
+            let noise = if i % 2 == 0 { 0.0 } else { 0.1 };
+            let (p, q) = cloud(&mut rng, &r, noise);
+            let k = kabsch(&p, &q).unwrap();
+            let s = sea_3d(&p, &q).unwrap();
+            assert!(angle_between(&k, &s) < 1e-8, "case {i}");
+            if noise == 0.0 {
+                assert!(angle_between(&k, &r) < 1e-10);
+            }
+        }
+    }
+
+    #[test]
+    fn bad_3d_input() {
+        assert!(kabsch(&[[0.0; 3]; 2], &[[0.0; 3]; 2]).is_err());
+        let line: Vec<[f64; 3]> = (0..5).map(|i| [i as f64, 0.0, 0.0]).collect();
+        assert!(matches!(
+            kabsch(&line, &line),
+            Err(PoseError::Degenerate(_))
+        ));
+        let mut p = line.clone();
+        p[1][1] = f64::NAN;
+        assert_eq!(kabsch(&p, &line), Err(PoseError::NonFinite));
+    }
+}

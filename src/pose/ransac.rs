@@ -1,0 +1,145 @@
+//! RLS: RANSAC on the matches, then least squares on the inliers (the paper's baseline).
+//!
+//! Minimal sample: 3 matches, which fix the affine map `q = M p + l` exactly. A match is an
+//! inlier when `|q - M p - l| < threshold` (pixels). The number of iterations adapts to the
+//! best inlier ratio `w` found so far: `N = ln(1 - confidence) / ln(1 - w^3)`, capped at
+//! `max_iter`. Ties in the inlier count go to the smaller inlier residual. Deterministic for
+//! the seed (`StdRng`). The final block is `B A^-1` on the inliers (unconstrained, like LSM).
+
+use nalgebra::{Matrix2, Vector2};
+use rand::{SeedableRng, rngs::StdRng, seq::index::sample};
+
+use super::lsm::lsm_block;
+use super::{BlockEstimate, PoseError, RotationSolver, moments, rms_residual};
+
+/// RANSAC then least squares.
+#[derive(Debug, Clone, Copy)]
+pub struct Rls {
+    /// Inlier threshold on the transfer error (pixels).
+    pub threshold: f64,
+    /// Probability of drawing at least one all-inlier sample.
+    pub confidence: f64,
+    /// Iterations at most.
+    pub max_iter: usize,
+    /// Seed of the sampler.
+    pub seed: u64,
+}
+
+impl Default for Rls {
+    fn default() -> Self {
+        Self {
+            threshold: 2.0,
+            confidence: 0.99,
+            max_iter: 1000,
+            seed: 0,
+        }
+    }
+}
+
+fn affine3(p: &[[f64; 2]; 3], q: &[[f64; 2]; 3]) -> Option<(Matrix2<f64>, Vector2<f64>)> {
+    let m = moments(p, q, 3).ok()?;
+    let r2 = lsm_block(&m).ok()?;
+    Some((r2, m.mean_q - r2 * m.mean_p))
+}
+
+impl RotationSolver for Rls {
+    fn name(&self) -> &'static str {
+        "rls"
+    }
+
+    fn solve(&self, p: &[[f64; 2]], q: &[[f64; 2]]) -> Result<BlockEstimate, PoseError> {
+        moments(p, q, 3)?;
+        if self.threshold.is_nan() || self.threshold <= 0.0 {
+            return Err(PoseError::NoSolution("RANSAC threshold must be positive"));
+        }
+        let n = p.len();
+        let mut rng = StdRng::seed_from_u64(self.seed);
+        let t2 = self.threshold * self.threshold;
+        let mut best: Option<(usize, f64, Vec<bool>)> = None;
+        let mut needed = self.max_iter;
+        let mut it = 0;
+        while it < needed.min(self.max_iter) {
+            it += 1;
+            let idx = sample(&mut rng, n, 3);
+            let (i, j, k) = (idx.index(0), idx.index(1), idx.index(2));
+            let Some((r2, l)) = affine3(&[p[i], p[j], p[k]], &[q[i], q[j], q[k]]) else {
+                continue;
+            };
+            let mut mask = vec![false; n];
+            let mut count = 0;
+            let mut err = 0.0;
+            for (jj, (x, y)) in p.iter().zip(q).enumerate() {
+                let e =
+                    (Vector2::new(y[0], y[1]) - r2 * Vector2::new(x[0], x[1]) - l).norm_squared();
+                if e < t2 {
+                    mask[jj] = true;
+                    count += 1;
+                    err += e;
+                }
+            }
+            let better = match &best {
+                None => true,
+                Some((c, e, _)) => count > *c || (count == *c && err < *e),
+            };
+            if better {
+                let w = count as f64 / n as f64;
+                let denom = (1.0 - w.powi(3)).ln();
+                needed = if denom < 0.0 {
+                    ((1.0 - self.confidence).ln() / denom).ceil().max(1.0) as usize
+                } else {
+                    self.max_iter
+                };
+                best = Some((count, err, mask));
+            }
+        }
+        let (_, _, mask) = best.ok_or(PoseError::NoSolution("RANSAC found no model"))?;
+        let (pi, qi): (Vec<[f64; 2]>, Vec<[f64; 2]>) = p
+            .iter()
+            .zip(q)
+            .zip(&mask)
+            .filter(|(_, m)| **m)
+            .map(|((a, b), _)| (*a, *b))
+            .unzip();
+        let mo = moments(&pi, &qi, 3)
+            .map_err(|_| PoseError::NoSolution("RANSAC inliers are degenerate"))?;
+        let r2 = lsm_block(&mo)?;
+        let translation = mo.mean_q - r2 * mo.mean_p;
+        let residual = rms_residual(&r2, &translation, p, q, Some(&mask));
+        Ok(BlockEstimate {
+            r2,
+            translation,
+            residual,
+            inliers: mask,
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn rejects_outliers_and_is_deterministic() {
+        let m = Matrix2::new(0.95, -0.2, 0.25, 0.9);
+        let mut p = Vec::new();
+        let mut q = Vec::new();
+        for i in 0..30 {
+            let x = [
+                (i as f64 * 7.3) % 40.0 - 20.0,
+                (i as f64 * 3.1) % 30.0 - 15.0,
+            ];
+            let y = m * Vector2::new(x[0], x[1]) + Vector2::new(3.0, -1.0);
+            p.push(x);
+            q.push([y[0], y[1]]);
+        }
+        for i in [2usize, 9, 17, 25] {
+            q[i][0] += 15.0 + i as f64;
+        }
+        let r = Rls::default();
+        let e = r.solve(&p, &q).unwrap();
+        assert!((e.r2 - m).norm() < 1e-10);
+        assert_eq!(e.inliers.iter().filter(|b| !**b).count(), 4);
+        assert!(!e.inliers[9]);
+        assert_eq!(e, r.solve(&p, &q).unwrap());
+    }
+}
