@@ -103,7 +103,7 @@ pub fn for_each_span(
         };
         let lo = ceil_f64(o0 - margin).max(0.0);
         let hi = floor_f64(o1 + margin).min(wmax_f);
-        if !(lo <= hi) {
+        if lo > hi {
             continue;
         }
         // Inner range [li, ri], narrowed by the margin: only pixels with q < lim_in, inside.
