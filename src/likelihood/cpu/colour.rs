@@ -4,14 +4,15 @@
 //! # Pixel set (exact, shared with the GPU)
 //! A pixel `(x, y)` of the frame (integer centre) belongs to an ellipse iff, in `f32`,
 //! `dx = x - cx`, `dy = y - cy`, `u = (c*dx + s*dy)/a`, `v = (-s*dx + c*dy)/b` (with
-//! `(s, c) = sin_cos(theta)`) satisfy `u*u + v*v <= 1`. Only pixels of the frame count. The
-//! GPU scans the ellipse's bounding box (clamped to the frame) widened by one pixel on each
-//! side, which contains every pixel passing the test; this file finds the same set faster by
-//! solving, per row, the quadratic of the ellipse for its span of x (in `f64`), then running
-//! the exact `f32` test only at the two ends of the span, walking outwards/inwards until the
-//! test flips. The interior of the span is counted without testing. Equality with the
-//! per-pixel test over the whole frame is checked on thousands of random ellipses
-//! (`tests::span_matches_brute_force` and `tests/likelihood_cpu.rs`).
+//! `(s, c) = sin_cos(theta)`) satisfy `u*u + v*v <= 1`. Only pixels of the frame count, and
+//! no others: a scan of the ellipse's bounding box must use a box that contains every pixel
+//! passing the test (e.g. widened by one pixel on each side; then the box's own rounding
+//! cannot matter). This file finds the same set faster by solving, per row, the quadratic of
+//! the ellipse for its span of x (in `f64`), counting the span's interior without a test and
+//! deciding only the ends, with the exact `f32` test where `f64` is too close to call
+//! ([`for_each_span`]). Equality with the per-pixel test over the whole frame is checked on
+//! tens of thousands of random ellipses (`tests::span_matches_brute_force`,
+//! `tests/likelihood_cpu.rs`).
 
 use image::RgbImage;
 
