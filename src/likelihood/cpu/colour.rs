@@ -4,14 +4,15 @@
 //! # Pixel set (exact, shared with the GPU)
 //! A pixel `(x, y)` of the frame (integer centre) belongs to an ellipse iff, in `f32`,
 //! `dx = x - cx`, `dy = y - cy`, `u = (c*dx + s*dy)/a`, `v = (-s*dx + c*dy)/b` (with
-//! `(s, c) = sin_cos(theta)`) satisfy `u*u + v*v <= 1`. Only pixels of the frame count. The
-//! GPU scans the ellipse's bounding box (clamped to the frame) widened by one pixel on each
-//! side, which contains every pixel passing the test; this file finds the same set faster by
-//! solving, per row, the quadratic of the ellipse for its span of x (in `f64`), then running
-//! the exact `f32` test only at the two ends of the span, walking outwards/inwards until the
-//! test flips. The interior of the span is counted without testing. Equality with the
-//! per-pixel test over the whole frame is checked on thousands of random ellipses
-//! (`tests::span_matches_brute_force` and `tests/likelihood_cpu.rs`).
+//! `(s, c) = sin_cos(theta)`) satisfy `u*u + v*v <= 1`. Only pixels of the frame count, and
+//! no others: a scan of the ellipse's bounding box must use a box that contains every pixel
+//! passing the test (e.g. widened by one pixel on each side; then the box's own rounding
+//! cannot matter). This file finds the same set faster by solving, per row, the quadratic of
+//! the ellipse for its span of x (in `f64`), counting the span's interior without a test and
+//! deciding only the ends, with the exact `f32` test where `f64` is too close to call
+//! ([`for_each_span`]). Equality with the per-pixel test over the whole frame is checked on
+//! tens of thousands of random ellipses (`tests::span_matches_brute_force`,
+//! `tests/likelihood_cpu.rs`).
 
 use image::RgbImage;
 
@@ -44,10 +45,11 @@ pub fn inside(e: &EllipseF32, s: f32, c: f32, x: i64, y: i64) -> bool {
 /// Per row, `q(x) = u² + v²` is a convex quadratic in `x`, evaluated in `f64` from the same
 /// `f32` `sin`/`cos` as the exact test. The `f32` test's rounding moves `q` by less than
 /// `16 ε (1 + max(a,b)/min(a,b))` relative (ε = 2⁻²⁴); with the margin `tol` ten times that,
-/// pixels with `q < 1 - tol` are inside, those with `q > 1 + tol` outside. The two intervals
-/// come from the roots of the row's quadratic (narrowed / widened by a margin covering their
-/// `f64` rounding), and only the pixels between them (almost always none) get the exact
-/// `f32` test.
+/// pixels with `q < 1 - tol` are inside, those with `q > 1 + tol` outside, and only pixels
+/// in the band between get the exact `f32` test. The candidate pixels of a row come from the
+/// roots of its quadratic for `q = 1 + tol` (widened by a margin covering their `f64`
+/// rounding); by convexity, when the second and the second-to-last candidates are inside by
+/// `q64`, so is everything between them, and only the two ends are classified.
 pub fn for_each_span(
     e: &EllipseF32,
     width: u32,
@@ -103,49 +105,46 @@ pub fn for_each_span(
         };
         let lo = ceil_f64(o0 - margin).max(0.0);
         let hi = floor_f64(o1 + margin).min(wmax_f);
-        if !(lo <= hi) {
+        if lo > hi {
             continue;
         }
-        // Inner range [li, ri], narrowed by the margin: only pixels with q < lim_in, inside.
-        let (li, ri) = match roots(lim_in) {
-            Some((i0, i1)) => (
-                ceil_f64(i0 + margin).max(lo),
-                floor_f64(i1 - margin).min(hi),
-            ),
-            None => (hi + 1.0, hi),
+        let (lo, hi) = (lo as i64, hi as i64);
+        let q64 = |x: i64| {
+            let dx = x as f64 - cx;
+            (qa * dx + bq) * dx + cq
         };
-        let (lo, hi, li, ri) = (lo as i64, hi as i64, li as i64, ri as i64);
-        if li <= ri && lo == li && hi == ri {
-            // The usual case: no pixel in the band, no test needed.
-            f(y as usize, li as usize, ri as usize);
+        // q64 decides away from 1; the exact f32 test only in the band between.
+        let classify = |x: i64| {
+            let q = q64(x);
+            if q < lim_in {
+                true
+            } else if q > lim_out {
+                false
+            } else {
+                inside(e, s, c, x, y)
+            }
+        };
+        if hi - lo >= 2 && q64(lo + 1) < lim_in && q64(hi - 1) < lim_in {
+            // The usual case. q64 is convex along the row, so every pixel strictly between
+            // lo and hi has q64 < lim_in: inside. Only the two ends need classifying.
+            let l = if classify(lo) { lo } else { lo + 1 };
+            let r = if classify(hi) { hi } else { hi - 1 };
+            f(y as usize, l as usize, r as usize);
             continue;
         }
+        // Short or tangent rows: pixel by pixel, emitting runs.
         let mut run: Option<(i64, i64)> = None;
-        let mut push = |x0: i64, x1: i64, run: &mut Option<(i64, i64)>| match run {
-            Some((_, end)) if *end + 1 == x0 => *end = x1,
-            _ => {
-                if let Some((r0, r1)) = run.take() {
-                    f(y as usize, r0 as usize, r1 as usize);
+        for x in lo..=hi {
+            if classify(x) {
+                match &mut run {
+                    Some((_, end)) if *end + 1 == x => *end = x,
+                    _ => {
+                        if let Some((r0, r1)) = run.take() {
+                            f(y as usize, r0 as usize, r1 as usize);
+                        }
+                        run = Some((x, x));
+                    }
                 }
-                *run = Some((x0, x1));
-            }
-        };
-        let (band_l_end, band_r_start) = if li <= ri {
-            (li, ri + 1)
-        } else {
-            (hi + 1, hi + 1)
-        };
-        for x in lo..band_l_end {
-            if inside(e, s, c, x, y) {
-                push(x, x, &mut run);
-            }
-        }
-        if li <= ri {
-            push(li, ri, &mut run);
-        }
-        for x in band_r_start..=hi {
-            if inside(e, s, c, x, y) {
-                push(x, x, &mut run);
             }
         }
         if let Some((r0, r1)) = run {

@@ -56,8 +56,10 @@ mod tests {
 
     #[test]
     fn sums_enabled_terms_and_zeroes_disabled_ones() {
-        let mut p = LikelihoodParams::default();
-        p.terms = TERM_COLOUR | TERM_GRADIENT | TERM_FEATURE;
+        let mut p = LikelihoodParams {
+            terms: TERM_COLOUR | TERM_GRADIENT | TERM_FEATURE,
+            ..Default::default()
+        };
         let t = combine(-1.0, -2.0, 0.5, &p);
         assert_eq!(
             t,

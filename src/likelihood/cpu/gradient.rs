@@ -188,25 +188,32 @@ pub fn line_edge_distance(
     let n = (2 * h + 1) as usize;
     if n <= STACK_SAMPLES {
         // Search outwards from the contour, d = 0, 1, 2, ..., and stop at the first edge:
-        // the same `min |t|`, usually from a fraction of the samples. Strengths are computed
-        // once each, on demand (slot i holds t = i - 1 - h; slots 0 and n + 1 are the zeros
-        // beyond the ends).
+        // the same `min |t|`, usually from a fraction of the samples. Slot i holds
+        // t = i - 1 - h; slots 0 and n + 1 are the zeros beyond the ends. Before step d,
+        // slots c - d - 1 ..= c + d + 1 are filled (c: the slot of t = 0).
         let mut g = [0.0f32; STACK_SAMPLES + 2];
-        let mut known: u64 = 1 | (1 << (n + 1));
-        let mut get = |i: usize| -> f32 {
-            if known & (1 << i) == 0 {
-                known |= 1 << i;
-                g[i] = at(i as i32 - 1 - h);
+        let c = (h + 1) as usize;
+        let hu = h as usize;
+        g[c] = at(0);
+        if hu >= 1 {
+            g[c - 1] = at(-1);
+            g[c + 1] = at(1);
+        }
+        for d in 0..=hu {
+            let l = c - d;
+            let cur = g[l];
+            if cur >= threshold && cur > g[l - 1] && cur >= g[l + 1] {
+                return Some(d as u32);
             }
-            g[i]
-        };
-        let centre = (h + 1) as usize;
-        for d in 0..=h as usize {
-            for i in [centre - d, centre + d] {
-                let cur = get(i);
-                if cur >= threshold && cur > get(i - 1) && cur >= get(i + 1) {
-                    return Some(d as u32);
-                }
+            let r = c + d;
+            let cur = g[r];
+            if d > 0 && cur >= threshold && cur > g[r - 1] && cur >= g[r + 1] {
+                return Some(d as u32);
+            }
+            if d + 2 <= hu {
+                let t = (d + 2) as i32;
+                g[c - d - 2] = at(-t);
+                g[c + d + 2] = at(t);
             }
         }
         return None;
@@ -291,21 +298,47 @@ pub fn line_log(d: Option<u32>, k_gain: f32, sigma_z: f32) -> f32 {
     }
 }
 
-/// `ln p_gradient` of an ellipse, with the line directions precomputed by [`line_angles`].
+/// What the gradient term needs per frame besides the image: the line directions and
+/// `ln p_line` for every possible distance `d = 0 ..= H` (exactly [`line_log`]'s values).
+#[derive(Debug, Clone, PartialEq)]
+pub struct LineTables {
+    /// `(cos phi_k, sin phi_k)` ([`line_angles`]).
+    pub angles: Vec<(f32, f32)>,
+    /// `ln p_line` for `d = 0 ..= H`.
+    pub logs: Vec<f32>,
+    /// `H`.
+    pub h: i32,
+}
+
+impl LineTables {
+    /// The tables for `params`.
+    pub fn new(params: &LikelihoodParams) -> Self {
+        let h = half_samples(params);
+        let k_gain = clutter_gain(params);
+        Self {
+            angles: line_angles(params.num_lines),
+            logs: (0..=h as u32)
+                .map(|d| line_log(Some(d), k_gain, params.sigma_z))
+                .collect(),
+            h,
+        }
+    }
+}
+
+/// `ln p_gradient` of an ellipse, with the per-frame [`LineTables`]; lines summed in order.
 pub fn log_likelihood_ellipse(
     grad: &GradientImage,
     e: &EllipseF32,
-    angles: &[(f32, f32)],
+    tables: &LineTables,
     params: &LikelihoodParams,
 ) -> f32 {
     let (s, c) = e.theta.sin_cos();
-    let h = half_samples(params);
-    let k_gain = clutter_gain(params);
     let mut sum = 0.0f32;
-    for &(cp, sp) in angles {
+    for &(cp, sp) in &tables.angles {
         let (x, y, nx, ny) = contour_point(e, s, c, cp, sp);
-        let d = line_edge_distance(grad, x, y, nx, ny, h, params.edge_threshold);
-        sum += line_log(d, k_gain, params.sigma_z);
+        if let Some(d) = line_edge_distance(grad, x, y, nx, ny, tables.h, params.edge_threshold) {
+            sum += tables.logs[d as usize];
+        }
     }
     sum
 }
@@ -320,7 +353,7 @@ pub fn log_likelihood(
     log_likelihood_ellipse(
         grad,
         &EllipseF32::from_particle(particle, theta0),
-        &line_angles(params.num_lines),
+        &LineTables::new(params),
         params,
     )
 }

@@ -201,7 +201,7 @@ impl CpuEngine {
         }
         let feats = use_feature
             .then(|| feature::FeatureFrame::new(frame.features, &frame.prev, frame.theta0, params));
-        let angles = gradient::line_angles(params.num_lines);
+        let lines = use_gradient.then(|| gradient::LineTables::new(params));
         let (bins, grad) = (&self.bins, &self.grad);
         let theta0 = frame.theta0;
 
@@ -221,10 +221,9 @@ impl CpuEngine {
                 }
                 None => 0.0,
             };
-            let g = if use_gradient {
-                gradient::log_likelihood_ellipse(grad, &e, &angles, params)
-            } else {
-                0.0
+            let g = match &lines {
+                Some(lt) => gradient::log_likelihood_ellipse(grad, &e, lt, params),
+                None => 0.0,
             };
             let f = match &feats {
                 Some(ff) => ff.log_likelihood(p, params.feature_eps),
