@@ -301,6 +301,43 @@ impl Sift {
         oy: usize,
         out: &mut Features,
     ) {
+        #[cfg(target_arch = "x86_64")]
+        if std::arch::is_x86_feature_detected!("avx2") {
+            // SAFETY: the CPU supports AVX2 (checked just above), the only requirement of
+            // calling a function compiled with that target feature.
+            unsafe { self.detect_window_avx2(data, w, h, ox, oy, out) };
+            return;
+        }
+        self.detect_window_impl(data, w, h, ox, oy, out);
+    }
+
+    /// [`Self::detect_window_impl`] compiled for AVX2 (8-wide blurs, extrema tests and
+    /// descriptor maths). Rust never fuses multiply-adds on its own, so the results are
+    /// bit-identical to the baseline build.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    fn detect_window_avx2(
+        &self,
+        data: &[f32],
+        w: usize,
+        h: usize,
+        ox: usize,
+        oy: usize,
+        out: &mut Features,
+    ) {
+        self.detect_window_impl(data, w, h, ox, oy, out);
+    }
+
+    #[inline(always)]
+    fn detect_window_impl(
+        &self,
+        data: &[f32],
+        w: usize,
+        h: usize,
+        ox: usize,
+        oy: usize,
+        out: &mut Features,
+    ) {
         let mut scratch = BlurScratch::default();
         let octaves = self.build_pyramid(data, w, h, &mut scratch);
         let n = self.params.n_octave_layers;
@@ -310,10 +347,14 @@ impl Sift {
         for (o, oct) in octaves.iter().enumerate() {
             let factor = base_factor * (1u32 << o) as f32;
             let octave_id = o as i32 - i32::from(self.params.upsample);
+            let (mx, mn): (Vec<_>, Vec<_>) =
+                oct.dog.iter().map(|d| max_min_3x3(d, oct.w, oct.h)).unzip();
+            let mut candidates = Vec::new();
             for layer in 1..=n {
-                let mut candidates = Vec::new();
-                self.find_extrema(oct, layer, &mut candidates);
-                for (r, c) in candidates {
+                candidates.clear();
+                self.find_extrema(oct, &mx, &mn, layer, &mut candidates);
+                let candidates = &candidates;
+                for &(r, c) in candidates {
                     let Some(e) = self.refine(oct, r, c, layer) else {
                         continue;
                     };
@@ -343,6 +384,7 @@ impl Sift {
     }
 
     /// Builds the Gaussian and DoG pyramids of a `w x h` image.
+    #[inline(always)]
     fn build_pyramid(
         &self,
         data: &[f32],
@@ -411,26 +453,34 @@ impl Sift {
         octaves
     }
 
-    /// Local extrema of DoG layer `layer` over its 26 neighbours, above the prefilter
-    /// threshold (half the final contrast threshold).
-    fn find_extrema(&self, oct: &Octave, layer: usize, out: &mut Vec<(usize, usize)>) {
+    /// Local extrema of DoG layer `layer` over its 26 neighbours (`≥` all for a maximum,
+    /// `≤` all for a minimum), above the prefilter threshold (half the final contrast
+    /// threshold). `mx` and `mn` are the 3x3 maxima and minima of each DoG layer.
+    #[inline(always)]
+    fn find_extrema(
+        &self,
+        oct: &Octave,
+        mx: &[Vec<f32>],
+        mn: &[Vec<f32>],
+        layer: usize,
+        out: &mut Vec<(usize, usize)>,
+    ) {
         let (w, h) = (oct.w, oct.h);
         if w <= 2 * IMG_BORDER || h <= 2 * IMG_BORDER {
             return;
         }
         let thr = 0.5 * self.params.contrast_threshold / self.params.n_octave_layers as f32;
-        let prev = &oct.dog[layer - 1];
         let cur = &oct.dog[layer];
-        let next = &oct.dog[layer + 1];
+        let (ma, mb, mc) = (&mx[layer - 1], &mx[layer], &mx[layer + 1]);
+        let (na, nb, nc) = (&mn[layer - 1], &mn[layer], &mn[layer + 1]);
         for r in IMG_BORDER..h - IMG_BORDER {
-            let row = &cur[r * w..(r + 1) * w];
-            for c in IMG_BORDER..w - IMG_BORDER {
-                let v = row[c];
-                if v.abs() <= thr {
-                    continue;
-                }
-                if is_extremum(prev, cur, next, w, r * w + c, v) {
-                    out.push((r, c));
+            for i in r * w + IMG_BORDER..r * w + w - IMG_BORDER {
+                let v = cur[i];
+                // Branch-free tests: the 3x3 maxima include the centre itself.
+                let is_max = (v > thr) & (v >= ma[i]) & (v >= mb[i]) & (v >= mc[i]);
+                let is_min = (v < -thr) & (v <= na[i]) & (v <= nb[i]) & (v <= nc[i]);
+                if is_max | is_min {
+                    out.push((r, i - r * w));
                 }
             }
         }
@@ -524,30 +574,63 @@ fn finish(f: &mut Features) {
     f.descriptors = descs;
 }
 
-/// True when `v` (at `i` in `cur`) is ≥ (maximum) or ≤ (minimum) all 26 neighbours.
-#[inline]
-fn is_extremum(prev: &[f32], cur: &[f32], next: &[f32], w: usize, i: usize, v: f32) -> bool {
-    let offs = [
-        i - w - 1,
-        i - w,
-        i - w + 1,
-        i - 1,
-        i + 1,
-        i + w - 1,
-        i + w,
-        i + w + 1,
-    ];
-    if v > 0.0 {
-        offs.iter().all(|&j| v >= cur[j])
-            && offs.iter().all(|&j| v >= prev[j] && v >= next[j])
-            && v >= prev[i]
-            && v >= next[i]
-    } else {
-        offs.iter().all(|&j| v <= cur[j])
-            && offs.iter().all(|&j| v <= prev[j] && v <= next[j])
-            && v <= prev[i]
-            && v <= next[i]
+/// `a > b ? a : b` (compiles to `maxps`).
+#[inline(always)]
+fn fmax(a: f32, b: f32) -> f32 {
+    if a > b { a } else { b }
+}
+
+/// `a < b ? a : b` (compiles to `minps`).
+#[inline(always)]
+fn fmin(a: f32, b: f32) -> f32 {
+    if a < b { a } else { b }
+}
+
+/// Maximum and minimum over each pixel's 3x3 neighbourhood (separable; the outermost rows
+/// and columns are left at the pixel's own value and never used).
+#[inline(always)]
+fn max_min_3x3(src: &[f32], w: usize, h: usize) -> (Vec<f32>, Vec<f32>) {
+    let mut hmax = src.to_vec();
+    let mut hmin = src.to_vec();
+    if w >= 3 {
+        for y in 0..h {
+            let r = &src[y * w..(y + 1) * w];
+            let (om, on) = (
+                &mut hmax[y * w + 1..(y + 1) * w - 1],
+                &mut hmin[y * w + 1..(y + 1) * w - 1],
+            );
+            for (((a, b), c), (m, n)) in r
+                .iter()
+                .zip(&r[1..])
+                .zip(&r[2..])
+                .zip(om.iter_mut().zip(on.iter_mut()))
+            {
+                *m = fmax(fmax(*a, *b), *c);
+                *n = fmin(fmin(*a, *b), *c);
+            }
+        }
     }
+    let mut vmax = hmax.clone();
+    let mut vmin = hmin.clone();
+    for y in 1..h.saturating_sub(1) {
+        let (a, b, c) = (
+            &hmax[(y - 1) * w..y * w],
+            &hmax[y * w..(y + 1) * w],
+            &hmax[(y + 1) * w..(y + 2) * w],
+        );
+        for (((o, a), b), c) in vmax[y * w..(y + 1) * w].iter_mut().zip(a).zip(b).zip(c) {
+            *o = fmax(fmax(*a, *b), *c);
+        }
+        let (a, b, c) = (
+            &hmin[(y - 1) * w..y * w],
+            &hmin[y * w..(y + 1) * w],
+            &hmin[(y + 1) * w..(y + 2) * w],
+        );
+        for (((o, a), b), c) in vmin[y * w..(y + 1) * w].iter_mut().zip(a).zip(b).zip(c) {
+            *o = fmin(fmin(*a, *b), *c);
+        }
+    }
+    (vmax, vmin)
 }
 
 /// Gradient `(dx, dy, ds)` and Hessian of the DoG at an integer position.
@@ -613,6 +696,7 @@ fn reflect101(mut i: isize, n: usize) -> usize {
 }
 
 /// Separable Gaussian blur of a `w x h` image with reflect-101 borders.
+#[inline(always)]
 fn blur(src: &[f32], dst: &mut [f32], w: usize, h: usize, k: &Kernel, s: &mut BlurScratch) {
     let r = k.radius();
     let k0 = k.half[0];
@@ -722,6 +806,7 @@ pub(crate) fn fast_atan2(y: f32, x: f32) -> f32 {
 /// gradient directions weighted by magnitude and a Gaussian of σ = 1.5 · `sigma`, smoothed
 /// with `[1 4 6 4 1] / 16`; every local peak ≥ 0.8 of the maximum gives an angle (parabolic
 /// interpolation). Returns how many angles were written.
+#[inline(always)]
 fn orientations(
     img: &[f32],
     w: usize,
@@ -753,7 +838,7 @@ fn orientations(
             let gy = img[(y + 1) * w + x] - img[(y - 1) * w + x];
             let mag = (gx * gx + gy * gy).sqrt();
             let ori = fast_atan2(gy, gx);
-            let mut bin = (ori * bins_per_rad).round() as usize;
+            let mut bin = (ori * bins_per_rad + 0.5) as usize;
             if bin >= ORI_BINS {
                 bin -= ORI_BINS;
             }
@@ -806,11 +891,34 @@ struct GradScratch {
     rbin: Vec<f32>,
     cbin: Vec<f32>,
     wgt: Vec<f32>,
+    mag: Vec<f32>,
+    obin: Vec<f32>,
+}
+
+/// The interval of `t` where `lo < a + b·t < hi` (open), as `(min, max)`; empty when
+/// `min > max`.
+#[inline]
+fn linear_interval(a: f32, b: f32, lo: f32, hi: f32) -> (f32, f32) {
+    if b.abs() < 1e-12 {
+        if a > lo && a < hi {
+            (f32::NEG_INFINITY, f32::INFINITY)
+        } else {
+            (1.0, -1.0)
+        }
+    } else {
+        let (t0, t1) = ((lo - a) / b, (hi - a) / b);
+        (t0.min(t1), t0.max(t1))
+    }
 }
 
 /// The 128-d descriptor of a keypoint at sub-pixel `(xo, yo)` of `img` (octave
 /// coordinates), σ `sigma` (octave pixels), orientation `angle`.
+///
+/// Samples are the interior pixels whose rotated position falls inside the 4x4 cell grid
+/// grown by one cell (each contributes trilinearly to up to 8 bins); the per-row range of
+/// such pixels is computed analytically, so no sample is visited in vain.
 #[allow(clippy::too_many_arguments)]
+#[inline(always)]
 fn descriptor(
     img: &[f32],
     w: usize,
@@ -823,9 +931,10 @@ fn descriptor(
 ) -> [u8; DESCRIPTOR_LEN] {
     let d = DESCR_WIDTH;
     let nb = DESCR_BINS;
+    let df = d as f32;
     let hist_width = DESCR_SCL_FCTR * sigma;
     let diag = ((w * w + h * h) as f32).sqrt();
-    let radius = (hist_width * std::f32::consts::SQRT_2 * (d as f32 + 1.0) * 0.5)
+    let radius = (hist_width * std::f32::consts::SQRT_2 * (df + 1.0) * 0.5)
         .round()
         .min(diag) as isize;
     let (sin_t, cos_t) = angle.sin_cos();
@@ -833,66 +942,87 @@ fn descriptor(
     let ci = xo.round() as isize;
     let ri = yo.round() as isize;
     // Gaussian window, σ = d / 2 cells: separable in the (unrotated) offsets.
-    let exp_scale = -1.0 / (0.5 * (d * d) as f32 * hist_width * hist_width);
-    let half_d = d as f32 / 2.0 - 0.5;
+    let exp_scale = -1.0 / (0.5 * df * df * hist_width * hist_width);
+    let half_d = df / 2.0 - 0.5;
     s.gx.clear();
     s.gy.clear();
     s.rbin.clear();
     s.cbin.clear();
     s.wgt.clear();
-    let wx: Vec<f32> = (-radius..=radius)
-        .map(|j| {
-            let dx = (ci + j) as f32 - xo;
+    let x_min = (ci - radius).max(1);
+    let x_max = (ci + radius).min(w as isize - 2);
+    if x_min > x_max {
+        return [0; DESCRIPTOR_LEN];
+    }
+    let wx: Vec<f32> = (x_min..=x_max)
+        .map(|x| {
+            let dx = x as f32 - xo;
             (dx * dx * exp_scale).exp()
         })
         .collect();
-    for i in -radius..=radius {
-        let y = ri + i;
-        if y <= 0 || y >= h as isize - 1 {
+    // Shrink the open bin interval (-1, d) a hair so rounding never puts a sample outside.
+    let (lo, hi) = (-1.0 + 1e-4, df - 1e-4);
+    for y in (ri - radius).max(1)..=(ri + radius).min(h as isize - 2) {
+        let dy = y as f32 - yo;
+        // cbin = half_d + dy·sin + dx·cos, rbin = half_d + dy·cos - dx·sin, linear in dx.
+        let (c0, c1) = linear_interval(half_d + dy * sin_t, cos_t, lo, hi);
+        let (r0, r1) = linear_interval(half_d + dy * cos_t, -sin_t, lo, hi);
+        let dx_lo = c0.max(r0);
+        let dx_hi = c1.min(r1);
+        if dx_lo > dx_hi {
             continue;
         }
-        let dy = y as f32 - yo;
+        let xa = ((xo + dx_lo).ceil() as isize).max(x_min);
+        let xb = ((xo + dx_hi).floor() as isize).min(x_max);
+        if xa > xb {
+            continue;
+        }
         let wy = (dy * dy * exp_scale).exp();
         let yu = y as usize;
-        let x_lo = (ci - radius).max(1);
-        let x_hi = (ci + radius).min(w as isize - 2);
-        for x in x_lo..=x_hi {
+        let row = &img[yu * w..(yu + 1) * w];
+        let up = &img[(yu - 1) * w..yu * w];
+        let down = &img[(yu + 1) * w..(yu + 2) * w];
+        let cb0 = half_d + dy * sin_t;
+        let rb0 = half_d + dy * cos_t;
+        for x in xa..=xb {
             let dx = x as f32 - xo;
-            let c_rot = dx * cos_t + dy * sin_t;
-            let r_rot = -dx * sin_t + dy * cos_t;
-            let rbin = r_rot + half_d;
-            let cbin = c_rot + half_d;
-            if rbin > -1.0 && rbin < d as f32 && cbin > -1.0 && cbin < d as f32 {
-                let xu = x as usize;
-                s.gx.push(img[yu * w + xu + 1] - img[yu * w + xu - 1]);
-                s.gy.push(img[(yu + 1) * w + xu] - img[(yu - 1) * w + xu]);
-                s.rbin.push(rbin);
-                s.cbin.push(cbin);
-                s.wgt.push(wy * wx[(x - ci + radius) as usize]);
-            }
+            let xu = x as usize;
+            s.gx.push(row[xu + 1] - row[xu - 1]);
+            s.gy.push(down[xu] - up[xu]);
+            s.cbin.push((cb0 + dx * cos_t).clamp(lo, hi));
+            s.rbin.push((rb0 - dx * sin_t).clamp(lo, hi));
+            s.wgt.push(wy * wx[(x - x_min) as usize]);
         }
     }
-    // Histogram with one cell of padding on each spatial side.
-    let mut hist = [0f32; (DESCR_WIDTH + 2) * (DESCR_WIDTH + 2) * DESCR_BINS];
+    // Magnitudes and orientation bins (branch-free, vectorised).
     let bins_per_rad = nb as f32 / TAU;
-    for k in 0..s.gx.len() {
-        let (gx, gy) = (s.gx[k], s.gy[k]);
-        let mag = (gx * gx + gy * gy).sqrt() * s.wgt[k];
-        let mut obin = (fast_atan2(gy, gx) - angle) * bins_per_rad;
-        if obin < 0.0 {
-            obin += nb as f32;
-        }
-        if obin >= nb as f32 {
-            obin -= nb as f32;
-        }
-        let (rbin, cbin) = (s.rbin[k], s.cbin[k]);
-        let r0 = rbin.floor();
-        let c0 = cbin.floor();
-        let o0 = obin.floor();
-        let (fr, fc, fo) = (rbin - r0, cbin - c0, obin - o0);
-        let (r0, c0) = ((r0 as isize + 1) as usize, (c0 as isize + 1) as usize);
-        let o0 = (o0 as usize).min(nb - 1);
-        let o1 = (o0 + 1) % nb;
+    let nbf = nb as f32;
+    s.mag.clear();
+    s.obin.clear();
+    s.mag.extend(
+        s.gx.iter()
+            .zip(&s.gy)
+            .zip(&s.wgt)
+            .map(|((gx, gy), wt)| (gx * gx + gy * gy).sqrt() * wt),
+    );
+    s.obin.extend(s.gx.iter().zip(&s.gy).map(|(&gx, &gy)| {
+        let o = (fast_atan2(gy, gx) - angle) * bins_per_rad;
+        let o = if o < 0.0 { o + nbf } else { o };
+        if o >= nbf { o - nbf } else { o }
+    }));
+    // Trilinear accumulation; one cell of padding on each spatial side.
+    let mut hist = [0f32; (DESCR_WIDTH + 2) * (DESCR_WIDTH + 2) * DESCR_BINS];
+    for k in 0..s.mag.len() {
+        let mag = s.mag[k];
+        let (rbin, cbin, obin) = (s.rbin[k], s.cbin[k], s.obin[k]);
+        // Bins are > -1, so truncation of bin + 1 is floor + 1.
+        let r0 = (rbin + 1.0) as usize;
+        let c0 = (cbin + 1.0) as usize;
+        let o0 = (obin as usize).min(nb - 1);
+        let fr = rbin + 1.0 - r0 as f32;
+        let fc = cbin + 1.0 - c0 as f32;
+        let fo = obin - o0 as f32;
+        let o1 = if o0 + 1 == nb { 0 } else { o0 + 1 };
         let v_r1 = mag * fr;
         let v_r0 = mag - v_r1;
         for (rr, vr) in [(r0, v_r0), (r0 + 1, v_r1)] {
@@ -920,7 +1050,7 @@ fn descriptor(
     }
     let norm2 = v.iter().map(|x| x * x).sum::<f32>().sqrt();
     let f = DESCR_INT_FCTR / norm2.max(f32::EPSILON);
-    v.map(|x| (x * f).round().clamp(0.0, 255.0) as u8)
+    v.map(|x| (x * f + 0.5).min(255.0) as u8)
 }
 
 #[cfg(test)]
