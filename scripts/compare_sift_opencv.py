@@ -35,7 +35,7 @@ def ensure_venv(venv):
 
 # Runs inside the venv: prepares images, times OpenCV, compares with our CSVs.
 INNER = r'''
-import csv, json, os, subprocess, sys, time
+import csv, json, os, resource, subprocess, sys, time
 import cv2, numpy as np
 cfg = json.loads(sys.argv[1])
 cv2.setNumThreads(1)
@@ -81,15 +81,28 @@ for name, img in imgs.items():
     g8 = np.clip(np.round(gimg), 0, 255).astype(np.uint8)
     sift = cv2.SIFT_create()
     best = 1e9
+    c0 = time.thread_time()
     for _ in range(cfg["repeat"]):
         t0 = time.perf_counter()
         kps, des = sift.detectAndCompute(g8, None)
         best = min(best, time.perf_counter() - t0)
+    cpu_ocv = (time.thread_time() - c0) / cfg["repeat"]
     ocv = np.array([[k.pt[0], k.pt[1], k.size / 2.0] for k in kps]).reshape(-1, 3)
     csvp = os.path.join(out, name.split()[0] + ".csv")
-    res = subprocess.run([cfg["pftrack"], "sift", path, "--out", csvp, "--repeat", str(cfg["repeat"])],
-                         capture_output=True, text=True, check=True)
+    def run_ours(repeat, out):
+        # CPU time of the child (user + system), robust to other load on the machine.
+        before = resource.getrusage(resource.RUSAGE_CHILDREN)
+        cmd = [cfg["pftrack"], "sift", path, "--repeat", str(repeat)] + (["--out", csvp] if out else [])
+        res = subprocess.run(cmd, capture_output=True, text=True, check=True)
+        after = resource.getrusage(resource.RUSAGE_CHILDREN)
+        cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+        return res, cpu
+    res, _ = run_ours(cfg["repeat"], True)
     ms = float(res.stderr.split(" keypoints in ")[1].split(" ms")[0])
+    # `--repeat R` detects R + 1 times; the difference of two runs is the detection alone.
+    _, cpu_lo = run_ours(1, False)
+    _, cpu_hi = run_ours(1 + cfg["repeat"], False)
+    cpu_ours = max(cpu_hi - cpu_lo, 0.0) / cfg["repeat"]
     ours = np.loadtxt(csvp, delimiter=",", skiprows=1, usecols=(0, 1, 2), ndmin=2)
 
     def share(a, b):
@@ -102,12 +115,22 @@ for name, img in imgs.items():
         ok = (d <= 1.5) & (ratio <= 1.5) & (ratio >= 1 / 1.5)
         return float(ok.any(axis=1).mean())
 
-    rows.append((name, len(ours), len(ocv), ms, best * 1e3, share(ours, ocv), share(ocv, ours)))
+    # OpenCV's default doubles the image with a bilinear resize that shifts it by a quarter
+    # pixel; `enable_precise_upscale=True` maps pixel x to 2x exactly, as pftrack does.
+    try:
+        kp2 = cv2.SIFT_create(enable_precise_upscale=True).detect(g8, None)
+        ocv2 = np.array([[k.pt[0], k.pt[1], k.size / 2.0] for k in kp2]).reshape(-1, 3)
+        precise = (share(ours, ocv2), share(ocv2, ours))
+    except Exception:
+        precise = (float("nan"), float("nan"))
+    rows.append((name, len(ours), len(ocv), ms, best * 1e3, cpu_ours * 1e3, cpu_ocv * 1e3,
+                 share(ours, ocv), share(ocv, ours)) + precise)
 
-print("| image | ours kps | OpenCV kps | ours ms | OpenCV ms | ours→OpenCV | OpenCV→ours |")
-print("|---|---|---|---|---|---|---|")
+print("| image | ours kps | OpenCV kps | ours ms (wall, best) | OpenCV ms (wall, best) | ours ms (CPU, mean) | OpenCV ms (CPU, mean) | ours→OpenCV | OpenCV→ours | ours→OpenCV precise | OpenCV precise→ours |")
+print("|---|---|---|---|---|---|---|---|---|---|---|")
 for r in rows:
-    print("| %s | %d | %d | %.2f | %.2f | %.1f%% | %.1f%% |" % (r[0], r[1], r[2], r[3], r[4], 100 * r[5], 100 * r[6]))
+    print("| %s | %d | %d | %.2f | %.2f | %.2f | %.2f | %.1f%% | %.1f%% | %.1f%% | %.1f%% |"
+          % (r[0], r[1], r[2], r[3], r[4], r[5], r[6], 100 * r[7], 100 * r[8], 100 * r[9], 100 * r[10]))
 print("OpenCV", cv2.__version__, "single thread; times are the best of", cfg["repeat"], "runs; the pftrack time excludes image decoding (measured inside the CLI).")
 '''
 

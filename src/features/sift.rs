@@ -147,6 +147,33 @@ struct Octave {
     dog: Vec<Vec<f32>>,
 }
 
+thread_local! {
+    /// Image buffers kept between calls on this thread, so a tracker calling
+    /// [`Sift::detect`] every frame does not fault fresh pages in for its pyramid each time.
+    static POOL: std::cell::RefCell<Vec<Vec<f32>>> = const { std::cell::RefCell::new(Vec::new()) };
+}
+
+/// Most buffers the pool keeps per thread.
+const POOL_MAX: usize = 64;
+
+/// A zeroed buffer of `len` values from the thread's pool.
+fn take_buf(len: usize) -> Vec<f32> {
+    let mut v = POOL.with(|p| p.borrow_mut().pop()).unwrap_or_default();
+    v.clear();
+    v.resize(len, 0.0);
+    v
+}
+
+/// Returns a buffer to the thread's pool.
+fn recycle(v: Vec<f32>) {
+    POOL.with(|p| {
+        let mut p = p.borrow_mut();
+        if p.len() < POOL_MAX {
+            p.push(v);
+        }
+    });
+}
+
 /// Scratch buffers of the separable blur.
 #[derive(Default)]
 struct BlurScratch {
@@ -338,8 +365,12 @@ impl Sift {
         oy: usize,
         out: &mut Features,
     ) {
-        let mut scratch = BlurScratch::default();
+        let mut scratch = BlurScratch {
+            tmp: take_buf(0),
+            row: Vec::new(),
+        };
         let octaves = self.build_pyramid(data, w, h, &mut scratch);
+        recycle(scratch.tmp);
         let n = self.params.n_octave_layers;
         // Factor from octave 0 coordinates to input coordinates.
         let base_factor = if self.params.upsample { 0.5 } else { 1.0 };
@@ -380,6 +411,10 @@ impl Sift {
                     }
                 }
             }
+            mx.into_iter().chain(mn).for_each(recycle);
+        }
+        for oct in octaves {
+            oct.gauss.into_iter().chain(oct.dog).for_each(recycle);
         }
     }
 
@@ -396,7 +431,9 @@ impl Sift {
         let (mut base, bw, bh) = if self.params.upsample {
             upsample2(data, w, h)
         } else {
-            (data.to_vec(), w, h)
+            let mut v = take_buf(w * h);
+            v.copy_from_slice(data);
+            (v, w, h)
         };
         let min_dim = 2 * IMG_BORDER + 1;
         if bw.min(bh) < min_dim {
@@ -410,9 +447,9 @@ impl Sift {
             n_oct = n_oct.min(m);
         }
         let mut octaves: Vec<Octave> = Vec::with_capacity(n_oct);
-        let mut blurred = vec![0f32; bw * bh];
+        let mut blurred = take_buf(bw * bh);
         blur(&base, &mut blurred, bw, bh, &self.base_kernel, scratch);
-        base = blurred;
+        recycle(std::mem::replace(&mut base, blurred));
         let (mut ow, mut oh) = (bw, bh);
         for o in 0..n_oct {
             if o > 0 {
@@ -428,7 +465,7 @@ impl Sift {
             let mut gauss = Vec::with_capacity(n + 3);
             gauss.push(std::mem::take(&mut base));
             for i in 1..n + 3 {
-                let mut next = vec![0f32; ow * oh];
+                let mut next = take_buf(ow * oh);
                 blur(
                     &gauss[i - 1],
                     &mut next,
@@ -441,7 +478,13 @@ impl Sift {
             }
             let dog = gauss
                 .windows(2)
-                .map(|p| p[1].iter().zip(&p[0]).map(|(b, a)| b - a).collect())
+                .map(|p| {
+                    let mut d = take_buf(ow * oh);
+                    for ((d, b), a) in d.iter_mut().zip(&p[1]).zip(&p[0]) {
+                        *d = b - a;
+                    }
+                    d
+                })
                 .collect();
             octaves.push(Octave {
                 w: ow,
@@ -473,15 +516,26 @@ impl Sift {
         let cur = &oct.dog[layer];
         let (ma, mb, mc) = (&mx[layer - 1], &mx[layer], &mx[layer + 1]);
         let (na, nb, nc) = (&mn[layer - 1], &mn[layer], &mn[layer + 1]);
+        let len = w - 2 * IMG_BORDER;
+        let mut flags = vec![0u8; len];
         for r in IMG_BORDER..h - IMG_BORDER {
-            for i in r * w + IMG_BORDER..r * w + w - IMG_BORDER {
-                let v = cur[i];
-                // Branch-free tests: the 3x3 maxima include the centre itself.
-                let is_max = (v > thr) & (v >= ma[i]) & (v >= mb[i]) & (v >= mc[i]);
-                let is_min = (v < -thr) & (v <= na[i]) & (v <= nb[i]) & (v <= nc[i]);
-                if is_max | is_min {
-                    out.push((r, i - r * w));
-                }
+            let s = r * w + IMG_BORDER;
+            let (v, ma, mb, mc) = (
+                &cur[s..s + len],
+                &ma[s..s + len],
+                &mb[s..s + len],
+                &mc[s..s + len],
+            );
+            let (na, nb, nc) = (&na[s..s + len], &nb[s..s + len], &nc[s..s + len]);
+            // Branch-free tests (vectorised): the 3x3 maxima include the centre itself.
+            for k in 0..len {
+                let x = v[k];
+                let is_max = (x > thr) & (x >= ma[k]) & (x >= mb[k]) & (x >= mc[k]);
+                let is_min = (x < -thr) & (x <= na[k]) & (x <= nb[k]) & (x <= nc[k]);
+                flags[k] = u8::from(is_max | is_min);
+            }
+            for (k, _) in flags.iter().enumerate().filter(|(_, f)| **f != 0) {
+                out.push((r, IMG_BORDER + k));
             }
         }
     }
@@ -590,8 +644,10 @@ fn fmin(a: f32, b: f32) -> f32 {
 /// and columns are left at the pixel's own value and never used).
 #[inline(always)]
 fn max_min_3x3(src: &[f32], w: usize, h: usize) -> (Vec<f32>, Vec<f32>) {
-    let mut hmax = src.to_vec();
-    let mut hmin = src.to_vec();
+    let mut hmax = take_buf(src.len());
+    hmax.copy_from_slice(src);
+    let mut hmin = take_buf(src.len());
+    hmin.copy_from_slice(src);
     if w >= 3 {
         for y in 0..h {
             let r = &src[y * w..(y + 1) * w];
@@ -610,8 +666,10 @@ fn max_min_3x3(src: &[f32], w: usize, h: usize) -> (Vec<f32>, Vec<f32>) {
             }
         }
     }
-    let mut vmax = hmax.clone();
-    let mut vmin = hmin.clone();
+    let mut vmax = take_buf(src.len());
+    vmax.copy_from_slice(&hmax);
+    let mut vmin = take_buf(src.len());
+    vmin.copy_from_slice(&hmin);
     for y in 1..h.saturating_sub(1) {
         let (a, b, c) = (
             &hmax[(y - 1) * w..y * w],
@@ -630,6 +688,8 @@ fn max_min_3x3(src: &[f32], w: usize, h: usize) -> (Vec<f32>, Vec<f32>) {
             *o = fmin(fmin(*a, *b), *c);
         }
     }
+    recycle(hmax);
+    recycle(hmin);
     (vmax, vmin)
 }
 
@@ -749,7 +809,7 @@ fn blur(src: &[f32], dst: &mut [f32], w: usize, h: usize, k: &Kernel, s: &mut Bl
 /// is at `u / 2` in the input.
 fn upsample2(src: &[f32], w: usize, h: usize) -> (Vec<f32>, usize, usize) {
     let (w2, h2) = (2 * w, 2 * h);
-    let mut out = vec![0f32; w2 * h2];
+    let mut out = take_buf(w2 * h2);
     // Horizontal doubling of each input row into the even output rows.
     for y in 0..h {
         let s = &src[y * w..(y + 1) * w];
@@ -776,10 +836,12 @@ fn upsample2(src: &[f32], w: usize, h: usize) -> (Vec<f32>, usize, usize) {
 
 /// Every other pixel of a `w`-wide image, giving `nw x nh`.
 fn downsample2(src: &[f32], w: usize, nw: usize, nh: usize) -> Vec<f32> {
-    let mut out = Vec::with_capacity(nw * nh);
-    for y in 0..nh {
+    let mut out = take_buf(nw * nh);
+    for (y, o) in out.chunks_exact_mut(nw.max(1)).enumerate() {
         let row = &src[2 * y * w..];
-        out.extend((0..nw).map(|x| row[2 * x]));
+        for (x, v) in o.iter_mut().enumerate() {
+            *v = row[2 * x];
+        }
     }
     out
 }
