@@ -156,10 +156,11 @@ thread_local! {
 /// Most buffers the pool keeps per thread.
 const POOL_MAX: usize = 64;
 
-/// A zeroed buffer of `len` values from the thread's pool.
+/// A buffer of `len` values from the thread's pool. Its contents are unspecified (stale
+/// values from an earlier use): every caller overwrites all of it.
 fn take_buf(len: usize) -> Vec<f32> {
     let mut v = POOL.with(|p| p.borrow_mut().pop()).unwrap_or_default();
-    v.clear();
+    v.truncate(len);
     v.resize(len, 0.0);
     v
 }
@@ -640,14 +641,12 @@ fn fmin(a: f32, b: f32) -> f32 {
     if a < b { a } else { b }
 }
 
-/// Maximum and minimum over each pixel's 3x3 neighbourhood (separable; the outermost rows
-/// and columns are left at the pixel's own value and never used).
+/// Maximum and minimum over each pixel's 3x3 neighbourhood (separable). The outermost rows
+/// and columns of the results are unspecified: extrema are never searched there.
 #[inline(always)]
 fn max_min_3x3(src: &[f32], w: usize, h: usize) -> (Vec<f32>, Vec<f32>) {
     let mut hmax = take_buf(src.len());
-    hmax.copy_from_slice(src);
     let mut hmin = take_buf(src.len());
-    hmin.copy_from_slice(src);
     if w >= 3 {
         for y in 0..h {
             let r = &src[y * w..(y + 1) * w];
@@ -667,9 +666,7 @@ fn max_min_3x3(src: &[f32], w: usize, h: usize) -> (Vec<f32>, Vec<f32>) {
         }
     }
     let mut vmax = take_buf(src.len());
-    vmax.copy_from_slice(&hmax);
     let mut vmin = take_buf(src.len());
-    vmin.copy_from_slice(&hmin);
     for y in 1..h.saturating_sub(1) {
         let (a, b, c) = (
             &hmax[(y - 1) * w..y * w],
@@ -1176,6 +1173,24 @@ mod tests {
         assert_eq!(up[2 * w2 + 2], 4.0);
         assert_eq!(up[w2 + 1], 0.5 * (0.5 + 3.5));
         assert_eq!(up[3 * w2 + 4], 5.0);
+    }
+
+    #[test]
+    fn max_min_3x3_matches_naive_inside() {
+        let (w, h) = (9, 7);
+        // Stale pool contents must not leak into the interior.
+        recycle(vec![f32::NAN; 200]);
+        let src: Vec<f32> = (0..w * h).map(|i| ((i * 29 % 17) as f32) - 8.0).collect();
+        let (mx, mn) = max_min_3x3(&src, w, h);
+        for y in 1..h - 1 {
+            for x in 1..w - 1 {
+                let nb = (0..9).map(|k| src[(y + k / 3 - 1) * w + x + k % 3 - 1]);
+                let want_max = nb.clone().fold(f32::MIN, f32::max);
+                let want_min = nb.fold(f32::MAX, f32::min);
+                assert_eq!(mx[y * w + x], want_max);
+                assert_eq!(mn[y * w + x], want_min);
+            }
+        }
     }
 
     #[test]
