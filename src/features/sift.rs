@@ -159,7 +159,28 @@ const POOL_MAX: usize = 64;
 /// A buffer of `len` values from the thread's pool. Its contents are unspecified (stale
 /// values from an earlier use): every caller overwrites all of it.
 fn take_buf(len: usize) -> Vec<f32> {
-    let mut v = POOL.with(|p| p.borrow_mut().pop()).unwrap_or_default();
+    // Best fit: the smallest buffer that holds `len`, else the largest (grown).
+    let mut v = POOL.with(|p| {
+        let mut p = p.borrow_mut();
+        let mut best: Option<usize> = None;
+        for (i, b) in p.iter().enumerate() {
+            let better = match best {
+                None => true,
+                Some(j) => {
+                    let (cb, cj) = (b.capacity(), p[j].capacity());
+                    if cj >= len {
+                        cb >= len && cb < cj
+                    } else {
+                        cb > cj
+                    }
+                }
+            };
+            if better {
+                best = Some(i);
+            }
+        }
+        best.map(|i| p.swap_remove(i)).unwrap_or_default()
+    });
     v.truncate(len);
     v.resize(len, 0.0);
     v
@@ -379,8 +400,14 @@ impl Sift {
         for (o, oct) in octaves.iter().enumerate() {
             let factor = base_factor * (1u32 << o) as f32;
             let octave_id = o as i32 - i32::from(self.params.upsample);
-            let (mx, mn): (Vec<_>, Vec<_>) =
-                oct.dog.iter().map(|d| max_min_3x3(d, oct.w, oct.h)).unzip();
+            // Plain loops, not closures, so the code inlines into the AVX2 build.
+            let mut mx = Vec::with_capacity(oct.dog.len());
+            let mut mn = Vec::with_capacity(oct.dog.len());
+            for d in &oct.dog {
+                let (a, b) = max_min_3x3(d, oct.w, oct.h);
+                mx.push(a);
+                mn.push(b);
+            }
             let mut candidates = Vec::new();
             for layer in 1..=n {
                 candidates.clear();
@@ -477,16 +504,14 @@ impl Sift {
                 );
                 gauss.push(next);
             }
-            let dog = gauss
-                .windows(2)
-                .map(|p| {
-                    let mut d = take_buf(ow * oh);
-                    for ((d, b), a) in d.iter_mut().zip(&p[1]).zip(&p[0]) {
-                        *d = b - a;
-                    }
-                    d
-                })
-                .collect();
+            let mut dog = Vec::with_capacity(n + 2);
+            for p in gauss.windows(2) {
+                let mut d = take_buf(ow * oh);
+                for ((d, b), a) in d.iter_mut().zip(&p[1]).zip(&p[0]) {
+                    *d = b - a;
+                }
+                dog.push(d);
+            }
             octaves.push(Octave {
                 w: ow,
                 h: oh,
@@ -1056,19 +1081,22 @@ fn descriptor(
     // Magnitudes and orientation bins (branch-free, vectorised).
     let bins_per_rad = nb as f32 / TAU;
     let nbf = nb as f32;
-    s.mag.clear();
-    s.obin.clear();
-    s.mag.extend(
-        s.gx.iter()
-            .zip(&s.gy)
-            .zip(&s.wgt)
-            .map(|((gx, gy), wt)| (gx * gx + gy * gy).sqrt() * wt),
-    );
-    s.obin.extend(s.gx.iter().zip(&s.gy).map(|(&gx, &gy)| {
-        let o = (fast_atan2(gy, gx) - angle) * bins_per_rad;
-        let o = if o < 0.0 { o + nbf } else { o };
-        if o >= nbf { o - nbf } else { o }
-    }));
+    let len = s.gx.len();
+    s.mag.resize(len, 0.0);
+    s.obin.resize(len, 0.0);
+    {
+        // Index loops over equal-length slices (no closures, so this inlines into the
+        // AVX2 build and vectorises).
+        let (gxs, gys, wgs) = (&s.gx[..len], &s.gy[..len], &s.wgt[..len]);
+        let (mags, obins) = (&mut s.mag[..len], &mut s.obin[..len]);
+        for k in 0..len {
+            let (gx, gy) = (gxs[k], gys[k]);
+            mags[k] = (gx * gx + gy * gy).sqrt() * wgs[k];
+            let o = (fast_atan2(gy, gx) - angle) * bins_per_rad;
+            let o = if o < 0.0 { o + nbf } else { o };
+            obins[k] = if o >= nbf { o - nbf } else { o };
+        }
+    }
     // Trilinear accumulation; one cell of padding on each spatial side.
     let mut hist = [0f32; (DESCR_WIDTH + 2) * (DESCR_WIDTH + 2) * DESCR_BINS];
     for k in 0..s.mag.len() {
