@@ -153,8 +153,8 @@ thread_local! {
     static POOL: std::cell::RefCell<Vec<Vec<f32>>> = const { std::cell::RefCell::new(Vec::new()) };
 }
 
-/// Most buffers the pool keeps per thread.
-const POOL_MAX: usize = 64;
+/// Most buffers the pool keeps per thread (a pyramid uses about 23 per octave).
+const POOL_MAX: usize = 160;
 
 /// A buffer of `len` values from the thread's pool. Its contents are unspecified (stale
 /// values from an earlier use): every caller overwrites all of it.
@@ -186,11 +186,13 @@ fn take_buf(len: usize) -> Vec<f32> {
     v
 }
 
-/// Returns a buffer to the thread's pool.
-fn recycle(v: Vec<f32>) {
+/// Returns a buffer to the thread's pool, at its full capacity so that taking it again for
+/// any size up to that never needs to fill it.
+fn recycle(mut v: Vec<f32>) {
     POOL.with(|p| {
         let mut p = p.borrow_mut();
         if p.len() < POOL_MAX {
+            v.resize(v.capacity(), 0.0);
             p.push(v);
         }
     });
