@@ -1,8 +1,122 @@
-//! Benchmarks of the `features` stage (criterion). Filled in by the issue that builds the stage.
+//! Benchmarks of the `features` stage (criterion, single thread): SIFT per frame at 160x120,
+//! 320x240 and 640x480, SIFT restricted to a tracker's region, matching, and the tracker's
+//! per-frame-pair work (SIFT on both frames + matching + slope/length rejection).
+//!
+//! Frames are a synthetic textured scene (a sum of Gaussian blobs, fixed seed), so the
+//! benches need no data files; the second frame of a pair is the scene moved by
+//! (1.5, 0.7) px and turned by 3°.
+
+use std::hint::black_box;
 
 use criterion::{Criterion, criterion_group, criterion_main};
+use pftrack::features::{MatchParams, Sift, SiftParams, match_features, reject_slope_length};
+use pftrack::frames::GrayF32;
+use pftrack::geometry::BoxRect;
+use rand::rngs::StdRng;
+use rand::{Rng, SeedableRng};
 
-fn placeholder(_c: &mut Criterion) {}
+/// A `w x h` frame of a blob scene scaled to the frame size; `motion` = (dx, dy, angle).
+fn frame(w: u32, h: u32, motion: (f32, f32, f32)) -> GrayF32 {
+    let mut rng = StdRng::seed_from_u64(42);
+    let k = w as f32 / 160.0;
+    let blobs: Vec<(f32, f32, f32, f32)> = (0..150)
+        .map(|_| {
+            (
+                rng.random_range(0.0..160.0) * k,
+                rng.random_range(0.0..120.0) * k,
+                rng.random_range(1.2..4.0) * k,
+                rng.random_range(-0.4..0.4),
+            )
+        })
+        .collect();
+    let (dx, dy, a) = motion;
+    let (c, s) = (a.cos(), a.sin());
+    let (ox, oy) = (w as f32 / 2.0, h as f32 / 2.0);
+    let mut g = GrayF32::new(w, h);
+    for v in 0..h {
+        for u in 0..w {
+            // Scene point shown at (u, v): inverse of "rotate about the centre, then shift".
+            let (px, py) = (u as f32 - dx - ox, v as f32 - dy - oy);
+            let (x, y) = (c * px + s * py + ox, -s * px + c * py + oy);
+            let mut val = 0.5;
+            for &(bx, by, bs, amp) in &blobs {
+                let d2 = (x - bx).powi(2) + (y - by).powi(2);
+                if d2 < 25.0 * bs * bs {
+                    val += amp * (-d2 / (2.0 * bs * bs)).exp();
+                }
+            }
+            g.data[(v * w + u) as usize] = val.clamp(0.0, 1.0);
+        }
+    }
+    g
+}
 
-criterion_group!(benches, placeholder);
+fn bench(c: &mut Criterion) {
+    let sift = Sift::new(SiftParams::default());
+    let mut g = c.benchmark_group("sift");
+    for (w, h) in [(160, 120), (320, 240), (640, 480)] {
+        let img = frame(w, h, (0.0, 0.0, 0.0));
+        let n = sift.detect(&img, None).map(|f| f.len()).unwrap_or(0);
+        g.bench_function(format!("full/{w}x{h} ({n} kps)"), |b| {
+            b.iter(|| sift.detect(black_box(&img), None))
+        });
+    }
+    // A tracker's target: a 48x48 box (a head at 160x120) plus the default margin.
+    let img = frame(160, 120, (0.0, 0.0, 0.0));
+    let region = BoxRect::new(56.0, 36.0, 48.0, 48.0);
+    let n = sift
+        .detect(&img, Some(region))
+        .map(|f| f.len())
+        .unwrap_or(0);
+    g.bench_function(format!("region48/160x120 ({n} kps)"), |b| {
+        b.iter(|| sift.detect(black_box(&img), Some(region)))
+    });
+    g.finish();
+
+    let a = frame(160, 120, (0.0, 0.0, 0.0));
+    let b2 = frame(160, 120, (1.5, 0.7, 3f32.to_radians()));
+    let fa = sift.detect(&a, None).unwrap_or_default();
+    let fb = sift.detect(&b2, None).unwrap_or_default();
+    let p = MatchParams::default();
+    let mut g = c.benchmark_group("match");
+    g.bench_function(format!("full/160x120 ({}x{})", fa.len(), fb.len()), |b| {
+        b.iter(|| match_features(black_box(&fa), black_box(&fb), &p))
+    });
+    g.finish();
+
+    // Per frame pair, as the tracker would run it with nothing cached: SIFT on both frames
+    // (full, and restricted to the region), matching, slope/length rejection.
+    let mut g = c.benchmark_group("pair");
+    for (name, reg) in [("full", None), ("region48", Some(region))] {
+        g.bench_function(format!("{name}/160x120"), |bch| {
+            bch.iter(|| {
+                let fa = sift.detect(black_box(&a), reg).unwrap_or_default();
+                let fb = sift.detect(black_box(&b2), reg).unwrap_or_default();
+                let m = match_features(&fa, &fb, &p);
+                let pp: Vec<[f64; 2]> = m
+                    .iter()
+                    .map(|m| {
+                        [
+                            fa.keypoints[m.query].x as f64,
+                            fa.keypoints[m.query].y as f64,
+                        ]
+                    })
+                    .collect();
+                let qq: Vec<[f64; 2]> = m
+                    .iter()
+                    .map(|m| {
+                        [
+                            fb.keypoints[m.train].x as f64,
+                            fb.keypoints[m.train].y as f64,
+                        ]
+                    })
+                    .collect();
+                reject_slope_length(&pp, &qq, 0.2, 0.3)
+            })
+        });
+    }
+    g.finish();
+}
+
+criterion_group!(benches, bench);
 criterion_main!(benches);

@@ -1,9 +1,76 @@
-//! SIFT keypoints and descriptors, and matching between frames.
+//! SIFT keypoints and descriptors ([`Sift`]), and matching between frames
+//! ([`match_features`], then the paper's slope/length outlier rejection
+//! [`reject_slope_length`], SPEC section 2). RANSAC lives in `pose`.
+//!
+//! Everything runs on `[0, 1]` grey images ([`crate::frames::GrayF32`]) in the SPEC's pixel
+//! convention: origin at the centre of the top-left pixel, x right, y down (OpenCV's `pt`).
+
+mod matching;
+mod sift;
+
+pub use matching::{Match, MatchParams, match_features, reject_slope_length};
+pub use sift::{DESCRIPTOR_LEN, Sift, SiftParams};
+
+/// A SIFT keypoint, in input-image pixels.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct Keypoint {
+    /// Column (x right), origin at the centre of the top-left pixel.
+    pub x: f32,
+    /// Row (y down).
+    pub y: f32,
+    /// σ of the keypoint's scale in input pixels (OpenCV's `size` is `2 * scale`).
+    pub scale: f32,
+    /// Dominant gradient orientation in radians, `[0, 2π)`, from +x towards +y (clockwise on
+    /// screen); numerically OpenCV's `angle` once converted to degrees.
+    pub angle: f32,
+    /// |DoG| at the refined extremum (contrast), on the `[0, 1]` intensity scale.
+    pub response: f32,
+    /// Octave the keypoint was found in: −1 for the doubled first octave, 0 for the input's
+    /// resolution, k for a 2^k-fold reduction.
+    pub octave: i32,
+}
+
+/// Keypoints and their descriptors, `descriptors[i]` belonging to `keypoints[i]`.
+///
+/// Descriptors are 128 bytes: the normalised, 0.2-clamped, renormalised SIFT vector times
+/// 512, rounded and saturated (OpenCV's integer form), so distances are exact integers.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct Features {
+    /// Keypoints in a canonical order (by y, then x, scale, angle), without duplicates.
+    pub keypoints: Vec<Keypoint>,
+    /// One descriptor per keypoint.
+    pub descriptors: Vec<[u8; DESCRIPTOR_LEN]>,
+}
+
+impl Features {
+    /// Number of keypoints.
+    pub fn len(&self) -> usize {
+        self.keypoints.len()
+    }
+
+    /// True when there are no keypoints.
+    pub fn is_empty(&self) -> bool {
+        self.keypoints.is_empty()
+    }
+}
 
 /// Errors of this module.
 #[derive(Debug, thiserror::Error)]
 pub enum FeatureError {
-    /// Placeholder until the module lands.
-    #[error("not implemented yet")]
-    Unimplemented,
+    /// The pixel buffer does not match the image size.
+    #[error("bad image: {width}x{height} with {len} pixels")]
+    BadImage {
+        /// Declared width.
+        width: u32,
+        /// Declared height.
+        height: u32,
+        /// Pixels present.
+        len: usize,
+    },
+    /// A detection region that is not finite or has a negative size.
+    #[error("bad region {0} (want finite x,y,w,h with w, h >= 0)")]
+    BadRegion(String),
+    /// Parameters out of range.
+    #[error("bad SIFT parameters: {0}")]
+    BadParams(String),
 }

@@ -1,0 +1,1251 @@
+//! SIFT (Lowe 2004) on the CPU: Gaussian scale space, DoG extrema with sub-pixel/scale
+//! refinement, contrast and edge rejection, orientation histograms and 128-d descriptors.
+//!
+//! # Choices
+//! - The defaults follow Lowe's paper and OpenCV's `SIFT_create()` (3 layers per octave,
+//!   σ = 1.6, contrast threshold 0.04 / 3 on `[0, 1]` images, edge ratio r = 10, an upsampled
+//!   first octave assuming the input is blurred by σ = 0.5), so results can be compared with
+//!   OpenCV keypoint by keypoint.
+//! - **Upsampled first octave, on by default.** At tracker sizes (160x120, a head of 40x40
+//!   pixels) most usable structure lives at σ ≈ 1–3 input pixels; without the doubled octave
+//!   the smallest detectable scale is 1.6 · 2^(1/3) px and about 3x fewer keypoints are found
+//!   on such a head. The extra octave costs ~4x the pixels of the first regular octave; the
+//!   tracker restricts detection to the target's region (see [`Sift::detect`]) to pay for it.
+//! - The doubled image is aligned exactly with the input's pixel grid: pixel `2x` of the
+//!   doubled image *is* input pixel `x` and odd pixels are averages of their neighbours, so a
+//!   coordinate `u` in the doubled image is `u / 2` in the input (OpenCV's bilinear resize
+//!   has a quarter-pixel shift there that it does not undo).
+//! - Coordinates follow the SPEC: origin at the centre of the top-left pixel, x right, y down.
+//!   `angle` is the dominant gradient direction in radians in `[0, 2π)`, measured from +x
+//!   towards +y (clockwise on screen), which is numerically OpenCV's `kp.angle` in degrees.
+//!   `scale` is the keypoint's σ in input pixels (OpenCV's `kp.size` is the diameter, 2σ).
+//! - Descriptors are 4x4 spatial cells x 8 orientations, trilinear interpolation, a Gaussian
+//!   window of half the descriptor width, sampled relative to the sub-pixel keypoint
+//!   position, normalised, clamped at 0.2, renormalised and stored as `u8` scaled by 512
+//!   (as OpenCV does), so matching runs on exact integer distances.
+//! - Blurs are separable with precomputed kernels (radius ⌈4σ⌉-ish, like OpenCV's float
+//!   path) and reflect-101 borders; each scale is blurred incrementally from the previous
+//!   one; the next octave starts from the scale 2σ of the previous octave, decimated by 2.
+
+use std::f32::consts::{PI, TAU};
+
+use super::{FeatureError, Features, Keypoint};
+use crate::frames::GrayF32;
+use crate::geometry::BoxRect;
+
+/// Pixels at the border of each octave where no extremum is searched (as OpenCV).
+const IMG_BORDER: usize = 5;
+/// Maximum number of refinement steps of an extremum.
+const MAX_INTERP_STEPS: usize = 5;
+/// Orientation histogram bins.
+const ORI_BINS: usize = 36;
+/// Orientation window: Gaussian σ as a multiple of the keypoint's σ.
+const ORI_SIG_FCTR: f32 = 1.5;
+/// Orientation window radius as a multiple of the keypoint's σ.
+const ORI_RADIUS: f32 = 3.0 * ORI_SIG_FCTR;
+/// Secondary orientation peaks at least this fraction of the highest make extra keypoints.
+const ORI_PEAK_RATIO: f32 = 0.8;
+/// Descriptor spatial cells per side.
+const DESCR_WIDTH: usize = 4;
+/// Descriptor orientation bins.
+const DESCR_BINS: usize = 8;
+/// Width of one descriptor cell as a multiple of the keypoint's σ.
+const DESCR_SCL_FCTR: f32 = 3.0;
+/// Descriptor elements are clamped at this fraction of the norm.
+const DESCR_MAG_THR: f32 = 0.2;
+/// Scale of the `u8` descriptor.
+const DESCR_INT_FCTR: f32 = 512.0;
+
+/// Length of a descriptor.
+pub const DESCRIPTOR_LEN: usize = DESCR_WIDTH * DESCR_WIDTH * DESCR_BINS;
+
+/// Parameters of [`Sift`]. The defaults are Lowe's and OpenCV's.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SiftParams {
+    /// Scales per octave at which extrema are searched (Lowe's s = 3).
+    pub n_octave_layers: usize,
+    /// Contrast threshold for `[0, 1]` images; a refined extremum is kept when
+    /// `|D| > contrast_threshold / n_octave_layers` (0.04).
+    pub contrast_threshold: f32,
+    /// Edge threshold r: an extremum is kept when `tr(H)² / det(H) < (r + 1)² / r` (10).
+    pub edge_threshold: f32,
+    /// σ of the first scale of each octave (1.6).
+    pub sigma: f32,
+    /// Start with the input doubled in size (Lowe's octave −1). Default on: see the module
+    /// documentation.
+    pub upsample: bool,
+    /// Blur already present in the input (0.5 pixels, as for a sharp camera image).
+    pub input_sigma: f32,
+    /// Cap on the number of octaves (`None`: as many as fit, OpenCV's rule).
+    pub max_octaves: Option<usize>,
+    /// Margin in input pixels added around a detection region (see [`Sift::detect`]) so
+    /// blurs and descriptor windows see real image, not a border, near the region's edge.
+    pub region_margin: f32,
+}
+
+impl Default for SiftParams {
+    fn default() -> Self {
+        Self {
+            n_octave_layers: 3,
+            contrast_threshold: 0.04,
+            edge_threshold: 10.0,
+            sigma: 1.6,
+            upsample: true,
+            input_sigma: 0.5,
+            max_octaves: None,
+            region_margin: 16.0,
+        }
+    }
+}
+
+/// A 1-D symmetric Gaussian kernel: `k[0]` is the centre, `k[i]` the weight at ±i.
+#[derive(Debug, Clone)]
+struct Kernel {
+    half: Vec<f32>,
+}
+
+impl Kernel {
+    /// Normalised Gaussian of the given σ with OpenCV's float-image size rule
+    /// (`ksize = round(8σ + 1) | 1`).
+    fn gaussian(sigma: f64) -> Self {
+        let ksize = ((sigma * 8.0 + 1.0).round() as usize) | 1;
+        let r = ksize / 2;
+        let mut half: Vec<f64> = (0..=r)
+            .map(|i| (-((i * i) as f64) / (2.0 * sigma * sigma)).exp())
+            .collect();
+        let sum: f64 = half[0] + 2.0 * half[1..].iter().sum::<f64>();
+        for v in &mut half {
+            *v /= sum;
+        }
+        Self {
+            half: half.into_iter().map(|v| v as f32).collect(),
+        }
+    }
+
+    fn radius(&self) -> usize {
+        self.half.len() - 1
+    }
+}
+
+/// A SIFT detector and descriptor extractor with precomputed blur kernels.
+#[derive(Debug, Clone)]
+pub struct Sift {
+    params: SiftParams,
+    /// Blur from the (possibly doubled) input to σ of the first scale.
+    base_kernel: Kernel,
+    /// `layer_kernels[i]` blurs scale `i - 1` to scale `i` (index 0 unused).
+    layer_kernels: Vec<Kernel>,
+}
+
+/// One octave of the scale space.
+struct Octave {
+    w: usize,
+    h: usize,
+    /// `n + 3` Gaussian images.
+    gauss: Vec<Vec<f32>>,
+    /// `n + 2` differences of Gaussians.
+    dog: Vec<Vec<f32>>,
+}
+
+thread_local! {
+    /// Image buffers kept between calls on this thread, so a tracker calling
+    /// [`Sift::detect`] every frame does not fault fresh pages in for its pyramid each time.
+    static POOL: std::cell::RefCell<Vec<Vec<f32>>> = const { std::cell::RefCell::new(Vec::new()) };
+}
+
+/// Most buffers the pool keeps per thread (a pyramid uses about 23 per octave).
+const POOL_MAX: usize = 160;
+
+/// A buffer of `len` values from the thread's pool. Its contents are unspecified (stale
+/// values from an earlier use): every caller overwrites all of it.
+fn take_buf(len: usize) -> Vec<f32> {
+    // Best fit: the smallest buffer that holds `len`, else the largest (grown).
+    let mut v = POOL.with(|p| {
+        let mut p = p.borrow_mut();
+        let mut best: Option<usize> = None;
+        for (i, b) in p.iter().enumerate() {
+            let better = match best {
+                None => true,
+                Some(j) => {
+                    let (cb, cj) = (b.capacity(), p[j].capacity());
+                    if cj >= len {
+                        cb >= len && cb < cj
+                    } else {
+                        cb > cj
+                    }
+                }
+            };
+            if better {
+                best = Some(i);
+            }
+        }
+        best.map(|i| p.swap_remove(i)).unwrap_or_default()
+    });
+    v.truncate(len);
+    v.resize(len, 0.0);
+    v
+}
+
+/// Returns a buffer to the thread's pool, at its full capacity so that taking it again for
+/// any size up to that never needs to fill it.
+fn recycle(mut v: Vec<f32>) {
+    POOL.with(|p| {
+        let mut p = p.borrow_mut();
+        if p.len() < POOL_MAX {
+            v.resize(v.capacity(), 0.0);
+            p.push(v);
+        }
+    });
+}
+
+/// Scratch buffers of the separable blur.
+#[derive(Default)]
+struct BlurScratch {
+    tmp: Vec<f32>,
+    row: Vec<f32>,
+}
+
+/// A refined extremum, in octave coordinates.
+struct Extremum {
+    /// Integer position and layer after refinement.
+    r: usize,
+    c: usize,
+    layer: usize,
+    /// Sub-pixel offsets.
+    xr: f32,
+    xc: f32,
+    xi: f32,
+    /// |D| at the refined position.
+    response: f32,
+}
+
+impl Sift {
+    /// A detector with the given parameters; precomputes the blur kernels.
+    pub fn new(params: SiftParams) -> Self {
+        let n = params.n_octave_layers.max(1);
+        let sigma = f64::from(params.sigma.max(0.01));
+        let init = f64::from(params.input_sigma.max(0.0));
+        let init = if params.upsample { 2.0 * init } else { init };
+        let base_sigma = (sigma * sigma - init * init).max(0.01).sqrt();
+        let k = 2f64.powf(1.0 / n as f64);
+        let mut layer_kernels = vec![Kernel { half: vec![1.0] }];
+        for i in 1..n + 3 {
+            let prev = k.powi(i as i32 - 1) * sigma;
+            let total = prev * k;
+            layer_kernels.push(Kernel::gaussian((total * total - prev * prev).sqrt()));
+        }
+        Self {
+            params,
+            base_kernel: Kernel::gaussian(base_sigma),
+            layer_kernels,
+        }
+    }
+
+    /// The parameters.
+    pub fn params(&self) -> &SiftParams {
+        &self.params
+    }
+
+    /// Detects keypoints and computes their descriptors.
+    ///
+    /// With `region`, only the region (grown by [`SiftParams::region_margin`], aligned to an
+    /// 8-pixel grid so the octaves sample the same pixels as a full-image run, clipped to
+    /// the image) is processed, and only keypoints whose centre lies inside `region` are
+    /// returned, in full-image coordinates. Keypoints whose windows reach past the margin see
+    /// a reflected border there, so they can differ slightly from the full-image run.
+    ///
+    /// Images too small for one octave give `Ok` with no keypoints, as does a region outside
+    /// the image. Errors: pixel data that does not match the size, a non-finite region or
+    /// one with a negative size, invalid parameters.
+    pub fn detect(&self, img: &GrayF32, region: Option<BoxRect>) -> Result<Features, FeatureError> {
+        self.check_params()?;
+        let (w, h) = (img.width as usize, img.height as usize);
+        if img.data.len() != w * h {
+            return Err(FeatureError::BadImage {
+                width: img.width,
+                height: img.height,
+                len: img.data.len(),
+            });
+        }
+        let mut out = Features::default();
+        if w == 0 || h == 0 {
+            return Ok(out);
+        }
+        let Some(region) = region else {
+            self.detect_window(&img.data, w, h, 0, 0, &mut out);
+            finish(&mut out);
+            return Ok(out);
+        };
+        if ![region.x, region.y, region.w, region.h]
+            .iter()
+            .all(|v| v.is_finite())
+            || region.w < 0.0
+            || region.h < 0.0
+        {
+            return Err(FeatureError::BadRegion(format!(
+                "{},{},{},{}",
+                region.x, region.y, region.w, region.h
+            )));
+        }
+        let margin = f64::from(self.params.region_margin.max(0.0));
+        const ALIGN: i64 = 8;
+        let x0 = ((region.x - margin).floor() as i64).max(0);
+        let y0 = ((region.y - margin).floor() as i64).max(0);
+        let x0 = x0 - x0 % ALIGN;
+        let y0 = y0 - y0 % ALIGN;
+        let x1 = ((region.x + region.w + margin).ceil() as i64 + 1).min(w as i64);
+        let y1 = ((region.y + region.h + margin).ceil() as i64 + 1).min(h as i64);
+        if x1 <= x0 || y1 <= y0 {
+            return Ok(out);
+        }
+        let (cw, ch) = ((x1 - x0) as usize, (y1 - y0) as usize);
+        let (x0, y0) = (x0 as usize, y0 as usize);
+        let mut crop = Vec::with_capacity(cw * ch);
+        for y in y0..y0 + ch {
+            crop.extend_from_slice(&img.data[y * w + x0..y * w + x0 + cw]);
+        }
+        self.detect_window(&crop, cw, ch, x0, y0, &mut out);
+        // Keep keypoints inside the region.
+        let inside = |k: &Keypoint| {
+            let (x, y) = (f64::from(k.x), f64::from(k.y));
+            x >= region.x && x <= region.x + region.w && y >= region.y && y <= region.y + region.h
+        };
+        let mut kept = Features::default();
+        for (k, d) in out.keypoints.iter().zip(&out.descriptors) {
+            if inside(k) {
+                kept.keypoints.push(*k);
+                kept.descriptors.push(*d);
+            }
+        }
+        finish(&mut kept);
+        Ok(kept)
+    }
+
+    fn check_params(&self) -> Result<(), FeatureError> {
+        let p = &self.params;
+        let ok = p.n_octave_layers >= 1
+            && p.n_octave_layers <= 16
+            && p.sigma.is_finite()
+            && p.sigma > 0.0
+            && p.contrast_threshold.is_finite()
+            && p.contrast_threshold >= 0.0
+            && p.edge_threshold.is_finite()
+            && p.edge_threshold > 0.0
+            && p.input_sigma.is_finite()
+            && p.input_sigma >= 0.0
+            && p.region_margin.is_finite();
+        if ok {
+            Ok(())
+        } else {
+            Err(FeatureError::BadParams(format!("{p:?}")))
+        }
+    }
+
+    /// Runs SIFT on a `w x h` window whose top-left pixel is `(ox, oy)` in the full image,
+    /// appending keypoints in full-image coordinates.
+    fn detect_window(
+        &self,
+        data: &[f32],
+        w: usize,
+        h: usize,
+        ox: usize,
+        oy: usize,
+        out: &mut Features,
+    ) {
+        #[cfg(target_arch = "x86_64")]
+        if std::arch::is_x86_feature_detected!("avx2") {
+            // SAFETY: the CPU supports AVX2 (checked just above), the only requirement of
+            // calling a function compiled with that target feature.
+            unsafe { self.detect_window_avx2(data, w, h, ox, oy, out) };
+            return;
+        }
+        self.detect_window_impl(data, w, h, ox, oy, out);
+    }
+
+    /// [`Self::detect_window_impl`] compiled for AVX2 (8-wide blurs, extrema tests and
+    /// descriptor maths). Rust never fuses multiply-adds on its own, so the results are
+    /// bit-identical to the baseline build.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    fn detect_window_avx2(
+        &self,
+        data: &[f32],
+        w: usize,
+        h: usize,
+        ox: usize,
+        oy: usize,
+        out: &mut Features,
+    ) {
+        self.detect_window_impl(data, w, h, ox, oy, out);
+    }
+
+    #[inline(always)]
+    fn detect_window_impl(
+        &self,
+        data: &[f32],
+        w: usize,
+        h: usize,
+        ox: usize,
+        oy: usize,
+        out: &mut Features,
+    ) {
+        let mut scratch = BlurScratch {
+            tmp: take_buf(0),
+            row: Vec::new(),
+        };
+        let octaves = self.build_pyramid(data, w, h, &mut scratch);
+        recycle(scratch.tmp);
+        let n = self.params.n_octave_layers;
+        // Factor from octave 0 coordinates to input coordinates.
+        let base_factor = if self.params.upsample { 0.5 } else { 1.0 };
+        let mut grad = GradScratch::default();
+        for (o, oct) in octaves.iter().enumerate() {
+            let factor = base_factor * (1u32 << o) as f32;
+            let octave_id = o as i32 - i32::from(self.params.upsample);
+            // Plain loops, not closures, so the code inlines into the AVX2 build.
+            let mut mx = Vec::with_capacity(oct.dog.len());
+            let mut mn = Vec::with_capacity(oct.dog.len());
+            for d in &oct.dog {
+                let (a, b) = max_min_3x3(d, oct.w, oct.h);
+                mx.push(a);
+                mn.push(b);
+            }
+            let mut candidates = Vec::new();
+            for layer in 1..=n {
+                candidates.clear();
+                self.find_extrema(oct, &mx, &mn, layer, &mut candidates);
+                let candidates = &candidates;
+                for &(r, c) in candidates {
+                    let Some(e) = self.refine(oct, r, c, layer) else {
+                        continue;
+                    };
+                    let sigma_oct =
+                        self.params.sigma * 2f32.powf((e.layer as f32 + e.xi) / n as f32);
+                    let img = &oct.gauss[e.layer];
+                    let xo = e.c as f32 + e.xc;
+                    let yo = e.r as f32 + e.xr;
+                    let mut angles = [0f32; ORI_BINS];
+                    let na = orientations(img, oct.w, oct.h, e.c, e.r, sigma_oct, &mut angles);
+                    for &angle in &angles[..na] {
+                        let desc =
+                            descriptor(img, oct.w, oct.h, xo, yo, sigma_oct, angle, &mut grad);
+                        out.keypoints.push(Keypoint {
+                            x: xo * factor + ox as f32,
+                            y: yo * factor + oy as f32,
+                            scale: sigma_oct * factor,
+                            angle,
+                            response: e.response,
+                            octave: octave_id,
+                        });
+                        out.descriptors.push(desc);
+                    }
+                }
+            }
+            mx.into_iter().chain(mn).for_each(recycle);
+        }
+        for oct in octaves {
+            oct.gauss.into_iter().chain(oct.dog).for_each(recycle);
+        }
+    }
+
+    /// Builds the Gaussian and DoG pyramids of a `w x h` image.
+    #[inline(always)]
+    fn build_pyramid(
+        &self,
+        data: &[f32],
+        w: usize,
+        h: usize,
+        scratch: &mut BlurScratch,
+    ) -> Vec<Octave> {
+        let n = self.params.n_octave_layers;
+        let (mut base, bw, bh) = if self.params.upsample {
+            upsample2(data, w, h)
+        } else {
+            let mut v = take_buf(w * h);
+            v.copy_from_slice(data);
+            (v, w, h)
+        };
+        let min_dim = 2 * IMG_BORDER + 1;
+        if bw.min(bh) < min_dim {
+            return Vec::new();
+        }
+        // OpenCV's octave count: round(log2(min side of the base) - 2), plus one for the
+        // doubled octave; octaves too small to hold an extremum are not built.
+        let mut n_oct = ((bw.min(bh) as f64).log2() - 2.0).round().max(1.0) as usize
+            + usize::from(self.params.upsample);
+        if let Some(m) = self.params.max_octaves {
+            n_oct = n_oct.min(m);
+        }
+        let mut octaves: Vec<Octave> = Vec::with_capacity(n_oct);
+        let mut blurred = take_buf(bw * bh);
+        blur(&base, &mut blurred, bw, bh, &self.base_kernel, scratch);
+        recycle(std::mem::replace(&mut base, blurred));
+        let (mut ow, mut oh) = (bw, bh);
+        for o in 0..n_oct {
+            if o > 0 {
+                let prev = &octaves[o - 1];
+                let (nw, nh) = (prev.w / 2, prev.h / 2);
+                if nw.min(nh) < min_dim {
+                    break;
+                }
+                base = downsample2(&prev.gauss[n], prev.w, nw, nh);
+                ow = nw;
+                oh = nh;
+            }
+            let mut gauss = Vec::with_capacity(n + 3);
+            gauss.push(std::mem::take(&mut base));
+            for i in 1..n + 3 {
+                let mut next = take_buf(ow * oh);
+                blur(
+                    &gauss[i - 1],
+                    &mut next,
+                    ow,
+                    oh,
+                    &self.layer_kernels[i],
+                    scratch,
+                );
+                gauss.push(next);
+            }
+            let mut dog = Vec::with_capacity(n + 2);
+            for p in gauss.windows(2) {
+                let mut d = take_buf(ow * oh);
+                for ((d, b), a) in d.iter_mut().zip(&p[1]).zip(&p[0]) {
+                    *d = b - a;
+                }
+                dog.push(d);
+            }
+            octaves.push(Octave {
+                w: ow,
+                h: oh,
+                gauss,
+                dog,
+            });
+        }
+        octaves
+    }
+
+    /// Local extrema of DoG layer `layer` over its 26 neighbours (`≥` all for a maximum,
+    /// `≤` all for a minimum), above the prefilter threshold (half the final contrast
+    /// threshold). `mx` and `mn` are the 3x3 maxima and minima of each DoG layer.
+    #[inline(always)]
+    fn find_extrema(
+        &self,
+        oct: &Octave,
+        mx: &[Vec<f32>],
+        mn: &[Vec<f32>],
+        layer: usize,
+        out: &mut Vec<(usize, usize)>,
+    ) {
+        let (w, h) = (oct.w, oct.h);
+        if w <= 2 * IMG_BORDER || h <= 2 * IMG_BORDER {
+            return;
+        }
+        let thr = 0.5 * self.params.contrast_threshold / self.params.n_octave_layers as f32;
+        let cur = &oct.dog[layer];
+        let (ma, mb, mc) = (&mx[layer - 1], &mx[layer], &mx[layer + 1]);
+        let (na, nb, nc) = (&mn[layer - 1], &mn[layer], &mn[layer + 1]);
+        let len = w - 2 * IMG_BORDER;
+        let mut flags = vec![0u8; len];
+        for r in IMG_BORDER..h - IMG_BORDER {
+            let s = r * w + IMG_BORDER;
+            let (v, ma, mb, mc) = (
+                &cur[s..s + len],
+                &ma[s..s + len],
+                &mb[s..s + len],
+                &mc[s..s + len],
+            );
+            let (na, nb, nc) = (&na[s..s + len], &nb[s..s + len], &nc[s..s + len]);
+            // Branch-free tests (vectorised): the 3x3 maxima include the centre itself.
+            for k in 0..len {
+                let x = v[k];
+                let is_max = (x > thr) & (x >= ma[k]) & (x >= mb[k]) & (x >= mc[k]);
+                let is_min = (x < -thr) & (x <= na[k]) & (x <= nb[k]) & (x <= nc[k]);
+                flags[k] = u8::from(is_max | is_min);
+            }
+            for (k, _) in flags.iter().enumerate().filter(|(_, f)| **f != 0) {
+                out.push((r, IMG_BORDER + k));
+            }
+        }
+    }
+
+    /// Sub-pixel/scale refinement by a quadratic fit (up to 5 steps), then contrast and
+    /// edge rejection.
+    fn refine(&self, oct: &Octave, r0: usize, c0: usize, layer0: usize) -> Option<Extremum> {
+        let n = self.params.n_octave_layers;
+        let (w, h) = (oct.w, oct.h);
+        let (mut r, mut c, mut layer) = (r0 as i64, c0 as i64, layer0 as i64);
+        let mut x = [0f32; 3];
+        let mut converged = false;
+        for _ in 0..MAX_INTERP_STEPS {
+            let (g, hm) = derivatives(oct, r as usize, c as usize, layer as usize);
+            x = solve3(&hm, &g)?;
+            if x.iter().all(|v| v.abs() < 0.5) {
+                converged = true;
+                break;
+            }
+            if x.iter().any(|v| v.abs() > (i32::MAX / 3) as f32) {
+                return None;
+            }
+            c += x[0].round() as i64;
+            r += x[1].round() as i64;
+            layer += x[2].round() as i64;
+            let b = IMG_BORDER as i64;
+            if layer < 1
+                || layer > n as i64
+                || c < b
+                || c >= w as i64 - b
+                || r < b
+                || r >= h as i64 - b
+            {
+                return None;
+            }
+        }
+        if !converged {
+            return None;
+        }
+        let (r, c, layer) = (r as usize, c as usize, layer as usize);
+        let (g, hm) = derivatives(oct, r, c, layer);
+        let v = oct.dog[layer][r * w + c];
+        let contr = v + 0.5 * (g[0] * x[0] + g[1] * x[1] + g[2] * x[2]);
+        if contr.abs() * (n as f32) < self.params.contrast_threshold {
+            return None;
+        }
+        let (dxx, dyy, dxy) = (hm[0][0], hm[1][1], hm[0][1]);
+        let tr = dxx + dyy;
+        let det = dxx * dyy - dxy * dxy;
+        let e = self.params.edge_threshold;
+        if det <= 0.0 || tr * tr * e >= (e + 1.0) * (e + 1.0) * det {
+            return None;
+        }
+        Some(Extremum {
+            r,
+            c,
+            layer,
+            xr: x[1],
+            xc: x[0],
+            xi: x[2],
+            response: contr.abs(),
+        })
+    }
+}
+
+/// Sorts keypoints (with their descriptors) into a canonical order and removes exact
+/// duplicates (two candidates refined to the same point).
+fn finish(f: &mut Features) {
+    let mut idx: Vec<usize> = (0..f.keypoints.len()).collect();
+    let key = |k: &Keypoint| [k.y, k.x, k.scale, k.angle];
+    idx.sort_by(|&a, &b| {
+        let (ka, kb) = (key(&f.keypoints[a]), key(&f.keypoints[b]));
+        ka.iter()
+            .zip(&kb)
+            .map(|(x, y)| x.total_cmp(y))
+            .find(|o| o.is_ne())
+            .unwrap_or(std::cmp::Ordering::Equal)
+    });
+    let mut kps = Vec::with_capacity(idx.len());
+    let mut descs = Vec::with_capacity(idx.len());
+    for i in idx {
+        let k = f.keypoints[i];
+        if kps.last().is_some_and(|p: &Keypoint| key(p) == key(&k)) {
+            continue;
+        }
+        kps.push(k);
+        descs.push(f.descriptors[i]);
+    }
+    f.keypoints = kps;
+    f.descriptors = descs;
+}
+
+/// `a > b ? a : b` (compiles to `maxps`).
+#[inline(always)]
+fn fmax(a: f32, b: f32) -> f32 {
+    if a > b { a } else { b }
+}
+
+/// `a < b ? a : b` (compiles to `minps`).
+#[inline(always)]
+fn fmin(a: f32, b: f32) -> f32 {
+    if a < b { a } else { b }
+}
+
+/// Maximum and minimum over each pixel's 3x3 neighbourhood (separable). The outermost rows
+/// and columns of the results are unspecified: extrema are never searched there.
+#[inline(always)]
+fn max_min_3x3(src: &[f32], w: usize, h: usize) -> (Vec<f32>, Vec<f32>) {
+    let mut hmax = take_buf(src.len());
+    let mut hmin = take_buf(src.len());
+    if w >= 3 {
+        for y in 0..h {
+            let r = &src[y * w..(y + 1) * w];
+            let (om, on) = (
+                &mut hmax[y * w + 1..(y + 1) * w - 1],
+                &mut hmin[y * w + 1..(y + 1) * w - 1],
+            );
+            for (((a, b), c), (m, n)) in r
+                .iter()
+                .zip(&r[1..])
+                .zip(&r[2..])
+                .zip(om.iter_mut().zip(on.iter_mut()))
+            {
+                *m = fmax(fmax(*a, *b), *c);
+                *n = fmin(fmin(*a, *b), *c);
+            }
+        }
+    }
+    let mut vmax = take_buf(src.len());
+    let mut vmin = take_buf(src.len());
+    for y in 1..h.saturating_sub(1) {
+        let (a, b, c) = (
+            &hmax[(y - 1) * w..y * w],
+            &hmax[y * w..(y + 1) * w],
+            &hmax[(y + 1) * w..(y + 2) * w],
+        );
+        for (((o, a), b), c) in vmax[y * w..(y + 1) * w].iter_mut().zip(a).zip(b).zip(c) {
+            *o = fmax(fmax(*a, *b), *c);
+        }
+        let (a, b, c) = (
+            &hmin[(y - 1) * w..y * w],
+            &hmin[y * w..(y + 1) * w],
+            &hmin[(y + 1) * w..(y + 2) * w],
+        );
+        for (((o, a), b), c) in vmin[y * w..(y + 1) * w].iter_mut().zip(a).zip(b).zip(c) {
+            *o = fmin(fmin(*a, *b), *c);
+        }
+    }
+    recycle(hmax);
+    recycle(hmin);
+    (vmax, vmin)
+}
+
+/// Gradient `(dx, dy, ds)` and Hessian of the DoG at an integer position.
+fn derivatives(oct: &Octave, r: usize, c: usize, layer: usize) -> ([f32; 3], [[f32; 3]; 3]) {
+    let w = oct.w;
+    let i = r * w + c;
+    let (p, cu, n) = (&oct.dog[layer - 1], &oct.dog[layer], &oct.dog[layer + 1]);
+    let v2 = 2.0 * cu[i];
+    let g = [
+        (cu[i + 1] - cu[i - 1]) * 0.5,
+        (cu[i + w] - cu[i - w]) * 0.5,
+        (n[i] - p[i]) * 0.5,
+    ];
+    let dxx = cu[i + 1] + cu[i - 1] - v2;
+    let dyy = cu[i + w] + cu[i - w] - v2;
+    let dss = n[i] + p[i] - v2;
+    let dxy = (cu[i + w + 1] - cu[i + w - 1] - cu[i - w + 1] + cu[i - w - 1]) * 0.25;
+    let dxs = (n[i + 1] - n[i - 1] - p[i + 1] + p[i - 1]) * 0.25;
+    let dys = (n[i + w] - n[i - w] - p[i + w] + p[i - w]) * 0.25;
+    (g, [[dxx, dxy, dxs], [dxy, dyy, dys], [dxs, dys, dss]])
+}
+
+/// Solves `H x = -g` for a symmetric 3x3 `H` (Cramer's rule in f64); `None` if singular.
+fn solve3(hm: &[[f32; 3]; 3], g: &[f32; 3]) -> Option<[f32; 3]> {
+    let a: [[f64; 3]; 3] = hm.map(|r| r.map(f64::from));
+    let b = g.map(|v| -f64::from(v));
+    let det3 = |m: &[[f64; 3]; 3]| {
+        m[0][0] * (m[1][1] * m[2][2] - m[1][2] * m[2][1])
+            - m[0][1] * (m[1][0] * m[2][2] - m[1][2] * m[2][0])
+            + m[0][2] * (m[1][0] * m[2][1] - m[1][1] * m[2][0])
+    };
+    let d = det3(&a);
+    if !d.is_finite() || d.abs() < 1e-30 {
+        return None;
+    }
+    let mut x = [0f32; 3];
+    for (k, xk) in x.iter_mut().enumerate() {
+        let mut m = a;
+        for row in 0..3 {
+            m[row][k] = b[row];
+        }
+        *xk = (det3(&m) / d) as f32;
+    }
+    x.iter().all(|v| v.is_finite()).then_some(x)
+}
+
+/// Reflect-101 border index (`-1 → 1`, `n → n - 2`), for any offset.
+#[inline]
+fn reflect101(mut i: isize, n: usize) -> usize {
+    if n == 1 {
+        return 0;
+    }
+    let n = n as isize;
+    loop {
+        if i < 0 {
+            i = -i;
+        } else if i >= n {
+            i = 2 * (n - 1) - i;
+        } else {
+            return i as usize;
+        }
+    }
+}
+
+/// Separable Gaussian blur of a `w x h` image with reflect-101 borders.
+#[inline(always)]
+fn blur(src: &[f32], dst: &mut [f32], w: usize, h: usize, k: &Kernel, s: &mut BlurScratch) {
+    let r = k.radius();
+    let k0 = k.half[0];
+    s.tmp.resize(w * h, 0.0);
+    s.row.resize(w + 2 * r, 0.0);
+    // Horizontal pass into tmp.
+    for y in 0..h {
+        let srow = &src[y * w..(y + 1) * w];
+        let row = &mut s.row;
+        row[r..r + w].copy_from_slice(srow);
+        for i in 1..=r {
+            row[r - i] = srow[reflect101(-(i as isize), w)];
+            row[r + w - 1 + i] = srow[reflect101((w - 1 + i) as isize, w)];
+        }
+        let out = &mut s.tmp[y * w..(y + 1) * w];
+        for (o, v) in out.iter_mut().zip(&row[r..r + w]) {
+            *o = k0 * v;
+        }
+        for i in 1..=r {
+            let ki = k.half[i];
+            let a = &row[r - i..r - i + w];
+            let b = &row[r + i..r + i + w];
+            for ((o, x), y) in out.iter_mut().zip(a).zip(b) {
+                *o += ki * (x + y);
+            }
+        }
+    }
+    // Vertical pass into dst.
+    let tmp = &s.tmp;
+    for y in 0..h {
+        let out = &mut dst[y * w..(y + 1) * w];
+        for (o, v) in out.iter_mut().zip(&tmp[y * w..(y + 1) * w]) {
+            *o = k0 * v;
+        }
+        for i in 1..=r {
+            let ki = k.half[i];
+            let ya = reflect101(y as isize - i as isize, h);
+            let yb = reflect101((y + i) as isize, h);
+            let a = &tmp[ya * w..(ya + 1) * w];
+            let b = &tmp[yb * w..(yb + 1) * w];
+            for ((o, x), y) in out.iter_mut().zip(a).zip(b) {
+                *o += ki * (x + y);
+            }
+        }
+    }
+}
+
+/// Doubles an image: even pixels are the input's, odd ones the average of their two (or
+/// four) neighbours, the last row and column replicate the edge. Pixel `u` of the result
+/// is at `u / 2` in the input.
+fn upsample2(src: &[f32], w: usize, h: usize) -> (Vec<f32>, usize, usize) {
+    let (w2, h2) = (2 * w, 2 * h);
+    let mut out = take_buf(w2 * h2);
+    // Horizontal doubling of each input row into the even output rows.
+    for y in 0..h {
+        let s = &src[y * w..(y + 1) * w];
+        let o = &mut out[2 * y * w2..(2 * y + 1) * w2];
+        for x in 0..w {
+            let nx = s[(x + 1).min(w - 1)];
+            o[2 * x] = s[x];
+            o[2 * x + 1] = 0.5 * (s[x] + nx);
+        }
+    }
+    // Odd rows: average of the even rows around them.
+    for y in 0..h {
+        let yn = (y + 1).min(h - 1);
+        let (head, tail) = out.split_at_mut((2 * y + 1) * w2);
+        let a = &head[2 * y * w2..(2 * y + 1) * w2];
+        let (odd, rest) = tail.split_at_mut(w2);
+        let b: &[f32] = if yn == y { a } else { &rest[..w2] };
+        for ((o, p), q) in odd.iter_mut().zip(a).zip(b) {
+            *o = 0.5 * (p + q);
+        }
+    }
+    (out, w2, h2)
+}
+
+/// Every other pixel of a `w`-wide image, giving `nw x nh`.
+fn downsample2(src: &[f32], w: usize, nw: usize, nh: usize) -> Vec<f32> {
+    let mut out = take_buf(nw * nh);
+    for (y, o) in out.chunks_exact_mut(nw.max(1)).enumerate() {
+        let row = &src[2 * y * w..];
+        for (x, v) in o.iter_mut().enumerate() {
+            *v = row[2 * x];
+        }
+    }
+    out
+}
+
+/// Polynomial arctangent (Abramowitz & Stegun 4.4.49, |error| < 1e-5 rad) as `atan2(y, x)`
+/// mapped to `[0, 2π]`; written without branches so loops over it vectorise.
+#[inline]
+pub(crate) fn fast_atan2(y: f32, x: f32) -> f32 {
+    let ax = x.abs();
+    let ay = y.abs();
+    let mx = ax.max(ay);
+    let mn = ax.min(ay);
+    let z = mn / (mx + f32::MIN_POSITIVE);
+    let z2 = z * z;
+    let mut a = z
+        * (0.999_866
+            + z2 * (-0.330_299_5 + z2 * (0.180_141 + z2 * (-0.085_133 + z2 * 0.020_835_1))));
+    a = if ay > ax { PI / 2.0 - a } else { a };
+    a = if x < 0.0 { PI - a } else { a };
+    if y < 0.0 { TAU - a } else { a }
+}
+
+/// Dominant orientations at integer position `(c, r)` of `img`: a 36-bin histogram of
+/// gradient directions weighted by magnitude and a Gaussian of σ = 1.5 · `sigma`, smoothed
+/// with `[1 4 6 4 1] / 16`; every local peak ≥ 0.8 of the maximum gives an angle (parabolic
+/// interpolation). Returns how many angles were written.
+#[inline(always)]
+fn orientations(
+    img: &[f32],
+    w: usize,
+    h: usize,
+    c: usize,
+    r: usize,
+    sigma: f32,
+    out: &mut [f32; ORI_BINS],
+) -> usize {
+    let radius = (ORI_RADIUS * sigma).round() as isize;
+    let sw = ORI_SIG_FCTR * sigma;
+    let scale = -1.0 / (2.0 * sw * sw);
+    let mut hist = [0f32; ORI_BINS];
+    let gw: Vec<f32> = (-radius..=radius)
+        .map(|i| ((i * i) as f32 * scale).exp())
+        .collect();
+    let bins_per_rad = ORI_BINS as f32 / TAU;
+    for i in -radius..=radius {
+        let y = r as isize + i;
+        if y <= 0 || y >= h as isize - 1 {
+            continue;
+        }
+        let y = y as usize;
+        let wy = gw[(i + radius) as usize];
+        let x_lo = (c as isize - radius).max(1) as usize;
+        let x_hi = ((c as isize + radius).min(w as isize - 2)) as usize;
+        for x in x_lo..=x_hi {
+            let gx = img[y * w + x + 1] - img[y * w + x - 1];
+            let gy = img[(y + 1) * w + x] - img[(y - 1) * w + x];
+            let mag = (gx * gx + gy * gy).sqrt();
+            let ori = fast_atan2(gy, gx);
+            let mut bin = (ori * bins_per_rad + 0.5) as usize;
+            if bin >= ORI_BINS {
+                bin -= ORI_BINS;
+            }
+            let wx = gw[(x as isize - c as isize + radius) as usize];
+            hist[bin] += wy * wx * mag;
+        }
+    }
+    // Circular smoothing.
+    let n = ORI_BINS;
+    let mut sm = [0f32; ORI_BINS];
+    for (i, s) in sm.iter_mut().enumerate() {
+        let at = |d: isize| hist[(i as isize + d).rem_euclid(n as isize) as usize];
+        *s = (at(-2) + at(2)) * (1.0 / 16.0)
+            + (at(-1) + at(1)) * (4.0 / 16.0)
+            + at(0) * (6.0 / 16.0);
+    }
+    let max = sm.iter().cloned().fold(0f32, f32::max);
+    if max <= 0.0 {
+        return 0;
+    }
+    let thr = max * ORI_PEAK_RATIO;
+    let mut count = 0;
+    for j in 0..n {
+        let l = sm[(j + n - 1) % n];
+        let rr = sm[(j + 1) % n];
+        let v = sm[j];
+        if v > l && v > rr && v >= thr {
+            let mut bin = j as f32 + 0.5 * (l - rr) / (l - 2.0 * v + rr);
+            if bin < 0.0 {
+                bin += n as f32;
+            } else if bin >= n as f32 {
+                bin -= n as f32;
+            }
+            let mut a = bin * (TAU / n as f32);
+            if a >= TAU - 1e-6 {
+                a = 0.0;
+            }
+            out[count] = a;
+            count += 1;
+        }
+    }
+    count
+}
+
+/// Scratch of the descriptor's sample gathering.
+#[derive(Default)]
+struct GradScratch {
+    gx: Vec<f32>,
+    gy: Vec<f32>,
+    rbin: Vec<f32>,
+    cbin: Vec<f32>,
+    wgt: Vec<f32>,
+    mag: Vec<f32>,
+    obin: Vec<f32>,
+}
+
+/// The interval of `t` where `lo < a + b·t < hi` (open), as `(min, max)`; empty when
+/// `min > max`.
+#[inline]
+fn linear_interval(a: f32, b: f32, lo: f32, hi: f32) -> (f32, f32) {
+    if b.abs() < 1e-12 {
+        if a > lo && a < hi {
+            (f32::NEG_INFINITY, f32::INFINITY)
+        } else {
+            (1.0, -1.0)
+        }
+    } else {
+        let (t0, t1) = ((lo - a) / b, (hi - a) / b);
+        (t0.min(t1), t0.max(t1))
+    }
+}
+
+/// The 128-d descriptor of a keypoint at sub-pixel `(xo, yo)` of `img` (octave
+/// coordinates), σ `sigma` (octave pixels), orientation `angle`.
+///
+/// Samples are the interior pixels whose rotated position falls inside the 4x4 cell grid
+/// grown by one cell (each contributes trilinearly to up to 8 bins); the per-row range of
+/// such pixels is computed analytically, so no sample is visited in vain.
+#[allow(clippy::too_many_arguments)]
+#[inline(always)]
+fn descriptor(
+    img: &[f32],
+    w: usize,
+    h: usize,
+    xo: f32,
+    yo: f32,
+    sigma: f32,
+    angle: f32,
+    s: &mut GradScratch,
+) -> [u8; DESCRIPTOR_LEN] {
+    let d = DESCR_WIDTH;
+    let nb = DESCR_BINS;
+    let df = d as f32;
+    let hist_width = DESCR_SCL_FCTR * sigma;
+    let diag = ((w * w + h * h) as f32).sqrt();
+    let radius = (hist_width * std::f32::consts::SQRT_2 * (df + 1.0) * 0.5)
+        .round()
+        .min(diag) as isize;
+    let (sin_t, cos_t) = angle.sin_cos();
+    let (cos_t, sin_t) = (cos_t / hist_width, sin_t / hist_width);
+    let ci = xo.round() as isize;
+    let ri = yo.round() as isize;
+    // Gaussian window, σ = d / 2 cells: separable in the (unrotated) offsets.
+    let exp_scale = -1.0 / (0.5 * df * df * hist_width * hist_width);
+    let half_d = df / 2.0 - 0.5;
+    s.gx.clear();
+    s.gy.clear();
+    s.rbin.clear();
+    s.cbin.clear();
+    s.wgt.clear();
+    let x_min = (ci - radius).max(1);
+    let x_max = (ci + radius).min(w as isize - 2);
+    if x_min > x_max {
+        return [0; DESCRIPTOR_LEN];
+    }
+    let wx: Vec<f32> = (x_min..=x_max)
+        .map(|x| {
+            let dx = x as f32 - xo;
+            (dx * dx * exp_scale).exp()
+        })
+        .collect();
+    // Shrink the open bin interval (-1, d) a hair so rounding never puts a sample outside.
+    let (lo, hi) = (-1.0 + 1e-4, df - 1e-4);
+    for y in (ri - radius).max(1)..=(ri + radius).min(h as isize - 2) {
+        let dy = y as f32 - yo;
+        // cbin = half_d + dy·sin + dx·cos, rbin = half_d + dy·cos - dx·sin, linear in dx.
+        let (c0, c1) = linear_interval(half_d + dy * sin_t, cos_t, lo, hi);
+        let (r0, r1) = linear_interval(half_d + dy * cos_t, -sin_t, lo, hi);
+        let dx_lo = c0.max(r0);
+        let dx_hi = c1.min(r1);
+        if dx_lo > dx_hi {
+            continue;
+        }
+        let xa = ((xo + dx_lo).ceil() as isize).max(x_min);
+        let xb = ((xo + dx_hi).floor() as isize).min(x_max);
+        if xa > xb {
+            continue;
+        }
+        let wy = (dy * dy * exp_scale).exp();
+        let yu = y as usize;
+        let row = &img[yu * w..(yu + 1) * w];
+        let up = &img[(yu - 1) * w..yu * w];
+        let down = &img[(yu + 1) * w..(yu + 2) * w];
+        let cb0 = half_d + dy * sin_t;
+        let rb0 = half_d + dy * cos_t;
+        for x in xa..=xb {
+            let dx = x as f32 - xo;
+            let xu = x as usize;
+            s.gx.push(row[xu + 1] - row[xu - 1]);
+            s.gy.push(down[xu] - up[xu]);
+            s.cbin.push((cb0 + dx * cos_t).clamp(lo, hi));
+            s.rbin.push((rb0 - dx * sin_t).clamp(lo, hi));
+            s.wgt.push(wy * wx[(x - x_min) as usize]);
+        }
+    }
+    // Magnitudes and orientation bins (branch-free, vectorised).
+    let bins_per_rad = nb as f32 / TAU;
+    let nbf = nb as f32;
+    let len = s.gx.len();
+    s.mag.resize(len, 0.0);
+    s.obin.resize(len, 0.0);
+    {
+        // Index loops over equal-length slices (no closures, so this inlines into the
+        // AVX2 build and vectorises).
+        let (gxs, gys, wgs) = (&s.gx[..len], &s.gy[..len], &s.wgt[..len]);
+        let (mags, obins) = (&mut s.mag[..len], &mut s.obin[..len]);
+        for k in 0..len {
+            let (gx, gy) = (gxs[k], gys[k]);
+            mags[k] = (gx * gx + gy * gy).sqrt() * wgs[k];
+            let o = (fast_atan2(gy, gx) - angle) * bins_per_rad;
+            let o = if o < 0.0 { o + nbf } else { o };
+            obins[k] = if o >= nbf { o - nbf } else { o };
+        }
+    }
+    // Trilinear accumulation; one cell of padding on each spatial side.
+    let mut hist = [0f32; (DESCR_WIDTH + 2) * (DESCR_WIDTH + 2) * DESCR_BINS];
+    for k in 0..s.mag.len() {
+        let mag = s.mag[k];
+        let (rbin, cbin, obin) = (s.rbin[k], s.cbin[k], s.obin[k]);
+        // Bins are > -1, so truncation of bin + 1 is floor + 1.
+        let r0 = (rbin + 1.0) as usize;
+        let c0 = (cbin + 1.0) as usize;
+        let o0 = (obin as usize).min(nb - 1);
+        let fr = rbin + 1.0 - r0 as f32;
+        let fc = cbin + 1.0 - c0 as f32;
+        let fo = obin - o0 as f32;
+        let o1 = if o0 + 1 == nb { 0 } else { o0 + 1 };
+        let v_r1 = mag * fr;
+        let v_r0 = mag - v_r1;
+        for (rr, vr) in [(r0, v_r0), (r0 + 1, v_r1)] {
+            let v_c1 = vr * fc;
+            let v_c0 = vr - v_c1;
+            for (cc, vc) in [(c0, v_c0), (c0 + 1, v_c1)] {
+                let v_o1 = vc * fo;
+                let base = (rr * (d + 2) + cc) * nb;
+                hist[base + o0] += vc - v_o1;
+                hist[base + o1] += v_o1;
+            }
+        }
+    }
+    let mut v = [0f32; DESCRIPTOR_LEN];
+    for i in 0..d {
+        for j in 0..d {
+            let base = ((i + 1) * (d + 2) + (j + 1)) * nb;
+            v[(i * d + j) * nb..(i * d + j + 1) * nb].copy_from_slice(&hist[base..base + nb]);
+        }
+    }
+    let norm = v.iter().map(|x| x * x).sum::<f32>().sqrt();
+    let thr = norm * DESCR_MAG_THR;
+    for x in &mut v {
+        *x = x.min(thr);
+    }
+    let norm2 = v.iter().map(|x| x * x).sum::<f32>().sqrt();
+    let f = DESCR_INT_FCTR / norm2.max(f32::EPSILON);
+    v.map(|x| (x * f + 0.5).min(255.0) as u8)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn reflect101_maps_out_of_range() {
+        assert_eq!(reflect101(-1, 5), 1);
+        assert_eq!(reflect101(-2, 5), 2);
+        assert_eq!(reflect101(5, 5), 3);
+        assert_eq!(reflect101(6, 5), 2);
+        assert_eq!(reflect101(-7, 3), 1);
+        assert_eq!(reflect101(9, 1), 0);
+        for i in -20..20 {
+            assert!(reflect101(i, 2) < 2);
+        }
+    }
+
+    #[test]
+    fn kernel_is_normalised_and_blur_preserves_constants() {
+        let k = Kernel::gaussian(1.6);
+        let sum = k.half[0] + 2.0 * k.half[1..].iter().sum::<f32>();
+        assert!((sum - 1.0).abs() < 1e-6);
+        assert_eq!(k.radius(), 7); // round(8 * 1.6 + 1) | 1 = 15 taps
+    }
+
+    #[test]
+    fn blur_matches_direct_convolution() {
+        let (w, h) = (13, 7);
+        let src: Vec<f32> = (0..w * h).map(|i| ((i * 37 % 11) as f32) / 11.0).collect();
+        let k = Kernel::gaussian(1.2);
+        let mut dst = vec![0f32; w * h];
+        blur(&src, &mut dst, w, h, &k, &mut BlurScratch::default());
+        let r = k.radius() as isize;
+        for y in 0..h {
+            for x in 0..w {
+                let mut acc = 0f64;
+                for i in -r..=r {
+                    for j in -r..=r {
+                        let yy = reflect101(y as isize + i, h);
+                        let xx = reflect101(x as isize + j, w);
+                        acc += f64::from(k.half[i.unsigned_abs()] * k.half[j.unsigned_abs()])
+                            * f64::from(src[yy * w + xx]);
+                    }
+                }
+                assert!((acc as f32 - dst[y * w + x]).abs() < 1e-5, "{x},{y}");
+            }
+        }
+    }
+
+    #[test]
+    fn upsample_keeps_input_pixels_on_even_positions() {
+        let src = vec![0.0, 1.0, 2.0, 3.0, 4.0, 5.0];
+        let (up, w2, h2) = upsample2(&src, 3, 2);
+        assert_eq!((w2, h2), (6, 4));
+        assert_eq!(up[0], 0.0);
+        assert_eq!(up[2], 1.0);
+        assert_eq!(up[1], 0.5);
+        assert_eq!(up[5], 2.0); // replicated edge
+        assert_eq!(up[2 * w2 + 2], 4.0);
+        assert_eq!(up[w2 + 1], 0.5 * (0.5 + 3.5));
+        assert_eq!(up[3 * w2 + 4], 5.0);
+    }
+
+    #[test]
+    fn max_min_3x3_matches_naive_inside() {
+        let (w, h) = (9, 7);
+        // Stale pool contents must not leak into the interior.
+        recycle(vec![f32::NAN; 200]);
+        let src: Vec<f32> = (0..w * h).map(|i| ((i * 29 % 17) as f32) - 8.0).collect();
+        let (mx, mn) = max_min_3x3(&src, w, h);
+        for y in 1..h - 1 {
+            for x in 1..w - 1 {
+                let nb = (0..9).map(|k| src[(y + k / 3 - 1) * w + x + k % 3 - 1]);
+                let want_max = nb.clone().fold(f32::MIN, f32::max);
+                let want_min = nb.fold(f32::MAX, f32::min);
+                assert_eq!(mx[y * w + x], want_max);
+                assert_eq!(mn[y * w + x], want_min);
+            }
+        }
+    }
+
+    #[test]
+    fn fast_atan2_is_accurate() {
+        for k in 0..720 {
+            let t = k as f32 * TAU / 720.0 + 0.001;
+            let (y, x) = (t.sin() * 3.0, t.cos() * 3.0);
+            let want = y.atan2(x).rem_euclid(TAU);
+            let got = fast_atan2(y, x);
+            let diff = (got - want).abs().min(TAU - (got - want).abs());
+            assert!(diff < 2e-5, "{t}: {got} vs {want}");
+        }
+        assert_eq!(fast_atan2(0.0, 0.0), 0.0);
+    }
+
+    #[test]
+    fn solve3_solves_and_rejects_singular() {
+        let h = [[2.0, 0.5, 0.0], [0.5, 3.0, 0.1], [0.0, 0.1, 1.0]];
+        let x_true = [0.3f32, -0.2, 0.1];
+        let g: [f32; 3] =
+            std::array::from_fn(|i| -(0..3).map(|j| h[i][j] * x_true[j]).sum::<f32>());
+        let x = solve3(&h, &g).unwrap();
+        for i in 0..3 {
+            assert!((x[i] - x_true[i]).abs() < 1e-5);
+        }
+        assert!(solve3(&[[1.0, 1.0, 0.0], [1.0, 1.0, 0.0], [0.0, 0.0, 1.0]], &g).is_none());
+    }
+}
