@@ -159,27 +159,18 @@ const POOL_MAX: usize = 160;
 /// A buffer of `len` values from the thread's pool. Its contents are unspecified (stale
 /// values from an earlier use): every caller overwrites all of it.
 fn take_buf(len: usize) -> Vec<f32> {
-    // Best fit: the smallest buffer that holds `len`, else the largest (grown).
+    // Best fit: the smallest buffer that holds `len` without wasting more than about its
+    // size (a huge buffer would be refilled to capacity on every recycle), else a new one.
     let mut v = POOL.with(|p| {
         let mut p = p.borrow_mut();
-        let mut best: Option<usize> = None;
+        let mut best: Option<(usize, usize)> = None;
         for (i, b) in p.iter().enumerate() {
-            let better = match best {
-                None => true,
-                Some(j) => {
-                    let (cb, cj) = (b.capacity(), p[j].capacity());
-                    if cj >= len {
-                        cb >= len && cb < cj
-                    } else {
-                        cb > cj
-                    }
-                }
-            };
-            if better {
-                best = Some(i);
+            let cap = b.capacity();
+            if cap >= len && cap <= 2 * len + 4096 && best.is_none_or(|(_, c)| cap < c) {
+                best = Some((i, cap));
             }
         }
-        best.map(|i| p.swap_remove(i)).unwrap_or_default()
+        best.map(|(i, _)| p.swap_remove(i)).unwrap_or_default()
     });
     v.truncate(len);
     v.resize(len, 0.0);
@@ -187,14 +178,27 @@ fn take_buf(len: usize) -> Vec<f32> {
 }
 
 /// Returns a buffer to the thread's pool, at its full capacity so that taking it again for
-/// any size up to that never needs to fill it.
+/// any size up to that never needs to fill it. When the pool is full the buffer replaces
+/// the largest one if it is smaller, so the pool follows the sizes in use.
 fn recycle(mut v: Vec<f32>) {
     POOL.with(|p| {
         let mut p = p.borrow_mut();
-        if p.len() < POOL_MAX {
-            v.resize(v.capacity(), 0.0);
-            p.push(v);
+        if p.len() >= POOL_MAX {
+            let Some((i, cap)) = p
+                .iter()
+                .map(Vec::capacity)
+                .enumerate()
+                .max_by_key(|&(_, c)| c)
+            else {
+                return;
+            };
+            if cap <= v.capacity() {
+                return;
+            }
+            p.swap_remove(i);
         }
+        v.resize(v.capacity(), 0.0);
+        p.push(v);
     });
 }
 
