@@ -435,7 +435,16 @@ impl Sift {
                     let xo = e.c as f32 + e.xc;
                     let yo = e.r as f32 + e.xr;
                     let mut angles = [0f32; ORI_BINS];
-                    let na = orientations(img, oct.w, oct.h, e.c, e.r, sigma_oct, &mut angles);
+                    let na = orientations(
+                        img,
+                        oct.w,
+                        oct.h,
+                        e.c,
+                        e.r,
+                        sigma_oct,
+                        &mut angles,
+                        &mut grad,
+                    );
                     for &angle in &angles[..na] {
                         let desc =
                             descriptor(img, oct.w, oct.h, xo, yo, sigma_oct, angle, &mut grad);
@@ -902,6 +911,7 @@ pub(crate) fn fast_atan2(y: f32, x: f32) -> f32 {
 /// gradient directions weighted by magnitude and a Gaussian of σ = 1.5 · `sigma`, smoothed
 /// with `[1 4 6 4 1] / 16`; every local peak ≥ 0.8 of the maximum gives an angle (parabolic
 /// interpolation). Returns how many angles were written.
+#[allow(clippy::too_many_arguments)]
 #[inline(always)]
 fn orientations(
     img: &[f32],
@@ -911,6 +921,7 @@ fn orientations(
     r: usize,
     sigma: f32,
     out: &mut [f32; ORI_BINS],
+    s: &mut GradScratch,
 ) -> usize {
     let radius = (ORI_RADIUS * sigma).round() as isize;
     let sw = ORI_SIG_FCTR * sigma;
@@ -929,17 +940,32 @@ fn orientations(
         let wy = gw[(i + radius) as usize];
         let x_lo = (c as isize - radius).max(1) as usize;
         let x_hi = ((c as isize + radius).min(w as isize - 2)) as usize;
-        for x in x_lo..=x_hi {
-            let gx = img[y * w + x + 1] - img[y * w + x - 1];
-            let gy = img[(y + 1) * w + x] - img[(y - 1) * w + x];
-            let mag = (gx * gx + gy * gy).sqrt();
-            let ori = fast_atan2(gy, gx);
-            let mut bin = (ori * bins_per_rad + 0.5) as usize;
+        if x_lo > x_hi {
+            continue;
+        }
+        // Weighted magnitudes and bins of the row in one vectorised pass, then the scatter.
+        let n = x_hi - x_lo + 1;
+        s.mag.resize(n, 0.0);
+        s.obin.resize(n, 0.0);
+        let left = &img[y * w + x_lo - 1..y * w + x_lo - 1 + n];
+        let right = &img[y * w + x_lo + 1..y * w + x_lo + 1 + n];
+        let up = &img[(y - 1) * w + x_lo..(y - 1) * w + x_lo + n];
+        let down = &img[(y + 1) * w + x_lo..(y + 1) * w + x_lo + n];
+        let g0 = (x_lo as isize - c as isize + radius) as usize;
+        let gwx = &gw[g0..g0 + n];
+        let (mags, bins) = (&mut s.mag[..n], &mut s.obin[..n]);
+        for k in 0..n {
+            let gx = right[k] - left[k];
+            let gy = down[k] - up[k];
+            mags[k] = (gx * gx + gy * gy).sqrt() * gwx[k] * wy;
+            bins[k] = fast_atan2(gy, gx) * bins_per_rad + 0.5;
+        }
+        for (&m, &b) in mags.iter().zip(bins.iter()) {
+            let mut bin = b as usize;
             if bin >= ORI_BINS {
                 bin -= ORI_BINS;
             }
-            let wx = gw[(x as isize - c as isize + radius) as usize];
-            hist[bin] += wy * wx * mag;
+            hist[bin] += m;
         }
     }
     // Circular smoothing.
