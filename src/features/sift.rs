@@ -256,6 +256,12 @@ impl Sift {
         &self.params
     }
 
+    /// Frees the image buffers this thread keeps between [`Sift::detect`] calls (about the
+    /// size of one scale-space pyramid: ~25 images of the doubled input per octave's worth).
+    pub fn release_thread_buffers() {
+        POOL.with(|p| p.borrow_mut().clear());
+    }
+
     /// Detects keypoints and computes their descriptors.
     ///
     /// With `region`, only the region (grown by [`SiftParams::region_margin`], aligned to an
