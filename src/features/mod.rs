@@ -8,7 +8,9 @@
 mod matching;
 mod sift;
 
-pub use matching::{Match, MatchParams, match_features, reject_slope_length};
+pub use matching::{
+    Match, MatchParams, STILL_LENGTH_PX, STILL_RADIUS_PX, match_features, reject_slope_length,
+};
 pub use sift::{DESCRIPTOR_LEN, Sift, SiftParams};
 
 /// A SIFT keypoint, in input-image pixels.

@@ -26,6 +26,12 @@
 //! - Blurs are separable with precomputed kernels (radius ⌈4σ⌉-ish, like OpenCV's float
 //!   path) and reflect-101 borders; each scale is blurred incrementally from the previous
 //!   one; the next octave starts from the scale 2σ of the previous octave, decimated by 2.
+//! - Speed: extrema are found with branch-free 3x3x3 max/min tests, descriptor samples are
+//!   limited analytically to the rotated cell grid, the hot loops are compiled a second time
+//!   for AVX2 and picked at run time (bit-identical results: Rust never fuses multiply-adds
+//!   on its own), and pyramid buffers come from a per-thread pool so a tracker calling
+//!   [`Sift::detect`] every frame reuses them. Restrict detection to the target's region to
+//!   pay only for it. Single-threaded by design (the tracker parallelises elsewhere).
 
 use std::f32::consts::{PI, TAU};
 
@@ -159,27 +165,18 @@ const POOL_MAX: usize = 160;
 /// A buffer of `len` values from the thread's pool. Its contents are unspecified (stale
 /// values from an earlier use): every caller overwrites all of it.
 fn take_buf(len: usize) -> Vec<f32> {
-    // Best fit: the smallest buffer that holds `len`, else the largest (grown).
+    // Best fit: the smallest buffer that holds `len` without wasting more than about its
+    // size (a huge buffer would be refilled to capacity on every recycle), else a new one.
     let mut v = POOL.with(|p| {
         let mut p = p.borrow_mut();
-        let mut best: Option<usize> = None;
+        let mut best: Option<(usize, usize)> = None;
         for (i, b) in p.iter().enumerate() {
-            let better = match best {
-                None => true,
-                Some(j) => {
-                    let (cb, cj) = (b.capacity(), p[j].capacity());
-                    if cj >= len {
-                        cb >= len && cb < cj
-                    } else {
-                        cb > cj
-                    }
-                }
-            };
-            if better {
-                best = Some(i);
+            let cap = b.capacity();
+            if cap >= len && cap <= 2 * len + 4096 && best.is_none_or(|(_, c)| cap < c) {
+                best = Some((i, cap));
             }
         }
-        best.map(|i| p.swap_remove(i)).unwrap_or_default()
+        best.map(|(i, _)| p.swap_remove(i)).unwrap_or_default()
     });
     v.truncate(len);
     v.resize(len, 0.0);
@@ -187,14 +184,27 @@ fn take_buf(len: usize) -> Vec<f32> {
 }
 
 /// Returns a buffer to the thread's pool, at its full capacity so that taking it again for
-/// any size up to that never needs to fill it.
+/// any size up to that never needs to fill it. When the pool is full the buffer replaces
+/// the largest one if it is smaller, so the pool follows the sizes in use.
 fn recycle(mut v: Vec<f32>) {
     POOL.with(|p| {
         let mut p = p.borrow_mut();
-        if p.len() < POOL_MAX {
-            v.resize(v.capacity(), 0.0);
-            p.push(v);
+        if p.len() >= POOL_MAX {
+            let Some((i, cap)) = p
+                .iter()
+                .map(Vec::capacity)
+                .enumerate()
+                .max_by_key(|&(_, c)| c)
+            else {
+                return;
+            };
+            if cap <= v.capacity() {
+                return;
+            }
+            p.swap_remove(i);
         }
+        v.resize(v.capacity(), 0.0);
+        p.push(v);
     });
 }
 
@@ -244,6 +254,12 @@ impl Sift {
     /// The parameters.
     pub fn params(&self) -> &SiftParams {
         &self.params
+    }
+
+    /// Frees the image buffers this thread keeps between [`Sift::detect`] calls (about the
+    /// size of one scale-space pyramid: ~25 images of the doubled input per octave's worth).
+    pub fn release_thread_buffers() {
+        POOL.with(|p| p.borrow_mut().clear());
     }
 
     /// Detects keypoints and computes their descriptors.
@@ -425,7 +441,16 @@ impl Sift {
                     let xo = e.c as f32 + e.xc;
                     let yo = e.r as f32 + e.xr;
                     let mut angles = [0f32; ORI_BINS];
-                    let na = orientations(img, oct.w, oct.h, e.c, e.r, sigma_oct, &mut angles);
+                    let na = orientations(
+                        img,
+                        oct.w,
+                        oct.h,
+                        e.c,
+                        e.r,
+                        sigma_oct,
+                        &mut angles,
+                        &mut grad,
+                    );
                     for &angle in &angles[..na] {
                         let desc =
                             descriptor(img, oct.w, oct.h, xo, yo, sigma_oct, angle, &mut grad);
@@ -892,6 +917,7 @@ pub(crate) fn fast_atan2(y: f32, x: f32) -> f32 {
 /// gradient directions weighted by magnitude and a Gaussian of σ = 1.5 · `sigma`, smoothed
 /// with `[1 4 6 4 1] / 16`; every local peak ≥ 0.8 of the maximum gives an angle (parabolic
 /// interpolation). Returns how many angles were written.
+#[allow(clippy::too_many_arguments)]
 #[inline(always)]
 fn orientations(
     img: &[f32],
@@ -901,6 +927,7 @@ fn orientations(
     r: usize,
     sigma: f32,
     out: &mut [f32; ORI_BINS],
+    s: &mut GradScratch,
 ) -> usize {
     let radius = (ORI_RADIUS * sigma).round() as isize;
     let sw = ORI_SIG_FCTR * sigma;
@@ -919,17 +946,32 @@ fn orientations(
         let wy = gw[(i + radius) as usize];
         let x_lo = (c as isize - radius).max(1) as usize;
         let x_hi = ((c as isize + radius).min(w as isize - 2)) as usize;
-        for x in x_lo..=x_hi {
-            let gx = img[y * w + x + 1] - img[y * w + x - 1];
-            let gy = img[(y + 1) * w + x] - img[(y - 1) * w + x];
-            let mag = (gx * gx + gy * gy).sqrt();
-            let ori = fast_atan2(gy, gx);
-            let mut bin = (ori * bins_per_rad + 0.5) as usize;
+        if x_lo > x_hi {
+            continue;
+        }
+        // Weighted magnitudes and bins of the row in one vectorised pass, then the scatter.
+        let n = x_hi - x_lo + 1;
+        s.mag.resize(n, 0.0);
+        s.obin.resize(n, 0.0);
+        let left = &img[y * w + x_lo - 1..y * w + x_lo - 1 + n];
+        let right = &img[y * w + x_lo + 1..y * w + x_lo + 1 + n];
+        let up = &img[(y - 1) * w + x_lo..(y - 1) * w + x_lo + n];
+        let down = &img[(y + 1) * w + x_lo..(y + 1) * w + x_lo + n];
+        let g0 = (x_lo as isize - c as isize + radius) as usize;
+        let gwx = &gw[g0..g0 + n];
+        let (mags, bins) = (&mut s.mag[..n], &mut s.obin[..n]);
+        for k in 0..n {
+            let gx = right[k] - left[k];
+            let gy = down[k] - up[k];
+            mags[k] = (gx * gx + gy * gy).sqrt() * gwx[k] * wy;
+            bins[k] = fast_atan2(gy, gx) * bins_per_rad + 0.5;
+        }
+        for (&m, &b) in mags.iter().zip(bins.iter()) {
+            let mut bin = b as usize;
             if bin >= ORI_BINS {
                 bin -= ORI_BINS;
             }
-            let wx = gw[(x as isize - c as isize + radius) as usize];
-            hist[bin] += wy * wx * mag;
+            hist[bin] += m;
         }
     }
     // Circular smoothing.
