@@ -27,6 +27,12 @@ pub enum Error {
     /// Likelihood engines (CPU or GPU).
     #[error(transparent)]
     Likelihood(#[from] crate::likelihood::LikelihoodError),
+    /// The tracker.
+    #[error(transparent)]
+    Track(crate::tracker::TrackError),
+    /// Rendered output.
+    #[error(transparent)]
+    Output(#[from] crate::output::OutputError),
 }
 
 /// Result with the crate's error.

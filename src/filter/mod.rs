@@ -191,9 +191,14 @@ pub struct ParticleFilter {
     estimate: Hypothesis,
 }
 
-/// `ln N(x; 0, σ²)` up to the constant `-½ ln 2π`.
+/// `ln N(x; 0, σ²)` up to the constant `-½ ln 2π`; a component with `σ = 0` is deterministic
+/// (held fixed by the proposal and the dynamics alike) and contributes nothing.
 fn ln_gauss(x: f64, sigma: f64) -> f64 {
-    -0.5 * (x / sigma).powi(2) - sigma.ln()
+    if sigma > 0.0 {
+        -0.5 * (x / sigma).powi(2) - sigma.ln()
+    } else {
+        0.0
+    }
 }
 
 /// `ln` density of a state difference under a [`StateSigma`] (constants dropped: they cancel
@@ -257,6 +262,15 @@ impl ParticleFilter {
         self.log_ratio = vec![0.0; n];
         self.weights = vec![1.0 / n as f64; n];
         self.estimate = *h;
+    }
+
+    /// Applies a rotation to every particle and to the estimate (`R ← ΔR · R`): the pose step
+    /// of a tracker that keeps the rotation out of the filtered state (the paper's TPE).
+    pub fn rotate_all(&mut self, delta: &Matrix3<f64>) {
+        for p in &mut self.particles {
+            p.rot = delta * p.rot;
+        }
+        self.estimate.rot = delta * self.estimate.rot;
     }
 
     /// The estimate of the last update: the weighted mean of the particles (rotations averaged

@@ -45,7 +45,7 @@ impl FormatError {
     pub(crate) fn io(path: &std::path::Path, source: std::io::Error) -> Self {
         Self::Io {
             path: path.display().to_string(),
-            source,
+            cause: source,
         }
     }
 

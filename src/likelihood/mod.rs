@@ -147,9 +147,11 @@ impl Default for LikelihoodParams {
     ///   (On grayscale car4 colour barely changes with position, as expected.)
     /// - `feature_eps` 1 px: about the localisation noise of a matched feature at these
     ///   sizes; an exact match counts 1, one off by 1 px counts 1/2.
-    /// - `depth_ratio` 0.7: a head is about as deep as it is wide, but the matched points
-    ///   lie mostly on the flatter face; a compromise that still separates a tilt from its
-    ///   mirror (a flat target such as a car's rear would want less).
+    /// - `depth_ratio` 1.0: a human head (about 15 cm wide, 23 cm high, 19 cm deep) is as
+    ///   deep as the geometric mean of its width and height (19 / sqrt(15 · 23) = 1.02). The
+    ///   tracker also fits keyframe rotations with this prior (`pose::prior`), whose angles
+    ///   scale inversely with it: at 0.7 the synthetic head's tilts came out about 1.4 times
+    ///   too large. A flat target such as a car's rear would want less.
     fn default() -> Self {
         Self {
             sigma_colour: 0.1,
@@ -159,7 +161,7 @@ impl Default for LikelihoodParams {
             edge_threshold: 0.05,
             line_half_length: 8.0,
             feature_eps: 1.0,
-            depth_ratio: 0.7,
+            depth_ratio: 1.0,
             num_lines: 24,
             terms: TERM_COLOUR | TERM_GRADIENT | TERM_FEATURE,
             _pad: [0; 2],

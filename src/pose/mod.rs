@@ -24,6 +24,7 @@ pub mod kabsch;
 pub mod lsm;
 pub mod noise;
 pub mod optimal;
+pub mod prior;
 pub mod ransac;
 pub mod sea;
 

@@ -1,12 +1,273 @@
 //! `pftrack track`: tracks an object and estimates its pose through a video.
 
+use std::io::IsTerminal;
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, bail};
 use clap::Args;
+use pftrack::frames::{self, SourceOptions};
+use pftrack::geometry::{BoxRect, Ellipse, Euler};
+use pftrack::io::{PoseCsvWriter, PoseRecord};
+use pftrack::likelihood::{Backend, create_engine};
+use pftrack::output::{Overlay, render_overlay, write_png};
+use pftrack::tracker::{Estimate, Init, Mode, Tracker, TrackerConfig};
 
 /// Arguments of `pftrack track`.
 #[derive(Debug, Args)]
-pub struct TrackArgs {}
+pub struct TrackArgs {
+    /// A directory of frames, a .y4m file, or any video ffmpeg reads. A directory written by
+    /// `pftrack synth` (with frames/ and init.txt) is accepted as is.
+    pub input: PathBuf,
+    /// Initial ellipse `cx,cy,a,b[,angle_deg]` in pixels.
+    #[arg(long, value_name = "CX,CY,A,B[,ANGLE]", group = "init")]
+    pub init_ellipse: Option<String>,
+    /// Initial box `x,y,w,h` (top-left corner, pixels); its inscribed ellipse is tracked.
+    #[arg(long, value_name = "X,Y,W,H", group = "init")]
+    pub init_box: Option<String>,
+    /// Points around the object `"x1,y1;x2,y2;..."` (at least 5): a least-squares ellipse.
+    #[arg(long, value_name = "X,Y;X,Y;...", group = "init")]
+    pub init_points: Option<String>,
+    /// An init file `cx,cy,a,b[,angle]` (what `pftrack synth` writes).
+    #[arg(long, value_name = "FILE", group = "init")]
+    pub init_file: Option<PathBuf>,
+    /// Ground truth to start from: the first row of a pose CSV or of an OTB box file.
+    #[arg(long, value_name = "FILE", group = "init")]
+    pub init_truth: Option<PathBuf>,
+    /// Initial pose `rx,ry,rz` in degrees (frontal 0,0,0 by default).
+    #[arg(
+        long,
+        value_name = "RX,RY,RZ",
+        default_value = "0,0,0",
+        allow_hyphen_values = true
+    )]
+    pub init_pose: String,
+    /// Number of particles.
+    #[arg(long, default_value_t = 200)]
+    pub particles: usize,
+    /// Seed of the filter (runs are reproducible for a seed on the CPU).
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    /// The system: sea (full), optimal (certified solver), tpe (tracking then pose), rls.
+    #[arg(long, default_value = "sea")]
+    pub mode: String,
+    /// Likelihood engine: auto (GPU if a Vulkan adapter exists), cpu or gpu.
+    #[arg(long, default_value = "auto")]
+    pub backend: String,
+    /// Resize every frame to WxH first.
+    #[arg(long, value_name = "WxH")]
+    pub resize: Option<String>,
+    /// Stop after this many frames.
+    #[arg(long)]
+    pub max_frames: Option<usize>,
+    /// Pose CSV to write (`frame,cx,cy,a,b,rx,ry,rz,score,lost`); standard output if absent.
+    #[arg(long, short)]
+    pub out: Option<PathBuf>,
+    /// Write each frame with the ellipse, pan/tilt bars and angles drawn, as PNG, here.
+    #[arg(long, value_name = "DIR")]
+    pub render: Option<PathBuf>,
+}
+
+fn parse_floats(s: &str, n: &[usize], what: &str) -> anyhow::Result<Vec<f64>> {
+    let v: Result<Vec<f64>, _> = s.split(',').map(|t| t.trim().parse::<f64>()).collect();
+    let v = v.with_context(|| format!("{what}: '{s}' is not a list of numbers"))?;
+    if !n.contains(&v.len()) || v.iter().any(|x| !x.is_finite()) {
+        bail!(
+            "{what}: expected {} finite numbers, got '{s}'",
+            n.iter()
+                .map(|k| k.to_string())
+                .collect::<Vec<_>>()
+                .join(" or ")
+        );
+    }
+    Ok(v)
+}
+
+/// The input's frames and init file, accepting a `pftrack synth` directory as is.
+fn resolve_input(input: &Path) -> (PathBuf, Option<PathBuf>) {
+    let frames = input.join("frames");
+    let init = input.join("init.txt");
+    if frames.is_dir() && init.is_file() {
+        (frames, Some(init))
+    } else {
+        (input.to_path_buf(), None)
+    }
+}
+
+/// The initial ellipse from whichever option was given.
+pub fn initial_ellipse(a: &TrackArgs, synth_init: Option<&Path>) -> anyhow::Result<Ellipse> {
+    if let Some(s) = &a.init_ellipse {
+        let v = parse_floats(s, &[4, 5], "--init-ellipse")?;
+        return Ok(Ellipse {
+            cx: v[0],
+            cy: v[1],
+            a: v[2],
+            b: v[3],
+            theta: v.get(4).copied().unwrap_or(0.0).to_radians(),
+        });
+    }
+    if let Some(s) = &a.init_box {
+        let v = parse_floats(s, &[4], "--init-box")?;
+        return Ok(Ellipse::from_box(&BoxRect::new(v[0], v[1], v[2], v[3])));
+    }
+    if let Some(s) = &a.init_points {
+        let pts: anyhow::Result<Vec<[f64; 2]>> = s
+            .split(';')
+            .filter(|t| !t.trim().is_empty())
+            .map(|t| parse_floats(t, &[2], "--init-points").map(|v| [v[0], v[1]]))
+            .collect();
+        let pts = pts?;
+        return pftrack::motion::fit_ellipse(&pts)
+            .context("--init-points: no ellipse fits these points");
+    }
+    if let Some(p) = &a.init_file {
+        return Ok(pftrack::io::read_init(p)?);
+    }
+    if let Some(p) = &a.init_truth {
+        return match pftrack::eval::load_truth(p)? {
+            pftrack::eval::Truth::Poses(r) => Ok(r[0].state.ellipse(0.0)),
+            pftrack::eval::Truth::Boxes(b) => Ok(Ellipse::from_box(&b[0])),
+        };
+    }
+    if let Some(p) = synth_init {
+        return Ok(pftrack::io::read_init(p)?);
+    }
+    bail!(
+        "no initial ellipse: give one of --init-ellipse, --init-box, --init-points, --init-file, --init-truth"
+    )
+}
+
+/// Builds the tracker configuration from the arguments.
+pub fn config(mode: &str, particles: usize, seed: u64) -> anyhow::Result<TrackerConfig> {
+    let mode = Mode::from_name(mode)
+        .with_context(|| format!("unknown --mode '{mode}' (sea, optimal, tpe, rls)"))?;
+    if particles == 0 {
+        bail!("--particles must be at least 1");
+    }
+    let mut cfg = TrackerConfig {
+        mode,
+        seed,
+        ..TrackerConfig::default()
+    };
+    cfg.filter.particles = particles;
+    Ok(cfg)
+}
+
+/// The pose CSV record of an estimate.
+pub fn record(e: &Estimate) -> PoseRecord {
+    PoseRecord {
+        frame: e.frame,
+        state: e.state,
+        score: Some(e.confidence),
+        lost: Some(e.lost),
+    }
+}
+
+/// A progress bar on a terminal, hidden otherwise.
+pub fn progress(len: Option<usize>) -> indicatif::ProgressBar {
+    if !std::io::stderr().is_terminal() {
+        return indicatif::ProgressBar::hidden();
+    }
+    let pb = match len {
+        Some(n) => indicatif::ProgressBar::new(n as u64),
+        None => indicatif::ProgressBar::no_length(),
+    };
+    let style =
+        indicatif::ProgressStyle::with_template("{bar:40} {pos}/{len} frames {per_sec} {msg}")
+            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar());
+    pb.set_style(style);
+    pb
+}
 
 /// Runs the command.
-pub fn run(_args: TrackArgs) -> anyhow::Result<()> {
-    anyhow::bail!("`pftrack track` is not implemented yet")
+pub fn run(a: TrackArgs) -> anyhow::Result<()> {
+    let (frames_path, synth_init) = resolve_input(&a.input);
+    let init_e = initial_ellipse(&a, synth_init.as_deref())?;
+    let pose = parse_floats(&a.init_pose, &[3], "--init-pose")?;
+    let init = Init {
+        ellipse: init_e,
+        pose: Euler::from_degrees(pose[0], pose[1], pose[2]),
+    };
+    let cfg = config(&a.mode, a.particles, a.seed)?;
+    let backend: Backend = a
+        .backend
+        .parse()
+        .map_err(|e| anyhow::anyhow!("--backend: {e}"))?;
+    let resize = a.resize.as_deref().map(frames::parse_size).transpose()?;
+    let mut source = frames::open(&frames_path, &SourceOptions { resize })
+        .with_context(|| format!("opening {}", frames_path.display()))?;
+    let (engine, notice) = create_engine(backend)?;
+    if let Some(n) = notice {
+        eprintln!("pftrack: {n}");
+    }
+    if let Some(dir) = &a.render {
+        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    }
+    let first = source.next().context("the input has no frames")??;
+    let mut tracker = Tracker::with_engine(cfg, engine, &first, init)?;
+    let written = run_loop(&a, &mut source, &mut tracker, &first)?;
+    eprintln!(
+        "pftrack: tracked {written} frames with {} ({}){}",
+        tracker.engine_name(),
+        a.mode,
+        a.out
+            .as_ref()
+            .map(|p| format!(", poses in {}", p.display()))
+            .unwrap_or_default()
+    );
+    Ok(())
+}
+
+fn run_loop(
+    a: &TrackArgs,
+    source: &mut frames::FrameSource,
+    tracker: &mut Tracker,
+    first: &image::RgbImage,
+) -> anyhow::Result<usize> {
+    let limit = a.max_frames.unwrap_or(usize::MAX);
+    let pb = progress(source.len_hint().map(|n| n.min(limit)));
+    let mut csv_out = match &a.out {
+        Some(p) => Some(PoseCsvWriter::create(p, true)?),
+        None => None,
+    };
+    let mut stdout_rows = Vec::new();
+    let mut emit = |e: &Estimate, frame: &image::RgbImage| -> anyhow::Result<()> {
+        let r = record(e);
+        match csv_out.as_mut() {
+            Some(w) => w.write(&r)?,
+            None => stdout_rows.push(r),
+        }
+        if let Some(dir) = &a.render {
+            let o = Overlay {
+                frame_index: e.frame,
+                ellipse: e.ellipse,
+                angles_deg: e.angles_deg(),
+                score: e.confidence,
+                lost: e.lost,
+            };
+            let scale = if frame.width() < 320 { 3 } else { 1 };
+            write_png(
+                &dir.join(format!("{:05}.png", e.frame)),
+                &render_overlay(frame, &o, scale),
+            )?;
+        }
+        pb.inc(1);
+        Ok(())
+    };
+    emit(&tracker.initial_estimate(), first)?;
+    let mut n = 1;
+    while n < limit {
+        let Some(frame) = source.next() else { break };
+        let frame = frame.with_context(|| format!("reading frame {n}"))?;
+        let est = tracker
+            .step(&frame)
+            .with_context(|| format!("tracking frame {n}"))?;
+        emit(&est, &frame)?;
+        n += 1;
+    }
+    pb.finish_and_clear();
+    match csv_out {
+        Some(w) => w.finish()?,
+        None => print!("{}", pftrack::io::format_pose_csv(&stdout_rows, true)),
+    }
+    Ok(n)
 }

@@ -1,1 +1,0 @@
-//! The embeddable tracker: `Tracker::new`, `step`, `reinit`.

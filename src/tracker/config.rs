@@ -1,0 +1,119 @@
+//! Everything a [`super::Tracker`] is configured with, in one place, with defaults that are
+//! the project's tuned choices (the reasons are beside each value).
+
+use crate::features::{MatchParams, SiftParams};
+use crate::filter::FilterParams;
+use crate::geometry::{Ellipse, Euler};
+use crate::likelihood::LikelihoodParams;
+use crate::motion::AbmParams;
+
+/// Which of the paper's systems to run.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Mode {
+    /// The full system: Sylvester (SEA) rotation in the proposal, rotation in the filtered
+    /// state, colour, gradient and feature likelihoods.
+    #[default]
+    Sea,
+    /// As `Sea`, with the project's certified optimal solver instead of SEA.
+    Optimal,
+    /// Tracking then pose estimation: the filter tracks the ellipse with colour and gradient
+    /// only; the rotation is then estimated from the features of the tracked region.
+    Tpe,
+    /// RANSAC then least squares for the rotation in the proposal.
+    Rls,
+}
+
+impl Mode {
+    /// Parses `sea`, `optimal`, `tpe` or `rls`.
+    pub fn from_name(s: &str) -> Option<Self> {
+        match s.to_ascii_lowercase().as_str() {
+            "sea" => Some(Self::Sea),
+            "optimal" => Some(Self::Optimal),
+            "tpe" => Some(Self::Tpe),
+            "rls" => Some(Self::Rls),
+            _ => None,
+        }
+    }
+
+    /// The name on the command line.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Sea => "sea",
+            Self::Optimal => "optimal",
+            Self::Tpe => "tpe",
+            Self::Rls => "rls",
+        }
+    }
+}
+
+/// Where tracking starts: the target's ellipse in the first frame and its pose there.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Init {
+    /// The ellipse around the target; its `theta` is the reference orientation `theta0`.
+    pub ellipse: Ellipse,
+    /// The pose in the first frame (frontal, all zero, by default).
+    pub pose: Euler,
+}
+
+impl Init {
+    /// A frontal start in the given ellipse.
+    pub fn frontal(ellipse: Ellipse) -> Self {
+        Self {
+            ellipse,
+            pose: Euler::default(),
+        }
+    }
+}
+
+/// Settings of a tracker.
+#[derive(Debug, Clone, PartialEq)]
+pub struct TrackerConfig {
+    /// The system to run.
+    pub mode: Mode,
+    /// Seed of the filter's random numbers: a run is reproducible for a seed on the CPU.
+    pub seed: u64,
+    /// The particle filter (N, Σ_G, Σ_P).
+    pub filter: FilterParams,
+    /// The likelihood model.
+    pub likelihood: LikelihoodParams,
+    /// SIFT.
+    pub sift: SiftParams,
+    /// Feature matching.
+    pub matching: MatchParams,
+    /// Adaptive block matching.
+    pub abm: AbmParams,
+    /// Below this confidence a frame counts towards declaring the target lost.
+    pub lost_below: f64,
+    /// Consecutive low-confidence frames before the target is declared lost.
+    pub lost_after: usize,
+    /// A re-acquisition candidate must reach this colour similarity (Bhattacharyya ρ).
+    pub reacquire_rho: f64,
+    /// Weight of the feature term's log in the particle weights (the colour and gradient
+    /// terms have weight 1).
+    pub feature_weight: f64,
+    /// Largest rotation between two frames a keyframe fit may imply (radians); a fit beyond it
+    /// is taken for a mismatch and ignored for that frame.
+    pub max_rotation_step: f64,
+    /// Largest RMS reprojection error (pixels) of an accepted keyframe fit.
+    pub max_fit_residual: f64,
+}
+
+impl Default for TrackerConfig {
+    fn default() -> Self {
+        Self {
+            mode: Mode::Sea,
+            seed: 0,
+            filter: FilterParams::default(),
+            likelihood: LikelihoodParams::default(),
+            sift: SiftParams::default(),
+            matching: MatchParams::default(),
+            abm: AbmParams::default(),
+            lost_below: 0.25,
+            lost_after: 3,
+            reacquire_rho: 0.8,
+            feature_weight: 4.0,
+            max_rotation_step: 8f64.to_radians(),
+            max_fit_residual: 1.5,
+        }
+    }
+}

@@ -1,0 +1,792 @@
+//! The embeddable tracker: [`Tracker::new`] on the first frame, [`Tracker::step`] on each
+//! following frame, [`Tracker::reinit`] to start over without rebuilding it.
+//!
+//! ```no_run
+//! use pftrack::geometry::Ellipse;
+//! use pftrack::tracker::{Init, Tracker, TrackerConfig};
+//!
+//! # fn main() -> Result<(), Box<dyn std::error::Error>> {
+//! let first = image::open("frames/00000.png")?.to_rgb8();
+//! let init = Init::frontal(Ellipse::new(80.0, 60.0, 20.0, 24.0));
+//! let mut tracker = Tracker::new(TrackerConfig::default(), &first, init)?;
+//! for k in 1..100 {
+//!     let frame = image::open(format!("frames/{k:05}.png"))?.to_rgb8();
+//!     let est = tracker.step(&frame)?;
+//!     let [tilt, pan, roll] = est.angles_deg();
+//!     println!("{k}: centre ({:.1}, {:.1}) tilt {tilt:.1} pan {pan:.1} roll {roll:.1} score {:.2}{}",
+//!         est.state.cx, est.state.cy, est.confidence, if est.lost { " LOST" } else { "" });
+//! }
+//! # Ok(())
+//! # }
+//! ```
+//!
+//! Per frame ([`Tracker::step`]): SIFT in the previous ellipse's neighbourhood, matching
+//! against the previous frame's features, the paper's slope/length outlier rejection, the
+//! inter-frame rotation from Sylvester's equation (both members of its Necker pair),
+//! adaptive block matching for the translation and scale, then the particle filter: proposal
+//! around `x + Δx`, all particles' likelihoods in one call of the likelihood engine (CPU or
+//! GPU), weights, estimate, resampling. A confidence in `[0, 1]` and a lost flag come with
+//! every estimate; a lost target is searched for over the whole frame by colour.
+
+mod config;
+
+pub use config::{Init, Mode, TrackerConfig};
+
+use nalgebra::Matrix3;
+
+use crate::features::{Features, Sift, match_features, reject_slope_length};
+use crate::filter::{Hypothesis, Motion, ParticleFilter};
+use crate::frames::GrayF32;
+use crate::geometry::{BoxRect, Ellipse, Euler, PoseState, deg};
+use crate::likelihood::{
+    ColourHistogram, FeaturePair, FrameInput, LikelihoodEngine, LikelihoodParams, Particle,
+    TERM_COLOUR, TERM_FEATURE, TERM_GRADIENT, TermLogs,
+};
+use crate::motion::block_match;
+use crate::pose::{SolverKind, interframe};
+
+/// Errors of the tracker.
+#[derive(Debug, thiserror::Error)]
+pub enum TrackError {
+    /// The initial ellipse is unusable.
+    #[error("invalid initial ellipse ({0})")]
+    BadInit(String),
+    /// A frame's size differs from the first frame's.
+    #[error("frame {frame} is {got_w}x{got_h}, the first frame was {want_w}x{want_h}")]
+    FrameSize {
+        /// Index of the offending frame.
+        frame: usize,
+        /// Its width.
+        got_w: u32,
+        /// Its height.
+        got_h: u32,
+        /// The first frame's width.
+        want_w: u32,
+        /// The first frame's height.
+        want_h: u32,
+    },
+    /// The likelihood engine failed.
+    #[error(transparent)]
+    Likelihood(#[from] crate::likelihood::LikelihoodError),
+    /// SIFT failed.
+    #[error(transparent)]
+    Features(#[from] crate::features::FeatureError),
+}
+
+/// What the tracker says about one frame.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Estimate {
+    /// Frame index (0 for the first frame).
+    pub frame: usize,
+    /// The state: ellipse centre and semi-axes, rotation (radians) relative to the reference
+    /// pose. Angles are continuous from frame to frame (no jumps at ±180°).
+    pub state: PoseState,
+    /// The ellipse, turned by `theta0 + rz`.
+    pub ellipse: Ellipse,
+    /// Confidence in `[0, 1]`: colour similarity and contour support of the estimate, lowered
+    /// when no features could measure the rotation.
+    pub confidence: f64,
+    /// Whether the target is considered lost.
+    pub lost: bool,
+    /// Feature matches used for the rotation this frame (0: colour and gradient only).
+    pub matches: usize,
+    /// Effective sample size of the filter after weighting.
+    pub ess: f64,
+}
+
+impl Estimate {
+    /// The angles in degrees, `[tilt, pan, roll]`.
+    pub fn angles_deg(&self) -> [f64; 3] {
+        [deg(self.state.rx), deg(self.state.ry), deg(self.state.rz)]
+    }
+}
+
+/// A reference view the rotation is measured against: drift control beyond the paper
+/// (SPEC section 6). Matching against it rather than only against the previous frame lets the
+/// out-of-plane rotation show as foreshortening and parallax that grow with the angle, where
+/// between successive frames they are below the noise (`cos 1° = 0.9998`).
+#[derive(Debug, Clone, Default)]
+struct Keyframe {
+    /// Features of the keyframe inside its ellipse.
+    features: Features,
+    /// The estimate at the keyframe.
+    hyp: Option<Hypothesis>,
+    /// Matches found against it on the first frame after it was taken.
+    initial_matches: Option<usize>,
+}
+
+/// The joint tracker and pose estimator.
+pub struct Tracker {
+    cfg: TrackerConfig,
+    engine: Box<dyn LikelihoodEngine + Send>,
+    sift: Sift,
+    filter: ParticleFilter,
+    size: (u32, u32),
+    theta0: f64,
+    frame: usize,
+    prev_gray: GrayF32,
+    prev_features: Features,
+    keyframe: Keyframe,
+    prev: Hypothesis,
+    prev_euler: Euler,
+    low_count: usize,
+    lost: bool,
+    particles: Vec<Particle>,
+    terms: Vec<TermLogs>,
+    first: Estimate,
+}
+
+impl std::fmt::Debug for Tracker {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Tracker")
+            .field("engine", &self.engine.name())
+            .field("frame", &self.frame)
+            .field("size", &self.size)
+            .finish_non_exhaustive()
+    }
+}
+
+/// Checks an initial ellipse against a frame.
+fn check_init(init: &Init, w: u32, h: u32) -> Result<(), TrackError> {
+    let e = &init.ellipse;
+    if !e.is_valid() {
+        return Err(TrackError::BadInit(format!(
+            "cx {}, cy {}, a {}, b {}: values must be finite and the semi-axes positive",
+            e.cx, e.cy, e.a, e.b
+        )));
+    }
+    if e.a < 2.0 || e.b < 2.0 {
+        return Err(TrackError::BadInit(format!(
+            "semi-axes {:.1} x {:.1} px: at least 2 px each",
+            e.a, e.b
+        )));
+    }
+    if !e.centre_inside(w, h) {
+        return Err(TrackError::BadInit(format!(
+            "centre ({:.1}, {:.1}) lies outside the {w}x{h} frame",
+            e.cx, e.cy
+        )));
+    }
+    let p = &init.pose;
+    if ![p.rx, p.ry, p.rz].iter().all(|v| v.is_finite()) {
+        return Err(TrackError::BadInit(
+            "initial pose angles must be finite".into(),
+        ));
+    }
+    Ok(())
+}
+
+/// The search region of SIFT around an ellipse: its bounding box grown by half its larger
+/// semi-axis plus 8 px (the largest inter-frame motion followed), clipped to the frame.
+fn search_region(e: &Ellipse, w: u32, h: u32) -> BoxRect {
+    let bb = e.bounding_box();
+    let m = 0.5 * e.a.max(e.b) + 8.0;
+    let x0 = (bb.x - m).max(0.0);
+    let y0 = (bb.y - m).max(0.0);
+    let x1 = (bb.x + bb.w + m).min(w as f64);
+    let y1 = (bb.y + bb.h + m).min(h as f64);
+    BoxRect::new(x0, y0, (x1 - x0).max(0.0), (y1 - y0).max(0.0))
+}
+
+impl Tracker {
+    /// A tracker on the CPU likelihood engine (all cores).
+    pub fn new(
+        cfg: TrackerConfig,
+        first_frame: &image::RgbImage,
+        init: Init,
+    ) -> crate::Result<Self> {
+        let engine = Box::new(crate::likelihood::cpu::CpuEngine::new());
+        Self::with_engine(cfg, engine, first_frame, init)
+    }
+
+    /// A tracker on a given likelihood engine (e.g. the GPU engine from
+    /// [`crate::likelihood::create_engine`]).
+    pub fn with_engine(
+        cfg: TrackerConfig,
+        engine: Box<dyn LikelihoodEngine + Send>,
+        first_frame: &image::RgbImage,
+        init: Init,
+    ) -> crate::Result<Self> {
+        let sift = Sift::new(cfg.sift.clone());
+        let filter = ParticleFilter::new(
+            cfg.filter,
+            cfg.seed,
+            &Hypothesis::from_state(&PoseState::default()),
+        );
+        let mut t = Self {
+            cfg,
+            engine,
+            sift,
+            filter,
+            size: first_frame.dimensions(),
+            theta0: 0.0,
+            frame: 0,
+            prev_gray: GrayF32::default(),
+            prev_features: Features::default(),
+            keyframe: Keyframe::default(),
+            prev: Hypothesis::from_state(&PoseState::default()),
+            prev_euler: Euler::default(),
+            low_count: 0,
+            lost: false,
+            particles: Vec::new(),
+            terms: Vec::new(),
+            first: Estimate {
+                frame: 0,
+                state: PoseState::default(),
+                ellipse: Ellipse::default(),
+                confidence: 1.0,
+                lost: false,
+                matches: 0,
+                ess: 0.0,
+            },
+        };
+        t.reinit(first_frame, init)?;
+        Ok(t)
+    }
+
+    /// Starts over on `frame` from `init`: a new colour model, new reference features, the
+    /// filter reset. The frame becomes frame 0 of what follows only for the model: frame
+    /// numbering continues.
+    pub fn reinit(&mut self, frame: &image::RgbImage, init: Init) -> crate::Result<()> {
+        let (w, h) = frame.dimensions();
+        check_init(&init, w, h).map_err(track_err)?;
+        self.size = (w, h);
+        self.theta0 = init.ellipse.theta;
+        let model = ColourHistogram::from_ellipse(frame, &init.ellipse)?;
+        self.engine.set_colour_model(&model)?;
+        let state = PoseState::from_parts(&init.ellipse, init.pose);
+        let hyp = Hypothesis::from_state(&state);
+        self.filter.reset(&hyp);
+        self.prev = hyp;
+        self.prev_euler = init.pose;
+        self.prev_gray = GrayF32::from_rgb(frame);
+        let region = search_region(&init.ellipse, w, h);
+        self.prev_features = self.sift.detect(&self.prev_gray, Some(region))?;
+        self.keyframe = Self::make_keyframe(&self.prev_features, &init.ellipse, hyp);
+        self.low_count = 0;
+        self.lost = false;
+        self.first = Estimate {
+            frame: self.frame,
+            state,
+            ellipse: state.ellipse(self.theta0),
+            confidence: 1.0,
+            lost: false,
+            matches: 0,
+            ess: self.filter.params().particles as f64,
+        };
+        Ok(())
+    }
+
+    /// The estimate of the frame the tracker was (re)initialised on.
+    pub fn initial_estimate(&self) -> Estimate {
+        self.first
+    }
+
+    /// The configuration.
+    pub fn config(&self) -> &TrackerConfig {
+        &self.cfg
+    }
+
+    /// The likelihood engine's name.
+    pub fn engine_name(&self) -> String {
+        self.engine.name()
+    }
+
+    /// Tracks the target into the next frame.
+    pub fn step(&mut self, frame: &image::RgbImage) -> crate::Result<Estimate> {
+        let (w, h) = frame.dimensions();
+        let index = self.frame + 1;
+        if (w, h) != self.size {
+            return Err(track_err(TrackError::FrameSize {
+                frame: index,
+                got_w: w,
+                got_h: h,
+                want_w: self.size.0,
+                want_h: self.size.1,
+            }));
+        }
+        let gray = GrayF32::from_rgb(frame);
+        let prev_state = self.prev.to_state();
+        let prev_ellipse = prev_state.ellipse(self.theta0);
+
+        // Features: SIFT around the previous ellipse, matched to the previous frame's.
+        let features = self
+            .sift
+            .detect(&gray, Some(search_region(&prev_ellipse, w, h)))?;
+        let pairs = self.correspondences(&prev_ellipse, &features);
+
+        // Translation and scale from block matching; the features' median motion if it fails.
+        let abm = if std::env::var("PF_ABMDEF").is_ok() {
+            self.cfg.abm
+        } else {
+            crate::motion::AbmParams::for_target(&prev_ellipse)
+        };
+        let (dx, dy, scale) = match block_match(&self.prev_gray, &gray, &prev_ellipse, &abm) {
+            Ok(r) => (r.translation[0], r.translation[1], r.scale),
+            Err(_) => {
+                let (mx, my) = median_displacement(&pairs);
+                (mx, my, 1.0)
+            }
+        };
+
+        // Rotation candidates from Sylvester's equation: against the keyframe when it still
+        // matches (both members of the Necker pair, and "no change"), else between successive
+        // frames.
+        let solver = match self.cfg.mode {
+            Mode::Sea | Mode::Tpe => SolverKind::Sea,
+            Mode::Optimal => SolverKind::Optimal,
+            Mode::Rls => SolverKind::Rls,
+        };
+        let key_pairs = self.keyframe_pairs(&features);
+        let key_hyp = self.keyframe.hyp.unwrap_or(self.prev);
+        let use_key = key_pairs.len() >= 6 && self.cfg.mode != Mode::Tpe;
+        let to_xy = |v: &[FeaturePair]| -> (Vec<[f64; 2]>, Vec<[f64; 2]>) {
+            (
+                v.iter().map(|f| [f.p[0] as f64, f.p[1] as f64]).collect(),
+                v.iter().map(|f| [f.q[0] as f64, f.q[1] as f64]).collect(),
+            )
+        };
+        let inter = if pairs.len() >= 3 {
+            let (p, q) = to_xy(&pairs);
+            interframe(&p, &q, [prev_state.cx, prev_state.cy], solver).ok()
+        } else {
+            None
+        };
+        // Against the keyframe: the ellipsoid depth-prior fit from the previous pose.
+        let mut key_pairs = key_pairs;
+        let mut prior = None;
+        if use_key {
+            let (p, q) = to_xy(&key_pairs);
+            let key_state = key_hyp.to_state();
+            let key_e = key_state.ellipse(self.theta0);
+            let rot0 = self.prev.rot * key_hyp.rot.transpose();
+            let s0 = ((self.prev.a * self.prev.b) / (key_hyp.a * key_hyp.b)).sqrt();
+            let t0 = nalgebra::Vector2::new(self.prev.cx + dx, self.prev.cy + dy);
+            if let Ok(f) = crate::pose::prior::fit_with_depth_prior(
+                &p,
+                &q,
+                &key_e,
+                self.cfg.likelihood.depth_ratio as f64,
+                &rot0,
+                s0,
+                t0,
+            ) {
+                key_pairs = key_pairs
+                    .iter()
+                    .zip(&f.inliers)
+                    .filter(|(_, k)| **k)
+                    .map(|(p, _)| *p)
+                    .collect();
+                // Plausible only: enough inliers, a small residual, and no more rotation between
+                // two frames than the tracker follows.
+                let step = crate::geometry::angle_between(&f.rot, &rot0);
+                let mr: f64 = std::env::var("PF_RES")
+                    .ok()
+                    .and_then(|v| v.parse().ok())
+                    .unwrap_or(self.cfg.max_fit_residual);
+                if key_pairs.len() >= 6 && f.residual <= mr && step <= self.cfg.max_rotation_step {
+                    prior = Some((f, s0));
+                }
+            }
+        }
+        let (lik_pairs, lik_prev) = if prior.is_some() {
+            (&key_pairs, key_hyp)
+        } else {
+            (&pairs, self.prev)
+        };
+        let key_inter = prior.is_some();
+
+        let mut lp = self.cfg.likelihood;
+        let (dx, dy, scale, rotations) = match (&prior, &inter, self.cfg.mode) {
+            (_, _, Mode::Tpe) => (dx, dy, scale, vec![(1.0, Matrix3::identity())]),
+            (Some((f, s0)), _, _) => {
+                let delta = f.rot * key_hyp.rot * self.prev.rot.transpose();
+                (
+                    f.centre.x - self.prev.cx,
+                    f.centre.y - self.prev.cy,
+                    f.scale / s0,
+                    vec![(1.0, delta)],
+                )
+            }
+            (None, Some(i), _) => (dx, dy, scale, vec![(0.5, i.pair.a), (0.5, i.pair.b)]),
+            (None, None, _) => (dx, dy, scale, vec![(1.0, Matrix3::identity())]),
+        };
+        let motion = Motion {
+            dx,
+            dy,
+            scale,
+            rotations,
+        };
+        if self.cfg.mode == Mode::Tpe || lik_pairs.is_empty() {
+            lp.terms &= !TERM_FEATURE;
+        }
+
+        // The filter step.
+        let spread = if self.lost { 3.0 } else { 1.0 };
+        self.filter.propose(&motion, spread);
+        self.filter.particles_f32(&mut self.particles);
+        let input = FrameInput {
+            image: frame,
+            features: lik_pairs,
+            prev: lik_prev.to_particle(),
+            theta0: self.theta0 as f32,
+        };
+        self.engine
+            .evaluate(&input, &lp, &self.particles, &mut self.terms)?;
+        let totals = self.weighted_totals(&lp);
+        let info = self.filter.update(&totals);
+        let mut est = self.filter.estimate();
+
+        // TPE: the rotation from the features of the tracked region, after tracking.
+        if self.cfg.mode == Mode::Tpe
+            && let Some(i) = &inter
+        {
+            let centre_motion =
+                nalgebra::Vector2::new(est.cx - prev_state.cx, est.cy - prev_state.cy);
+            let delta = crate::pose::resolve_by_parallax(&i.pair, i.translation - centre_motion);
+            self.filter.rotate_all(&delta);
+            est = self.filter.estimate();
+        }
+
+        // Confidence from the weighted colour similarity and contour support.
+        let weights = crate::filter::resample::normalise_log_weights(
+            &totals.iter().map(|&t| t as f64).collect::<Vec<_>>(),
+        );
+        let confidence = self.confidence(&lp, &weights, inter.is_some() || key_inter);
+        if confidence < self.cfg.lost_below {
+            self.low_count += 1;
+        } else {
+            self.low_count = 0;
+            self.lost = false;
+        }
+        if self.low_count >= self.cfg.lost_after {
+            self.lost = true;
+            if let Some(found) = self.reacquire(frame, &est)? {
+                self.filter.reset(&found);
+                est = found;
+                self.low_count = 0;
+                self.lost = false;
+            }
+        }
+
+        // Angles continuous with the previous output.
+        let euler = continuous_euler(&est.rot, &self.prev_euler);
+        let state = PoseState {
+            cx: est.cx,
+            cy: est.cy,
+            a: est.a,
+            b: est.b,
+            rx: euler.rx,
+            ry: euler.ry,
+            rz: euler.rz,
+        };
+        self.prev = est;
+        self.prev_euler = euler;
+        self.prev_gray = gray;
+        // A new keyframe when the old one has drifted out of reach of the matcher.
+        let initial = *self.keyframe.initial_matches.get_or_insert(key_pairs.len());
+        if key_pairs.len() < 6.max(initial * 35 / 100) && !self.lost {
+            self.keyframe = Self::make_keyframe(&features, &state.ellipse(self.theta0), est);
+        }
+        self.prev_features = features;
+        self.frame = index;
+        Ok(Estimate {
+            frame: index,
+            state,
+            ellipse: state.ellipse(self.theta0),
+            confidence,
+            lost: self.lost,
+            matches: pairs.len(),
+            ess: info.ess,
+        })
+    }
+
+    /// Each particle's log-likelihood: the enabled terms of the last evaluation, the feature
+    /// term weighted by [`TrackerConfig::feature_weight`].
+    fn weighted_totals(&self, lp: &LikelihoodParams) -> Vec<f32> {
+        let wf = std::env::var("PF_WF")
+            .ok()
+            .and_then(|v| v.parse().ok())
+            .unwrap_or(self.cfg.feature_weight as f32);
+        self.terms
+            .iter()
+            .map(|t| {
+                if t.total <= crate::likelihood::DEGENERATE {
+                    return t.total;
+                }
+                let mut s = 0.0;
+                if lp.terms & TERM_COLOUR != 0 {
+                    s += t.colour;
+                }
+                if lp.terms & TERM_GRADIENT != 0 {
+                    s += t.gradient;
+                }
+                if lp.terms & TERM_FEATURE != 0 {
+                    s += wf * t.feature;
+                }
+                s
+            })
+            .collect()
+    }
+
+    /// A keyframe from a frame's features, keeping those inside the ellipse.
+    fn make_keyframe(features: &Features, e: &Ellipse, hyp: Hypothesis) -> Keyframe {
+        let keep: Vec<usize> = (0..features.keypoints.len())
+            .filter(|&i| {
+                e.contains(
+                    features.keypoints[i].x as f64,
+                    features.keypoints[i].y as f64,
+                )
+            })
+            .collect();
+        let features = Features {
+            keypoints: keep.iter().map(|&i| features.keypoints[i]).collect(),
+            descriptors: keep.iter().map(|&i| features.descriptors[i]).collect(),
+        };
+        Keyframe {
+            features,
+            hyp: Some(hyp),
+            initial_matches: None,
+        }
+    }
+
+    /// Matches between the keyframe and this frame (the depth-prior fit removes outliers).
+    fn keyframe_pairs(&self, cur: &Features) -> Vec<FeaturePair> {
+        let key = &self.keyframe.features;
+        let matches = match_features(key, cur, &self.cfg.matching);
+        let p: Vec<[f64; 2]> = matches
+            .iter()
+            .map(|m| {
+                [
+                    key.keypoints[m.query].x as f64,
+                    key.keypoints[m.query].y as f64,
+                ]
+            })
+            .collect();
+        let q: Vec<[f64; 2]> = matches
+            .iter()
+            .map(|m| {
+                [
+                    cur.keypoints[m.train].x as f64,
+                    cur.keypoints[m.train].y as f64,
+                ]
+            })
+            .collect();
+        p.iter()
+            .zip(&q)
+            .map(|(p, q)| FeaturePair {
+                p: [p[0] as f32, p[1] as f32],
+                q: [q[0] as f32, q[1] as f32],
+            })
+            .collect()
+    }
+
+    /// Matched features between the previous frame (inside the previous ellipse) and this one,
+    /// after the paper's slope/length outlier rejection.
+    fn correspondences(&self, prev_ellipse: &Ellipse, cur: &Features) -> Vec<FeaturePair> {
+        let matches = match_features(&self.prev_features, cur, &self.cfg.matching);
+        let mut p = Vec::new();
+        let mut q = Vec::new();
+        for m in &matches {
+            let a = &self.prev_features.keypoints[m.query];
+            let b = &cur.keypoints[m.train];
+            if prev_ellipse.contains(a.x as f64, a.y as f64) {
+                p.push([a.x as f64, a.y as f64]);
+                q.push([b.x as f64, b.y as f64]);
+            }
+        }
+        if p.len() < 3 {
+            return Vec::new();
+        }
+        let keep = reject_slope_length(&p, &q, 0.2, 0.3);
+        p.iter()
+            .zip(&q)
+            .zip(&keep)
+            .filter(|(_, k)| **k)
+            .map(|((p, q), _)| FeaturePair {
+                p: [p[0] as f32, p[1] as f32],
+                q: [q[0] as f32, q[1] as f32],
+            })
+            .collect()
+    }
+
+    /// Confidence in `[0, 1]`: the weighted colour similarity ρ̄ (recovered from the colour
+    /// term, `ρ = 1 + 2σc² ln p_colour`) mapped from [0.5, 1] to [0, 1], times the weighted
+    /// share of normal lines with contour support, square-rooted (a geometric mean); times 0.8
+    /// when no features measured the rotation.
+    fn confidence(&self, lp: &LikelihoodParams, w: &[f64], rotation_measured: bool) -> f64 {
+        let mut colour = 1.0;
+        if lp.terms & TERM_COLOUR != 0 {
+            let s2 = 2.0 * (lp.sigma_colour as f64).powi(2);
+            let rho: f64 = self
+                .terms
+                .iter()
+                .zip(w)
+                .map(|(t, w)| w * (1.0 + s2 * t.colour as f64))
+                .sum();
+            colour = ((rho - 0.5) / 0.5).clamp(0.0, 1.0);
+        }
+        let mut edges = 1.0;
+        if lp.terms & TERM_GRADIENT != 0 && lp.num_lines > 0 {
+            let k = 1.0
+                / ((2.0 * std::f64::consts::PI).sqrt()
+                    * lp.sigma_z as f64
+                    * lp.p_no_contour as f64
+                    * lp.clutter_density as f64);
+            let full = lp.num_lines as f64 * (1.0 + k).ln();
+            let g: f64 = self
+                .terms
+                .iter()
+                .zip(w)
+                .map(|(t, w)| w * t.gradient as f64)
+                .sum();
+            edges = (g / full).clamp(0.0, 1.0);
+        }
+        let c = (colour * edges).sqrt();
+        if rotation_measured { c } else { 0.8 * c }
+    }
+
+    /// Looks for the target over the whole frame by colour: ellipses of the current size on a
+    /// grid of half a semi-axis, all evaluated in one engine call. Returns the best one when its
+    /// colour similarity reaches [`TrackerConfig::reacquire_rho`].
+    fn reacquire(
+        &mut self,
+        frame: &image::RgbImage,
+        est: &Hypothesis,
+    ) -> crate::Result<Option<Hypothesis>> {
+        let (w, h) = self.size;
+        let step = (0.5 * est.a.min(est.b)).max(2.0);
+        let e = Euler::from_matrix(&est.rot);
+        let mut cands = Vec::new();
+        let mut y = 0.0;
+        while y < h as f64 {
+            let mut x = 0.0;
+            while x < w as f64 {
+                cands.push(Particle {
+                    cx: x as f32,
+                    cy: y as f32,
+                    a: est.a as f32,
+                    b: est.b as f32,
+                    rx: e.rx as f32,
+                    ry: e.ry as f32,
+                    rz: e.rz as f32,
+                    _pad: 0.0,
+                });
+                x += step;
+            }
+            y += step;
+        }
+        let mut lp = self.cfg.likelihood;
+        lp.terms = TERM_COLOUR;
+        let input = FrameInput {
+            image: frame,
+            features: &[],
+            prev: self.prev.to_particle(),
+            theta0: self.theta0 as f32,
+        };
+        let mut out = Vec::new();
+        self.engine.evaluate(&input, &lp, &cands, &mut out)?;
+        let s2 = 2.0 * (lp.sigma_colour as f64).powi(2);
+        let best = out
+            .iter()
+            .enumerate()
+            .max_by(|a, b| a.1.colour.total_cmp(&b.1.colour))
+            .map(|(i, t)| (i, 1.0 + s2 * t.colour as f64));
+        Ok(match best {
+            Some((i, rho)) if rho >= self.cfg.reacquire_rho => {
+                let c = cands[i];
+                Some(Hypothesis {
+                    cx: c.cx as f64,
+                    cy: c.cy as f64,
+                    a: est.a,
+                    b: est.b,
+                    rot: est.rot,
+                })
+            }
+            _ => None,
+        })
+    }
+}
+
+fn track_err(e: TrackError) -> crate::Error {
+    crate::Error::Track(e)
+}
+
+/// The median displacement of matched features, (0, 0) without any.
+fn median_displacement(pairs: &[FeaturePair]) -> (f64, f64) {
+    if pairs.is_empty() {
+        return (0.0, 0.0);
+    }
+    let med = |mut v: Vec<f64>| {
+        v.sort_by(f64::total_cmp);
+        v[v.len() / 2]
+    };
+    let dx = med(pairs.iter().map(|f| (f.q[0] - f.p[0]) as f64).collect());
+    let dy = med(pairs.iter().map(|f| (f.q[1] - f.p[1]) as f64).collect());
+    (dx, dy)
+}
+
+/// The Euler angles of `r` closest to `prev`: of the two triples that give the same rotation,
+/// `(rx, ry, rz)` and `(rx + π, π − ry, rz + π)`, each angle unwrapped to within π of the
+/// previous one, the one nearest `prev`. Keeps output angles continuous through ±180°.
+pub fn continuous_euler(r: &Matrix3<f64>, prev: &Euler) -> Euler {
+    use std::f64::consts::PI;
+    let e = Euler::from_matrix(r);
+    let unwrap = |a: f64, p: f64| p + crate::geometry::wrap_pi(a - p);
+    let cands = [
+        Euler::new(e.rx, e.ry, e.rz),
+        Euler::new(e.rx + PI, PI - e.ry, e.rz + PI),
+    ];
+    let mut best = cands[0];
+    let mut best_d = f64::INFINITY;
+    for c in cands {
+        let u = Euler::new(
+            unwrap(c.rx, prev.rx),
+            unwrap(c.ry, prev.ry),
+            unwrap(c.rz, prev.rz),
+        );
+        let d = (u.rx - prev.rx).powi(2) + (u.ry - prev.ry).powi(2) + (u.rz - prev.rz).powi(2);
+        if d < best_d {
+            best_d = d;
+            best = u;
+        }
+    }
+    best
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geometry::angle_between;
+
+    #[test]
+    fn continuous_euler_passes_through_180_without_jumps() {
+        let mut prev = Euler::default();
+        for k in 0..=72 {
+            let truth = Euler::new(0.1, (k as f64 * 5.0).to_radians(), -0.05);
+            let e = continuous_euler(&truth.matrix(), &prev);
+            assert!(angle_between(&e.matrix(), &truth.matrix()) < 1e-9);
+            assert!((e.ry - truth.ry).abs() < 1e-9, "k {k}: {e:?}");
+            prev = e;
+        }
+    }
+
+    #[test]
+    fn search_region_is_clipped() {
+        let r = search_region(&Ellipse::new(5.0, 5.0, 10.0, 10.0), 100, 80);
+        assert_eq!((r.x, r.y), (0.0, 0.0));
+        assert!(r.w <= 100.0 && r.h <= 80.0);
+    }
+
+    #[test]
+    fn init_checks() {
+        let ok = Init::frontal(Ellipse::new(50.0, 40.0, 10.0, 12.0));
+        assert!(check_init(&ok, 100, 80).is_ok());
+        let outside = Init::frontal(Ellipse::new(150.0, 40.0, 10.0, 12.0));
+        assert!(check_init(&outside, 100, 80).is_err());
+        let zero = Init::frontal(Ellipse::new(50.0, 40.0, 0.0, 12.0));
+        assert!(check_init(&zero, 100, 80).is_err());
+        let nan = Init::frontal(Ellipse::new(f64::NAN, 40.0, 10.0, 12.0));
+        assert!(check_init(&nan, 100, 80).is_err());
+    }
+}
