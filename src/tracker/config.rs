@@ -94,8 +94,14 @@ pub struct TrackerConfig {
     /// Largest rotation between two frames a keyframe fit may imply (radians); a fit beyond it
     /// is taken for a mismatch and ignored for that frame.
     pub max_rotation_step: f64,
-    /// Largest RMS reprojection error (pixels) of an accepted keyframe fit.
+    /// Largest RMS reprojection error (pixels) of an accepted depth-prior fit (the ellipsoid
+    /// is only a prior, so the residual grows with the angle).
     pub max_fit_residual: f64,
+    /// Fewest inlier matches of an accepted depth-prior fit (6 parameters are fitted).
+    pub min_fit_inliers: usize,
+    /// A new keyframe is taken when its matches fall below this share (percent) of those
+    /// found on the first frame after it was taken.
+    pub keyframe_refresh_percent: usize,
 }
 
 impl Default for TrackerConfig {
@@ -112,8 +118,10 @@ impl Default for TrackerConfig {
             lost_after: 3,
             reacquire_rho: 0.8,
             feature_weight: 4.0,
-            max_rotation_step: 8f64.to_radians(),
-            max_fit_residual: 1.5,
+            max_rotation_step: 20f64.to_radians(),
+            max_fit_residual: 3.0,
+            min_fit_inliers: 10,
+            keyframe_refresh_percent: 50,
         }
     }
 }

@@ -316,11 +316,7 @@ impl Tracker {
         let pairs = self.correspondences(&prev_ellipse, &features);
 
         // Translation and scale from block matching; the features' median motion if it fails.
-        let abm = if std::env::var("PF_ABMDEF").is_ok() {
-            self.cfg.abm
-        } else {
-            crate::motion::AbmParams::for_target(&prev_ellipse)
-        };
+        let abm = crate::motion::AbmParams::for_target(&prev_ellipse);
         let (dx, dy, scale) = match block_match(&self.prev_gray, &gray, &prev_ellipse, &abm) {
             Ok(r) => (r.translation[0], r.translation[1], r.scale),
             Err(_) => {
@@ -380,22 +376,51 @@ impl Tracker {
                 // Plausible only: enough inliers, a small residual, and no more rotation between
                 // two frames than the tracker follows.
                 let step = crate::geometry::angle_between(&f.rot, &rot0);
-                let mr: f64 = std::env::var("PF_RES")
-                    .ok()
-                    .and_then(|v| v.parse().ok())
-                    .unwrap_or(self.cfg.max_fit_residual);
-                if key_pairs.len() >= 6 && f.residual <= mr && step <= self.cfg.max_rotation_step {
+                if key_pairs.len() >= self.cfg.min_fit_inliers
+                    && f.residual <= self.cfg.max_fit_residual
+                    && step <= self.cfg.max_rotation_step
+                {
                     prior = Some((f, s0));
+                }
+            }
+        }
+        // Without a usable keyframe fit, the same model between the previous frame and this one.
+        let mut inter_pairs = pairs.clone();
+        let mut prior_prev = None;
+        if prior.is_none() && pairs.len() >= 6 && self.cfg.mode != Mode::Tpe {
+            let (p, q) = to_xy(&pairs);
+            let t0 = nalgebra::Vector2::new(self.prev.cx + dx, self.prev.cy + dy);
+            if let Ok(f) = crate::pose::prior::fit_with_depth_prior(
+                &p,
+                &q,
+                &prev_ellipse,
+                self.cfg.likelihood.depth_ratio as f64,
+                &Matrix3::identity(),
+                1.0,
+                t0,
+            ) {
+                let inl: Vec<FeaturePair> = pairs
+                    .iter()
+                    .zip(&f.inliers)
+                    .filter(|(_, k)| **k)
+                    .map(|(p, _)| *p)
+                    .collect();
+                let step = crate::geometry::angle_between(&f.rot, &Matrix3::identity());
+                if inl.len() >= self.cfg.min_fit_inliers
+                    && f.residual <= self.cfg.max_fit_residual
+                    && step <= self.cfg.max_rotation_step
+                {
+                    inter_pairs = inl;
+                    prior_prev = Some(f);
                 }
             }
         }
         let (lik_pairs, lik_prev) = if prior.is_some() {
             (&key_pairs, key_hyp)
         } else {
-            (&pairs, self.prev)
+            (&inter_pairs, self.prev)
         };
-        let key_inter = prior.is_some();
-
+        let key_inter = prior.is_some() || prior_prev.is_some();
         let mut lp = self.cfg.likelihood;
         let (dx, dy, scale, rotations) = match (&prior, &inter, self.cfg.mode) {
             (_, _, Mode::Tpe) => (dx, dy, scale, vec![(1.0, Matrix3::identity())]),
@@ -406,6 +431,22 @@ impl Tracker {
                     f.centre.y - self.prev.cy,
                     f.scale / s0,
                     vec![(1.0, delta)],
+                )
+            }
+            (None, _, _) if prior_prev.is_some() => {
+                let f = prior_prev
+                    .as_ref()
+                    .map(|f| (f.centre, f.scale, f.rot))
+                    .unwrap_or((
+                        nalgebra::Vector2::new(self.prev.cx, self.prev.cy),
+                        1.0,
+                        Matrix3::identity(),
+                    ));
+                (
+                    f.0.x - self.prev.cx,
+                    f.0.y - self.prev.cy,
+                    f.1,
+                    vec![(1.0, f.2)],
                 )
             }
             (None, Some(i), _) => (dx, dy, scale, vec![(0.5, i.pair.a), (0.5, i.pair.b)]),
@@ -485,7 +526,13 @@ impl Tracker {
         self.prev_gray = gray;
         // A new keyframe when the old one has drifted out of reach of the matcher.
         let initial = *self.keyframe.initial_matches.get_or_insert(key_pairs.len());
-        if key_pairs.len() < 6.max(initial * 35 / 100) && !self.lost {
+        if key_pairs.len()
+            < self
+                .cfg
+                .min_fit_inliers
+                .max(initial * self.cfg.keyframe_refresh_percent / 100)
+            && !self.lost
+        {
             self.keyframe = Self::make_keyframe(&features, &state.ellipse(self.theta0), est);
         }
         self.prev_features = features;
@@ -504,10 +551,7 @@ impl Tracker {
     /// Each particle's log-likelihood: the enabled terms of the last evaluation, the feature
     /// term weighted by [`TrackerConfig::feature_weight`].
     fn weighted_totals(&self, lp: &LikelihoodParams) -> Vec<f32> {
-        let wf = std::env::var("PF_WF")
-            .ok()
-            .and_then(|v| v.parse().ok())
-            .unwrap_or(self.cfg.feature_weight as f32);
+        let wf = self.cfg.feature_weight as f32;
         self.terms
             .iter()
             .map(|t| {
