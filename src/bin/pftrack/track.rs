@@ -67,7 +67,7 @@ pub struct TrackArgs {
     pub render: Option<PathBuf>,
 }
 
-fn parse_floats(s: &str, n: &[usize], what: &str) -> anyhow::Result<Vec<f64>> {
+pub fn parse_floats(s: &str, n: &[usize], what: &str) -> anyhow::Result<Vec<f64>> {
     let v: Result<Vec<f64>, _> = s.split(',').map(|t| t.trim().parse::<f64>()).collect();
     let v = v.with_context(|| format!("{what}: '{s}' is not a list of numbers"))?;
     if !n.contains(&v.len()) || v.iter().any(|x| !x.is_finite()) {
