@@ -52,15 +52,21 @@ pub fn run(a: DemoArgs) -> anyhow::Result<()> {
     let summary = write_sequence(&cfg, &seq_dir, std::io::stderr().is_terminal())?;
     let render_s = t0.elapsed().as_secs_f64();
 
-    let backend: Backend = a.backend.parse().map_err(|e| anyhow::anyhow!("--backend: {e}"))?;
+    let backend: Backend = a
+        .backend
+        .parse()
+        .map_err(|e| anyhow::anyhow!("--backend: {e}"))?;
     let (engine, notice) = create_engine(backend)?;
     if let Some(n) = notice {
         eprintln!("pftrack: {n}");
     }
     let init = Init::frontal(read_init(&seq_dir.join("init.txt"))?);
     let mut source = frames::open(&summary.frames_dir, &SourceOptions::default())?;
-    let first = source.next().context("the rendered sequence has no frames")??;
-    let mut tracker = Tracker::with_engine(config("sea", a.particles, a.seed)?, engine, &first, init)?;
+    let first = source
+        .next()
+        .context("the rendered sequence has no frames")??;
+    let mut tracker =
+        Tracker::with_engine(config("sea", a.particles, a.seed)?, engine, &first, init)?;
     let poses = a.out.join("poses.csv");
     let mut w = PoseCsvWriter::create(&poses, true)?;
     let pb = progress(Some(cfg.frames));
@@ -87,6 +93,11 @@ pub fn run(a: DemoArgs) -> anyhow::Result<()> {
         cfg.frames as f64 / track_s.max(1e-9),
         tracker.engine_name()
     );
-    println!("frames {}\ntruth  {}\nposes  {}", summary.frames_dir.display(), summary.truth.display(), poses.display());
+    println!(
+        "frames {}\ntruth  {}\nposes  {}",
+        summary.frames_dir.display(),
+        summary.truth.display(),
+        poses.display()
+    );
     Ok(())
 }

@@ -1,12 +1,150 @@
-//! `pftrack pose`: the rotation between two images.
+//! `pftrack pose`: the rotation between two images (SIFT matches inside an ellipse, the
+//! paper's outlier rejection, a rotation solver, the Necker pair completed).
 
+use std::path::PathBuf;
+
+use anyhow::{Context, bail};
 use clap::Args;
+use image::{Rgb, RgbImage};
+use pftrack::features::{MatchParams, Sift, SiftParams, match_features, reject_slope_length};
+use pftrack::frames::GrayF32;
+use pftrack::geometry::{Ellipse, Euler};
+use pftrack::pose::{SolverKind, essential_rotation, interframe};
+
+use crate::track::parse_floats;
 
 /// Arguments of `pftrack pose`.
 #[derive(Debug, Args)]
-pub struct PoseArgs {}
+pub struct PoseArgs {
+    /// The first image.
+    pub frame_a: PathBuf,
+    /// The second image (same size).
+    pub frame_b: PathBuf,
+    /// The object's ellipse in the first image, `cx,cy,a,b[,angle_deg]`.
+    #[arg(long, value_name = "CX,CY,A,B[,ANGLE]")]
+    pub ellipse: String,
+    /// Solver: sea, optimal, lsm, rls or essential.
+    #[arg(long, default_value = "sea")]
+    pub solver: String,
+    /// Draw the matches as arrows (like the paper's Fig. 1) into this PNG.
+    #[arg(long, value_name = "F.png")]
+    pub draw: Option<PathBuf>,
+}
+
+fn load(p: &PathBuf) -> anyhow::Result<RgbImage> {
+    Ok(image::open(p)
+        .with_context(|| format!("reading {}", p.display()))?
+        .to_rgb8())
+}
+
+/// Draws a line with a small arrow head (nearest-pixel steps).
+fn arrow(img: &mut RgbImage, a: [f64; 2], b: [f64; 2], c: Rgb<u8>) {
+    let mut put = |x: f64, y: f64| {
+        let (xi, yi) = (x.round() as i64, y.round() as i64);
+        if xi >= 0 && yi >= 0 && (xi as u32) < img.width() && (yi as u32) < img.height() {
+            img.put_pixel(xi as u32, yi as u32, c);
+        }
+    };
+    let (dx, dy) = (b[0] - a[0], b[1] - a[1]);
+    let n = dx.abs().max(dy.abs()).ceil().max(1.0) as usize;
+    for k in 0..=n {
+        let t = k as f64 / n as f64;
+        put(a[0] + t * dx, a[1] + t * dy);
+    }
+    let len = (dx * dx + dy * dy).sqrt();
+    if len > 1e-9 {
+        let (ux, uy) = (dx / len, dy / len);
+        for s in [-1.0, 1.0] {
+            let (hx, hy) = (-ux * 0.8 + s * uy * 0.6, -uy * 0.8 - s * ux * 0.6);
+            for k in 0..=3 {
+                put(b[0] + hx * k as f64, b[1] + hy * k as f64);
+            }
+        }
+    }
+}
 
 /// Runs the command.
-pub fn run(_args: PoseArgs) -> anyhow::Result<()> {
-    anyhow::bail!("`pftrack pose` is not implemented yet")
+pub fn run(a: PoseArgs) -> anyhow::Result<()> {
+    let v = parse_floats(&a.ellipse, &[4, 5], "--ellipse")?;
+    let e = Ellipse {
+        cx: v[0],
+        cy: v[1],
+        a: v[2],
+        b: v[3],
+        theta: v.get(4).copied().unwrap_or(0.0).to_radians(),
+    };
+    if !e.is_valid() {
+        bail!("--ellipse: semi-axes must be positive");
+    }
+    let (ia, ib) = (load(&a.frame_a)?, load(&a.frame_b)?);
+    if ia.dimensions() != ib.dimensions() {
+        bail!(
+            "the images differ in size: {:?} and {:?}",
+            ia.dimensions(),
+            ib.dimensions()
+        );
+    }
+    if !e.centre_inside(ia.width(), ia.height()) {
+        bail!(
+            "--ellipse: centre ({}, {}) lies outside the {}x{} image",
+            e.cx,
+            e.cy,
+            ia.width(),
+            ia.height()
+        );
+    }
+    let sift = Sift::new(SiftParams::default());
+    let fa = sift.detect(&GrayF32::from_rgb(&ia), None)?;
+    let fb = sift.detect(&GrayF32::from_rgb(&ib), None)?;
+    let mut p = Vec::new();
+    let mut q = Vec::new();
+    for m in match_features(&fa, &fb, &MatchParams::default()) {
+        let (ka, kb) = (&fa.keypoints[m.query], &fb.keypoints[m.train]);
+        if e.contains(ka.x as f64, ka.y as f64) {
+            p.push([ka.x as f64, ka.y as f64]);
+            q.push([kb.x as f64, kb.y as f64]);
+        }
+    }
+    let keep = reject_slope_length(&p, &q, 0.2, 0.3);
+    let (p, q): (Vec<_>, Vec<_>) = p
+        .iter()
+        .zip(&q)
+        .zip(&keep)
+        .filter(|(_, k)| **k)
+        .map(|((p, q), _)| (*p, *q))
+        .unzip();
+    println!(
+        "matches inside the ellipse after outlier rejection: {}",
+        p.len()
+    );
+    let show = |name: &str, r: &nalgebra::Matrix3<f64>| {
+        let [x, y, z] = Euler::from_matrix(r).to_degrees();
+        println!("{name}: tilt {x:.2} pan {y:.2} roll {z:.2} (degrees)");
+    };
+    if a.solver == "essential" {
+        let w = ia.width() as f64;
+        let k = pftrack::pose::Intrinsics {
+            fx: w,
+            fy: w,
+            cx: (w - 1.0) / 2.0,
+            cy: (ia.height() as f64 - 1.0) / 2.0,
+        };
+        let r = essential_rotation(&p, &q, &k)?;
+        show("essential (focal = image width assumed)", &r.rotation);
+    } else {
+        let kind = SolverKind::from_name(&a.solver)?;
+        let i = interframe(&p, &q, [e.cx, e.cy], kind)?;
+        println!("residual {:.3} px", i.block.residual);
+        show("rotation", &i.pair.a);
+        show("its Necker mirror", &i.pair.b);
+    }
+    if let Some(path) = &a.draw {
+        let mut img = ib.clone();
+        for (p, q) in p.iter().zip(&q) {
+            arrow(&mut img, *p, *q, Rgb([255, 40, 40]));
+        }
+        pftrack::output::write_png(path, &img)?;
+        println!("matches drawn in {}", path.display());
+    }
+    Ok(())
 }
