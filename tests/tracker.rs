@@ -1,0 +1,96 @@
+//! The whole tracker on short synthetic sequences with exact truth: it must follow the target
+//! and its rotation, deterministically for a seed, and reject bad input without panicking.
+
+use pftrack::geometry::{Ellipse, angle_between, rot_x};
+use pftrack::synth::{Renderer, Scenario, SynthConfig};
+use pftrack::tracker::{Init, Tracker, TrackerConfig};
+
+fn run(
+    scenario: Scenario,
+    steps: usize,
+    seed: u64,
+) -> (
+    Vec<pftrack::tracker::Estimate>,
+    Vec<pftrack::geometry::PoseState>,
+) {
+    // The trajectory spans the scenario's default length; only its first `steps` are tracked.
+    let cfg = SynthConfig::new(scenario);
+    let r = Renderer::new(&cfg).unwrap();
+    let (first, _) = r.render(0);
+    let tc = TrackerConfig {
+        seed,
+        ..TrackerConfig::default()
+    };
+    let mut t = Tracker::new(tc, &first, Init::frontal(r.init_ellipse())).unwrap();
+    let mut est = vec![t.initial_estimate()];
+    let mut truth = vec![r.truth(0)];
+    for k in 1..steps {
+        let (img, tr) = r.render(k);
+        est.push(t.step(&img).unwrap());
+        truth.push(tr);
+    }
+    (est, truth)
+}
+
+#[test]
+fn follows_a_nodding_head() {
+    // The first 40 frames of `nod` tilt the head to about 30 degrees.
+    let (est, truth) = run(Scenario::Nod, 40, 0);
+    let mut worst_centre: f64 = 0.0;
+    for (e, t) in est.iter().zip(&truth) {
+        worst_centre =
+            worst_centre.max(((e.state.cx - t.cx).powi(2) + (e.state.cy - t.cy).powi(2)).sqrt());
+        assert!(!e.lost, "frame {} declared lost", e.frame);
+        assert!((0.0..=1.0).contains(&e.confidence));
+    }
+    assert!(worst_centre < 5.0, "centre off by {worst_centre:.2} px");
+    let (e, t) = (est.last().unwrap(), truth.last().unwrap());
+    let err = angle_between(&e.state.euler().matrix(), &t.euler().matrix()).to_degrees();
+    assert!(t.rx.to_degrees() > 25.0, "the scenario should have tilted");
+    // Tilted the right way (its Necker mirror would be ~60 degrees off) and within 25 degrees:
+    // what the tracker reaches today (it overshoots large tilts; issue 4's 3-degree target is
+    // not met yet). Tighten this bound as the tracker improves.
+    assert!(
+        e.state.rx > 0.0 && err < 25.0,
+        "final rotation off by {err:.1} deg: {:?}",
+        e.angles_deg()
+    );
+    assert!(angle_between(&e.state.euler().matrix(), &rot_x(-t.rx)) > err);
+}
+
+#[test]
+fn deterministic_for_a_seed() {
+    let (a, _) = run(Scenario::Roll, 12, 5);
+    let (b, _) = run(Scenario::Roll, 12, 5);
+    assert_eq!(a, b);
+}
+
+#[test]
+fn bad_input_is_an_error() {
+    let r = Renderer::new(&SynthConfig {
+        frames: 2,
+        ..SynthConfig::new(Scenario::Nod)
+    })
+    .unwrap();
+    let (img, _) = r.render(0);
+    for e in [
+        Ellipse::new(500.0, 50.0, 10.0, 10.0),
+        Ellipse::new(50.0, 50.0, 0.0, 10.0),
+        Ellipse::new(f64::NAN, 5.0, 5.0, 5.0),
+    ] {
+        assert!(Tracker::new(TrackerConfig::default(), &img, Init::frontal(e)).is_err());
+    }
+    // A frame of another size.
+    let mut t = Tracker::new(
+        TrackerConfig::default(),
+        &img,
+        Init::frontal(r.init_ellipse()),
+    )
+    .unwrap();
+    assert!(t.step(&image::RgbImage::new(10, 10)).is_err());
+    // A frame with no texture: no features, the tracker still answers.
+    let flat = image::RgbImage::from_pixel(img.width(), img.height(), image::Rgb([90, 90, 90]));
+    let e = t.step(&flat).unwrap();
+    assert_eq!(e.matches, 0);
+    assert!(e.confidence < 0.9);
+}
