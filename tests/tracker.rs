@@ -55,7 +55,12 @@ fn follows_a_nodding_head() {
         "final rotation off by {err:.1} deg: {:?}",
         e.angles_deg()
     );
-    assert!(angle_between(&e.state.euler().matrix(), &rot_x(-t.rx)) > err);
+    let mirror = angle_between(&e.state.euler().matrix(), &rot_x(-t.rx)).to_degrees();
+    assert!(
+        mirror > err,
+        "closer to the mirror ({mirror:.1}) than to the truth ({err:.1}): {:?}",
+        e.angles_deg()
+    );
 }
 
 #[test]
