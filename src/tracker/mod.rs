@@ -335,7 +335,7 @@ impl Tracker {
         };
         let key_pairs = self.keyframe_pairs(&features);
         let key_hyp = self.keyframe.hyp.unwrap_or(self.prev);
-        let use_key = key_pairs.len() >= 6 && self.cfg.mode != Mode::Tpe;
+        let use_key = key_pairs.len() >= self.cfg.min_fit_inliers && self.cfg.mode != Mode::Tpe;
         let to_xy = |v: &[FeaturePair]| -> (Vec<[f64; 2]>, Vec<[f64; 2]>) {
             (
                 v.iter().map(|f| [f.p[0] as f64, f.p[1] as f64]).collect(),
@@ -387,7 +387,8 @@ impl Tracker {
         // Without a usable keyframe fit, the same model between the previous frame and this one.
         let mut inter_pairs = pairs.clone();
         let mut prior_prev = None;
-        if prior.is_none() && pairs.len() >= 6 && self.cfg.mode != Mode::Tpe {
+        if prior.is_none() && pairs.len() >= self.cfg.min_fit_inliers && self.cfg.mode != Mode::Tpe
+        {
             let (p, q) = to_xy(&pairs);
             let t0 = nalgebra::Vector2::new(self.prev.cx + dx, self.prev.cy + dy);
             if let Ok(f) = crate::pose::prior::fit_with_depth_prior(
@@ -433,22 +434,12 @@ impl Tracker {
                     vec![(1.0, delta)],
                 )
             }
-            (None, _, _) if prior_prev.is_some() => {
-                let f = prior_prev
-                    .as_ref()
-                    .map(|f| (f.centre, f.scale, f.rot))
-                    .unwrap_or((
-                        nalgebra::Vector2::new(self.prev.cx, self.prev.cy),
-                        1.0,
-                        Matrix3::identity(),
-                    ));
-                (
-                    f.0.x - self.prev.cx,
-                    f.0.y - self.prev.cy,
-                    f.1,
-                    vec![(1.0, f.2)],
-                )
-            }
+            (None, _, _) if let Some(f) = &prior_prev => (
+                f.centre.x - self.prev.cx,
+                f.centre.y - self.prev.cy,
+                f.scale,
+                vec![(1.0, f.rot)],
+            ),
             (None, Some(i), _) => (dx, dy, scale, vec![(0.5, i.pair.a), (0.5, i.pair.b)]),
             (None, None, _) => (dx, dy, scale, vec![(1.0, Matrix3::identity())]),
         };
@@ -597,30 +588,14 @@ impl Tracker {
     /// Matches between the keyframe and this frame (the depth-prior fit removes outliers).
     fn keyframe_pairs(&self, cur: &Features) -> Vec<FeaturePair> {
         let key = &self.keyframe.features;
-        let matches = match_features(key, cur, &self.cfg.matching);
-        let p: Vec<[f64; 2]> = matches
+        match_features(key, cur, &self.cfg.matching)
             .iter()
             .map(|m| {
-                [
-                    key.keypoints[m.query].x as f64,
-                    key.keypoints[m.query].y as f64,
-                ]
-            })
-            .collect();
-        let q: Vec<[f64; 2]> = matches
-            .iter()
-            .map(|m| {
-                [
-                    cur.keypoints[m.train].x as f64,
-                    cur.keypoints[m.train].y as f64,
-                ]
-            })
-            .collect();
-        p.iter()
-            .zip(&q)
-            .map(|(p, q)| FeaturePair {
-                p: [p[0] as f32, p[1] as f32],
-                q: [q[0] as f32, q[1] as f32],
+                let (a, b) = (&key.keypoints[m.query], &cur.keypoints[m.train]);
+                FeaturePair {
+                    p: [a.x, a.y],
+                    q: [b.x, b.y],
+                }
             })
             .collect()
     }
