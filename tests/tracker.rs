@@ -5,16 +5,17 @@ use pftrack::geometry::{Ellipse, angle_between, rot_x};
 use pftrack::synth::{Renderer, Scenario, SynthConfig};
 use pftrack::tracker::{Init, Tracker, TrackerConfig};
 
-fn run(
-    scenario: Scenario,
-    steps: usize,
-    seed: u64,
-) -> (
+type Track = (
     Vec<pftrack::tracker::Estimate>,
     Vec<pftrack::geometry::PoseState>,
-) {
+);
+
+fn run(scenario: Scenario, steps: usize, seed: u64) -> Track {
     // The trajectory spans the scenario's default length; only its first `steps` are tracked.
-    let cfg = SynthConfig::new(scenario);
+    run_cfg(SynthConfig::new(scenario), steps, seed)
+}
+
+fn run_cfg(cfg: SynthConfig, steps: usize, seed: u64) -> Track {
     let r = Renderer::new(&cfg).unwrap();
     let (first, _) = r.render(0);
     let tc = TrackerConfig {
@@ -59,6 +60,32 @@ fn follows_a_nodding_head() {
     assert!(
         mirror > err,
         "closer to the mirror ({mirror:.1}) than to the truth ({err:.1}): {:?}",
+        e.angles_deg()
+    );
+}
+
+#[test]
+fn comes_back_to_frontal_after_nodding_out_and_back() {
+    // A 90-frame nod: up to 35 degrees by frame 22, back through frontal at frame 45. Between
+    // successive frames the rotation is measured against keyframes; when the head comes back,
+    // the first view (whose pose is exact) is in reach again, so the error accumulated on the
+    // way out must not remain.
+    let cfg = SynthConfig {
+        frames: 90,
+        ..SynthConfig::new(Scenario::Nod)
+    };
+    let (est, truth) = run_cfg(cfg, 46, 0);
+    let peak = truth.iter().map(|t| t.rx.to_degrees()).fold(0.0, f64::max);
+    assert!(peak > 30.0, "the scenario should have tilted ({peak:.1})");
+    let (e, t) = (&est[44], &truth[44]);
+    assert!(
+        t.rx.to_degrees().abs() < 2.0,
+        "frame 44 should be near frontal"
+    );
+    let err = angle_between(&e.state.euler().matrix(), &t.euler().matrix()).to_degrees();
+    assert!(
+        err < 5.0,
+        "back at frontal the rotation is off by {err:.1} deg: {:?}",
         e.angles_deg()
     );
 }

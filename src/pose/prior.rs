@@ -3,13 +3,15 @@
 //! The paper's weak-perspective block model `q = R2 p + l` treats the object as flat: on a
 //! curved object such as a head, out-of-plane rotation moves the visible surface across the
 //! silhouette (parallax) far more than it foreshortens it, so the block's second singular value
-//! (`cos θ`) stays near 1 while features slide by `r·sin θ`. Lifting each keyframe feature onto
-//! an ellipsoid fitted to the keyframe's ellipse — `X = (p − c, z)` with
-//! `z = −k·sqrt(a b)·sqrt(max(0, 1 − u² − v²))`, `(u, v)` the feature's normalised ellipse
-//! coordinates — makes that parallax part of the model: `q ≈ t + s·(R X)_xy`. This module fits
-//! `(R, s, t)` to the matches by robust Gauss-Newton from a starting pose (the previous
-//! estimate), so the fit stays on the branch of the Necker pair the track is on. The same model
-//! is the feature likelihood of [`crate::likelihood`].
+//! (`cos θ`) stays near 1 while features slide by `r·sin θ`. Lifting each feature of a
+//! reference view onto an ellipsoid model of the object in that view ([`Ellipsoid`]: the
+//! outline of the first frame, `k·sqrt(a b)` deep, turned to the view's estimated pose) makes
+//! that parallax part of the model: `q ≈ t + s·(R X)_xy` under weak perspective, or the pinhole
+//! projection of `R X` when the camera's field of view is known ([`Pinhole`]), which removes
+//! the bias of weak perspective on near objects (their front is magnified more than their
+//! centre). This module fits `(R, s, t)` to the matches by robust Gauss-Newton from a starting
+//! pose (the previous estimate), so the fit stays on the branch of the Necker pair the track is
+//! on. The feature likelihood of [`crate::likelihood`] uses the facing, weak-perspective form.
 
 use nalgebra::{Matrix3, SMatrix, SVector, Vector2, Vector3};
 
@@ -32,16 +34,174 @@ pub struct PriorFit {
     pub residual: f64,
 }
 
-/// Lifts image points of the keyframe onto the ellipsoid prior (see the module docs).
-pub fn lift(p: &[[f64; 2]], key: &Ellipse, depth_ratio: f64) -> Vec<Vector3<f64>> {
-    let d = depth_ratio * (key.a * key.b).sqrt();
+/// A pinhole camera for the perspective form of the depth prior: focal length and principal
+/// point in pixels.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Pinhole {
+    /// Focal length (pixels).
+    pub focal: f64,
+    /// Principal point (pixels).
+    pub principal: Vector2<f64>,
+}
+
+impl Pinhole {
+    /// The camera of a `width` x `height` image with horizontal field of view `hfov_deg`
+    /// and the principal point at the image centre (`((w - 1) / 2, (h - 1) / 2)` in the
+    /// project's pixel convention).
+    pub fn from_hfov(width: u32, height: u32, hfov_deg: f64) -> Option<Self> {
+        let half = (0.5 * hfov_deg).to_radians();
+        if !(half > 0.0 && half < std::f64::consts::FRAC_PI_2) || width == 0 || height == 0 {
+            return None;
+        }
+        Some(Self {
+            focal: 0.5 * width as f64 / half.tan(),
+            principal: Vector2::new(0.5 * (width as f64 - 1.0), 0.5 * (height as f64 - 1.0)),
+        })
+    }
+}
+
+/// The object model a view's features are lifted with: an ellipsoid, centred on the object,
+/// in the view's camera axes, in pixels at the depth of its centre.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Ellipsoid {
+    /// Image of the ellipsoid's centre in the view (pixels).
+    pub centre: Vector2<f64>,
+    /// Its axes in camera coordinates (columns: the object's x, y, z axes).
+    pub orientation: Matrix3<f64>,
+    /// Semi-axes along those axes (pixels).
+    pub semi: Vector3<f64>,
+}
+
+impl Ellipsoid {
+    /// The ellipsoid facing the camera whose outline is `e`: semi-axes `a`, `b` in the
+    /// ellipse's orientation, and `depth_ratio · sqrt(a b)` deep.
+    pub fn facing(e: &Ellipse, depth_ratio: f64) -> Self {
+        Self::posed(e, depth_ratio, &Matrix3::identity(), e)
+    }
+
+    /// The object of a track that started facing the camera in `reference` (as
+    /// [`Ellipsoid::facing`]), turned by `rot` and seen in `view`: centred on `view`'s centre and
+    /// scaled so its outline has `view`'s area (the orthographic outline of semi-axes
+    /// `(A, B, D)` seen along `n`, in object axes, has area `π·sqrt((B D n_x)² + (A D n_y)² +
+    /// (A B n_z)²)`).
+    pub fn posed(
+        reference: &Ellipse,
+        depth_ratio: f64,
+        rot: &Matrix3<f64>,
+        view: &Ellipse,
+    ) -> Self {
+        let (a, b) = (reference.a, reference.b);
+        let d = depth_ratio * (a * b).sqrt();
+        let orientation = rot * crate::geometry::rot_z(reference.theta);
+        let n = orientation.transpose() * Vector3::z();
+        let outline =
+            ((b * d * n.x).powi(2) + (a * d * n.y).powi(2) + (a * b * n.z).powi(2)).sqrt();
+        let scale = if outline > 0.0 {
+            (view.a * view.b / outline).sqrt()
+        } else {
+            1.0
+        };
+        Self {
+            centre: Vector2::new(view.cx, view.cy),
+            orientation,
+            semi: Vector3::new(a, b, d) * scale,
+        }
+    }
+
+    /// Whether every value is finite and the semi-axes positive.
+    pub fn is_valid(&self) -> bool {
+        self.centre
+            .iter()
+            .chain(self.orientation.iter())
+            .all(|v| v.is_finite())
+            && self.semi.iter().all(|v| v.is_finite() && *v > 0.0)
+    }
+}
+
+/// Lifts image points of a view onto its ellipsoid: each point's viewing ray (parallel to the
+/// optical axis under weak perspective, from the camera centre with a camera) meets the
+/// ellipsoid's near side; a ray that misses it takes its point of closest approach (the
+/// outline). Points are relative to the ellipsoid's centre, in pixels at its depth; with a
+/// camera, the centre lies at depth `focal`.
+pub fn lift(p: &[[f64; 2]], model: &Ellipsoid, camera: Option<&Pinhole>) -> Vec<Vector3<f64>> {
+    let inv = Matrix3::from_diagonal(&model.semi.map(|s| 1.0 / (s * s)));
+    let q = model.orientation * inv * model.orientation.transpose();
     p.iter()
         .map(|p| {
-            let (u, v) = key.to_unit(p[0], p[1]);
-            let z = -d * (1.0 - u * u - v * v).max(0.0).sqrt();
-            Vector3::new(p[0] - key.cx, p[1] - key.cy, z)
+            let (origin, dir) = match camera {
+                None => (
+                    Vector3::new(p[0] - model.centre.x, p[1] - model.centre.y, 0.0),
+                    Vector3::z(),
+                ),
+                Some(c) => (
+                    Vector3::new(
+                        c.principal.x - model.centre.x,
+                        c.principal.y - model.centre.y,
+                        -c.focal,
+                    ),
+                    Vector3::new(p[0] - c.principal.x, p[1] - c.principal.y, c.focal),
+                ),
+            };
+            let qa = dir.dot(&(q * dir));
+            let qb = dir.dot(&(q * origin));
+            let qc = origin.dot(&(q * origin)) - 1.0;
+            let disc = qb * qb - qa * qc;
+            let lambda = if disc > 0.0 {
+                (-qb - disc.sqrt()) / qa
+            } else {
+                -qb / qa
+            };
+            origin + lambda * dir
         })
         .collect()
+}
+
+/// The image of the lifted point `x` in a view where the object has turned by `r`, is seen at
+/// scale `s` relative to the keyframe and its centre projects to `t`; with the Jacobian of
+/// that image with respect to `(ω, ln s, t)` (a rotation update `exp(ω) r`).
+fn project(
+    x: &Vector3<f64>,
+    r: &Matrix3<f64>,
+    s: f64,
+    t: &Vector2<f64>,
+    camera: Option<&Pinhole>,
+) -> (Vector2<f64>, SMatrix<f64, 2, 6>) {
+    let y = r * x;
+    // d(y)/dω = -[y]x: columns for ω = e_x, e_y, e_z.
+    let dy = Matrix3::new(0.0, y.z, -y.y, -y.z, 0.0, y.x, y.y, -y.x, 0.0);
+    let mut jac = SMatrix::<f64, 2, 6>::zeros();
+    match camera {
+        None => {
+            for k in 0..3 {
+                jac[(0, k)] = s * dy[(0, k)];
+                jac[(1, k)] = s * dy[(1, k)];
+            }
+            jac[(0, 3)] = s * y.x;
+            jac[(1, 3)] = s * y.y;
+            jac[(0, 4)] = 1.0;
+            jac[(1, 5)] = 1.0;
+            (Vector2::new(t.x + s * y.x, t.y + s * y.y), jac)
+        }
+        Some(c) => {
+            // q = pp + ((t - pp) + s y_xy) / (1 + s y_z / f)
+            let f = c.focal;
+            let g = 1.0 + s * y.z / f;
+            let n = Vector2::new(t.x - c.principal.x + s * y.x, t.y - c.principal.y + s * y.y);
+            let q = c.principal + n / g;
+            let g2 = g * g;
+            for k in 0..3 {
+                let dg = s * dy[(2, k)] / f;
+                jac[(0, k)] = s * dy[(0, k)] / g - n.x * dg / g2;
+                jac[(1, k)] = s * dy[(1, k)] / g - n.y * dg / g2;
+            }
+            let dg = s * y.z / f;
+            jac[(0, 3)] = s * y.x / g - n.x * dg / g2;
+            jac[(1, 3)] = s * y.y / g - n.y * dg / g2;
+            jac[(0, 4)] = 1.0 / g;
+            jac[(1, 5)] = 1.0 / g;
+            (q, jac)
+        }
+    }
 }
 
 fn residuals(
@@ -50,24 +210,26 @@ fn residuals(
     r: &Matrix3<f64>,
     s: f64,
     t: &Vector2<f64>,
+    camera: Option<&Pinhole>,
     out: &mut Vec<Vector2<f64>>,
 ) {
     out.clear();
     for (xj, qj) in x.iter().zip(q) {
-        let y = r * xj;
-        out.push(Vector2::new(qj[0] - t.x - s * y.x, qj[1] - t.y - s * y.y));
+        let (y, _) = project(xj, r, s, t, camera);
+        out.push(Vector2::new(qj[0] - y.x, qj[1] - y.y));
     }
 }
 
-/// Fits `q ≈ t + s·(R X)_xy` to matches `p` (keyframe) → `q` (current frame), with `X` the
-/// keyframe points lifted by [`lift`], starting from `(rot0, scale0, centre0)`. Residuals
-/// beyond `3 × max(1 px, median)` are dropped after each of a few rounds (robust to
-/// mismatches). Needs at least 4 matches.
+/// Fits the view of a reference view's points lifted onto its ellipsoid (`X`, [`lift`]) to matches `p` (keyframe) →
+/// `q` (current frame): rotation `R`, scale `s` and centre `t` such that
+/// `q ≈ t + s·(R X)_xy` under weak perspective, or its pinhole projection with a camera,
+/// starting from `(rot0, scale0, centre0)`. Residuals beyond `3 × max(1 px, median)` are
+/// dropped after each of a few rounds (robust to mismatches). Needs at least 4 matches.
 pub fn fit_with_depth_prior(
     p: &[[f64; 2]],
     q: &[[f64; 2]],
-    key: &Ellipse,
-    depth_ratio: f64,
+    model: &Ellipsoid,
+    camera: Option<&Pinhole>,
     rot0: &Matrix3<f64>,
     scale0: f64,
     centre0: Vector2<f64>,
@@ -81,14 +243,18 @@ pub fn fit_with_depth_prior(
             need: 4,
         });
     }
+    let camera_ok = camera.is_none_or(|c| {
+        c.focal.is_finite() && c.focal > 0.0 && c.principal.iter().all(|v| v.is_finite())
+    });
     if p.iter()
         .chain(q)
         .any(|v| !v[0].is_finite() || !v[1].is_finite())
-        || !key.is_valid()
+        || !model.is_valid()
+        || !camera_ok
     {
         return Err(PoseError::NonFinite);
     }
-    let x = lift(p, key, depth_ratio);
+    let x = lift(p, model, camera);
     let mut rot = *rot0;
     let mut s = if scale0.is_finite() && scale0 > 0.0 {
         scale0
@@ -107,27 +273,10 @@ pub fn fit_with_depth_prior(
                 if !inl[j] {
                     continue;
                 }
-                let y = rot * xj;
-                let r = Vector2::new(qj[0] - t.x - s * y.x, qj[1] - t.y - s * y.y);
-                // d(s (exp(ω) y))_xy / dω at ω = 0 is s [ω× y]_xy = -s [y×] ω.
-                let jx = SVector::<f64, 6>::from_column_slice(&[
-                    0.0,
-                    s * y.z,
-                    -s * y.y,
-                    s * y.x,
-                    1.0,
-                    0.0,
-                ]);
-                let jy = SVector::<f64, 6>::from_column_slice(&[
-                    -s * y.z,
-                    0.0,
-                    s * y.x,
-                    s * y.y,
-                    0.0,
-                    1.0,
-                ]);
-                jtj += jx * jx.transpose() + jy * jy.transpose();
-                jtr += jx * r.x + jy * r.y;
+                let (y, jac) = project(xj, &rot, s, &t, camera);
+                let r = Vector2::new(qj[0] - y.x, qj[1] - y.y);
+                jtj += jac.transpose() * jac;
+                jtr += jac.transpose() * r;
             }
             // A light damping keeps the step defined when the points are nearly planar.
             for k in 0..6 {
@@ -143,8 +292,8 @@ pub fn fit_with_depth_prior(
                 break;
             }
         }
-        residuals(&x, q, &rot, s, &t, &mut res);
-        let mut norms: Vec<f64> = res.iter().map(|r| r.norm()).collect();
+        residuals(&x, q, &rot, s, &t, camera, &mut res);
+        let norms: Vec<f64> = res.iter().map(|r| r.norm()).collect();
         let mut sorted = norms.clone();
         sorted.sort_by(f64::total_cmp);
         let med = sorted[sorted.len() / 2];
@@ -155,9 +304,8 @@ pub fn fit_with_depth_prior(
             break;
         }
         inl = new;
-        norms.clear();
     }
-    residuals(&x, q, &rot, s, &t, &mut res);
+    residuals(&x, q, &rot, s, &t, camera, &mut res);
     let (mut sum, mut n) = (0.0, 0usize);
     for (r, &k) in res.iter().zip(&inl) {
         if k {
@@ -196,7 +344,7 @@ mod tests {
             let (u, v) = (r * a.cos(), r * a.sin());
             p.push([key.cx + u * key.a, key.cy + v * key.b]);
         }
-        let x = lift(&p, &key, 1.0);
+        let x = lift(&p, &Ellipsoid::facing(&key, 1.0), None);
         let rm = truth.matrix();
         let q = x.iter().map(|x| {
             let y = rm * x;
@@ -217,8 +365,8 @@ mod tests {
             let f = fit_with_depth_prior(
                 &p,
                 &q,
-                &key,
-                1.0,
+                &Ellipsoid::facing(&key, 1.0),
+                None,
                 &Matrix3::identity(),
                 1.0,
                 Vector2::new(80.0, 60.0),
@@ -242,8 +390,8 @@ mod tests {
         let f = fit_with_depth_prior(
             &p,
             &q,
-            &key,
-            1.0,
+            &Ellipsoid::facing(&key, 1.0),
+            None,
             &Matrix3::identity(),
             1.0,
             Vector2::new(80.0, 60.0),
@@ -261,8 +409,8 @@ mod tests {
             fit_with_depth_prior(
                 &p,
                 &p,
-                &key,
-                1.0,
+                &Ellipsoid::facing(&key, 1.0),
+                None,
                 &Matrix3::identity(),
                 1.0,
                 Vector2::zeros()
@@ -274,13 +422,183 @@ mod tests {
             fit_with_depth_prior(
                 &p,
                 &p,
-                &key,
-                1.0,
+                &Ellipsoid::facing(&key, 1.0),
+                None,
                 &Matrix3::identity(),
                 1.0,
                 Vector2::zeros()
             )
             .is_err()
         );
+    }
+
+    fn camera() -> Pinhole {
+        Pinhole::from_hfov(160, 120, 50.0).unwrap()
+    }
+
+    #[test]
+    fn perspective_lift_then_projection_at_the_keyframe_gives_back_the_points() {
+        let key = Ellipse::new(95.0, 52.0, 20.0, 24.0);
+        let cam = camera();
+        let model = Ellipsoid::posed(
+            &key,
+            1.0,
+            &Euler::from_degrees(10.0, 30.0, 0.0).matrix(),
+            &key,
+        );
+        let p = [[95.0, 52.0], [105.0, 60.0], [80.0, 45.0], [112.0, 52.0]];
+        let x = lift(&p, &model, Some(&cam));
+        for (xj, pj) in x.iter().zip(&p) {
+            let (q, _) = project(
+                xj,
+                &Matrix3::identity(),
+                1.0,
+                &Vector2::new(key.cx, key.cy),
+                Some(&cam),
+            );
+            assert!(
+                (q - Vector2::new(pj[0], pj[1])).norm() < 1e-9,
+                "{q:?} {pj:?}"
+            );
+        }
+        // The front of the ellipsoid is nearer the camera than the centre.
+        assert!(x[0].z < -15.0);
+    }
+
+    #[test]
+    fn the_jacobian_matches_finite_differences() {
+        let x = Vector3::new(7.0, -4.0, -15.0);
+        let r = Euler::from_degrees(12.0, -20.0, 5.0).matrix();
+        let t = Vector2::new(70.0, 64.0);
+        for cam in [None, Some(camera())] {
+            let (q0, jac) = project(&x, &r, 1.1, &t, cam.as_ref());
+            let h = 1e-6;
+            for k in 0..6 {
+                let mut d = [0.0; 6];
+                d[k] = h;
+                let rk = exp_so3(&Vector3::new(d[0], d[1], d[2])) * r;
+                let (qk, _) = project(
+                    &x,
+                    &rk,
+                    1.1 * d[3].exp(),
+                    &(t + Vector2::new(d[4], d[5])),
+                    cam.as_ref(),
+                );
+                let num = (qk - q0) / h;
+                assert!(
+                    (num.x - jac[(0, k)]).abs() < 1e-4 && (num.y - jac[(1, k)]).abs() < 1e-4,
+                    "column {k}: {num:?} vs {:?}",
+                    jac.column(k)
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn recovers_the_pose_exactly_under_perspective() {
+        let cam = camera();
+        let key = Ellipse::new(90.0, 55.0, 20.0, 24.0);
+        let model = Ellipsoid::facing(&key, 1.0);
+        let mut p = Vec::new();
+        for i in 0..40 {
+            let a = i as f64 * 2.399;
+            let r = 0.85 * ((i as f64 + 0.5) / 40.0).sqrt();
+            p.push([key.cx + r * a.cos() * key.a, key.cy + r * a.sin() * key.b]);
+        }
+        let x = lift(&p, &model, Some(&cam));
+        let truth = Euler::from_degrees(25.0, -15.0, 8.0).matrix();
+        let t = Vector2::new(84.0, 60.0);
+        let q: Vec<[f64; 2]> = x
+            .iter()
+            .map(|xj| {
+                let (q, _) = project(xj, &truth, 0.9, &t, Some(&cam));
+                [q.x, q.y]
+            })
+            .collect();
+        let f = fit_with_depth_prior(
+            &p,
+            &q,
+            &model,
+            Some(&cam),
+            &Matrix3::identity(),
+            1.0,
+            Vector2::new(key.cx, key.cy),
+        )
+        .unwrap();
+        assert!(angle_between(&f.rot, &truth) < 1e-6);
+        assert!((f.scale - 0.9).abs() < 1e-6 && (f.centre - t).norm() < 1e-6);
+        // The weak-perspective model misreads the same data.
+        let w = fit_with_depth_prior(
+            &p,
+            &q,
+            &Ellipsoid::facing(&key, 1.0),
+            None,
+            &Matrix3::identity(),
+            1.0,
+            Vector2::new(key.cx, key.cy),
+        )
+        .unwrap();
+        assert!(angle_between(&w.rot, &truth) > 1e-3);
+    }
+
+    #[test]
+    fn a_bad_camera_is_an_error() {
+        assert!(Pinhole::from_hfov(160, 120, 0.0).is_none());
+        assert!(Pinhole::from_hfov(160, 120, 180.0).is_none());
+        let key = Ellipse::new(80.0, 60.0, 20.0, 24.0);
+        let p = [[80.0, 60.0], [85.0, 62.0], [75.0, 58.0], [82.0, 50.0]];
+        let model = Ellipsoid::facing(&key, 1.0);
+        let cam = Pinhole {
+            focal: f64::NAN,
+            principal: Vector2::zeros(),
+        };
+        let r = fit_with_depth_prior(
+            &p,
+            &p,
+            &model,
+            Some(&cam),
+            &Matrix3::identity(),
+            1.0,
+            Vector2::zeros(),
+        );
+        assert!(matches!(r, Err(PoseError::NonFinite)));
+    }
+
+    #[test]
+    fn a_facing_ellipsoid_lifts_like_the_ellipse_formula() {
+        let key = Ellipse {
+            theta: 0.3,
+            ..Ellipse::new(80.0, 60.0, 20.0, 24.0)
+        };
+        let model = Ellipsoid::facing(&key, 0.8);
+        let d = 0.8 * (20.0f64 * 24.0).sqrt();
+        for p in [[80.0, 60.0], [90.0, 65.0], [70.0, 40.0], [200.0, 60.0]] {
+            let x = lift(&[p], &model, None)[0];
+            let (u, v) = key.to_unit(p[0], p[1]);
+            let z = -d * (1.0 - u * u - v * v).max(0.0).sqrt();
+            assert!(
+                (x - Vector3::new(p[0] - 80.0, p[1] - 60.0, z)).norm() < 1e-9,
+                "{p:?}"
+            );
+        }
+    }
+
+    #[test]
+    fn a_posed_ellipsoid_keeps_the_outline_area_and_puts_points_on_its_surface() {
+        let reference = Ellipse::new(80.0, 60.0, 18.0, 24.0);
+        let rot = Euler::from_degrees(0.0, 60.0, 0.0).matrix();
+        let view = Ellipse::new(70.0, 62.0, 20.0, 24.0);
+        let m = Ellipsoid::posed(&reference, 1.0, &rot, &view);
+        // Pan about y: the outline is sqrt((A cos)^2 + (D sin)^2) wide and B high; its area
+        // matches the view's.
+        let (a, b, d) = (m.semi.x, m.semi.y, m.semi.z);
+        let w = ((a * 0.5).powi(2) + (d * 0.75f64.sqrt()).powi(2)).sqrt();
+        assert!((w * b - 20.0 * 24.0).abs() < 1e-6, "{w} {b}");
+        let q = m.orientation
+            * Matrix3::from_diagonal(&m.semi.map(|s| 1.0 / (s * s)))
+            * m.orientation.transpose();
+        for x in lift(&[[70.0, 62.0], [75.0, 70.0], [60.0, 55.0]], &m, None) {
+            assert!((x.dot(&(q * x)) - 1.0).abs() < 1e-9);
+        }
     }
 }

@@ -29,6 +29,7 @@
 //! every estimate; a lost target is searched for over the whole frame by colour.
 
 mod config;
+mod keyframe;
 
 pub use config::{Init, Mode, TrackerConfig};
 
@@ -44,6 +45,7 @@ use crate::likelihood::{
 };
 use crate::motion::block_match;
 use crate::pose::{SolverKind, interframe};
+use keyframe::{FitContext, KeyframePool};
 
 /// Errors of the tracker.
 #[derive(Debug, thiserror::Error)]
@@ -101,19 +103,13 @@ impl Estimate {
     }
 }
 
-/// A reference view the rotation is measured against: drift control beyond the paper
-/// (SPEC section 6). Matching against it rather than only against the previous frame lets the
-/// out-of-plane rotation show as foreshortening and parallax that grow with the angle, where
-/// between successive frames they are below the noise (`cos 1° = 0.9998`).
-#[derive(Debug, Clone, Default)]
-struct Keyframe {
-    /// Features of the keyframe inside its ellipse.
-    features: Features,
-    /// The estimate at the keyframe.
-    hyp: Option<Hypothesis>,
-    /// Matches found against it on the first frame after it was taken.
-    initial_matches: Option<usize>,
-}
+/// Most keyframes held (the first view and those taken as the target turned).
+const KEYFRAMES: usize = 12;
+/// Keyframes fitted per frame, the nearest to the previous estimate first.
+const KEYFRAME_TRIES: usize = 3;
+/// Keyframes further than this from the previous estimate (radians, 45°) are not tried: SIFT
+/// matches few features across larger turns.
+const KEYFRAME_REACH: f64 = std::f64::consts::FRAC_PI_4;
 
 /// The joint tracker and pose estimator.
 pub struct Tracker {
@@ -123,10 +119,11 @@ pub struct Tracker {
     filter: ParticleFilter,
     size: (u32, u32),
     theta0: f64,
+    reference: Ellipse,
     frame: usize,
     prev_gray: GrayF32,
     prev_features: Features,
-    keyframe: Keyframe,
+    keyframes: KeyframePool,
     prev: Hypothesis,
     prev_euler: Euler,
     low_count: usize,
@@ -220,10 +217,11 @@ impl Tracker {
             filter,
             size: first_frame.dimensions(),
             theta0: 0.0,
+            reference: Ellipse::default(),
             frame: 0,
             prev_gray: GrayF32::default(),
             prev_features: Features::default(),
-            keyframe: Keyframe::default(),
+            keyframes: KeyframePool::new(KEYFRAMES),
             prev: Hypothesis::from_state(&PoseState::default()),
             prev_euler: Euler::default(),
             low_count: 0,
@@ -262,7 +260,10 @@ impl Tracker {
         self.prev_gray = GrayF32::from_rgb(frame);
         let region = search_region(&init.ellipse, w, h);
         self.prev_features = self.sift.detect(&self.prev_gray, Some(region))?;
-        self.keyframe = Self::make_keyframe(&self.prev_features, &init.ellipse, hyp);
+        self.reference = init.ellipse;
+        let model = self.model(&hyp.rot, &init.ellipse);
+        self.keyframes
+            .reset(&self.prev_features, &init.ellipse, hyp, model);
         self.low_count = 0;
         self.lost = false;
         self.first = Estimate {
@@ -333,9 +334,7 @@ impl Tracker {
             Mode::Optimal => SolverKind::Optimal,
             Mode::Rls => SolverKind::Rls,
         };
-        let key_pairs = self.keyframe_pairs(&features);
-        let key_hyp = self.keyframe.hyp.unwrap_or(self.prev);
-        let use_key = key_pairs.len() >= self.cfg.min_fit_inliers && self.cfg.mode != Mode::Tpe;
+        let use_key = self.cfg.mode != Mode::Tpe;
         let to_xy = |v: &[FeaturePair]| -> (Vec<[f64; 2]>, Vec<[f64; 2]>) {
             (
                 v.iter().map(|f| [f.p[0] as f64, f.p[1] as f64]).collect(),
@@ -348,54 +347,34 @@ impl Tracker {
         } else {
             None
         };
-        // Against the keyframe: the ellipsoid depth-prior fit from the previous pose.
-        let mut key_pairs = key_pairs;
-        let mut prior = None;
-        if use_key {
-            let (p, q) = to_xy(&key_pairs);
-            let key_state = key_hyp.to_state();
-            let key_e = key_state.ellipse(self.theta0);
-            let rot0 = self.prev.rot * key_hyp.rot.transpose();
-            let s0 = ((self.prev.a * self.prev.b) / (key_hyp.a * key_hyp.b)).sqrt();
-            let t0 = nalgebra::Vector2::new(self.prev.cx + dx, self.prev.cy + dy);
-            if let Ok(f) = crate::pose::prior::fit_with_depth_prior(
-                &p,
-                &q,
-                &key_e,
-                self.cfg.likelihood.depth_ratio as f64,
-                &rot0,
-                s0,
-                t0,
-            ) {
-                key_pairs = key_pairs
-                    .iter()
-                    .zip(&f.inliers)
-                    .filter(|(_, k)| **k)
-                    .map(|(p, _)| *p)
-                    .collect();
-                // Plausible only: enough inliers, a small residual, and no more rotation between
-                // two frames than the tracker follows.
-                let step = crate::geometry::angle_between(&f.rot, &rot0);
-                if key_pairs.len() >= self.cfg.min_fit_inliers
-                    && f.residual <= self.cfg.max_fit_residual
-                    && step <= self.cfg.max_rotation_step
-                {
-                    prior = Some((f, s0));
-                }
-            }
-        }
+        // Against the keyframes: the ellipsoid depth-prior fit from the previous pose.
+        let camera = self.camera();
+        let ctx = FitContext {
+            prev: &self.prev,
+            shift: nalgebra::Vector2::new(dx, dy),
+            camera: camera.as_ref(),
+            matching: &self.cfg.matching,
+            min_inliers: self.cfg.min_fit_inliers,
+            max_residual: self.cfg.max_fit_residual,
+            max_step: self.cfg.max_rotation_step,
+        };
+        let key_fit = if use_key {
+            self.keyframes
+                .best_fit(&features, &ctx, KEYFRAME_TRIES, KEYFRAME_REACH)
+        } else {
+            None
+        };
         // Without a usable keyframe fit, the same model between the previous frame and this one.
         let mut inter_pairs = pairs.clone();
         let mut prior_prev = None;
-        if prior.is_none() && pairs.len() >= self.cfg.min_fit_inliers && self.cfg.mode != Mode::Tpe
-        {
+        if key_fit.is_none() && pairs.len() >= self.cfg.min_fit_inliers && use_key {
             let (p, q) = to_xy(&pairs);
             let t0 = nalgebra::Vector2::new(self.prev.cx + dx, self.prev.cy + dy);
             if let Ok(f) = crate::pose::prior::fit_with_depth_prior(
                 &p,
                 &q,
-                &prev_ellipse,
-                self.cfg.likelihood.depth_ratio as f64,
+                &self.model(&self.prev.rot, &prev_ellipse),
+                camera.as_ref(),
                 &Matrix3::identity(),
                 1.0,
                 t0,
@@ -416,21 +395,20 @@ impl Tracker {
                 }
             }
         }
-        let (lik_pairs, lik_prev) = if prior.is_some() {
-            (&key_pairs, key_hyp)
-        } else {
-            (&inter_pairs, self.prev)
+        let (lik_pairs, lik_prev) = match &key_fit {
+            Some(k) => (&k.pairs, k.key),
+            None => (&inter_pairs, self.prev),
         };
-        let key_inter = prior.is_some() || prior_prev.is_some();
+        let key_inter = key_fit.is_some() || prior_prev.is_some();
         let mut lp = self.cfg.likelihood;
-        let (dx, dy, scale, rotations) = match (&prior, &inter, self.cfg.mode) {
+        let (dx, dy, scale, rotations) = match (&key_fit, &inter, self.cfg.mode) {
             (_, _, Mode::Tpe) => (dx, dy, scale, vec![(1.0, Matrix3::identity())]),
-            (Some((f, s0)), _, _) => {
-                let delta = f.rot * key_hyp.rot * self.prev.rot.transpose();
+            (Some(k), _, _) => {
+                let delta = k.fit.rot * k.key.rot * self.prev.rot.transpose();
                 (
-                    f.centre.x - self.prev.cx,
-                    f.centre.y - self.prev.cy,
-                    f.scale / s0,
+                    k.fit.centre.x - self.prev.cx,
+                    k.fit.centre.y - self.prev.cy,
+                    k.fit.scale / k.prev_scale,
                     vec![(1.0, delta)],
                 )
             }
@@ -515,16 +493,17 @@ impl Tracker {
         self.prev = est;
         self.prev_euler = euler;
         self.prev_gray = gray;
-        // A new keyframe when the old one has drifted out of reach of the matcher.
-        let initial = *self.keyframe.initial_matches.get_or_insert(key_pairs.len());
-        if key_pairs.len()
-            < self
-                .cfg
-                .min_fit_inliers
-                .max(initial * self.cfg.keyframe_refresh_percent / 100)
-            && !self.lost
-        {
-            self.keyframe = Self::make_keyframe(&features, &state.ellipse(self.theta0), est);
+        // A new keyframe when the pool's views have drifted out of reach of the matcher.
+        let due = use_key
+            && self.keyframes.record(
+                key_fit.as_ref(),
+                self.cfg.min_fit_inliers,
+                self.cfg.keyframe_refresh_percent,
+            );
+        if due && !self.lost {
+            let e = state.ellipse(self.theta0);
+            let model = self.model(&est.rot, &e);
+            self.keyframes.add(&features, &e, est, model);
         }
         self.prev_features = features;
         self.frame = index;
@@ -537,6 +516,24 @@ impl Tracker {
             matches: pairs.len(),
             ess: info.ess,
         })
+    }
+
+    /// The camera of the keyframe fits, `None` for weak perspective.
+    fn camera(&self) -> Option<crate::pose::prior::Pinhole> {
+        self.cfg
+            .camera_hfov_deg
+            .and_then(|h| crate::pose::prior::Pinhole::from_hfov(self.size.0, self.size.1, h))
+    }
+
+    /// The object model in a view with estimated rotation `rot` and ellipse `view`: the first
+    /// frame's ellipse, as deep as the likelihood's depth ratio says, turned by `rot`.
+    fn model(&self, rot: &Matrix3<f64>, view: &Ellipse) -> crate::pose::prior::Ellipsoid {
+        crate::pose::prior::Ellipsoid::posed(
+            &self.reference,
+            self.cfg.likelihood.depth_ratio as f64,
+            rot,
+            view,
+        )
     }
 
     /// Each particle's log-likelihood: the enabled terms of the last evaluation, the feature
@@ -560,42 +557,6 @@ impl Tracker {
                     s += wf * t.feature;
                 }
                 s
-            })
-            .collect()
-    }
-
-    /// A keyframe from a frame's features, keeping those inside the ellipse.
-    fn make_keyframe(features: &Features, e: &Ellipse, hyp: Hypothesis) -> Keyframe {
-        let keep: Vec<usize> = (0..features.keypoints.len())
-            .filter(|&i| {
-                e.contains(
-                    features.keypoints[i].x as f64,
-                    features.keypoints[i].y as f64,
-                )
-            })
-            .collect();
-        let features = Features {
-            keypoints: keep.iter().map(|&i| features.keypoints[i]).collect(),
-            descriptors: keep.iter().map(|&i| features.descriptors[i]).collect(),
-        };
-        Keyframe {
-            features,
-            hyp: Some(hyp),
-            initial_matches: None,
-        }
-    }
-
-    /// Matches between the keyframe and this frame (the depth-prior fit removes outliers).
-    fn keyframe_pairs(&self, cur: &Features) -> Vec<FeaturePair> {
-        let key = &self.keyframe.features;
-        match_features(key, cur, &self.cfg.matching)
-            .iter()
-            .map(|m| {
-                let (a, b) = (&key.keypoints[m.query], &cur.keypoints[m.train]);
-                FeaturePair {
-                    p: [a.x, a.y],
-                    q: [b.x, b.y],
-                }
             })
             .collect()
     }

@@ -53,6 +53,10 @@ pub struct TrackArgs {
     /// Likelihood engine: auto (GPU if a Vulkan adapter exists), cpu or gpu.
     #[arg(long, default_value = "auto")]
     pub backend: String,
+    /// The camera's horizontal field of view in degrees, for the perspective form of the
+    /// keyframe depth prior; weak perspective (the paper's model) when absent.
+    #[arg(long, value_name = "DEG")]
+    pub hfov: Option<f64>,
     /// Resize every frame to WxH first.
     #[arg(long, value_name = "WxH")]
     pub resize: Option<String>,
@@ -152,6 +156,17 @@ pub fn config(mode: &str, particles: usize, seed: u64) -> anyhow::Result<Tracker
     Ok(cfg)
 }
 
+/// Checks and applies `--hfov`.
+pub fn apply_hfov(cfg: &mut TrackerConfig, hfov: Option<f64>) -> anyhow::Result<()> {
+    if let Some(h) = hfov
+        && !(h > 0.0 && h < 180.0)
+    {
+        bail!("--hfov must lie strictly between 0 and 180 degrees, got {h}");
+    }
+    cfg.camera_hfov_deg = hfov;
+    Ok(())
+}
+
 /// The pose CSV record of an estimate.
 pub fn record(e: &Estimate) -> PoseRecord {
     PoseRecord {
@@ -187,7 +202,8 @@ pub fn run(a: TrackArgs) -> anyhow::Result<()> {
         ellipse: init_e,
         pose: Euler::from_degrees(pose[0], pose[1], pose[2]),
     };
-    let cfg = config(&a.mode, a.particles, a.seed)?;
+    let mut cfg = config(&a.mode, a.particles, a.seed)?;
+    apply_hfov(&mut cfg, a.hfov)?;
     let backend: Backend = a
         .backend
         .parse()

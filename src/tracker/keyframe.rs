@@ -1,0 +1,353 @@
+//! Keyframes: reference views the rotation is measured against (drift control beyond the
+//! paper, SPEC section 6).
+//!
+//! Matching against a reference view rather than only against the previous frame lets
+//! out-of-plane rotation show as parallax that grows with the angle, where between successive
+//! frames it is below the noise (`cos 1° = 0.9998`). The pool keeps several views: the first
+//! one, whose pose is known exactly, and those taken as the object turned away from the
+//! others. Each frame is fitted against the views nearest the predicted pose and the best fit
+//! wins, so a target that turns back is measured against the older, better-anchored views
+//! again instead of the error of every view taken in between.
+
+use nalgebra::{Matrix3, Vector2};
+
+use crate::features::{Features, MatchParams, match_features};
+use crate::filter::Hypothesis;
+use crate::geometry::{Ellipse, angle_between};
+use crate::likelihood::FeaturePair;
+use crate::pose::prior::{Ellipsoid, Pinhole, PriorFit, fit_with_depth_prior};
+
+/// One reference view.
+#[derive(Debug, Clone)]
+struct Keyframe {
+    /// Features of the view inside its ellipse.
+    features: Features,
+    /// The estimate when the view was taken.
+    hyp: Hypothesis,
+    /// The object model in this view.
+    model: Ellipsoid,
+    /// Inlier matches found against it on the first frame after it was taken.
+    initial_inliers: Option<usize>,
+}
+
+/// What a fit against a keyframe needs from the tracker.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct FitContext<'a> {
+    /// The previous frame's estimate (the prediction's starting point).
+    pub prev: &'a Hypothesis,
+    /// The translation predicted for this frame (block matching).
+    pub shift: Vector2<f64>,
+    /// The camera, `None` for weak perspective.
+    pub camera: Option<&'a Pinhole>,
+    /// Feature matching.
+    pub matching: &'a MatchParams,
+    /// Fewest inliers of an accepted fit.
+    pub min_inliers: usize,
+    /// Largest RMS residual (pixels) of an accepted fit.
+    pub max_residual: f64,
+    /// Largest rotation (radians) from the previous estimate an accepted fit may imply.
+    pub max_step: f64,
+}
+
+/// An accepted fit against one keyframe.
+#[derive(Debug, Clone)]
+pub(crate) struct KeyFit {
+    /// The keyframe's estimate.
+    pub key: Hypothesis,
+    /// The fit (rotation from the keyframe's pose, scale relative to it, centre).
+    pub fit: PriorFit,
+    /// The keyframe's scale relative to the previous frame's (`sqrt(ab)` ratio).
+    pub prev_scale: f64,
+    /// The inlier matches, keyframe → current frame.
+    pub pairs: Vec<FeaturePair>,
+    /// Which keyframe.
+    index: usize,
+}
+
+/// The pool of keyframes.
+#[derive(Debug, Clone, Default)]
+pub(crate) struct KeyframePool {
+    frames: Vec<Keyframe>,
+    capacity: usize,
+}
+
+impl KeyframePool {
+    /// An empty pool holding at most `capacity` (at least 1) keyframes.
+    pub fn new(capacity: usize) -> Self {
+        Self {
+            frames: Vec::new(),
+            capacity: capacity.max(1),
+        }
+    }
+
+    /// Empties the pool and makes `features` (inside `e`, at `hyp`, object `model`) the
+    /// anchor view.
+    pub fn reset(&mut self, features: &Features, e: &Ellipse, hyp: Hypothesis, model: Ellipsoid) {
+        self.frames.clear();
+        self.frames.push(make(features, e, hyp, model));
+    }
+
+    /// Number of keyframes held.
+    #[cfg(test)]
+    pub fn len(&self) -> usize {
+        self.frames.len()
+    }
+
+    /// Fits the current features against the keyframes nearest the previous estimate (at most
+    /// `tries` of them, all within `reach` radians) and returns the accepted fit with the most
+    /// inliers (fewer residual pixels on a tie).
+    pub fn best_fit(
+        &self,
+        cur: &Features,
+        ctx: &FitContext<'_>,
+        tries: usize,
+        reach: f64,
+    ) -> Option<KeyFit> {
+        let mut order: Vec<(f64, usize)> = self
+            .frames
+            .iter()
+            .enumerate()
+            .map(|(i, k)| (angle_between(&ctx.prev.rot, &k.hyp.rot), i))
+            .filter(|(d, _)| *d <= reach)
+            .collect();
+        order.sort_by(|a, b| a.0.total_cmp(&b.0));
+        let mut best: Option<KeyFit> = None;
+        for &(_, i) in order.iter().take(tries) {
+            let Some(f) = self.fit_one(i, cur, ctx) else {
+                continue;
+            };
+            let better = match &best {
+                None => true,
+                Some(b) => {
+                    f.pairs.len() > b.pairs.len()
+                        || (f.pairs.len() == b.pairs.len() && f.fit.residual < b.fit.residual)
+                }
+            };
+            if better {
+                best = Some(f);
+            }
+        }
+        best
+    }
+
+    fn fit_one(&self, i: usize, cur: &Features, ctx: &FitContext<'_>) -> Option<KeyFit> {
+        let key = &self.frames[i];
+        let matches = match_features(&key.features, cur, ctx.matching);
+        if matches.len() < ctx.min_inliers {
+            return None;
+        }
+        let pairs: Vec<FeaturePair> = matches
+            .iter()
+            .map(|m| {
+                let (a, b) = (&key.features.keypoints[m.query], &cur.keypoints[m.train]);
+                FeaturePair {
+                    p: [a.x, a.y],
+                    q: [b.x, b.y],
+                }
+            })
+            .collect();
+        let p: Vec<[f64; 2]> = pairs
+            .iter()
+            .map(|f| [f.p[0] as f64, f.p[1] as f64])
+            .collect();
+        let q: Vec<[f64; 2]> = pairs
+            .iter()
+            .map(|f| [f.q[0] as f64, f.q[1] as f64])
+            .collect();
+        let rot0: Matrix3<f64> = ctx.prev.rot * key.hyp.rot.transpose();
+        let s0 = ((ctx.prev.a * ctx.prev.b) / (key.hyp.a * key.hyp.b)).sqrt();
+        let t0 = Vector2::new(ctx.prev.cx, ctx.prev.cy) + ctx.shift;
+        let fit = fit_with_depth_prior(&p, &q, &key.model, ctx.camera, &rot0, s0, t0).ok()?;
+        let pairs: Vec<FeaturePair> = pairs
+            .iter()
+            .zip(&fit.inliers)
+            .filter(|(_, k)| **k)
+            .map(|(p, _)| *p)
+            .collect();
+        // Plausible only: enough inliers, a small residual, and no more rotation between two
+        // frames than the tracker follows.
+        let step = angle_between(&fit.rot, &rot0);
+        if pairs.len() < ctx.min_inliers || fit.residual > ctx.max_residual || step > ctx.max_step {
+            return None;
+        }
+        Some(KeyFit {
+            key: key.hyp,
+            fit,
+            prev_scale: s0,
+            pairs,
+            index: i,
+        })
+    }
+
+    /// Records how a frame went: the first fit against a keyframe sets the match count it is
+    /// later compared with. Returns whether a new keyframe is due: no accepted fit at all, or
+    /// the best one below `refresh_percent` of its keyframe's first count or below
+    /// `min_inliers`.
+    pub fn record(
+        &mut self,
+        best: Option<&KeyFit>,
+        min_inliers: usize,
+        refresh_percent: usize,
+    ) -> bool {
+        let Some(b) = best else {
+            return true;
+        };
+        let n = b.pairs.len();
+        let initial = *self.frames[b.index].initial_inliers.get_or_insert(n);
+        n < min_inliers.max(initial * refresh_percent / 100)
+    }
+
+    /// Adds a keyframe; when the pool is full, the non-anchor keyframe nearest the new one in
+    /// rotation gives way (the anchor, the first view, is never dropped).
+    pub fn add(&mut self, features: &Features, e: &Ellipse, hyp: Hypothesis, model: Ellipsoid) {
+        let k = make(features, e, hyp, model);
+        if self.frames.len() >= self.capacity {
+            let victim = self
+                .frames
+                .iter()
+                .enumerate()
+                .skip(1)
+                .min_by(|a, b| {
+                    angle_between(&a.1.hyp.rot, &hyp.rot)
+                        .total_cmp(&angle_between(&b.1.hyp.rot, &hyp.rot))
+                })
+                .map(|(i, _)| i);
+            match victim {
+                Some(i) => self.frames[i] = k,
+                None => self.frames[0] = k,
+            }
+        } else {
+            self.frames.push(k);
+        }
+    }
+}
+
+/// A keyframe from a frame's features, keeping those inside the ellipse.
+fn make(features: &Features, e: &Ellipse, hyp: Hypothesis, model: Ellipsoid) -> Keyframe {
+    let keep: Vec<usize> = (0..features.keypoints.len())
+        .filter(|&i| {
+            e.contains(
+                features.keypoints[i].x as f64,
+                features.keypoints[i].y as f64,
+            )
+        })
+        .collect();
+    Keyframe {
+        features: Features {
+            keypoints: keep.iter().map(|&i| features.keypoints[i]).collect(),
+            descriptors: keep.iter().map(|&i| features.descriptors[i]).collect(),
+        },
+        hyp,
+        model,
+        initial_inliers: None,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::features::Keypoint;
+    use crate::geometry::Euler;
+
+    fn hyp(e: Euler) -> Hypothesis {
+        Hypothesis {
+            cx: 50.0,
+            cy: 40.0,
+            a: 10.0,
+            b: 12.0,
+            rot: e.matrix(),
+        }
+    }
+
+    fn model() -> Ellipsoid {
+        Ellipsoid::facing(&Ellipse::new(50.0, 40.0, 10.0, 12.0), 1.0)
+    }
+
+    fn features(n: usize) -> Features {
+        Features {
+            keypoints: (0..n)
+                .map(|i| Keypoint {
+                    x: 45.0 + (i % 5) as f32,
+                    y: 36.0 + (i / 5) as f32,
+                    ..Keypoint::default()
+                })
+                .collect(),
+            descriptors: (0..n).map(|i| [i as u8; 128]).collect(),
+        }
+    }
+
+    #[test]
+    fn the_anchor_survives_a_full_pool_and_the_nearest_view_gives_way() {
+        let e = Ellipse::new(50.0, 40.0, 10.0, 12.0);
+        let mut pool = KeyframePool::new(3);
+        pool.reset(&features(4), &e, hyp(Euler::default()), model());
+        pool.add(
+            &features(4),
+            &e,
+            hyp(Euler::from_degrees(20.0, 0.0, 0.0)),
+            model(),
+        );
+        pool.add(
+            &features(4),
+            &e,
+            hyp(Euler::from_degrees(-20.0, 0.0, 0.0)),
+            model(),
+        );
+        assert_eq!(pool.len(), 3);
+        pool.add(
+            &features(4),
+            &e,
+            hyp(Euler::from_degrees(25.0, 0.0, 0.0)),
+            model(),
+        );
+        assert_eq!(pool.len(), 3);
+        let angles: Vec<f64> = pool
+            .frames
+            .iter()
+            .map(|k| Euler::from_matrix(&k.hyp.rot).rx.to_degrees().round())
+            .collect();
+        assert_eq!(angles, vec![0.0, 25.0, -20.0]);
+    }
+
+    #[test]
+    fn a_keyframe_keeps_only_the_features_inside_its_ellipse() {
+        let mut f = features(3);
+        f.keypoints[1].x = 0.0;
+        let k = make(
+            &f,
+            &Ellipse::new(50.0, 40.0, 10.0, 12.0),
+            hyp(Euler::default()),
+            model(),
+        );
+        assert_eq!(k.features.keypoints.len(), 2);
+        assert_eq!(k.features.descriptors.len(), 2);
+        assert_eq!(k.features.descriptors[1], [2u8; 128]);
+    }
+
+    #[test]
+    fn a_refresh_is_due_without_a_fit_or_when_the_inliers_halve() {
+        let e = Ellipse::new(50.0, 40.0, 10.0, 12.0);
+        let mut pool = KeyframePool::new(4);
+        pool.reset(&features(4), &e, hyp(Euler::default()), model());
+        assert!(pool.record(None, 10, 50));
+        let fit = |n: usize| KeyFit {
+            key: hyp(Euler::default()),
+            fit: PriorFit {
+                rot: Matrix3::identity(),
+                scale: 1.0,
+                centre: Vector2::zeros(),
+                inliers: vec![true; n],
+                residual: 0.5,
+            },
+            prev_scale: 1.0,
+            pairs: vec![FeaturePair::default(); n],
+            index: 0,
+        };
+        assert!(!pool.record(Some(&fit(30)), 10, 50));
+        assert!(!pool.record(Some(&fit(16)), 10, 50));
+        assert!(pool.record(Some(&fit(14)), 10, 50));
+        // The floor: never fewer than `min_inliers`, whatever the share.
+        assert!(!pool.record(Some(&fit(9)), 5, 10));
+        assert!(pool.record(Some(&fit(4)), 5, 10));
+    }
+}
