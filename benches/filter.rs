@@ -1,8 +1,123 @@
-//! Benchmarks of the `filter` stage (criterion). Filled in by the issue that builds the stage.
+//! Benchmarks of the `filter` stage and of the whole tracker step.
+//!
+//! - `filter propose+update N`: one frame of the particle filter without the likelihood
+//!   (proposal from the rotation-candidate mixture, weighting, estimate, resampling) at
+//!   N = 200, 1000, 10000 particles, on fixed pseudo-random log-likelihoods.
+//! - `systematic resampling N`.
+//! - `tracker step WxH, N particles`: [`Tracker::step`] on the synthetic `nod` head (SIFT,
+//!   matching, Sylvester, keyframe fit, block matching, filter, CPU likelihoods on all
+//!   threads) at 128x96, 160x120 and 320x240 with 200 particles, and at 160x120 with 1000 and
+//!   10000. Run it under `taskset -c 0` (and `RAYON_NUM_THREADS=1`) for one core.
 
-use criterion::{Criterion, criterion_group, criterion_main};
+use std::hint::black_box;
 
-fn placeholder(_c: &mut Criterion) {}
+use criterion::{BenchmarkId, Criterion, criterion_group, criterion_main};
+use pftrack::filter::{FilterParams, Hypothesis, Motion, ParticleFilter, resample};
+use pftrack::geometry::{Euler, PoseState};
+use pftrack::synth::{Renderer, Scenario, SynthConfig};
+use pftrack::tracker::{Init, Tracker, TrackerConfig};
+use rand::rngs::StdRng;
+use rand::{Rng, SeedableRng};
 
-criterion_group!(benches, placeholder);
+fn start() -> Hypothesis {
+    Hypothesis::from_state(&PoseState {
+        cx: 80.0,
+        cy: 60.0,
+        a: 18.0,
+        b: 24.0,
+        rx: 0.0,
+        ry: 0.0,
+        rz: 0.0,
+    })
+}
+
+fn bench_filter(c: &mut Criterion) {
+    let mut g = c.benchmark_group("filter propose+update");
+    for n in [200usize, 1000, 10000] {
+        let params = FilterParams {
+            particles: n,
+            ..FilterParams::default()
+        };
+        let mut f = ParticleFilter::new(params, 1, &start());
+        let mut rng = StdRng::seed_from_u64(2);
+        let lik: Vec<f32> = (0..n).map(|_| rng.random_range(-40.0f32..0.0)).collect();
+        let motion = Motion {
+            dx: 0.5,
+            dy: -0.3,
+            scale: 1.0,
+            rotations: vec![
+                (0.5, Euler::from_degrees(1.0, 0.0, 0.0).matrix()),
+                (0.5, Euler::from_degrees(-1.0, 0.0, 0.0).matrix()),
+            ],
+        };
+        g.bench_with_input(BenchmarkId::from_parameter(n), &n, |b, _| {
+            b.iter(|| {
+                f.propose(black_box(&motion), 1.0);
+                let info = f.update(black_box(&lik));
+                black_box((info, f.estimate()))
+            })
+        });
+    }
+    g.finish();
+
+    let mut g = c.benchmark_group("systematic resampling");
+    for n in [200usize, 1000, 10000] {
+        let mut rng = StdRng::seed_from_u64(3);
+        let log_w: Vec<f64> = (0..n).map(|_| rng.random_range(-20.0..0.0)).collect();
+        let w = resample::normalise_log_weights(&log_w);
+        g.bench_with_input(BenchmarkId::from_parameter(n), &n, |b, &n| {
+            b.iter(|| resample::systematic(black_box(&w), n, 0.37))
+        });
+    }
+    g.finish();
+}
+
+fn bench_tracker(c: &mut Criterion) {
+    let mut g = c.benchmark_group("tracker step");
+    g.sample_size(20);
+    for (w, h, n) in [
+        (128u32, 96u32, 200usize),
+        (160, 120, 200),
+        (320, 240, 200),
+        (160, 120, 1000),
+        (160, 120, 10000),
+    ] {
+        let cfg = SynthConfig {
+            width: w,
+            height: h,
+            frames: 60,
+            ..SynthConfig::new(Scenario::Nod)
+        };
+        let Ok(r) = Renderer::new(&cfg) else {
+            continue;
+        };
+        let frames: Vec<image::RgbImage> = (0..cfg.frames).map(|k| r.render(k).0).collect();
+        let mut tc = TrackerConfig::default();
+        tc.filter.particles = n;
+        let init = Init::frontal(r.init_ellipse());
+        let Ok(mut t) = Tracker::new(tc, &frames[0], init) else {
+            continue;
+        };
+        let mut k = 1;
+        g.bench_function(format!("{w}x{h}, {n} particles"), |b| {
+            b.iter(|| {
+                if k == frames.len() {
+                    // Start over on the first frame so every step sees a real motion.
+                    let _ = t.reinit(&frames[0], init);
+                    k = 1;
+                }
+                let e = t.step(black_box(&frames[k]));
+                k += 1;
+                black_box(e.ok())
+            })
+        });
+    }
+    g.finish();
+}
+
+criterion_group! {
+    name = benches;
+    config = Criterion::default().without_plots();
+    targets = bench_filter, bench_tracker
+}
 criterion_main!(benches);

@@ -311,14 +311,18 @@ impl Tracker {
         let prev_ellipse = prev_state.ellipse(self.theta0);
 
         // Features: SIFT around the previous ellipse, matched to the previous frame's.
-        let features = self
-            .sift
-            .detect(&gray, Some(search_region(&prev_ellipse, w, h)))?;
-        let pairs = self.correspondences(&prev_ellipse, &features);
-
-        // Translation and scale from block matching; the features' median motion if it fails.
+        // SIFT around the previous ellipse and block matching for the translation and scale do
+        // not depend on each other: on two cores they run side by side.
+        let region = search_region(&prev_ellipse, w, h);
         let abm = crate::motion::AbmParams::for_target(&prev_ellipse);
-        let (dx, dy, scale) = match block_match(&self.prev_gray, &gray, &prev_ellipse, &abm) {
+        let (features, abm_result) = rayon::join(
+            || self.sift.detect(&gray, Some(region)),
+            || block_match(&self.prev_gray, &gray, &prev_ellipse, &abm),
+        );
+        let features = features?;
+        let pairs = self.correspondences(&prev_ellipse, &features);
+        // The features' median motion when block matching fails.
+        let (dx, dy, scale) = match abm_result {
             Ok(r) => (r.translation[0], r.translation[1], r.scale),
             Err(_) => {
                 let (mx, my) = median_displacement(&pairs);
