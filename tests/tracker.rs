@@ -74,19 +74,24 @@ fn comes_back_to_frontal_after_nodding_out_and_back() {
         frames: 90,
         ..SynthConfig::new(Scenario::Nod)
     };
-    let (est, truth) = run_cfg(cfg, 46, 0);
+    let (est, truth) = run_cfg(cfg, 51, 0);
     let peak = truth.iter().map(|t| t.rx.to_degrees()).fold(0.0, f64::max);
     assert!(peak > 30.0, "the scenario should have tilted ({peak:.1})");
-    let (e, t) = (&est[44], &truth[44]);
     assert!(
-        t.rx.to_degrees().abs() < 2.0,
-        "frame 44 should be near frontal"
+        truth[45].rx.to_degrees().abs() < 2.0,
+        "frame 45 should be near frontal"
     );
-    let err = angle_between(&e.state.euler().matrix(), &t.euler().matrix()).to_degrees();
+    // Around the return (frames 40-50, truth within 7 degrees of frontal), the median error.
+    let mut errs: Vec<f64> = (40..=50)
+        .map(|k| {
+            angle_between(&est[k].state.euler().matrix(), &truth[k].euler().matrix()).to_degrees()
+        })
+        .collect();
+    let all = format!("{errs:.1?}");
+    errs.sort_by(f64::total_cmp);
     assert!(
-        err < 5.0,
-        "back at frontal the rotation is off by {err:.1} deg: {:?}",
-        e.angles_deg()
+        errs[errs.len() / 2] < 4.0,
+        "back near frontal the rotation is off by (frames 40-50) {all} deg"
     );
 }
 

@@ -89,7 +89,10 @@ pub struct TrackerConfig {
     /// A re-acquisition candidate must reach this colour similarity (Bhattacharyya ρ).
     pub reacquire_rho: f64,
     /// Weight of the feature term's log in the particle weights (the colour and gradient
-    /// terms have weight 1).
+    /// terms have weight 1). 8 by default: the feature term is the log of a sum of inverse
+    /// reprojection distances, flat next to the 24 normal lines of the gradient term, and it
+    /// is the only term that sees the rotation; 8 (with the filter's 0.05 rad rotation walk)
+    /// gave the lowest angle errors on held-out synthetic seeds of the values tried (1, 4, 8).
     pub feature_weight: f64,
     /// Largest rotation between two frames a keyframe fit may imply (radians); a fit beyond it
     /// is taken for a mismatch and ignored for that frame.
@@ -123,7 +126,7 @@ impl Default for TrackerConfig {
             lost_below: 0.25,
             lost_after: 3,
             reacquire_rho: 0.8,
-            feature_weight: 4.0,
+            feature_weight: 8.0,
             max_rotation_step: 20f64.to_radians(),
             max_fit_residual: 3.0,
             min_fit_inliers: 10,
