@@ -413,6 +413,7 @@ fn without_a_vulkan_driver_backend_gpu_fails_clearly_and_auto_falls_back() {
             // does not exist: no Vulkan driver at all.
             .env("VK_DRIVER_FILES", &missing)
             .env("VK_ICD_FILENAMES", &missing)
+            .env_remove("VK_ADD_DRIVER_FILES")
             .env_remove("PFTRACK_ADAPTER")
             .output()
             .unwrap()
