@@ -716,3 +716,244 @@ fn auto_backend_picks_the_gpu_when_an_adapter_exists() {
     let (e, _) = pftrack::likelihood::create_engine(pftrack::likelihood::Backend::Gpu).unwrap();
     assert!(e.name().contains("Vulkan"));
 }
+
+// ---------------------------------------------------------------------------------------------
+// The filter's weighting and systematic resampling on CPU and GPU log-likelihoods.
+//
+// Same particles, same frame, same seed: the two filters draw with the same comb offset u0, so
+// their index sets are identical whenever the running sums of their normalised weights differ
+// by less than the comb's margin (`systematic_margin`: the distance from the nearest tooth to
+// a deciding cumulative sum). A log-likelihood difference of ~1e-5 moves a running sum by
+// ~1e-5 times the weight involved, so a tooth closer than that to a boundary (a tie) may draw
+// the neighbouring particle. Asserted: the running sums agree within `TOL_CUM_WEIGHT` (the
+// weights agree), every draw outside a tie is identical, and an index set that differs does
+// so at a tie. Ties are counted and printed.
+// ---------------------------------------------------------------------------------------------
+
+use pftrack::filter::resample::{max_cumulative_difference, systematic_margin};
+use pftrack::filter::{FilterParams, Hypothesis, Motion, ParticleFilter};
+
+/// Largest difference allowed between the running sums of the CPU's and the GPU's normalised
+/// weights: log-likelihoods within 2.1e-4 of each other (the sum of the term tolerances) change
+/// a normalised weight w by at most about 2 · 2.1e-4 · w, and the running sums by at most
+/// 4.2e-4; measured differences are ~1e-5, so 1e-4 still catches a drift beyond the
+/// measured agreement.
+const TOL_CUM_WEIGHT: f64 = 1e-4;
+
+#[derive(Debug, Default)]
+struct DrawStats {
+    draws: usize,
+    identical: usize,
+    ties: usize,
+    flips: usize,
+    max_dcum: f64,
+    min_margin: f64,
+}
+
+#[allow(clippy::too_many_arguments)]
+fn draw_on_both(
+    stats: &mut DrawStats,
+    cpu_engine: &mut CpuEngine,
+    gpu: &mut GpuEngine,
+    frame: &FrameInput<'_>,
+    params: &LikelihoodParams,
+    init: &Hypothesis,
+    n: usize,
+    seed: u64,
+    spread: f64,
+) {
+    let fp = FilterParams {
+        particles: n,
+        // Resample on every update (the ESS is always below 2 N).
+        resample_below: 2.0,
+        ..FilterParams::default()
+    };
+    let mut fc = ParticleFilter::new(fp, seed, init);
+    fc.propose(&Motion::still(), spread);
+    let mut ps = Vec::new();
+    fc.particles_f32(&mut ps);
+    let (mut c, mut g) = (Vec::new(), Vec::new());
+    cpu_engine.evaluate(frame, params, &ps, &mut c).unwrap();
+    gpu.evaluate(frame, params, &ps, &mut g).unwrap();
+    let lc: Vec<f32> = c.iter().map(|t| t.total).collect();
+    let lg: Vec<f32> = g.iter().map(|t| t.total).collect();
+    let mut fg = fc.clone();
+    assert!(fc.update(&lc).resampled && fg.update(&lg).resampled);
+    let (rc, rg) = (fc.last_resampling().unwrap(), fg.last_resampling().unwrap());
+    assert_eq!(rc.u0, rg.u0, "the same seed draws the same comb");
+    let dcum = max_cumulative_difference(&rc.weights, &rg.weights);
+    let margin = systematic_margin(&rc.weights, n, rc.u0);
+    stats.draws += 1;
+    stats.max_dcum = stats.max_dcum.max(dcum);
+    stats.min_margin = if stats.draws == 1 {
+        margin
+    } else {
+        stats.min_margin.min(margin)
+    };
+    assert!(
+        dcum <= TOL_CUM_WEIGHT,
+        "weights disagree: running sums differ by {dcum:e}"
+    );
+    let tie = dcum >= margin;
+    stats.ties += usize::from(tie);
+    if rc.indices == rg.indices {
+        stats.identical += 1;
+        assert_eq!(fc.particles(), fg.particles());
+    } else {
+        assert!(
+            tie,
+            "index sets differ although the weights agree within the margin ({dcum:e} < {margin:e})"
+        );
+        stats.flips += 1;
+    }
+}
+
+fn hypothesis(p: &Particle) -> Hypothesis {
+    Hypothesis::from_state(&pftrack::geometry::PoseState {
+        cx: p.cx as f64,
+        cy: p.cy as f64,
+        a: p.a as f64,
+        b: p.b as f64,
+        rx: p.rx as f64,
+        ry: p.ry as f64,
+        rz: p.rz as f64,
+    })
+}
+
+fn model_of(image: &RgbImage, e: &Particle) -> ColourHistogram {
+    ColourHistogram::from_ellipse(
+        image,
+        &pftrack::geometry::Ellipse::new(e.cx as f64, e.cy as f64, e.a as f64, e.b as f64),
+    )
+    .unwrap()
+}
+
+#[test]
+fn resampling_draws_the_same_particles_on_cpu_and_gpu_likelihoods() {
+    let Some(mut gpu) = engine() else { return };
+    let mut cpu_engine = CpuEngine::new();
+    let params = LikelihoodParams::default();
+    let mut rng = StdRng::seed_from_u64(21);
+    let mut stats = DrawStats::default();
+    // (frame, its target, the colour model's frame and target)
+    let mut cases: Vec<(RgbImage, Particle, RgbImage, Particle)> = Vec::new();
+    for name in ["girl", "car4"] {
+        match sequence(name, 50, 3) {
+            Some(frames) => {
+                let model_img = image::open(&frames[0].0).unwrap().to_rgb8();
+                for (path, e) in &frames {
+                    let img = image::open(path).unwrap().to_rgb8();
+                    cases.push((img, *e, model_img.clone(), frames[0].1));
+                }
+            }
+            None => skip(&format!("../shared/data/{name} missing")),
+        }
+    }
+    for scenario in [pftrack::synth::Scenario::Nod, pftrack::synth::Scenario::Pan] {
+        let r = pftrack::synth::Renderer::new(&pftrack::synth::SynthConfig::new(scenario)).unwrap();
+        let (img0, t0) = r.render(0);
+        let at = |t: &pftrack::geometry::PoseState| Particle {
+            cx: t.cx as f32,
+            cy: t.cy as f32,
+            a: t.a as f32,
+            b: t.b as f32,
+            rx: t.rx as f32,
+            ry: t.ry as f32,
+            rz: t.rz as f32,
+            _pad: 0.0,
+        };
+        for k in [5, 20] {
+            let (img, t) = r.render(k);
+            cases.push((img, at(&t), img0.clone(), at(&t0)));
+        }
+    }
+    for (img, e, model_img, model_e) in &cases {
+        let model = model_of(model_img, model_e);
+        cpu_engine.set_colour_model(&model).unwrap();
+        gpu.set_colour_model(&model).unwrap();
+        let features = random_features(&mut rng, e, 30);
+        let frame = FrameInput {
+            image: img,
+            features: &features,
+            prev: *e,
+            theta0: 0.0,
+        };
+        let init = hypothesis(e);
+        for (n, spread) in [(200, 1.0), (200, 3.0), (1000, 2.0)] {
+            for seed in 0..4 {
+                draw_on_both(
+                    &mut stats,
+                    &mut cpu_engine,
+                    &mut gpu,
+                    &frame,
+                    &params,
+                    &init,
+                    n,
+                    seed,
+                    spread,
+                );
+            }
+        }
+    }
+    let _ = writeln!(
+        std::io::stderr(),
+        "resampling on CPU vs GPU weights: {stats:?}"
+    );
+    assert!(stats.draws >= 48, "{stats:?}");
+    // Ties are the exception: most draws must be decided away from any comb tooth.
+    assert!(stats.ties * 4 <= stats.draws, "{stats:?}");
+}
+
+#[test]
+fn a_frame_beyond_the_buffer_limits_fails_evaluate_before_any_allocation() {
+    let Some(mut e) = engine() else { return };
+    let limit = e.device().limits.max_storage_buffer_binding_size;
+    let side = ((limit / 8) as f64).sqrt() as u32 + 16;
+    if side > 6000 {
+        // A hardware adapter's limits: the frame would take gigabytes of host memory here.
+        skip(&format!(
+            "a {side}x{side} frame is too large to build in a test"
+        ));
+        return;
+    }
+    let img = RgbImage::new(side, side);
+    e.set_colour_model(&one_hot(0)).unwrap();
+    let frame = FrameInput {
+        image: &img,
+        features: &[],
+        prev: particle(100.0, 100.0, 20.0, 20.0),
+        theta0: 0.0,
+    };
+    let mut out = Vec::new();
+    let r = e.evaluate(
+        &frame,
+        &LikelihoodParams::default(),
+        &[frame.prev],
+        &mut out,
+    );
+    match r {
+        Err(err @ LikelihoodError::FrameTooLarge { .. }) => {
+            let msg = err.to_string();
+            assert!(
+                msg.contains(&format!("{side}x{side}")) && msg.contains("--backend cpu"),
+                "{msg}"
+            );
+        }
+        r => panic!("expected FrameTooLarge, got {r:?}"),
+    }
+    // The engine is still usable on a frame that fits.
+    let small = RgbImage::new(64, 48);
+    let frame = FrameInput {
+        image: &small,
+        prev: particle(32.0, 24.0, 8.0, 8.0),
+        ..frame
+    };
+    e.evaluate(
+        &frame,
+        &LikelihoodParams::default(),
+        &[frame.prev],
+        &mut out,
+    )
+    .unwrap();
+    assert_eq!(out.len(), 1);
+}

@@ -183,6 +183,19 @@ pub struct UpdateInfo {
     pub resampled: bool,
 }
 
+/// What the last resampling did: the normalised weights it drew from, the comb's offset and
+/// the parent index of each new particle. For diagnostics and for tests that compare two runs
+/// (the CPU and GPU likelihood engines, say) draw for draw.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Resampling {
+    /// The normalised weights before resampling, in particle order.
+    pub weights: Vec<f64>,
+    /// The comb's offset `u0 ∈ [0, 1)` ([`resample::systematic`]).
+    pub u0: f64,
+    /// Index of the parent of each new particle.
+    pub indices: Vec<usize>,
+}
+
 /// The particle filter. Deterministic for a seed.
 #[derive(Debug, Clone)]
 pub struct ParticleFilter {
@@ -195,6 +208,8 @@ pub struct ParticleFilter {
     log_ratio: Vec<f64>,
     weights: Vec<f64>,
     estimate: Hypothesis,
+    /// The last update's resampling, `None` when it did not resample.
+    last_resampling: Option<Resampling>,
 }
 
 /// `ln N(x; 0, σ²)` up to the constant `-½ ln 2π`; a component with `σ = 0` is deterministic
@@ -241,6 +256,7 @@ impl ParticleFilter {
             log_ratio: vec![0.0; n],
             weights: vec![1.0 / n as f64; n],
             estimate: *init,
+            last_resampling: None,
         }
     }
 
@@ -268,6 +284,7 @@ impl ParticleFilter {
         self.log_ratio = vec![0.0; n];
         self.weights = vec![1.0 / n as f64; n];
         self.estimate = *h;
+        self.last_resampling = None;
     }
 
     /// Applies a rotation to every particle and to the estimate (`R ← ΔR · R`): the pose step
@@ -277,6 +294,12 @@ impl ParticleFilter {
             p.rot = delta * p.rot;
         }
         self.estimate.rot = delta * self.estimate.rot;
+    }
+
+    /// What the last [`ParticleFilter::update`] resampled (`None` when it did not, or after a
+    /// reset).
+    pub fn last_resampling(&self) -> Option<&Resampling> {
+        self.last_resampling.as_ref()
     }
 
     /// The estimate of the last update: the weighted mean of the particles (rotations averaged
@@ -393,12 +416,18 @@ impl ParticleFilter {
         let ess = resample::effective_sample_size(&self.weights);
         let resampled = ess < self.params.resample_below * n as f64;
         self.estimate = self.weighted_estimate();
+        self.last_resampling = None;
         if resampled {
             let u0: f64 = self.rng.random();
             let idx = resample::systematic(&self.weights, n, u0);
             self.particles = idx.iter().map(|&i| self.particles[i]).collect();
             self.log_w = vec![0.0; n];
-            self.weights = vec![1.0 / n as f64; n];
+            let weights = std::mem::replace(&mut self.weights, vec![1.0 / n as f64; n]);
+            self.last_resampling = Some(Resampling {
+                weights,
+                u0,
+                indices: idx,
+            });
         }
         UpdateInfo { ess, resampled }
     }
@@ -549,5 +578,31 @@ mod tests {
         f.params.resample_below = 0.0;
         f.update(&[0.0, (3.0f32).ln()]);
         assert!((f.estimate().cx - (0.25 * 50.0 + 0.75 * 60.0)).abs() < 1e-5);
+    }
+
+    #[test]
+    fn last_resampling_records_the_draw_it_made() {
+        let mut f = ParticleFilter::new(FilterParams::default(), 9, &init());
+        f.propose(&Motion::still(), 1.0);
+        let before = f.particles().to_vec();
+        let t = Hypothesis { cx: 52.0, ..init() };
+        let l = loglik(&f, &t);
+        f.params.resample_below = 2.0; // always
+        let info = f.update(&l);
+        assert!(info.resampled);
+        let r = f.last_resampling().expect("resampled").clone();
+        assert_eq!(
+            r.indices,
+            resample::systematic(&r.weights, before.len(), r.u0)
+        );
+        assert!((r.weights.iter().sum::<f64>() - 1.0).abs() < 1e-12);
+        for (p, &i) in f.particles().iter().zip(&r.indices) {
+            assert_eq!(*p, before[i]);
+        }
+        f.params.resample_below = 0.0; // never
+        f.propose(&Motion::still(), 1.0);
+        let l = loglik(&f, &t);
+        assert!(!f.update(&l).resampled);
+        assert!(f.last_resampling().is_none());
     }
 }

@@ -51,6 +51,54 @@ pub fn systematic(w: &[f64], n: usize, u0: f64) -> Vec<usize> {
     out
 }
 
+/// How far the cumulative weights may move before [`systematic`] draws differently: the
+/// smallest distance between a comb tooth `(u0 + k) / n` and a cumulative-weight boundary that
+/// decides a draw (the running sums `w₀ + … + wᵢ`, `i < len − 1`, summed as [`systematic`]
+/// sums them). Two weight vectors whose running sums all differ by less than this draw the
+/// same indices with the same `u0`; a larger difference may (a tie at the comb) but need not
+/// change a draw. `f64::INFINITY` with fewer than two weights or no draws.
+pub fn systematic_margin(w: &[f64], n: usize, u0: f64) -> f64 {
+    let mut margin = f64::INFINITY;
+    if w.len() < 2 {
+        return margin;
+    }
+    // The running sums as `systematic` forms them: `cum[i] = w[0] + ... + w[i]`.
+    let mut cum = Vec::with_capacity(w.len() - 1);
+    let mut acc = 0.0;
+    for &wi in &w[..w.len() - 1] {
+        acc += wi;
+        cum.push(acc);
+    }
+    // Every boundary splits the teeth into those below and those at or above it; the nearest
+    // teeth on either side decide its margin.
+    for &c in &cum {
+        // Smallest k with (u0 + k) / n >= c, and the tooth just below it.
+        let k = (c * n as f64 - u0).ceil().max(0.0) as usize;
+        for kk in [k.checked_sub(1), Some(k), Some(k + 1)]
+            .into_iter()
+            .flatten()
+        {
+            if kk < n {
+                let u = (u0 + kk as f64) / n as f64;
+                margin = margin.min((u - c).abs());
+            }
+        }
+    }
+    margin
+}
+
+/// The largest difference between the running sums ([`systematic`]'s) of two weight vectors of
+/// the same length.
+pub fn max_cumulative_difference(a: &[f64], b: &[f64]) -> f64 {
+    let (mut ca, mut cb, mut d) = (0.0f64, 0.0f64, 0.0f64);
+    for (x, y) in a.iter().zip(b) {
+        ca += x;
+        cb += y;
+        d = d.max((ca - cb).abs());
+    }
+    d
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -92,5 +140,62 @@ mod tests {
         }
         // A zero-weight particle is never drawn.
         assert!(!systematic(&[0.5, 0.0, 0.5], 10, 0.3).contains(&1));
+    }
+
+    #[test]
+    fn margin_known_answer() {
+        // Teeth at 0.025, 0.275, 0.525, 0.775; the only deciding boundary is 0.5.
+        let m = systematic_margin(&[0.5, 0.5], 4, 0.1);
+        assert!((m - 0.025).abs() < 1e-12, "{m}");
+        assert_eq!(systematic_margin(&[1.0], 4, 0.1), f64::INFINITY);
+        assert!(
+            (max_cumulative_difference(&[0.2, 0.3, 0.5], &[0.25, 0.2, 0.55]) - 0.05).abs() < 1e-12
+        );
+    }
+
+    #[test]
+    fn draws_hold_within_the_margin_and_change_just_beyond_it() {
+        // Moving the comb by delta / n moves every tooth by delta / n, as moving every running
+        // sum by -delta / n would: within the margin nothing changes, just beyond it on one
+        // side a draw does.
+        let mut seed = 12345u64;
+        let mut next = || {
+            seed = seed
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (seed >> 11) as f64 / (1u64 << 53) as f64
+        };
+        for trial in 0..200 {
+            let len = 2 + trial % 30;
+            let raw: Vec<f64> = (0..len).map(|_| next().powi(3)).collect();
+            let sum: f64 = raw.iter().sum();
+            let w: Vec<f64> = raw.iter().map(|x| x / sum).collect();
+            let n = 1 + trial % 50;
+            let u0 = 0.05 + 0.9 * next();
+            let m = systematic_margin(&w, n, u0);
+            let base = systematic(&w, n, u0);
+            let shift = m * n as f64;
+            for s in [0.99 * shift, -0.99 * shift] {
+                let u = u0 + s;
+                if (0.0..1.0).contains(&u) {
+                    assert_eq!(
+                        systematic(&w, n, u),
+                        base,
+                        "trial {trial}: inside the margin"
+                    );
+                }
+            }
+            let beyond = [1.01 * shift, -1.01 * shift]
+                .iter()
+                .map(|s| u0 + s)
+                .filter(|u| (0.0..1.0).contains(u))
+                .collect::<Vec<_>>();
+            if beyond.len() == 2 {
+                assert!(
+                    beyond.iter().any(|&u| systematic(&w, n, u) != base),
+                    "trial {trial}: nothing changed beyond the margin {m}"
+                );
+            }
+        }
     }
 }

@@ -5,7 +5,10 @@
 //! The data crossing this interface is flat and `Pod` so the GPU engine uploads it as is.
 
 pub mod cpu;
+mod fallback;
 pub mod gpu;
+
+pub use fallback::FallbackEngine;
 
 use bytemuck::{Pod, Zeroable};
 
@@ -266,16 +269,20 @@ impl std::fmt::Display for Backend {
 /// `Auto` opens the GPU engine when a Vulkan adapter exists (`PFTRACK_ADAPTER` picks one by
 /// name) and otherwise returns the CPU engine with a notice saying why; `Gpu` fails when there
 /// is no adapter ([`LikelihoodError::NoAdapter`], naming the package to install); `Cpu` is the
-/// CPU engine on all threads. A GPU engine whose device is lost later fails every call with
-/// [`LikelihoodError::DeviceLost`]; it does not switch to the CPU behind the caller's back.
+/// CPU engine on all threads. The GPU engine comes wrapped in a [`FallbackEngine`]: when its
+/// device is lost mid-run it continues on the CPU for the rest of the run and hands the caller
+/// a one-line notice through [`LikelihoodEngine::take_notice`] (which the caller should print).
 pub fn create_engine(
     backend: Backend,
 ) -> Result<(Box<dyn LikelihoodEngine + Send>, Option<String>), LikelihoodError> {
     match backend {
         Backend::Cpu => Ok((Box::new(cpu::CpuEngine::new()), None)),
-        Backend::Gpu => Ok((Box::new(gpu::GpuEngine::new()?), None)),
+        Backend::Gpu => Ok((
+            Box::new(FallbackEngine::new(Box::new(gpu::GpuEngine::new()?))),
+            None,
+        )),
         Backend::Auto => match gpu::GpuEngine::new() {
-            Ok(g) => Ok((Box::new(g), None)),
+            Ok(g) => Ok((Box::new(FallbackEngine::new(Box::new(g))), None)),
             // A named adapter that does not exist is the user's mistake: report it.
             Err(e @ LikelihoodError::AdapterNotFound { .. }) => Err(e),
             Err(e) => Ok((
@@ -302,6 +309,12 @@ pub trait LikelihoodEngine {
         particles: &[Particle],
         out: &mut Vec<TermLogs>,
     ) -> Result<(), LikelihoodError>;
+
+    /// A one-line notice the engine wants shown to the user since the last call (e.g. that it
+    /// switched from a lost GPU to the CPU), taken once. None by default.
+    fn take_notice(&mut self) -> Option<String> {
+        None
+    }
 }
 
 /// The log-likelihood given to a degenerate particle (non-positive semi-axes or a non-finite

@@ -288,9 +288,21 @@ impl Tracker {
         &self.cfg
     }
 
+    /// The particle filter (its particles, weights and last resampling), read only.
+    pub fn filter(&self) -> &ParticleFilter {
+        &self.filter
+    }
+
     /// The likelihood engine's name.
     pub fn engine_name(&self) -> String {
         self.engine.name()
+    }
+
+    /// A one-line notice from the likelihood engine since the last call, taken once: e.g. that
+    /// the GPU device was lost and the run goes on on the CPU
+    /// ([`crate::likelihood::FallbackEngine`]). Callers should show it to the user.
+    pub fn take_engine_notice(&mut self) -> Option<String> {
+        self.engine.take_notice()
     }
 
     /// Tracks the target into the next frame.

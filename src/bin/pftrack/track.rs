@@ -277,6 +277,9 @@ fn run_loop(
         let est = tracker
             .step(&frame)
             .with_context(|| format!("tracking frame {n}"))?;
+        if let Some(notice) = tracker.take_engine_notice() {
+            pb.suspend(|| eprintln!("pftrack: frame {n}: {notice}"));
+        }
         emit(&est, &frame)?;
         n += 1;
     }

@@ -28,8 +28,10 @@
 //! the normal lines most of the rest; upload and readback are below a millisecond.
 //!
 //! A lost device is a clear error ([`LikelihoodError::DeviceLost`](crate::likelihood::LikelihoodError::DeviceLost)) from
-//! that frame on; the engine does not fall back to the CPU by itself (the caller decides, e.g.
-//! by creating a CPU engine with [`crate::likelihood::create_engine`]).
+//! that frame on; the engine itself does not switch to the CPU. The engines that
+//! [`crate::likelihood::create_engine`] hands out (and so the tracker and the CLI) wrap it in a
+//! [`FallbackEngine`](crate::likelihood::FallbackEngine), which does: the rest of the run goes on
+//! on the CPU, with a one-line notice.
 
 mod device;
 mod engine;

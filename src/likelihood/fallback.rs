@@ -1,0 +1,202 @@
+//! [`FallbackEngine`]: the GPU engine, replaced by the CPU engine for the rest of the run when
+//! the GPU device is lost.
+
+use super::cpu::CpuEngine;
+use super::{
+    ColourHistogram, FrameInput, LikelihoodEngine, LikelihoodError, LikelihoodParams, Particle,
+    TermLogs,
+};
+
+/// Wraps an engine (the GPU's) so that a lost device does not end the run: on the first
+/// [`LikelihoodError::DeviceLost`] it opens the CPU engine on all threads, gives it the colour
+/// model it was given, repeats the failed call there and stays on the CPU from then on, with a
+/// one-line notice for the caller to print ([`LikelihoodEngine::take_notice`]). Every other
+/// error is passed through unchanged.
+///
+/// The results after the switch are the CPU engine's, which agree with the GPU's to the
+/// tolerances stated in `tests/gpu.rs` (about 1e-5 in a log-likelihood), not bit for bit.
+pub struct FallbackEngine {
+    active: Box<dyn LikelihoodEngine + Send>,
+    on_cpu: bool,
+    model: Option<ColourHistogram>,
+    notice: Option<String>,
+}
+
+impl FallbackEngine {
+    /// Wraps `primary`.
+    pub fn new(primary: Box<dyn LikelihoodEngine + Send>) -> Self {
+        Self {
+            active: primary,
+            on_cpu: false,
+            model: None,
+            notice: None,
+        }
+    }
+
+    /// Whether the engine has switched to the CPU.
+    pub fn fell_back(&self) -> bool {
+        self.on_cpu
+    }
+
+    fn fall_back(&mut self, lost: &str) -> Result<(), LikelihoodError> {
+        let from = self.active.name();
+        let mut cpu = CpuEngine::new();
+        if let Some(m) = &self.model {
+            cpu.set_colour_model(m)?;
+        }
+        self.active = Box::new(cpu);
+        self.on_cpu = true;
+        self.notice = Some(format!(
+            "note: GPU device lost ({lost}) on {from}; likelihood on the CPU for the rest of the run"
+        ));
+        Ok(())
+    }
+}
+
+impl LikelihoodEngine for FallbackEngine {
+    fn name(&self) -> String {
+        if self.on_cpu {
+            format!("{} (after the GPU device was lost)", self.active.name())
+        } else {
+            self.active.name()
+        }
+    }
+
+    fn set_colour_model(&mut self, model: &ColourHistogram) -> Result<(), LikelihoodError> {
+        match self.active.set_colour_model(model) {
+            Err(LikelihoodError::DeviceLost(msg)) if !self.on_cpu => {
+                self.model = Some(model.clone());
+                self.fall_back(&msg)
+            }
+            Ok(()) => {
+                self.model = Some(model.clone());
+                Ok(())
+            }
+            Err(e) => Err(e),
+        }
+    }
+
+    fn evaluate(
+        &mut self,
+        frame: &FrameInput<'_>,
+        params: &LikelihoodParams,
+        particles: &[Particle],
+        out: &mut Vec<TermLogs>,
+    ) -> Result<(), LikelihoodError> {
+        match self.active.evaluate(frame, params, particles, out) {
+            Err(LikelihoodError::DeviceLost(msg)) if !self.on_cpu => {
+                self.fall_back(&msg)?;
+                self.active.evaluate(frame, params, particles, out)
+            }
+            r => r,
+        }
+    }
+
+    fn take_notice(&mut self) -> Option<String> {
+        self.notice.take()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::likelihood::HIST_BINS;
+
+    /// An engine that works `ok_calls` times, then reports a lost device.
+    struct Flaky {
+        ok_calls: usize,
+    }
+
+    impl LikelihoodEngine for Flaky {
+        fn name(&self) -> String {
+            "flaky (Vulkan)".into()
+        }
+        fn set_colour_model(&mut self, _: &ColourHistogram) -> Result<(), LikelihoodError> {
+            Ok(())
+        }
+        fn evaluate(
+            &mut self,
+            _: &FrameInput<'_>,
+            _: &LikelihoodParams,
+            particles: &[Particle],
+            out: &mut Vec<TermLogs>,
+        ) -> Result<(), LikelihoodError> {
+            if self.ok_calls == 0 {
+                return Err(LikelihoodError::DeviceLost("Destroyed: test".into()));
+            }
+            self.ok_calls -= 1;
+            out.clear();
+            out.resize(particles.len(), TermLogs::default());
+            Ok(())
+        }
+    }
+
+    #[test]
+    fn a_lost_device_switches_to_the_cpu_once_with_one_notice() {
+        let img = image::RgbImage::from_pixel(32, 24, image::Rgb([200, 40, 40]));
+        let mut model = vec![0.0; HIST_BINS];
+        model[6 * 64 + 8 + 1] = 1.0;
+        let model = ColourHistogram(model);
+        let frame = FrameInput {
+            image: &img,
+            features: &[],
+            prev: Particle {
+                cx: 16.0,
+                cy: 12.0,
+                a: 5.0,
+                b: 6.0,
+                ..Default::default()
+            },
+            theta0: 0.0,
+        };
+        let params = LikelihoodParams::default();
+        let ps = [
+            frame.prev,
+            Particle {
+                cx: 3.0,
+                ..frame.prev
+            },
+        ];
+        let mut e = FallbackEngine::new(Box::new(Flaky { ok_calls: 1 }));
+        e.set_colour_model(&model).unwrap();
+        let mut out = Vec::new();
+        e.evaluate(&frame, &params, &ps, &mut out).unwrap();
+        assert!(!e.fell_back() && e.take_notice().is_none());
+        assert_eq!(out, vec![TermLogs::default(); 2]);
+
+        // The failing call is repeated on the CPU, with the model given before.
+        e.evaluate(&frame, &params, &ps, &mut out).unwrap();
+        assert!(e.fell_back());
+        let notice = e.take_notice().expect("a notice");
+        assert!(
+            notice.contains("GPU device lost") && notice.contains("CPU"),
+            "{notice}"
+        );
+        assert!(e.take_notice().is_none(), "one notice only");
+        assert!(e.name().starts_with("cpu"), "{}", e.name());
+        let mut cpu = CpuEngine::new();
+        cpu.set_colour_model(&model).unwrap();
+        let mut want = Vec::new();
+        cpu.evaluate(&frame, &params, &ps, &mut want).unwrap();
+        assert_eq!(out, want);
+        e.evaluate(&frame, &params, &ps, &mut out).unwrap();
+        assert_eq!(out, want);
+        assert!(e.take_notice().is_none());
+    }
+
+    #[test]
+    fn other_errors_pass_through() {
+        let mut e = FallbackEngine::new(Box::new(CpuEngine::new()));
+        let img = image::RgbImage::new(8, 8);
+        let frame = FrameInput {
+            image: &img,
+            features: &[],
+            prev: Particle::default(),
+            theta0: 0.0,
+        };
+        let mut out = Vec::new();
+        let r = e.evaluate(&frame, &LikelihoodParams::default(), &[], &mut out);
+        assert!(matches!(r, Err(LikelihoodError::NoModel)), "{r:?}");
+        assert!(!e.fell_back());
+    }
+}
