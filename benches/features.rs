@@ -118,5 +118,10 @@ fn bench(c: &mut Criterion) {
     g.finish();
 }
 
-criterion_group!(benches, bench);
+criterion_group! {
+    name = benches;
+    // Plots need system fonts that a bare machine lacks (criterion panics without them).
+    config = Criterion::default().without_plots();
+    targets = bench
+}
 criterion_main!(benches);

@@ -87,5 +87,10 @@ fn bench_fit(c: &mut Criterion) {
     });
 }
 
-criterion_group!(benches, bench_abm, bench_fit);
+criterion_group! {
+    name = benches;
+    // Plots need system fonts that a bare machine lacks (criterion panics without them).
+    config = Criterion::default().without_plots();
+    targets = bench_abm, bench_fit
+}
 criterion_main!(benches);

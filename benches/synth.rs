@@ -42,5 +42,10 @@ fn render(c: &mut Criterion) {
     g.finish();
 }
 
-criterion_group!(benches, render);
+criterion_group! {
+    name = benches;
+    // Plots need system fonts that a bare machine lacks (criterion panics without them).
+    config = Criterion::default().without_plots();
+    targets = render
+}
 criterion_main!(benches);
