@@ -234,6 +234,46 @@ pub struct SnrRow {
     pub mean_deg: [f64; 4],
     /// Trials in which the solver returned an error (excluded from the mean).
     pub failures: [usize; 4],
+    /// Optimal's error minus SEA's on the same trials (degrees): the mean, its standard error
+    /// and the number of trials where the two differ by more than 1e-6 degrees. The means of
+    /// the two solvers differ only through those trials, so this says whether a difference of
+    /// the means is more than Monte Carlo noise.
+    pub optimal_minus_sea: PairedDifference,
+}
+
+/// A paired difference of two solvers' errors over the same trials.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct PairedDifference {
+    /// Mean difference (degrees).
+    pub mean: f64,
+    /// Standard error of the mean (degrees).
+    pub std_error: f64,
+    /// Trials where the two errors differ by more than 1e-6 degrees.
+    pub differing: usize,
+    /// Trials where both solvers returned an estimate.
+    pub trials: usize,
+}
+
+impl PairedDifference {
+    /// The statistics of the differences `d` (degrees).
+    pub fn from_differences(d: &[f64]) -> Self {
+        let n = d.len();
+        if n == 0 {
+            return Self::default();
+        }
+        let mean = d.iter().sum::<f64>() / n as f64;
+        let var = if n > 1 {
+            d.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (n - 1) as f64
+        } else {
+            0.0
+        };
+        Self {
+            mean,
+            std_error: (var / n as f64).sqrt(),
+            differing: d.iter().filter(|x| x.abs() > 1e-6).count(),
+            trials: n,
+        }
+    }
 }
 
 /// Fig. 3b: mean rotation error against input SNR for the four solvers.
@@ -280,10 +320,15 @@ pub fn fig3b(cfg: &NoiseConfig) -> Vec<SnrRow> {
                     mean_deg[i] = sum[i] / ok[i] as f64;
                 }
             }
+            let diffs: Vec<f64> = per
+                .iter()
+                .filter_map(|r| Some(deg(r[1]?) - deg(r[0]?)))
+                .collect();
             SnrRow {
                 snr_db: snr,
                 mean_deg,
                 failures,
+                optimal_minus_sea: PairedDifference::from_differences(&diffs),
             }
         })
         .collect()
@@ -370,5 +415,18 @@ mod tests {
         assert_eq!(trial_seed(1, 2, 3), trial_seed(1, 2, 3));
         assert_ne!(trial_seed(1, 2, 3), trial_seed(1, 3, 2));
         assert_ne!(trial_seed(1, 0, 0), trial_seed(2, 0, 0));
+    }
+
+    #[test]
+    fn paired_difference_statistics() {
+        let p = PairedDifference::from_differences(&[0.0, 0.0, 0.3, -0.1]);
+        assert!((p.mean - 0.05).abs() < 1e-12);
+        // squared deviations from 0.05: 0.0025 + 0.0025 + 0.0625 + 0.0225 = 0.09, over n - 1
+        assert!((p.std_error - (0.09f64 / 3.0 / 4.0).sqrt()).abs() < 1e-12);
+        assert_eq!((p.differing, p.trials), (2, 4));
+        assert_eq!(
+            PairedDifference::from_differences(&[]),
+            PairedDifference::default()
+        );
     }
 }

@@ -138,13 +138,21 @@ pub fn run(args: PoseNoiseArgs) -> anyhow::Result<()> {
         cfg.points, cfg.trials
     );
     println!(
-        "{:>7} {:>9} {:>9} {:>9} {:>9}",
-        "snr_db", "sea", "optimal", "lsm", "rls"
+        "{:>7} {:>9} {:>9} {:>9} {:>9}   {:>22} {:>9}",
+        "snr_db", "sea", "optimal", "lsm", "rls", "optimal-sea (paired)", "differing"
     );
     for r in &b {
+        let d = &r.optimal_minus_sea;
         println!(
-            "{:>7.1} {:>9.4} {:>9.4} {:>9.4} {:>9.4}",
-            r.snr_db, r.mean_deg[0], r.mean_deg[1], r.mean_deg[2], r.mean_deg[3]
+            "{:>7.1} {:>9.4} {:>9.4} {:>9.4} {:>9.4}   {:>+10.5} ± {:<9.5} {:>9}",
+            r.snr_db,
+            r.mean_deg[0],
+            r.mean_deg[1],
+            r.mean_deg[2],
+            r.mean_deg[3],
+            d.mean,
+            d.std_error,
+            format!("{}/{}", d.differing, d.trials)
         );
         if r.failures.iter().any(|f| *f > 0) {
             eprintln!(
