@@ -29,7 +29,10 @@
 //! by interval enclosures) is tighter near minima; the larger of the two is used. Best-first branch and bound (split the dimension that contributes most
 //! to the bound gap) stops when no box can hold a value below `best - ε`, with
 //! `ε = eps_rel · (K + n)`; candidate minima found on the way are polished by a damped Newton
-//! method. The result is thus certified within `ε` of the global minimum in value (reported as
+//! method. SEA's KKT Newton (from the same moments) supplies one more upper-bound candidate
+//! and the final refinement: where it ends lower than the polished search point (possible
+//! within ε near `s = 1`, where `β` is flat and the polar Newton stalls), its block is
+//! returned, so the result is never above SEA's on the objective. The result is thus certified within `ε` of the global minimum in value (reported as
 //! [`OptimalSolution::gap`]). Cost: a few thousand boxes for noisy data, more when the minimum
 //! lies near `s = 1` (nearly in-plane rotation: the polar parametrisation degenerates there and
 //! `β` becomes a flat direction); the search stops at `max_boxes` and then reports the larger,
@@ -43,6 +46,7 @@ use nalgebra::{Matrix2, Matrix3, Vector3};
 
 use super::complete::{from_zw, nearest_valid_block, to_zw};
 use super::lsm::lsm_block;
+use super::sea::Sea;
 use super::{BlockEstimate, Moments, PoseError, RotationSolver, estimate_from_block, moments};
 
 /// The certified global minimiser.
@@ -338,6 +342,14 @@ impl Optimal {
         if let Ok(l) = lsm_block(mo).and_then(|l| nearest_valid_block(&l)) {
             cands.push(Trig::coords(&l));
         }
+        // SEA's Newton on the KKT system (cheap next to the search) as one more upper-bound
+        // candidate and, at the end, as the refinement of the returned point: the polar
+        // coordinates degenerate near s = 1, where the polish above can stop within ε of
+        // the minimum in value but visibly away from it in angle.
+        let sea = Sea::default().solve_moments(mo).ok();
+        if let Some(sol) = &sea {
+            cands.push(Trig::coords(&sol.r2));
+        }
         let mut best = (Vector3::new(1.0, 0.0, 0.0), f64::INFINITY);
         for c in cands {
             let (x, f) = t.polish(c);
@@ -417,12 +429,22 @@ impl Optimal {
         if f < best.1 {
             best = (x, f);
         }
-        let gap = eps.max(best.1 - open_lb);
-        let r2 = nearest_valid_block(&Trig::block(&best.0))?;
+        let mut gap = eps.max(best.1 - open_lb) * scale;
+        let mut r2 = nearest_valid_block(&Trig::block(&best.0))?;
+        let mut value = mo.objective(&r2);
+        if let Some(sol) = sea {
+            let v = mo.objective(&sol.r2);
+            if v < value {
+                // Still certified: the global minimum is ≥ the old value - gap.
+                gap = (gap - (value - v)).max(0.0);
+                r2 = sol.r2;
+                value = v;
+            }
+        }
         Ok(OptimalSolution {
             r2,
-            value: mo.objective(&r2),
-            gap: gap * scale,
+            value,
+            gap,
             boxes,
         })
     }
