@@ -64,6 +64,40 @@ pub(crate) struct KeyFit {
     index: usize,
 }
 
+/// Fits the view of `model` to the matches `pairs` (its points → the current frame) from the
+/// start `(rot0, scale0)` and the predicted centre `prev + shift`, and keeps the fit only when
+/// it is plausible: enough inliers, a small residual, and no more rotation from `rot0` than
+/// the tracker follows between two frames. Returns the fit and its inlier matches.
+pub(crate) fn accepted_fit(
+    pairs: &[FeaturePair],
+    model: &Ellipsoid,
+    ctx: &FitContext<'_>,
+    rot0: &Matrix3<f64>,
+    scale0: f64,
+) -> Option<(PriorFit, Vec<FeaturePair>)> {
+    let p: Vec<[f64; 2]> = pairs
+        .iter()
+        .map(|f| [f.p[0] as f64, f.p[1] as f64])
+        .collect();
+    let q: Vec<[f64; 2]> = pairs
+        .iter()
+        .map(|f| [f.q[0] as f64, f.q[1] as f64])
+        .collect();
+    let t0 = Vector2::new(ctx.prev.cx, ctx.prev.cy) + ctx.shift;
+    let fit = fit_with_depth_prior(&p, &q, model, ctx.camera, rot0, scale0, t0).ok()?;
+    let inliers: Vec<FeaturePair> = pairs
+        .iter()
+        .zip(&fit.inliers)
+        .filter(|(_, k)| **k)
+        .map(|(p, _)| *p)
+        .collect();
+    let step = angle_between(&fit.rot, rot0);
+    if inliers.len() < ctx.min_inliers || fit.residual > ctx.max_residual || step > ctx.max_step {
+        return None;
+    }
+    Some((fit, inliers))
+}
+
 /// The pool of keyframes.
 #[derive(Debug, Clone, Default)]
 pub(crate) struct KeyframePool {
@@ -146,30 +180,9 @@ impl KeyframePool {
                 }
             })
             .collect();
-        let p: Vec<[f64; 2]> = pairs
-            .iter()
-            .map(|f| [f.p[0] as f64, f.p[1] as f64])
-            .collect();
-        let q: Vec<[f64; 2]> = pairs
-            .iter()
-            .map(|f| [f.q[0] as f64, f.q[1] as f64])
-            .collect();
         let rot0: Matrix3<f64> = ctx.prev.rot * key.hyp.rot.transpose();
         let s0 = ((ctx.prev.a * ctx.prev.b) / (key.hyp.a * key.hyp.b)).sqrt();
-        let t0 = Vector2::new(ctx.prev.cx, ctx.prev.cy) + ctx.shift;
-        let fit = fit_with_depth_prior(&p, &q, &key.model, ctx.camera, &rot0, s0, t0).ok()?;
-        let pairs: Vec<FeaturePair> = pairs
-            .iter()
-            .zip(&fit.inliers)
-            .filter(|(_, k)| **k)
-            .map(|(p, _)| *p)
-            .collect();
-        // Plausible only: enough inliers, a small residual, and no more rotation between two
-        // frames than the tracker follows.
-        let step = angle_between(&fit.rot, &rot0);
-        if pairs.len() < ctx.min_inliers || fit.residual > ctx.max_residual || step > ctx.max_step {
-            return None;
-        }
+        let (fit, pairs) = accepted_fit(&pairs, &key.model, ctx, &rot0, s0)?;
         Some(KeyFit {
             key: key.hyp,
             fit,

@@ -384,31 +384,12 @@ impl Tracker {
         let mut inter_pairs = pairs.clone();
         let mut prior_prev = None;
         if key_fit.is_none() && pairs.len() >= self.cfg.min_fit_inliers && use_key {
-            let (p, q) = to_xy(&pairs);
-            let t0 = nalgebra::Vector2::new(self.prev.cx + dx, self.prev.cy + dy);
-            if let Ok(f) = crate::pose::prior::fit_with_depth_prior(
-                &p,
-                &q,
-                &self.model(&self.prev.rot, &prev_ellipse),
-                camera.as_ref(),
-                &Matrix3::identity(),
-                1.0,
-                t0,
-            ) {
-                let inl: Vec<FeaturePair> = pairs
-                    .iter()
-                    .zip(&f.inliers)
-                    .filter(|(_, k)| **k)
-                    .map(|(p, _)| *p)
-                    .collect();
-                let step = crate::geometry::angle_between(&f.rot, &Matrix3::identity());
-                if inl.len() >= self.cfg.min_fit_inliers
-                    && f.residual <= self.cfg.max_fit_residual
-                    && step <= self.cfg.max_rotation_step
-                {
-                    inter_pairs = inl;
-                    prior_prev = Some(f);
-                }
+            let model = self.model(&self.prev.rot, &prev_ellipse);
+            if let Some((f, inl)) =
+                keyframe::accepted_fit(&pairs, &model, &ctx, &Matrix3::identity(), 1.0)
+            {
+                inter_pairs = inl;
+                prior_prev = Some(f);
             }
         }
         let (lik_pairs, lik_prev) = match &key_fit {
