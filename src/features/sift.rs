@@ -407,8 +407,14 @@ impl Sift {
         oy: usize,
         out: &mut Features,
     ) {
+        // The blur's scratch image, at the size of the first (largest) octave.
+        let base_len = if self.params.upsample {
+            4 * w * h
+        } else {
+            w * h
+        };
         let mut scratch = BlurScratch {
-            tmp: take_buf(0),
+            tmp: take_buf(base_len),
             row: Vec::new(),
             offs: Vec::new(),
         };
@@ -807,37 +813,53 @@ fn reflect101(mut i: isize, n: usize) -> usize {
     }
 }
 
-/// Pixels per block of the blur: the accumulators of one block stay in registers across all
-/// taps (two AVX2 vectors), so each tap costs two loads instead of three loads and a store.
-const BLUR_LANES: usize = 16;
+/// Taps of a symmetric convolution applied per pass over a row (see [`conv_row`]).
+const BLUR_TAPS: usize = 4;
 
-/// One block of `BLUR_LANES` outputs of a symmetric convolution: `c` is the centre samples,
-/// `side(i)` returns the samples at `-i` and `+i`. Summation order per pixel is
-/// `k0·c + k1·(a1 + b1) + k2·(a2 + b2) + …`, the same for every code path.
+/// Adds `T` symmetric taps to a row of partial sums: `out[x] += k[t]·(a[t][x] + b[t][x])`
+/// for `t = 0, 1, …` in that order. All slices have the length of `out`, so the loop has no
+/// bounds checks and vectorises; `out` stays in L1 between passes.
 #[inline(always)]
-fn conv_block<'a>(
-    k: &[f32],
-    c: &[f32; BLUR_LANES],
-    mut side: impl FnMut(usize) -> (&'a [f32; BLUR_LANES], &'a [f32; BLUR_LANES]),
-    out: &mut [f32; BLUR_LANES],
-) {
-    let mut acc = [0f32; BLUR_LANES];
-    for j in 0..BLUR_LANES {
-        acc[j] = k[0] * c[j];
-    }
-    for (i, &ki) in k.iter().enumerate().skip(1) {
-        let (a, b) = side(i);
-        for j in 0..BLUR_LANES {
-            acc[j] += ki * (a[j] + b[j]);
+fn add_taps<const T: usize>(out: &mut [f32], k: &[f32], a: [&[f32]; T], b: [&[f32]; T]) {
+    let n = out.len();
+    let k: [f32; T] = std::array::from_fn(|t| k[t]);
+    let a = a.map(|s| &s[..n]);
+    let b = b.map(|s| &s[..n]);
+    for x in 0..n {
+        let mut acc = out[x];
+        for t in 0..T {
+            acc += k[t] * (a[t][x] + b[t][x]);
         }
+        out[x] = acc;
     }
-    *out = acc;
 }
 
-/// A `BLUR_LANES` block of `s` from `at` (the caller guarantees it is in range).
+/// One output row of a symmetric convolution with the half kernel `k`: `c` is the centre
+/// samples, `side(i)` the samples at `-i` and `+i` (each at least as long as `out`).
+/// Summation order per pixel is `k0·c + k1·(a1 + b1) + k2·(a2 + b2) + …`, the same for
+/// every code path, so results are bit-identical however the taps are grouped.
 #[inline(always)]
-fn lanes(s: &[f32], at: usize) -> &[f32; BLUR_LANES] {
-    s[at..at + BLUR_LANES].try_into().expect("block in range")
+fn conv_row<'a>(
+    k: &[f32],
+    c: &[f32],
+    side: impl Fn(usize) -> (&'a [f32], &'a [f32]),
+    out: &mut [f32],
+) {
+    let n = out.len();
+    for (o, c) in out.iter_mut().zip(&c[..n]) {
+        *o = k[0] * c;
+    }
+    let mut i = 1;
+    while i + BLUR_TAPS <= k.len() {
+        let s: [(&[f32], &[f32]); BLUR_TAPS] = std::array::from_fn(|t| side(i + t));
+        add_taps(out, &k[i..], s.map(|p| p.0), s.map(|p| p.1));
+        i += BLUR_TAPS;
+    }
+    while i < k.len() {
+        let (a, b) = side(i);
+        add_taps(out, &k[i..], [a], [b]);
+        i += 1;
+    }
 }
 
 /// Separable Gaussian blur of a `w x h` image with reflect-101 borders.
@@ -845,9 +867,11 @@ fn lanes(s: &[f32], at: usize) -> &[f32; BLUR_LANES] {
 fn blur(src: &[f32], dst: &mut [f32], w: usize, h: usize, k: &Kernel, s: &mut BlurScratch) {
     let r = k.radius();
     let kh = &k.half[..];
-    s.tmp.resize(w * h, 0.0);
+    // Grow only: the caller sizes `tmp` for the largest octave, so it is never refilled.
+    if s.tmp.len() < w * h {
+        s.tmp.resize(w * h, 0.0);
+    }
     s.row.resize(w + 2 * r, 0.0);
-    let full = w - w % BLUR_LANES;
     // Horizontal pass into tmp, from a copy of the row with reflected borders.
     for y in 0..h {
         let srow = &src[y * w..(y + 1) * w];
@@ -859,24 +883,7 @@ fn blur(src: &[f32], dst: &mut [f32], w: usize, h: usize, k: &Kernel, s: &mut Bl
         }
         let row = &s.row[..];
         let out = &mut s.tmp[y * w..(y + 1) * w];
-        for x in (0..full).step_by(BLUR_LANES) {
-            let o: &mut [f32; BLUR_LANES] = (&mut out[x..x + BLUR_LANES])
-                .try_into()
-                .expect("block in range");
-            conv_block(
-                kh,
-                lanes(row, x + r),
-                |i| (lanes(row, x + r - i), lanes(row, x + r + i)),
-                o,
-            );
-        }
-        for x in full..w {
-            let mut acc = kh[0] * row[x + r];
-            for (i, &ki) in kh.iter().enumerate().skip(1) {
-                acc += ki * (row[x + r - i] + row[x + r + i]);
-            }
-            out[x] = acc;
-        }
+        conv_row(kh, &row[r..], |i| (&row[r - i..], &row[r + i..]), out);
     }
     // Vertical pass into dst: rows above and below each output row, reflected at the edges.
     let tmp = &s.tmp[..];
@@ -890,27 +897,16 @@ fn blur(src: &[f32], dst: &mut [f32], w: usize, h: usize, k: &Kernel, s: &mut Bl
             )
         }));
         let offs = &s.offs[..];
-        let ya = |i: usize| offs[i].0;
-        let yb = |i: usize| offs[i].1;
         let out = &mut dst[y * w..(y + 1) * w];
-        for x in (0..full).step_by(BLUR_LANES) {
-            let o: &mut [f32; BLUR_LANES] = (&mut out[x..x + BLUR_LANES])
-                .try_into()
-                .expect("block in range");
-            conv_block(
-                kh,
-                lanes(tmp, y * w + x),
-                |i| (lanes(tmp, ya(i) + x), lanes(tmp, yb(i) + x)),
-                o,
-            );
-        }
-        for x in full..w {
-            let mut acc = kh[0] * tmp[y * w + x];
-            for (i, &ki) in kh.iter().enumerate().skip(1) {
-                acc += ki * (tmp[ya(i) + x] + tmp[yb(i) + x]);
-            }
-            out[x] = acc;
-        }
+        conv_row(
+            kh,
+            &tmp[y * w..(y + 1) * w],
+            |i| {
+                let (a, b) = offs[i];
+                (&tmp[a..a + w], &tmp[b..b + w])
+            },
+            out,
+        );
     }
 }
 
