@@ -596,8 +596,14 @@ impl Sift {
                 let is_min = (x < -thr) & (x <= na[k]) & (x <= nb[k]) & (x <= nc[k]);
                 flags[k] = u8::from(is_max | is_min);
             }
-            for (k, _) in flags.iter().enumerate().filter(|(_, f)| **f != 0) {
-                out.push((r, IMG_BORDER + k));
+            // Candidates are rare: skip 16 flags at a time while they are all zero.
+            for (j, ch) in flags.chunks(16).enumerate() {
+                if ch.iter().fold(0, |a, &f| a | f) == 0 {
+                    continue;
+                }
+                for (k, _) in ch.iter().enumerate().filter(|(_, f)| **f != 0) {
+                    out.push((r, IMG_BORDER + 16 * j + k));
+                }
             }
         }
     }
@@ -1009,7 +1015,7 @@ fn orientations(
         // Weighted magnitudes and bins of the row in one vectorised pass, then the scatter.
         let n = x_hi - x_lo + 1;
         s.mag.resize(n, 0.0);
-        s.obin.resize(n, 0.0);
+        s.obin.resize(n, 0);
         let left = &img[y * w + x_lo - 1..y * w + x_lo - 1 + n];
         let right = &img[y * w + x_lo + 1..y * w + x_lo + 1 + n];
         let up = &img[(y - 1) * w + x_lo..(y - 1) * w + x_lo + n];
@@ -1021,14 +1027,14 @@ fn orientations(
             let gx = right[k] - left[k];
             let gy = down[k] - up[k];
             mags[k] = (gx * gx + gy * gy).sqrt() * gwx[k] * wy;
-            bins[k] = fast_atan2(gy, gx) * bins_per_rad + 0.5;
+            // Rounded to the nearest bin (the angle is ≥ 0, so truncation of +0.5 rounds).
+            bins[k] = whole_to_u32((fast_atan2(gy, gx) * bins_per_rad + 0.5).trunc());
         }
         for (&m, &b) in mags.iter().zip(bins.iter()) {
-            let mut bin = b as usize;
-            if bin >= ORI_BINS {
-                bin -= ORI_BINS;
-            }
-            hist[bin] += m;
+            let bin = b as usize;
+            let bin = if bin >= ORI_BINS { bin - ORI_BINS } else { bin };
+            // `min`: a no-op for finite gradients; keeps a NaN in bounds.
+            hist[bin.min(ORI_BINS - 1)] += m;
         }
     }
     // Circular smoothing.
@@ -1068,16 +1074,31 @@ fn orientations(
     count
 }
 
-/// Scratch of the descriptor's sample gathering.
+/// Scratch of the orientation histogram (`mag`, `obin`, one row) and the descriptor (one
+/// row of samples).
 #[derive(Default)]
 struct GradScratch {
-    gx: Vec<f32>,
-    gy: Vec<f32>,
-    rbin: Vec<f32>,
-    cbin: Vec<f32>,
-    wgt: Vec<f32>,
     mag: Vec<f32>,
-    obin: Vec<f32>,
+    obin: Vec<u32>,
+    /// Offsets from the keypoint and Gaussian window weights of the descriptor's columns.
+    dx: Vec<f32>,
+    wx: Vec<f32>,
+    /// Start of the padded histogram cell `(r0, c0)` of each sample.
+    cell: Vec<u32>,
+    /// Lower orientation bin of each sample, and the share of the upper one.
+    o0: Vec<u32>,
+    fo: Vec<f32>,
+    /// Weighted magnitude split over the 2x2 spatial cells `(r0, c0), (r0, c0 + 1),
+    /// (r0 + 1, c0), (r0 + 1, c0 + 1)`.
+    vrc: [Vec<f32>; 4],
+}
+
+/// A whole number `v` in `[0, 2²³)` as an integer, without a (saturating, hence slow and
+/// vectorisation-blocking) float-to-int cast: adding 2²³ puts `v` in the mantissa's low bits.
+/// Values outside that range (or NaN) give some integer below 2²³, never a panic.
+#[inline(always)]
+fn whole_to_u32(v: f32) -> u32 {
+    (v + 8_388_608.0).to_bits() & 0x7f_ffff
 }
 
 /// The interval of `t` where `lo < a + b·t < hi` (open), as `(min, max)`; empty when
@@ -1129,24 +1150,24 @@ fn descriptor(
     // Gaussian window, σ = d / 2 cells: separable in the (unrotated) offsets.
     let exp_scale = -1.0 / (0.5 * df * df * hist_width * hist_width);
     let half_d = df / 2.0 - 0.5;
-    s.gx.clear();
-    s.gy.clear();
-    s.rbin.clear();
-    s.cbin.clear();
-    s.wgt.clear();
     let x_min = (ci - radius).max(1);
     let x_max = (ci + radius).min(w as isize - 2);
     if x_min > x_max {
         return [0; DESCRIPTOR_LEN];
     }
-    let wx: Vec<f32> = (x_min..=x_max)
-        .map(|x| {
-            let dx = x as f32 - xo;
-            (dx * dx * exp_scale).exp()
-        })
-        .collect();
+    s.dx.clear();
+    s.dx.extend((x_min..=x_max).map(|x| x as f32 - xo));
+    s.wx.clear();
+    s.wx.extend(s.dx.iter().map(|dx| (dx * dx * exp_scale).exp()));
     // Shrink the open bin interval (-1, d) a hair so rounding never puts a sample outside.
     let (lo, hi) = (-1.0 + 1e-4, df - 1e-4);
+    let bins_per_rad = nb as f32 / TAU;
+    let nbf = nb as f32;
+    // Histogram with one cell of padding on each spatial side: cell (r, c) of the padded
+    // 6x6 grid starts at `(r · (d + 2) + c) · nb`.
+    let row_stride = (d + 2) * nb;
+    let max_cell = (d * (d + 2) + d) * nb;
+    let mut hist = [0f32; (DESCR_WIDTH + 2) * (DESCR_WIDTH + 2) * DESCR_BINS];
     for y in (ri - radius).max(1)..=(ri + radius).min(h as isize - 2) {
         let dy = y as f32 - yo;
         // cbin = half_d + dy·sin + dx·cos, rbin = half_d + dy·cos - dx·sin, linear in dx.
@@ -1163,64 +1184,67 @@ fn descriptor(
             continue;
         }
         let wy = (dy * dy * exp_scale).exp();
-        let yu = y as usize;
-        let row = &img[yu * w..(yu + 1) * w];
-        let up = &img[(yu - 1) * w..yu * w];
-        let down = &img[(yu + 1) * w..(yu + 2) * w];
+        let (yu, xa, n) = (y as usize, xa as usize, (xb - xa + 1) as usize);
+        let left = &img[yu * w + xa - 1..][..n];
+        let right = &img[yu * w + xa + 1..][..n];
+        let up = &img[(yu - 1) * w + xa..][..n];
+        let down = &img[(yu + 1) * w + xa..][..n];
+        let wxs = &s.wx[xa - x_min as usize..][..n];
+        let dxs = &s.dx[xa - x_min as usize..][..n];
         let cb0 = half_d + dy * sin_t;
         let rb0 = half_d + dy * cos_t;
-        for x in xa..=xb {
-            let dx = x as f32 - xo;
-            let xu = x as usize;
-            s.gx.push(row[xu + 1] - row[xu - 1]);
-            s.gy.push(down[xu] - up[xu]);
-            s.cbin.push((cb0 + dx * cos_t).clamp(lo, hi));
-            s.rbin.push((rb0 - dx * sin_t).clamp(lo, hi));
-            s.wgt.push(wy * wx[(x - x_min) as usize]);
+        s.cell.resize(n, 0);
+        s.o0.resize(n, 0);
+        s.fo.resize(n, 0.0);
+        for v in &mut s.vrc {
+            v.resize(n, 0.0);
         }
-    }
-    // Magnitudes and orientation bins (branch-free, vectorised).
-    let bins_per_rad = nb as f32 / TAU;
-    let nbf = nb as f32;
-    let len = s.gx.len();
-    s.mag.resize(len, 0.0);
-    s.obin.resize(len, 0.0);
-    {
-        // Index loops over equal-length slices (no closures, so this inlines into the
-        // AVX2 build and vectorises).
-        let (gxs, gys, wgs) = (&s.gx[..len], &s.gy[..len], &s.wgt[..len]);
-        let (mags, obins) = (&mut s.mag[..len], &mut s.obin[..len]);
-        for k in 0..len {
-            let (gx, gy) = (gxs[k], gys[k]);
-            mags[k] = (gx * gx + gy * gy).sqrt() * wgs[k];
+        // Per sample, branch-free and vectorised: gradient, weighted magnitude, the three
+        // bin coordinates, and the spatial (bilinear) shares of the magnitude.
+        let (cell, o0s, fos) = (&mut s.cell[..n], &mut s.o0[..n], &mut s.fo[..n]);
+        let [v00, v01, v10, v11] = &mut s.vrc;
+        let (v00, v01, v10, v11) = (&mut v00[..n], &mut v01[..n], &mut v10[..n], &mut v11[..n]);
+        for k in 0..n {
+            let dx = dxs[k];
+            let (gx, gy) = (right[k] - left[k], down[k] - up[k]);
+            let mag = (gx * gx + gy * gy).sqrt() * (wy * wxs[k]);
             let o = (fast_atan2(gy, gx) - angle) * bins_per_rad;
             let o = if o < 0.0 { o + nbf } else { o };
-            obins[k] = if o >= nbf { o - nbf } else { o };
+            let obin = if o >= nbf { o - nbf } else { o };
+            // Bins are > -1, so truncation of bin + 1 is floor + 1. Whole numbers stay
+            // floats here (exact), which keeps the loop vectorised.
+            let rb = (rb0 - dx * sin_t).clamp(lo, hi) + 1.0;
+            let cb = (cb0 + dx * cos_t).clamp(lo, hi) + 1.0;
+            let (r0, c0) = (rb.trunc(), cb.trunc());
+            let o0 = obin.trunc().min(nbf - 1.0);
+            let (fr, fc) = (rb - r0, cb - c0);
+            fos[k] = obin - o0;
+            o0s[k] = whole_to_u32(o0);
+            cell[k] = whole_to_u32((r0 * (df + 2.0) + c0) * nbf);
+            let v_r1 = mag * fr;
+            let v_r0 = mag - v_r1;
+            v01[k] = v_r0 * fc;
+            v00[k] = v_r0 - v01[k];
+            v11[k] = v_r1 * fc;
+            v10[k] = v_r1 - v11[k];
         }
-    }
-    // Trilinear accumulation; one cell of padding on each spatial side.
-    let mut hist = [0f32; (DESCR_WIDTH + 2) * (DESCR_WIDTH + 2) * DESCR_BINS];
-    for k in 0..s.mag.len() {
-        let mag = s.mag[k];
-        let (rbin, cbin, obin) = (s.rbin[k], s.cbin[k], s.obin[k]);
-        // Bins are > -1, so truncation of bin + 1 is floor + 1.
-        let r0 = (rbin + 1.0) as usize;
-        let c0 = (cbin + 1.0) as usize;
-        let o0 = (obin as usize).min(nb - 1);
-        let fr = rbin + 1.0 - r0 as f32;
-        let fc = cbin + 1.0 - c0 as f32;
-        let fo = obin - o0 as f32;
-        let o1 = if o0 + 1 == nb { 0 } else { o0 + 1 };
-        let v_r1 = mag * fr;
-        let v_r0 = mag - v_r1;
-        for (rr, vr) in [(r0, v_r0), (r0 + 1, v_r1)] {
-            let v_c1 = vr * fc;
-            let v_c0 = vr - v_c1;
-            for (cc, vc) in [(c0, v_c0), (c0 + 1, v_c1)] {
+        // Scatter into the 8 bins around each sample, in sample order.
+        for k in 0..n {
+            // `min`: bins are within the grid by construction; this keeps a NaN from a
+            // broken image from indexing past it.
+            let cell = &mut hist[(cell[k] as usize).min(max_cell)..][..row_stride + 2 * nb];
+            let o0 = (o0s[k] as usize).min(nb - 1);
+            let o1 = (o0 + 1) % nb;
+            let fo = fos[k];
+            for (off, vc) in [
+                (0, v00[k]),
+                (nb, v01[k]),
+                (row_stride, v10[k]),
+                (row_stride + nb, v11[k]),
+            ] {
                 let v_o1 = vc * fo;
-                let base = (rr * (d + 2) + cc) * nb;
-                hist[base + o0] += vc - v_o1;
-                hist[base + o1] += v_o1;
+                cell[off + o0] += vc - v_o1;
+                cell[off + o1] += v_o1;
             }
         }
     }
@@ -1333,6 +1357,17 @@ mod tests {
             assert!(diff < 2e-5, "{t}: {got} vs {want}");
         }
         assert_eq!(fast_atan2(0.0, 0.0), 0.0);
+    }
+
+    #[test]
+    fn whole_to_u32_is_exact_for_whole_numbers() {
+        for v in (0..1000).chain([8_388_607]) {
+            assert_eq!(whole_to_u32(v as f32), v);
+        }
+        // Anything else stays below 2^23 (callers clamp it to their range).
+        for v in [f32::NAN, -1.0, 1e9, f32::INFINITY] {
+            assert!(whole_to_u32(v) < 1 << 23);
+        }
     }
 
     #[test]
