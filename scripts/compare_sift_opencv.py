@@ -3,19 +3,22 @@
 
 Makes a throwaway virtual environment under /tmp with opencv-python-headless and numpy
 (the project itself never depends on Python), prepares test images from ../shared/data
-(girl 128x96, car4 360x240, a carphone frame 176x144, a synthetic 640x480), runs
-cv2.SIFT_create() single-threaded and `pftrack sift --out` on each, and prints a table.
+(girl 128x96, car4 360x240, a carphone frame 176x144, a box frame 640x480) and the first
+frame of `pftrack synth --size 640x480`, runs cv2.SIFT_create() single-threaded and
+`pftrack sift --out` on each (same 8-bit gray image, both pinned to one CPU), and prints a
+table.
 
 Agreement: the share of our keypoints that lie within 1.5 px and a 1.5x scale ratio of one
 of OpenCV's, and the reverse. OpenCV's kp.size is a diameter (2 sigma); our `scale` is sigma.
 Both use the doubled first octave (OpenCV's default), so the defaults are compared as is.
 
-Usage: scripts/compare_sift_opencv.py [--pftrack PATH] [--repeat N] [--venv DIR] [--data DIR]
+Usage: scripts/compare_sift_opencv.py [--pftrack PATH] [--repeat N] [--venv DIR] [--data DIR] [--cpu K]
   PATH defaults to the release build in $CARGO_TARGET_DIR or ./target.
 """
 
 import argparse
 import os
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -46,26 +49,25 @@ g = cv2.imread(os.path.join(data, "girl/img/0001.jpg"))
 imgs["girl 0001 128x96"] = g
 c = cv2.imread(os.path.join(data, "car4/img/0001.jpg"))
 imgs["car4 0001 360x240"] = c
-cap = cv2.VideoCapture(os.path.join(data, "carphone/carphone_pristine.mp4"))
-for _ in range(10):
-    ok, f = cap.read()
-if ok:
+def video_frame(path, k):
+    cap = cv2.VideoCapture(path)
+    f = None
+    for _ in range(k + 1):
+        ok, f = cap.read()
+        if not ok:
+            return None
+    return f
+f = video_frame(os.path.join(data, "carphone/carphone_pristine.mp4"), 9)
+if f is not None:
     imgs["carphone #10 %dx%d" % (f.shape[1], f.shape[0])] = f
-# Synthetic 640x480: smooth random texture plus shapes (fixed seed).
-rng = np.random.default_rng(7)
-noise = rng.random((60, 80)).astype(np.float32)
-syn = cv2.resize(noise, (640, 480), interpolation=cv2.INTER_CUBIC)
-syn = cv2.GaussianBlur(syn, (0, 0), 2.0)
-syn = (255 * (syn - syn.min()) / (syn.max() - syn.min())).astype(np.uint8)
-for k in range(40):
-    x, y = int(rng.integers(20, 620)), int(rng.integers(20, 460))
-    r = int(rng.integers(4, 30))
-    col = int(rng.integers(0, 256))
-    if k % 2:
-        cv2.circle(syn, (x, y), r, col, -1)
-    else:
-        cv2.rectangle(syn, (x - r, y - r // 2), (x + r, y + r // 2), col, -1)
-imgs["synthetic 640x480"] = cv2.cvtColor(syn, cv2.COLOR_GRAY2BGR)
+f = video_frame(os.path.join(data, "box/box.mp4"), 100)
+if f is not None:
+    imgs["box #101 %dx%d" % (f.shape[1], f.shape[0])] = f
+# Synthetic 640x480: the first frame of `pftrack synth` (combo scenario, seed 1).
+syn_dir = os.path.join(out, "synth")
+subprocess.run([cfg["pftrack"], "synth", syn_dir, "--size", "640x480", "--frames", "1"],
+               check=True, capture_output=True)
+imgs["pftrack synth 640x480"] = cv2.imread(os.path.join(syn_dir, "frames", "00000.png"))
 
 def gray(img):
     # Same luma as pftrack (BT.601 on RGB), as float in [0, 255]: OpenCV converts 8-bit
@@ -75,30 +77,36 @@ def gray(img):
 
 rows = []
 for name, img in imgs.items():
-    path = os.path.join(out, name.split()[0] + ".png")
-    cv2.imwrite(path, img)
     gimg = gray(img)
     g8 = np.clip(np.round(gimg), 0, 255).astype(np.uint8)
+    # Both sides get the same 8-bit gray image (pftrack reads it as RGB with equal channels,
+    # whose luma is the gray value).
+    path = os.path.join(out, name.split()[0] + ".png")
+    cv2.imwrite(path, g8)
     sift = cv2.SIFT_create()
-    best = 1e9
+    kps, des = sift.detectAndCompute(g8, None)  # warm-up
+    times = []
     c0 = time.thread_time()
     for _ in range(cfg["repeat"]):
         t0 = time.perf_counter()
         kps, des = sift.detectAndCompute(g8, None)
-        best = min(best, time.perf_counter() - t0)
+        times.append(time.perf_counter() - t0)
     cpu_ocv = (time.thread_time() - c0) / cfg["repeat"]
+    med_ocv = float(np.median(times))
     ocv = np.array([[k.pt[0], k.pt[1], k.size / 2.0] for k in kps]).reshape(-1, 3)
     csvp = os.path.join(out, name.split()[0] + ".csv")
     def run_ours(repeat, out):
         # CPU time of the child (user + system), robust to other load on the machine.
         before = resource.getrusage(resource.RUSAGE_CHILDREN)
         cmd = [cfg["pftrack"], "sift", path, "--repeat", str(repeat)] + (["--out", csvp] if out else [])
-        res = subprocess.run(cmd, capture_output=True, text=True, check=True)
+        env = dict(os.environ, RAYON_NUM_THREADS="1")
+        res = subprocess.run(cmd, capture_output=True, text=True, check=True, env=env)
         after = resource.getrusage(resource.RUSAGE_CHILDREN)
         cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
         return res, cpu
     res, _ = run_ours(cfg["repeat"], True)
-    ms = float(res.stderr.split(" keypoints in ")[1].split(" ms")[0])
+    # "N keypoints in MEDIAN ms (median of R, fastest F ms)": the CLI times detection alone.
+    med_ours = float(res.stderr.split(" keypoints in ")[1].split(" ms")[0])
     # `--repeat R` detects R + 1 times; the difference of two runs is the detection alone.
     _, cpu_lo = run_ours(1, False)
     _, cpu_hi = run_ours(1 + cfg["repeat"], False)
@@ -123,15 +131,17 @@ for name, img in imgs.items():
         precise = (share(ours, ocv2), share(ocv2, ours))
     except Exception:
         precise = (float("nan"), float("nan"))
-    rows.append((name, len(ours), len(ocv), ms, best * 1e3, cpu_ours * 1e3, cpu_ocv * 1e3,
+    rows.append((name, len(ours), len(ocv), med_ours, med_ocv * 1e3, cpu_ours * 1e3, cpu_ocv * 1e3,
                  share(ours, ocv), share(ocv, ours)) + precise)
 
-print("| image | ours kps | OpenCV kps | ours ms (wall, best) | OpenCV ms (wall, best) | ours ms (CPU, mean) | OpenCV ms (CPU, mean) | ours→OpenCV | OpenCV→ours | ours→OpenCV precise | OpenCV precise→ours |")
+print("| image | ours kps | OpenCV kps | ours ms (wall, median) | OpenCV ms (wall, median) | ours ms (CPU, mean) | OpenCV ms (CPU, mean) | ours→OpenCV | OpenCV→ours | ours→OpenCV precise | OpenCV precise→ours |")
 print("|---|---|---|---|---|---|---|---|---|---|---|")
 for r in rows:
     print("| %s | %d | %d | %.2f | %.2f | %.2f | %.2f | %.1f%% | %.1f%% | %.1f%% | %.1f%% |"
           % (r[0], r[1], r[2], r[3], r[4], r[5], r[6], 100 * r[7], 100 * r[8], 100 * r[9], 100 * r[10]))
-print("OpenCV", cv2.__version__, "single thread; times are the best of", cfg["repeat"], "runs; the pftrack time excludes image decoding (measured inside the CLI).")
+print("OpenCV", cv2.__version__, "single thread (cv2.setNumThreads(1), RAYON_NUM_THREADS=1, both on CPU 0);",
+      "wall times are the median of", cfg["repeat"], "runs of detection + description alone (no decoding);",
+      "load average before: %s" % cfg["load"])
 '''
 
 
@@ -141,6 +151,7 @@ def main():
     ap.add_argument("--pftrack", default=os.path.join(target, "release", "pftrack"))
     ap.add_argument("--repeat", type=int, default=20)
     ap.add_argument("--venv", default="/tmp/pftrack-sift-venv")
+    ap.add_argument("--cpu", type=int, default=0, help="pin both sides to this CPU (-1: no pinning)")
     ap.add_argument("--data", default=DATA if os.path.isdir(DATA) else "/work/shared/data",
                     help="the shared data folder (default ../shared/data beside the repository)")
     a = ap.parse_args()
@@ -149,8 +160,12 @@ def main():
     py = ensure_venv(a.venv)
     with tempfile.TemporaryDirectory() as tmp:
         import json
-        cfg = {"tmp": tmp, "data": os.path.abspath(a.data), "pftrack": os.path.abspath(a.pftrack), "repeat": a.repeat}
-        subprocess.run([py, "-c", INNER, json.dumps(cfg)], check=True)
+        load = " ".join("%.2f" % v for v in os.getloadavg())
+        cfg = {"tmp": tmp, "data": os.path.abspath(a.data), "pftrack": os.path.abspath(a.pftrack),
+               "repeat": a.repeat, "load": load}
+        # Both sides on one core (children inherit the affinity).
+        pin = ["taskset", "-c", str(a.cpu)] if a.cpu >= 0 and shutil.which("taskset") else []
+        subprocess.run(pin + [py, "-c", INNER, json.dumps(cfg)], check=True)
 
 
 if __name__ == "__main__":
