@@ -26,8 +26,11 @@
 //! - Blurs are separable with precomputed kernels (radius ⌈4σ⌉-ish, like OpenCV's float
 //!   path) and reflect-101 borders; each scale is blurred incrementally from the previous
 //!   one; the next octave starts from the scale 2σ of the previous octave, decimated by 2.
-//! - Speed: extrema are found with branch-free 3x3x3 max/min tests, descriptor samples are
-//!   limited analytically to the rotated cell grid, the hot loops are compiled a second time
+//! - Speed: blurs add four taps per pass over a row held in L1 (no bounds checks, so they
+//!   vectorise), extrema are found with branch-free 3x3x3 max/min tests, descriptor samples
+//!   are limited analytically to the rotated cell grid and computed a row at a time in one
+//!   branch-free pass (hot loops avoid saturating float-to-int casts, which block
+//!   vectorisation), the hot loops are compiled a second time
 //!   for AVX2 and picked at run time (bit-identical results: Rust never fuses multiply-adds
 //!   on its own), and pyramid buffers come from a per-thread pool so a tracker calling
 //!   [`Sift::detect`] every frame reuses them. Restrict detection to the target's region to
