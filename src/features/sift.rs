@@ -179,7 +179,7 @@ fn take_buf(len: usize) -> Vec<f32> {
                 best = Some((i, cap));
             }
         }
-        best.map(|(i, _)| p.swap_remove(i)).unwrap_or_default()
+        best.map(|(i, _)| p.remove(i)).unwrap_or_default()
     });
     v.truncate(len);
     v.resize(len, 0.0);
@@ -187,28 +187,31 @@ fn take_buf(len: usize) -> Vec<f32> {
 }
 
 /// Returns a buffer to the thread's pool, at its full capacity so that taking it again for
-/// any size up to that never needs to fill it. When the pool is full the buffer replaces
-/// the largest one if it is smaller, so the pool follows the sizes in use.
+/// any size up to that never needs to fill it. When the pool is full its oldest buffer makes
+/// room, so the pool holds what the latest calls used: a detection returns all its buffers
+/// at its end, and the next one (a tracker's next frame, usually of about the same region)
+/// takes them again. (Keeping the smaller buffer instead, as it once did, let a pool filled
+/// at one region size drop every larger buffer later: a tracker refilled about 5 MB of
+/// fresh pages per 160x120 frame once its target had grown.)
 fn recycle(mut v: Vec<f32>) {
     POOL.with(|p| {
         let mut p = p.borrow_mut();
         if p.len() >= POOL_MAX {
-            let Some((i, cap)) = p
-                .iter()
-                .map(Vec::capacity)
-                .enumerate()
-                .max_by_key(|&(_, c)| c)
-            else {
-                return;
-            };
-            if cap <= v.capacity() {
-                return;
-            }
-            p.swap_remove(i);
+            p.remove(0);
         }
         v.resize(v.capacity(), 0.0);
         p.push(v);
     });
+}
+
+/// Makes a per-row scratch buffer at least `n` long. It never shrinks: rows of a keypoint's
+/// window differ in length, and shrinking then growing again would zero-fill the regrown part
+/// on every row (a tenth of a tracker's instructions went to that `memset`); every caller
+/// overwrites the first `n` values before reading them.
+fn grow<T: Copy + Default>(v: &mut Vec<T>, n: usize) {
+    if v.len() < n {
+        v.resize(n, T::default());
+    }
 }
 
 /// Scratch buffers of the separable blur.
@@ -1017,8 +1020,8 @@ fn orientations(
         }
         // Weighted magnitudes and bins of the row in one vectorised pass, then the scatter.
         let n = x_hi - x_lo + 1;
-        s.mag.resize(n, 0.0);
-        s.obin.resize(n, 0);
+        grow(&mut s.mag, n);
+        grow(&mut s.obin, n);
         let left = &img[y * w + x_lo - 1..y * w + x_lo - 1 + n];
         let right = &img[y * w + x_lo + 1..y * w + x_lo + 1 + n];
         let up = &img[(y - 1) * w + x_lo..(y - 1) * w + x_lo + n];
@@ -1196,11 +1199,11 @@ fn descriptor(
         let dxs = &s.dx[xa - x_min as usize..][..n];
         let cb0 = half_d + dy * sin_t;
         let rb0 = half_d + dy * cos_t;
-        s.cell.resize(n, 0);
-        s.o0.resize(n, 0);
-        s.fo.resize(n, 0.0);
+        grow(&mut s.cell, n);
+        grow(&mut s.o0, n);
+        grow(&mut s.fo, n);
         for v in &mut s.vrc {
-            v.resize(n, 0.0);
+            grow(v, n);
         }
         // Per sample, branch-free and vectorised: gradient, weighted magnitude, the three
         // bin coordinates, and the spatial (bilinear) shares of the magnitude.
@@ -1371,6 +1374,21 @@ mod tests {
         for v in [f32::NAN, -1.0, 1e9, f32::INFINITY] {
             assert!(whole_to_u32(v) < 1 << 23);
         }
+    }
+
+    #[test]
+    fn a_full_pool_keeps_the_latest_buffer() {
+        Sift::release_thread_buffers();
+        for _ in 0..POOL_MAX {
+            recycle(vec![0.0; 100]);
+        }
+        recycle(vec![1.0f32; 100_000]);
+        // A tracker's next frame asks for about the same size again: it must get that buffer
+        // back (its stale values show it), not fresh zeroed pages.
+        let again = take_buf(90_000);
+        assert_eq!(again.len(), 90_000);
+        assert!(again.iter().all(|&x| x == 1.0));
+        Sift::release_thread_buffers();
     }
 
     #[test]
