@@ -120,6 +120,9 @@ pub struct FilterParams {
     pub resample_below: f64,
     /// Smallest semi-axis a particle may take (pixels); proposals are clamped to it.
     pub min_axis: f64,
+    /// Largest semi-axis a particle may take (pixels); proposals are clamped to it and to the
+    /// frame set by [`ParticleFilter::set_frame`].
+    pub max_axis: f64,
 }
 
 impl Default for FilterParams {
@@ -144,6 +147,7 @@ impl Default for FilterParams {
             },
             resample_below: 0.5,
             min_axis: 2.0,
+            max_axis: f64::INFINITY,
         }
     }
 }
@@ -210,6 +214,8 @@ pub struct ParticleFilter {
     estimate: Hypothesis,
     /// The last update's resampling, `None` when it did not resample.
     last_resampling: Option<Resampling>,
+    /// The frame's size `(w, h)` when known ([`ParticleFilter::set_frame`]).
+    frame: Option<(f64, f64)>,
 }
 
 /// `ln N(x; 0, σ²)` up to the constant `-½ ln 2π`; a component with `σ = 0` is deterministic
@@ -257,6 +263,7 @@ impl ParticleFilter {
             weights: vec![1.0 / n as f64; n],
             estimate: *init,
             last_resampling: None,
+            frame: None,
         }
     }
 
@@ -328,6 +335,16 @@ impl ParticleFilter {
                 .collect()
         };
         let min_axis = self.params.min_axis;
+        let (max_cx, max_cy, max_axis) = match self.frame {
+            Some((w, h)) => ((w - 1.0).max(0.0), (h - 1.0).max(0.0), w.max(h)),
+            None => (f64::INFINITY, f64::INFINITY, f64::INFINITY),
+        };
+        let min_c = if self.frame.is_some() {
+            0.0
+        } else {
+            f64::NEG_INFINITY
+        };
+        let max_axis = self.params.max_axis.min(max_axis).max(min_axis);
         let scale = if motion.scale.is_finite() && motion.scale > 0.0 {
             motion.scale
         } else {
@@ -358,10 +375,10 @@ impl ParticleFilter {
                 self.normal() * sg.rotation[2],
             );
             let x = Hypothesis {
-                cx: mean_cx + noise[0] * sg.centre,
-                cy: mean_cy + noise[1] * sg.centre,
-                a: (mean_a + noise[2] * sg.axes).max(min_axis),
-                b: (mean_b + noise[3] * sg.axes).max(min_axis),
+                cx: (mean_cx + noise[0] * sg.centre).clamp(min_c, max_cx),
+                cy: (mean_cy + noise[1] * sg.centre).clamp(min_c, max_cy),
+                a: (mean_a + noise[2] * sg.axes).clamp(min_axis, max_axis),
+                b: (mean_b + noise[3] * sg.axes).clamp(min_axis, max_axis),
                 rot: exp_so3(&wn) * cands[c].1 * parent.rot,
             };
             // ln q: the mixture over the rotation candidates given this parent.
@@ -386,6 +403,15 @@ impl ParticleFilter {
             self.log_ratio[i] = ln_p - ln_q;
             self.particles[i] = x;
         }
+    }
+
+    /// Keeps proposals on a `w x h` frame: centres within it and semi-axes no longer than its
+    /// larger side. No likelihood can tell an ellipse covering the whole frame from a larger
+    /// one, nor place one whose centre has left it, so without these bounds a lost target
+    /// random-walked without end (on car4, 360x240, a semi-axis reached 2,861 px and the
+    /// centre -335 px).
+    pub fn set_frame(&mut self, w: u32, h: u32) {
+        self.frame = Some((w as f64, h as f64));
     }
 
     /// The particles in the engines' layout.
@@ -480,6 +506,31 @@ mod tests {
                 (-d2 / 2.0 - w.norm_squared() / (2.0 * 0.02f64.powi(2))) as f32
             })
             .collect()
+    }
+
+    #[test]
+    fn proposals_stay_on_the_frame_once_it_is_set() {
+        // A runaway motion (far off the frame, 50 times larger) must not carry particles off
+        // the frame or beyond its size; without a frame they go where the motion says.
+        let m = Motion {
+            dx: 500.0,
+            dy: -300.0,
+            scale: 50.0,
+            rotations: vec![(1.0, Matrix3::identity())],
+        };
+        let mut f = ParticleFilter::new(FilterParams::default(), 3, &init());
+        f.set_frame(100, 80);
+        f.propose(&m, 1.0);
+        for p in f.particles() {
+            assert!(
+                (0.0..=99.0).contains(&p.cx) && (0.0..=79.0).contains(&p.cy),
+                "{p:?}"
+            );
+            assert!(p.a <= 100.0 && p.b <= 100.0, "{p:?}");
+        }
+        let mut free = ParticleFilter::new(FilterParams::default(), 3, &init());
+        free.propose(&m, 1.0);
+        assert!(free.particles().iter().all(|p| p.cx > 400.0 && p.a > 500.0));
     }
 
     #[test]

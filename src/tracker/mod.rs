@@ -126,6 +126,8 @@ pub struct Tracker {
     keyframes: KeyframePool,
     prev: Hypothesis,
     prev_euler: Euler,
+    /// The last estimate with enough confidence: a re-acquisition searches at its size.
+    last_good: Hypothesis,
     low_count: usize,
     lost: bool,
     particles: Vec<Particle>,
@@ -224,6 +226,7 @@ impl Tracker {
             keyframes: KeyframePool::new(KEYFRAMES),
             prev: Hypothesis::from_state(&PoseState::default()),
             prev_euler: Euler::default(),
+            last_good: Hypothesis::from_state(&PoseState::default()),
             low_count: 0,
             lost: false,
             particles: Vec::new(),
@@ -254,8 +257,10 @@ impl Tracker {
         self.engine.set_colour_model(&model)?;
         let state = PoseState::from_parts(&init.ellipse, init.pose);
         let hyp = Hypothesis::from_state(&state);
+        self.filter.set_frame(w, h);
         self.filter.reset(&hyp);
         self.prev = hyp;
+        self.last_good = hyp;
         self.prev_euler = init.pose;
         self.prev_gray = GrayF32::from_rgb(frame);
         let region = search_region(&init.ellipse, w, h);
@@ -465,6 +470,7 @@ impl Tracker {
         } else {
             self.low_count = 0;
             self.lost = false;
+            self.last_good = est;
         }
         if self.low_count >= self.cfg.lost_after {
             self.lost = true;
@@ -623,7 +629,8 @@ impl Tracker {
         if rotation_measured { c } else { 0.8 * c }
     }
 
-    /// Looks for the target over the whole frame by colour: ellipses of the current size on a
+    /// Looks for the target over the whole frame by colour: ellipses of the last confident
+    /// estimate's size on a
     /// grid of half a semi-axis, all evaluated in one engine call. Returns the best one when its
     /// colour similarity reaches [`TrackerConfig::reacquire_rho`].
     fn reacquire(
@@ -632,7 +639,9 @@ impl Tracker {
         est: &Hypothesis,
     ) -> crate::Result<Option<Hypothesis>> {
         let (w, h) = self.size;
-        let step = (0.5 * est.a.min(est.b)).max(2.0);
+        // The size of the last confident estimate: the lost track's own may have drifted.
+        let (a, b) = (self.last_good.a, self.last_good.b);
+        let step = (0.5 * a.min(b)).max(2.0);
         let e = Euler::from_matrix(&est.rot);
         let mut cands = Vec::new();
         let mut y = 0.0;
@@ -642,8 +651,8 @@ impl Tracker {
                 cands.push(Particle {
                     cx: x as f32,
                     cy: y as f32,
-                    a: est.a as f32,
-                    b: est.b as f32,
+                    a: a as f32,
+                    b: b as f32,
                     rx: e.rx as f32,
                     ry: e.ry as f32,
                     rz: e.rz as f32,
@@ -675,8 +684,8 @@ impl Tracker {
                 Some(Hypothesis {
                     cx: c.cx as f64,
                     cy: c.cy as f64,
-                    a: est.a,
-                    b: est.b,
+                    a,
+                    b,
                     rot: est.rot,
                 })
             }
