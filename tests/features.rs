@@ -4,7 +4,7 @@ use std::f32::consts::{FRAC_PI_2, TAU};
 use std::io::Write;
 
 use pftrack::features::{
-    FeatureError, Features, Keypoint, MatchParams, Sift, SiftParams, match_features,
+    FeatureError, Features, Keypoint, MatchParams, Sift, SiftParams, UpsampleGrid, match_features,
     reject_slope_length,
 };
 use pftrack::frames::GrayF32;
@@ -424,6 +424,51 @@ fn degenerate_images_do_not_panic() {
         odd.detect(&g, None),
         Err(FeatureError::BadParams(_))
     ));
+}
+
+/// OpenCV's default doubling samples the input a quarter pixel back and does not undo it, so
+/// the same structure is reported a quarter pixel further right and down than on the exact
+/// grid (the shift between OpenCV's default and its `enable_precise_upscale`).
+#[test]
+fn opencv_grid_reports_keypoints_a_quarter_pixel_off() {
+    let img = Scene::random(11, 160.0, 120.0, 150).render(160, 120, |u, v| (u, v));
+    let exact = Sift::new(SiftParams::default()).detect(&img, None).unwrap();
+    let cv = Sift::new(SiftParams {
+        upsample_grid: UpsampleGrid::OpenCv,
+        ..SiftParams::default()
+    })
+    .detect(&img, None)
+    .unwrap();
+    let (mut dx, mut dy) = (Vec::new(), Vec::new());
+    for k in &exact.keypoints {
+        let near = cv.keypoints.iter().min_by(|a, b| {
+            let da = (a.x - k.x).hypot(a.y - k.y);
+            let db = (b.x - k.x).hypot(b.y - k.y);
+            da.total_cmp(&db)
+        });
+        if let Some(n) = near
+            && (n.x - k.x).hypot(n.y - k.y) < 1.0
+            && (n.scale / k.scale - 1.0).abs() < 0.2
+        {
+            dx.push(n.x - k.x);
+            dy.push(n.y - k.y);
+        }
+    }
+    assert!(
+        dx.len() * 10 >= exact.len() * 7,
+        "{} of {} keypoints paired",
+        dx.len(),
+        exact.len()
+    );
+    let median = |v: &mut Vec<f32>| {
+        v.sort_by(f32::total_cmp);
+        v[v.len() / 2]
+    };
+    let (mx, my) = (median(&mut dx), median(&mut dy));
+    assert!(
+        (mx - 0.25).abs() < 0.08 && (my - 0.25).abs() < 0.08,
+        "median shift ({mx}, {my})"
+    );
 }
 
 #[test]

@@ -11,7 +11,7 @@ mod sift;
 pub use matching::{
     Match, MatchParams, STILL_LENGTH_PX, STILL_RADIUS_PX, match_features, reject_slope_length,
 };
-pub use sift::{DESCRIPTOR_LEN, Sift, SiftParams};
+pub use sift::{DESCRIPTOR_LEN, Sift, SiftParams, UpsampleGrid};
 
 /// A SIFT keypoint, in input-image pixels.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]

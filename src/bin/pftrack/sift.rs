@@ -6,7 +6,7 @@ use std::time::Instant;
 
 use anyhow::Context;
 use clap::Args;
-use pftrack::features::{Sift, SiftParams};
+use pftrack::features::{Sift, SiftParams, UpsampleGrid};
 use pftrack::frames::GrayF32;
 use pftrack::geometry::BoxRect;
 
@@ -25,6 +25,10 @@ pub struct SiftArgs {
     /// Do not double the image for the first octave.
     #[arg(long)]
     pub no_upsample: bool,
+    /// Double the image as OpenCV's default SIFT does (a bilinear resize whose keypoints come
+    /// out a quarter pixel off), to reproduce OpenCV's keypoints; exact by default.
+    #[arg(long, conflicts_with = "no_upsample")]
+    pub opencv_upscale: bool,
     /// Run detection this many more times and report the median and fastest time of those
     /// runs (for timing; each run times the detection alone, not decoding or output).
     #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..))]
@@ -54,6 +58,11 @@ pub fn run(args: SiftArgs) -> anyhow::Result<()> {
     let gray = GrayF32::from_rgb(&img);
     let sift = Sift::new(SiftParams {
         upsample: !args.no_upsample,
+        upsample_grid: if args.opencv_upscale {
+            UpsampleGrid::OpenCv
+        } else {
+            UpsampleGrid::Exact
+        },
         ..SiftParams::default()
     });
     let mut feats = sift.detect(&gray, args.region)?;
