@@ -270,6 +270,38 @@ fn colour_without_a_model_is_an_error() {
 }
 
 #[test]
+fn bad_colour_models_are_refused_as_on_the_cpu() {
+    let Some(mut e) = engine() else { return };
+    let mut neg = vec![0.0; HIST_BINS];
+    neg[3] = -1.0;
+    neg[4] = 2.0;
+    for bad in [
+        vec![1.0; 10],
+        vec![0.0; HIST_BINS],
+        vec![f32::NAN; HIST_BINS],
+        neg,
+    ] {
+        let r = e.set_colour_model(&ColourHistogram(bad));
+        assert!(matches!(r, Err(LikelihoodError::Invalid(_))), "{r:?}");
+    }
+    // A refused model leaves the engine without one.
+    let img = RgbImage::new(8, 8);
+    let frame = FrameInput {
+        image: &img,
+        features: &[],
+        prev: particle(4.0, 4.0, 2.0, 2.0),
+        theta0: 0.0,
+    };
+    let r = e.evaluate(
+        &frame,
+        &LikelihoodParams::default(),
+        &[frame.prev],
+        &mut Vec::new(),
+    );
+    assert!(matches!(r, Err(LikelihoodError::NoModel)), "{r:?}");
+}
+
+#[test]
 fn a_frame_beyond_the_buffer_limits_is_frame_too_large() {
     let Some(e) = engine() else { return };
     let limit = e.device().limits.max_storage_buffer_binding_size;

@@ -17,7 +17,7 @@
 use image::RgbImage;
 
 use super::EllipseF32;
-use crate::likelihood::HIST_BINS;
+use crate::likelihood::{HIST_BINS, LikelihoodError};
 
 /// The histogram bin of an RGB pixel: `(r >> 5) * 64 + (g >> 5) * 8 + (b >> 5)`.
 #[inline]
@@ -258,6 +258,27 @@ impl Model {
             q: q.to_vec(),
             q_sum,
         }
+    }
+
+    /// The model of a colour histogram given to an engine, after the checks both engines make:
+    /// [`HIST_BINS`] bins, none negative or non-finite, and a positive finite sum.
+    pub fn checked(q: &[f32]) -> Result<Self, LikelihoodError> {
+        if q.len() != HIST_BINS {
+            return Err(LikelihoodError::Invalid(format!(
+                "colour model has {} bins, expected {HIST_BINS}",
+                q.len()
+            )));
+        }
+        if !q.iter().all(|v| v.is_finite() && *v >= 0.0) {
+            return Err(LikelihoodError::Invalid(
+                "colour model has a negative or non-finite bin".into(),
+            ));
+        }
+        let m = Self::new(q);
+        if !(m.q_sum > 0.0 && m.q_sum.is_finite()) {
+            return Err(LikelihoodError::Invalid("colour model is empty".into()));
+        }
+        Ok(m)
     }
 }
 

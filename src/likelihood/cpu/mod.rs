@@ -303,22 +303,7 @@ impl LikelihoodEngine for CpuEngine {
     }
 
     fn set_colour_model(&mut self, model: &ColourHistogram) -> Result<(), LikelihoodError> {
-        if model.0.len() != HIST_BINS {
-            return Err(LikelihoodError::Invalid(format!(
-                "colour model has {} bins, expected {HIST_BINS}",
-                model.0.len()
-            )));
-        }
-        if !model.0.iter().all(|v| v.is_finite() && *v >= 0.0) {
-            return Err(LikelihoodError::Invalid(
-                "colour model has a negative or non-finite bin".into(),
-            ));
-        }
-        let m = colour::Model::new(&model.0);
-        if !(m.q_sum > 0.0 && m.q_sum.is_finite()) {
-            return Err(LikelihoodError::Invalid("colour model is empty".into()));
-        }
-        self.model = Some(m);
+        self.model = Some(colour::Model::checked(&model.0)?);
         Ok(())
     }
 

@@ -700,21 +700,7 @@ impl LikelihoodEngine for GpuEngine {
     fn set_colour_model(&mut self, model: &ColourHistogram) -> Result<(), LikelihoodError> {
         self.gpu.check()?;
         // Same checks as the CPU engine, and the same f32 sum in bin order.
-        if model.0.len() != HIST_BINS {
-            return Err(LikelihoodError::Invalid(format!(
-                "colour model has {} bins, expected {HIST_BINS}",
-                model.0.len()
-            )));
-        }
-        if !model.0.iter().all(|v| v.is_finite() && *v >= 0.0) {
-            return Err(LikelihoodError::Invalid(
-                "colour model has a negative or non-finite bin".into(),
-            ));
-        }
-        let q_sum = cpu::colour::Model::new(&model.0).q_sum;
-        if !(q_sum > 0.0 && q_sum.is_finite()) {
-            return Err(LikelihoodError::Invalid("colour model is empty".into()));
-        }
+        let q_sum = cpu::colour::Model::checked(&model.0)?.q_sum;
         self.q_sum = q_sum;
         self.gpu
             .queue
