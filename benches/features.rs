@@ -10,7 +10,9 @@
 use std::hint::black_box;
 
 use criterion::{Criterion, criterion_group, criterion_main};
-use pftrack::features::{MatchParams, Sift, SiftParams, match_features, reject_slope_length};
+use pftrack::features::{
+    Features, MatchParams, Sift, SiftParams, match_features, reject_slope_length,
+};
 use pftrack::frames::GrayF32;
 use pftrack::geometry::BoxRect;
 use pftrack::pose::{SolverKind, interframe};
@@ -112,6 +114,14 @@ fn bench(c: &mut Criterion) {
             |bch| bch.iter(|| pair_work(s, black_box(&a), black_box(&b3), reg, &p)),
         );
     }
+    // In steady state a tracker has the previous frame's features from the step before: per
+    // new frame it pays SIFT once, then matching, rejection and SEA.
+    let fa_full = sift.detect(&a, None).unwrap_or_default();
+    let (m, k) = pair_work_cached(&sift, &fa_full, &b3, &p);
+    g.bench_function(
+        format!("full+sea, previous frame cached/160x120 ({m} matches, {k} kept)"),
+        |bch| bch.iter(|| pair_work_cached(&sift, black_box(&fa_full), black_box(&b3), &p)),
+    );
     g.finish();
 }
 
@@ -126,8 +136,27 @@ fn pair_work(
     p: &MatchParams,
 ) -> (usize, usize) {
     let fa = sift.detect(a, reg).unwrap_or_default();
-    let fb = sift.detect(b, reg).unwrap_or_default();
-    let m = match_features(&fa, &fb, p);
+    let centre = reg.map_or([f64::from(a.width) / 2.0, f64::from(a.height) / 2.0], |r| {
+        [r.x + r.w / 2.0, r.y + r.h / 2.0]
+    });
+    match_and_sea(&fa, &sift.detect(b, reg).unwrap_or_default(), centre, p)
+}
+
+/// [`pair_work`] on the full frame with the first frame's features already detected.
+fn pair_work_cached(sift: &Sift, fa: &Features, b: &GrayF32, p: &MatchParams) -> (usize, usize) {
+    let fb = sift.detect(b, None).unwrap_or_default();
+    let centre = [f64::from(b.width) / 2.0, f64::from(b.height) / 2.0];
+    match_and_sea(fa, &fb, centre, p)
+}
+
+/// Matching, slope/length rejection and SEA about `centre`: (matches, kept for SEA or 0).
+fn match_and_sea(
+    fa: &Features,
+    fb: &Features,
+    centre: [f64; 2],
+    p: &MatchParams,
+) -> (usize, usize) {
+    let m = match_features(fa, fb, p);
     let xy = |k: &pftrack::features::Keypoint| [f64::from(k.x), f64::from(k.y)];
     let pp: Vec<[f64; 2]> = m.iter().map(|m| xy(&fa.keypoints[m.query])).collect();
     let qq: Vec<[f64; 2]> = m.iter().map(|m| xy(&fb.keypoints[m.train])).collect();
@@ -139,9 +168,6 @@ fn pair_work(
         .filter(|(_, k)| **k)
         .map(|((p, q), _)| (*p, *q))
         .unzip();
-    let centre = reg.map_or([f64::from(a.width) / 2.0, f64::from(a.height) / 2.0], |r| {
-        [r.x + r.w / 2.0, r.y + r.h / 2.0]
-    });
     match interframe(&pk, &qk, centre, SolverKind::Sea) {
         Ok(i) => {
             black_box(i);

@@ -69,26 +69,7 @@ pub fn match_features(a: &Features, b: &Features, p: &MatchParams) -> Vec<Match>
     let da = to_f32(a);
     let db = to_f32(b);
     let ratio2 = p.ratio * p.ratio;
-    // Best query for each train descriptor (for the mutual check).
-    let mut col_best = vec![(f32::INFINITY, usize::MAX); nb];
-    let mut row_best = Vec::with_capacity(na);
-    for (i, qa) in da.chunks_exact(DESCRIPTOR_LEN).enumerate() {
-        let (mut d1, mut j1, mut d2) = (f32::INFINITY, usize::MAX, f32::INFINITY);
-        for (j, tb) in db.chunks_exact(DESCRIPTOR_LEN).enumerate() {
-            let d = dist2(qa, tb);
-            if d < d1 {
-                d2 = d1;
-                d1 = d;
-                j1 = j;
-            } else if d < d2 {
-                d2 = d;
-            }
-            if d < col_best[j].0 {
-                col_best[j] = (d, i);
-            }
-        }
-        row_best.push((d1, j1, d2));
-    }
+    let (row_best, col_best) = nearest(&da, &db, nb);
     let mut out = Vec::new();
     for (i, &(d1, j1, d2)) in row_best.iter().enumerate() {
         if j1 == usize::MAX {
@@ -105,6 +86,59 @@ pub fn match_features(a: &Features, b: &Features, p: &MatchParams) -> Vec<Match>
         }
     }
     out
+}
+
+/// Per query `(d1, j1, d2)`: the nearest and second nearest squared distances and the nearest
+/// train index; per train descriptor `(d, i)`: the nearest query.
+type Nearest = (Vec<(f32, usize, f32)>, Vec<(f32, usize)>);
+
+/// Each query's nearest and second nearest train distances `(d1, j1, d2)`, and each train
+/// descriptor's nearest query `(d, i)`, over flattened `f32` descriptors.
+fn nearest(da: &[f32], db: &[f32], nb: usize) -> Nearest {
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx2") {
+        // SAFETY: the CPU supports AVX2 (checked just above), the only requirement of calling
+        // a function compiled with that target feature.
+        return unsafe { nearest_avx2(da, db, nb) };
+    }
+    nearest_impl(da, db, nb)
+}
+
+/// [`nearest_impl`] compiled for AVX2 (one 8-wide register per accumulator set). Distances are
+/// sums of integers below 2²⁴ either way, so the results are identical to the baseline build.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+fn nearest_avx2(da: &[f32], db: &[f32], nb: usize) -> Nearest {
+    nearest_impl(da, db, nb)
+}
+
+/// See [`nearest`]: one query's distances to every train descriptor first (a loop without
+/// branches, which vectorises), then the bookkeeping of the nearest ones.
+#[inline(always)]
+fn nearest_impl(da: &[f32], db: &[f32], nb: usize) -> Nearest {
+    let mut col_best = vec![(f32::INFINITY, usize::MAX); nb];
+    let mut row_best = Vec::with_capacity(da.len() / DESCRIPTOR_LEN);
+    let mut dists = vec![0f32; nb];
+    for (i, qa) in da.chunks_exact(DESCRIPTOR_LEN).enumerate() {
+        for (d, tb) in dists.iter_mut().zip(db.chunks_exact(DESCRIPTOR_LEN)) {
+            *d = dist2(qa, tb);
+        }
+        let (mut d1, mut j1, mut d2) = (f32::INFINITY, usize::MAX, f32::INFINITY);
+        for (j, (&d, cb)) in dists.iter().zip(col_best.iter_mut()).enumerate() {
+            if d < d1 {
+                d2 = d1;
+                d1 = d;
+                j1 = j;
+            } else if d < d2 {
+                d2 = d;
+            }
+            if d < cb.0 {
+                *cb = (d, i);
+            }
+        }
+        row_best.push((d1, j1, d2));
+    }
+    (row_best, col_best)
 }
 
 /// Median length below which displacements count as "no motion" (see
