@@ -57,6 +57,12 @@ pub struct TrackArgs {
     /// keyframe depth prior; weak perspective (the paper's model) when absent.
     #[arg(long, value_name = "DEG")]
     pub hfov: Option<f64>,
+    /// Depth relief of the target's visible surface relative to its size, for the feature
+    /// term and the keyframe fits: 1 for a head (the default), less for a flatter target,
+    /// e.g. about 0.25 for a car's rear seen from behind. Too much depth lets sideways motion
+    /// pass for a turn.
+    #[arg(long, value_name = "R", default_value_t = 1.0)]
+    pub depth_ratio: f64,
     /// Resize every frame to WxH first.
     #[arg(long, value_name = "WxH")]
     pub resize: Option<String>,
@@ -167,6 +173,15 @@ pub fn apply_hfov(cfg: &mut TrackerConfig, hfov: Option<f64>) -> anyhow::Result<
     Ok(())
 }
 
+/// Checks and applies `--depth-ratio`.
+pub fn apply_depth_ratio(cfg: &mut TrackerConfig, r: f64) -> anyhow::Result<()> {
+    if !(r.is_finite() && (0.0..=10.0).contains(&r)) {
+        bail!("--depth-ratio must lie between 0 and 10, got {r}");
+    }
+    cfg.likelihood.depth_ratio = r as f32;
+    Ok(())
+}
+
 /// The pose CSV record of an estimate.
 pub fn record(e: &Estimate) -> PoseRecord {
     PoseRecord {
@@ -204,6 +219,7 @@ pub fn run(a: TrackArgs) -> anyhow::Result<()> {
     };
     let mut cfg = config(&a.mode, a.particles, a.seed)?;
     apply_hfov(&mut cfg, a.hfov)?;
+    apply_depth_ratio(&mut cfg, a.depth_ratio)?;
     let backend: Backend = a
         .backend
         .parse()
@@ -289,4 +305,31 @@ fn run_loop(
         None => print!("{}", pftrack::io::format_pose_csv(&stdout_rows, true)),
     }
     Ok(n)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn depth_ratio_is_checked_and_applied() {
+        let mut cfg = TrackerConfig::default();
+        assert_eq!(cfg.likelihood.depth_ratio, 1.0);
+        apply_depth_ratio(&mut cfg, 0.25).unwrap();
+        assert_eq!(cfg.likelihood.depth_ratio, 0.25);
+        for bad in [-0.1, f64::NAN, f64::INFINITY, 11.0] {
+            let e = apply_depth_ratio(&mut cfg, bad).unwrap_err().to_string();
+            assert!(e.starts_with("--depth-ratio must lie"), "{e}");
+        }
+        assert_eq!(cfg.likelihood.depth_ratio, 0.25);
+    }
+
+    #[test]
+    fn hfov_is_checked() {
+        let mut cfg = TrackerConfig::default();
+        apply_hfov(&mut cfg, Some(60.0)).unwrap();
+        assert_eq!(cfg.camera_hfov_deg, Some(60.0));
+        assert!(apply_hfov(&mut cfg, Some(180.0)).is_err());
+        assert!(apply_hfov(&mut cfg, Some(0.0)).is_err());
+    }
 }
