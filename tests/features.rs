@@ -471,6 +471,25 @@ fn opencv_grid_reports_keypoints_a_quarter_pixel_off() {
     );
 }
 
+/// Orientations and descriptors go to rayon's threads when there are enough extrema; the
+/// keypoints, their order and their descriptors must not depend on how many threads there are.
+#[test]
+fn the_same_features_on_one_thread_and_on_several() {
+    let img = Scene::random(5, 160.0, 120.0, 150).render(160, 120, |u, v| (u, v));
+    let sift = Sift::new(SiftParams::default());
+    let pool = |n| {
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(n)
+            .build()
+            .unwrap()
+    };
+    let one = pool(1).install(|| sift.detect(&img, None)).unwrap();
+    let three = pool(3).install(|| sift.detect(&img, None)).unwrap();
+    assert!(one.len() >= 50, "{} keypoints", one.len());
+    assert_eq!(one.keypoints, three.keypoints);
+    assert_eq!(one.descriptors, three.descriptors);
+}
+
 #[test]
 fn angles_and_descriptors_are_well_formed() {
     let img = Scene::random(4, 80.0, 60.0, 40).render(80, 60, |u, v| (u, v));

@@ -35,7 +35,11 @@
 //!   for AVX2 and picked at run time (bit-identical results: Rust never fuses multiply-adds
 //!   on its own), and pyramid buffers come from a per-thread pool so a tracker calling
 //!   [`Sift::detect`] every frame reuses them. Restrict detection to the target's region to
-//!   pay only for it. Single-threaded by design (the tracker parallelises elsewhere).
+//!   pay only for it. The pyramid and the extrema are built on the calling thread; the
+//!   orientations and descriptors of 16 or more extrema are spread over rayon's current pool
+//!   (in the tracker, the second core picks them up once block matching beside SIFT is
+//!   done), with the same output on any number of threads. Run inside a one-thread pool for
+//!   a single-threaded detector.
 
 use std::f32::consts::{PI, TAU};
 
@@ -449,10 +453,11 @@ impl Sift {
         let n = self.params.n_octave_layers;
         // Factor from octave 0 coordinates to input coordinates.
         let base_factor = if self.params.upsample { 0.5 } else { 1.0 };
-        let mut grad = GradScratch::default();
+        // Extrema of every octave first (cheap), then orientations and descriptors, which are
+        // independent per extremum: on several threads when the pool has them and there are
+        // enough, in extremum order either way, so the output does not depend on threads.
+        let mut found: Vec<(usize, Extremum)> = Vec::new();
         for (o, oct) in octaves.iter().enumerate() {
-            let factor = base_factor * (1u32 << o) as f32;
-            let octave_id = o as i32 - i32::from(self.params.upsample);
             // Plain loops, not closures, so the code inlines into the AVX2 build.
             let mut mx = Vec::with_capacity(oct.dog.len());
             let mut mn = Vec::with_capacity(oct.dog.len());
@@ -465,43 +470,45 @@ impl Sift {
             for layer in 1..=n {
                 candidates.clear();
                 self.find_extrema(oct, &mx, &mn, layer, &mut candidates);
-                let candidates = &candidates;
-                for &(r, c) in candidates {
-                    let Some(e) = self.refine(oct, r, c, layer) else {
-                        continue;
-                    };
-                    let sigma_oct =
-                        self.params.sigma * 2f32.powf((e.layer as f32 + e.xi) / n as f32);
-                    let img = &oct.gauss[e.layer];
-                    let xo = e.c as f32 + e.xc;
-                    let yo = e.r as f32 + e.xr;
-                    let mut angles = [0f32; ORI_BINS];
-                    let na = orientations(
-                        img,
-                        oct.w,
-                        oct.h,
-                        e.c,
-                        e.r,
-                        sigma_oct,
-                        &mut angles,
-                        &mut grad,
-                    );
-                    for &angle in &angles[..na] {
-                        let desc =
-                            descriptor(img, oct.w, oct.h, xo, yo, sigma_oct, angle, &mut grad);
-                        out.keypoints.push(Keypoint {
-                            x: xo * factor + ox as f32,
-                            y: yo * factor + oy as f32,
-                            scale: sigma_oct * factor,
-                            angle,
-                            response: e.response,
-                            octave: octave_id,
-                        });
-                        out.descriptors.push(desc);
+                for &(r, c) in &candidates {
+                    if let Some(e) = self.refine(oct, r, c, layer) {
+                        found.push((o, e));
                     }
                 }
             }
             mx.into_iter().chain(mn).for_each(recycle);
+        }
+        let at = Placement {
+            base_factor,
+            first_octave: -i32::from(self.params.upsample),
+            ox,
+            oy,
+        };
+        if found.len() >= PARALLEL_MIN_EXTREMA && rayon::current_num_threads() > 1 {
+            use rayon::prelude::*;
+            let per: Vec<Vec<(Keypoint, [u8; DESCRIPTOR_LEN])>> = found
+                .par_iter()
+                .map_init(GradScratch::default, |g, f| {
+                    let mut v = Vec::with_capacity(1);
+                    describe_dispatch(self.params.sigma, n, &octaves, f, &at, g, &mut v);
+                    v
+                })
+                .collect();
+            for (k, d) in per.into_iter().flatten() {
+                out.keypoints.push(k);
+                out.descriptors.push(d);
+            }
+        } else {
+            let mut grad = GradScratch::default();
+            let mut v = Vec::new();
+            for f in &found {
+                v.clear();
+                describe(self.params.sigma, n, &octaves, f, &at, &mut grad, &mut v);
+                for &(k, d) in &v {
+                    out.keypoints.push(k);
+                    out.descriptors.push(d);
+                }
+            }
         }
         for oct in octaves {
             oct.gauss.into_iter().chain(oct.dog).for_each(recycle);
@@ -700,6 +707,94 @@ impl Sift {
 
 /// Sorts keypoints (with their descriptors) into a canonical order and removes exact
 /// duplicates (two candidates refined to the same point).
+/// Fewest extrema for which orientations and descriptors are spread over rayon's threads (below
+/// it, the fork costs more than it saves).
+const PARALLEL_MIN_EXTREMA: usize = 16;
+
+/// Where an octave's coordinates land in the input image.
+struct Placement {
+    /// Factor from octave 0 coordinates to the window's.
+    base_factor: f32,
+    /// Octave number of octave 0 (−1 with the doubled first octave).
+    first_octave: i32,
+    /// The window's origin in the input image.
+    ox: usize,
+    oy: usize,
+}
+
+/// [`describe`] compiled for AVX2 when the CPU has it, for calls from rayon's threads (which run
+/// outside the AVX2 build of [`Sift::detect_window`]).
+fn describe_dispatch(
+    sigma: f32,
+    n: usize,
+    octaves: &[Octave],
+    f: &(usize, Extremum),
+    at: &Placement,
+    grad: &mut GradScratch,
+    out: &mut Vec<(Keypoint, [u8; DESCRIPTOR_LEN])>,
+) {
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx2") {
+        // SAFETY: the CPU supports AVX2 (checked just above), the only requirement of calling
+        // a function compiled with that target feature.
+        unsafe { describe_avx2(sigma, n, octaves, f, at, grad, out) };
+        return;
+    }
+    describe(sigma, n, octaves, f, at, grad, out);
+}
+
+/// [`describe`] compiled for AVX2; bit-identical to the baseline build (no fused multiply-adds).
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+fn describe_avx2(
+    sigma: f32,
+    n: usize,
+    octaves: &[Octave],
+    f: &(usize, Extremum),
+    at: &Placement,
+    grad: &mut GradScratch,
+    out: &mut Vec<(Keypoint, [u8; DESCRIPTOR_LEN])>,
+) {
+    describe(sigma, n, octaves, f, at, grad, out);
+}
+
+/// The keypoints of one refined extremum of octave `f.0`: one per dominant orientation, each
+/// with its descriptor, appended to `out`.
+#[inline(always)]
+fn describe(
+    sigma: f32,
+    n: usize,
+    octaves: &[Octave],
+    f: &(usize, Extremum),
+    at: &Placement,
+    grad: &mut GradScratch,
+    out: &mut Vec<(Keypoint, [u8; DESCRIPTOR_LEN])>,
+) {
+    let (o, e) = f;
+    let oct = &octaves[*o];
+    let factor = at.base_factor * (1u32 << o) as f32;
+    let sigma_oct = sigma * 2f32.powf((e.layer as f32 + e.xi) / n as f32);
+    let img = &oct.gauss[e.layer];
+    let xo = e.c as f32 + e.xc;
+    let yo = e.r as f32 + e.xr;
+    let mut angles = [0f32; ORI_BINS];
+    let na = orientations(img, oct.w, oct.h, e.c, e.r, sigma_oct, &mut angles, grad);
+    for &angle in &angles[..na] {
+        let desc = descriptor(img, oct.w, oct.h, xo, yo, sigma_oct, angle, grad);
+        out.push((
+            Keypoint {
+                x: xo * factor + at.ox as f32,
+                y: yo * factor + at.oy as f32,
+                scale: sigma_oct * factor,
+                angle,
+                response: e.response,
+                octave: at.first_octave + *o as i32,
+            },
+            desc,
+        ));
+    }
+}
+
 fn finish(f: &mut Features) {
     let mut idx: Vec<usize> = (0..f.keypoints.len()).collect();
     let key = |k: &Keypoint| [k.y, k.x, k.scale, k.angle];
