@@ -478,37 +478,39 @@ impl Sift {
             }
             mx.into_iter().chain(mn).for_each(recycle);
         }
-        let at = Placement {
+        let d = Describer {
+            sigma: self.params.sigma,
+            n,
+            octaves: &octaves,
             base_factor,
             first_octave: -i32::from(self.params.upsample),
             ox,
             oy,
         };
-        if found.len() >= PARALLEL_MIN_EXTREMA && rayon::current_num_threads() > 1 {
-            use rayon::prelude::*;
-            let per: Vec<Vec<(Keypoint, [u8; DESCRIPTOR_LEN])>> = found
-                .par_iter()
-                .map_init(GradScratch::default, |g, f| {
-                    let mut v = Vec::with_capacity(1);
-                    describe_dispatch(self.params.sigma, n, &octaves, f, &at, g, &mut v);
-                    v
-                })
-                .collect();
-            for (k, d) in per.into_iter().flatten() {
-                out.keypoints.push(k);
-                out.descriptors.push(d);
-            }
-        } else {
-            let mut grad = GradScratch::default();
-            let mut v = Vec::new();
-            for f in &found {
-                v.clear();
-                describe(self.params.sigma, n, &octaves, f, &at, &mut grad, &mut v);
-                for &(k, d) in &v {
-                    out.keypoints.push(k);
-                    out.descriptors.push(d);
+        let described: Vec<(Keypoint, [u8; DESCRIPTOR_LEN])> =
+            if found.len() >= PARALLEL_MIN_EXTREMA && rayon::current_num_threads() > 1 {
+                use rayon::prelude::*;
+                // `collect` keeps the extrema's order.
+                found
+                    .par_iter()
+                    .map_init(GradScratch::default, |g, f| {
+                        let mut v = Vec::with_capacity(1);
+                        d.describe_dispatch(f, g, &mut v);
+                        v
+                    })
+                    .flatten_iter()
+                    .collect()
+            } else {
+                let mut grad = GradScratch::default();
+                let mut v = Vec::with_capacity(found.len());
+                for f in &found {
+                    d.describe(f, &mut grad, &mut v);
                 }
-            }
+                v
+            };
+        for (k, desc) in described {
+            out.keypoints.push(k);
+            out.descriptors.push(desc);
         }
         for oct in octaves {
             oct.gauss.into_iter().chain(oct.dog).for_each(recycle);
@@ -711,8 +713,13 @@ impl Sift {
 /// it, the fork costs more than it saves).
 const PARALLEL_MIN_EXTREMA: usize = 16;
 
-/// Where an octave's coordinates land in the input image.
-struct Placement {
+/// What the orientations and descriptors of a window's extrema need: the pyramid, and where
+/// its coordinates land in the input image.
+struct Describer<'a> {
+    /// σ of the first scale of each octave, and the layers per octave.
+    sigma: f32,
+    n: usize,
+    octaves: &'a [Octave],
     /// Factor from octave 0 coordinates to the window's.
     base_factor: f32,
     /// Octave number of octave 0 (−1 with the doubled first octave).
@@ -722,76 +729,70 @@ struct Placement {
     oy: usize,
 }
 
-/// [`describe`] compiled for AVX2 when the CPU has it, for calls from rayon's threads (which run
-/// outside the AVX2 build of [`Sift::detect_window`]).
-fn describe_dispatch(
-    sigma: f32,
-    n: usize,
-    octaves: &[Octave],
-    f: &(usize, Extremum),
-    at: &Placement,
-    grad: &mut GradScratch,
-    out: &mut Vec<(Keypoint, [u8; DESCRIPTOR_LEN])>,
-) {
-    #[cfg(target_arch = "x86_64")]
-    if std::arch::is_x86_feature_detected!("avx2") {
-        // SAFETY: the CPU supports AVX2 (checked just above), the only requirement of calling
-        // a function compiled with that target feature.
-        unsafe { describe_avx2(sigma, n, octaves, f, at, grad, out) };
-        return;
+impl Describer<'_> {
+    /// [`Self::describe`] compiled for AVX2 when the CPU has it, for calls from rayon's
+    /// threads (which run outside the AVX2 build of [`Sift::detect_window`]).
+    fn describe_dispatch(
+        &self,
+        f: &(usize, Extremum),
+        grad: &mut GradScratch,
+        out: &mut Vec<(Keypoint, [u8; DESCRIPTOR_LEN])>,
+    ) {
+        #[cfg(target_arch = "x86_64")]
+        if std::arch::is_x86_feature_detected!("avx2") {
+            // SAFETY: the CPU supports AVX2 (checked just above), the only requirement of
+            // calling a function compiled with that target feature.
+            unsafe { self.describe_avx2(f, grad, out) };
+            return;
+        }
+        self.describe(f, grad, out);
     }
-    describe(sigma, n, octaves, f, at, grad, out);
-}
 
-/// [`describe`] compiled for AVX2; bit-identical to the baseline build (no fused multiply-adds).
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
-fn describe_avx2(
-    sigma: f32,
-    n: usize,
-    octaves: &[Octave],
-    f: &(usize, Extremum),
-    at: &Placement,
-    grad: &mut GradScratch,
-    out: &mut Vec<(Keypoint, [u8; DESCRIPTOR_LEN])>,
-) {
-    describe(sigma, n, octaves, f, at, grad, out);
-}
+    /// [`Self::describe`] compiled for AVX2; bit-identical to the baseline build (no fused
+    /// multiply-adds).
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    fn describe_avx2(
+        &self,
+        f: &(usize, Extremum),
+        grad: &mut GradScratch,
+        out: &mut Vec<(Keypoint, [u8; DESCRIPTOR_LEN])>,
+    ) {
+        self.describe(f, grad, out);
+    }
 
-/// The keypoints of one refined extremum of octave `f.0`: one per dominant orientation, each
-/// with its descriptor, appended to `out`.
-#[inline(always)]
-fn describe(
-    sigma: f32,
-    n: usize,
-    octaves: &[Octave],
-    f: &(usize, Extremum),
-    at: &Placement,
-    grad: &mut GradScratch,
-    out: &mut Vec<(Keypoint, [u8; DESCRIPTOR_LEN])>,
-) {
-    let (o, e) = f;
-    let oct = &octaves[*o];
-    let factor = at.base_factor * (1u32 << o) as f32;
-    let sigma_oct = sigma * 2f32.powf((e.layer as f32 + e.xi) / n as f32);
-    let img = &oct.gauss[e.layer];
-    let xo = e.c as f32 + e.xc;
-    let yo = e.r as f32 + e.xr;
-    let mut angles = [0f32; ORI_BINS];
-    let na = orientations(img, oct.w, oct.h, e.c, e.r, sigma_oct, &mut angles, grad);
-    for &angle in &angles[..na] {
-        let desc = descriptor(img, oct.w, oct.h, xo, yo, sigma_oct, angle, grad);
-        out.push((
-            Keypoint {
-                x: xo * factor + at.ox as f32,
-                y: yo * factor + at.oy as f32,
-                scale: sigma_oct * factor,
-                angle,
-                response: e.response,
-                octave: at.first_octave + *o as i32,
-            },
-            desc,
-        ));
+    /// The keypoints of one refined extremum of octave `f.0`: one per dominant orientation,
+    /// each with its descriptor, appended to `out`.
+    #[inline(always)]
+    fn describe(
+        &self,
+        f: &(usize, Extremum),
+        grad: &mut GradScratch,
+        out: &mut Vec<(Keypoint, [u8; DESCRIPTOR_LEN])>,
+    ) {
+        let (o, e) = f;
+        let oct = &self.octaves[*o];
+        let factor = self.base_factor * (1u32 << o) as f32;
+        let sigma_oct = self.sigma * 2f32.powf((e.layer as f32 + e.xi) / self.n as f32);
+        let img = &oct.gauss[e.layer];
+        let xo = e.c as f32 + e.xc;
+        let yo = e.r as f32 + e.xr;
+        let mut angles = [0f32; ORI_BINS];
+        let na = orientations(img, oct.w, oct.h, e.c, e.r, sigma_oct, &mut angles, grad);
+        for &angle in &angles[..na] {
+            let desc = descriptor(img, oct.w, oct.h, xo, yo, sigma_oct, angle, grad);
+            out.push((
+                Keypoint {
+                    x: xo * factor + self.ox as f32,
+                    y: yo * factor + self.oy as f32,
+                    scale: sigma_oct * factor,
+                    angle,
+                    response: e.response,
+                    octave: self.first_octave + *o as i32,
+                },
+                desc,
+            ));
+        }
     }
 }
 
