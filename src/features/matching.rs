@@ -221,6 +221,22 @@ pub fn reject_slope_length(
     keep
 }
 
+/// The matches `p[j] → q[j]` that [`reject_slope_length`] keeps, as two lists in match order.
+pub fn keep_slope_length(
+    p: &[[f64; 2]],
+    q: &[[f64; 2]],
+    angle_tol: f64,
+    length_tol: f64,
+) -> (Vec<[f64; 2]>, Vec<[f64; 2]>) {
+    let keep = reject_slope_length(p, q, angle_tol, length_tol);
+    p.iter()
+        .zip(q)
+        .zip(&keep)
+        .filter(|(_, k)| **k)
+        .map(|((p, q), _)| (*p, *q))
+        .unzip()
+}
+
 /// Median of a non-empty list (mean of the middle pair for even lengths).
 fn median(mut v: Vec<f64>) -> f64 {
     v.sort_by(f64::total_cmp);
@@ -374,6 +390,9 @@ mod tests {
         let keep = reject_slope_length(&p, &q, 0.2, 0.3);
         assert!(keep[..20].iter().all(|&k| k));
         assert!(keep[20..].iter().all(|&k| !k));
+        // The kept pairs themselves: the 20 inliers, in order.
+        let (pk, qk) = keep_slope_length(&p, &q, 0.2, 0.3);
+        assert_eq!((&pk[..], &qk[..]), (&p[..20], &q[..20]));
     }
 
     #[test]

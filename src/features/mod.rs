@@ -9,7 +9,8 @@ mod matching;
 mod sift;
 
 pub use matching::{
-    Match, MatchParams, STILL_LENGTH_PX, STILL_RADIUS_PX, match_features, reject_slope_length,
+    Match, MatchParams, STILL_LENGTH_PX, STILL_RADIUS_PX, keep_slope_length, match_features,
+    reject_slope_length,
 };
 pub use sift::{DESCRIPTOR_LEN, Sift, SiftParams, UpsampleGrid};
 

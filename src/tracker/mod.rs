@@ -35,7 +35,7 @@ pub use config::{Init, Mode, TrackerConfig};
 
 use nalgebra::Matrix3;
 
-use crate::features::{Features, Sift, match_features, reject_slope_length};
+use crate::features::{Features, Sift, keep_slope_length, match_features};
 use crate::filter::{Hypothesis, Motion, ParticleFilter};
 use crate::frames::GrayF32;
 use crate::geometry::{BoxRect, Ellipse, Euler, PoseState, deg};
@@ -581,12 +581,10 @@ impl Tracker {
         if p.len() < 3 {
             return Vec::new();
         }
-        let keep = reject_slope_length(&p, &q, 0.2, 0.3);
+        let (p, q) = keep_slope_length(&p, &q, 0.2, 0.3);
         p.iter()
             .zip(&q)
-            .zip(&keep)
-            .filter(|(_, k)| **k)
-            .map(|((p, q), _)| FeaturePair {
+            .map(|(p, q)| FeaturePair {
                 p: [p[0] as f32, p[1] as f32],
                 q: [q[0] as f32, q[1] as f32],
             })

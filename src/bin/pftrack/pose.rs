@@ -6,7 +6,7 @@ use std::path::PathBuf;
 use anyhow::{Context, bail};
 use clap::Args;
 use image::{Rgb, RgbImage};
-use pftrack::features::{MatchParams, Sift, SiftParams, match_features, reject_slope_length};
+use pftrack::features::{MatchParams, Sift, SiftParams, keep_slope_length, match_features};
 use pftrack::frames::GrayF32;
 use pftrack::geometry::{Ellipse, Euler};
 use pftrack::pose::{SolverKind, essential_rotation, interframe};
@@ -105,14 +105,7 @@ pub fn run(a: PoseArgs) -> anyhow::Result<()> {
             q.push([kb.x as f64, kb.y as f64]);
         }
     }
-    let keep = reject_slope_length(&p, &q, 0.2, 0.3);
-    let (p, q): (Vec<_>, Vec<_>) = p
-        .iter()
-        .zip(&q)
-        .zip(&keep)
-        .filter(|(_, k)| **k)
-        .map(|((p, q), _)| (*p, *q))
-        .unzip();
+    let (p, q) = keep_slope_length(&p, &q, 0.2, 0.3);
     println!(
         "matches inside the ellipse after outlier rejection: {}",
         p.len()
