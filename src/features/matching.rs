@@ -62,14 +62,13 @@ fn dist2(a: &[f32], b: &[f32]) -> f32 {
 /// With a single train descriptor the ratio test has no second neighbour and passes. Ties
 /// go to the lower index. Matches come sorted by `query`.
 pub fn match_features(a: &Features, b: &Features, p: &MatchParams) -> Vec<Match> {
-    let (na, nb) = (a.descriptors.len(), b.descriptors.len());
-    if na == 0 || nb == 0 {
+    if a.descriptors.is_empty() || b.descriptors.is_empty() {
         return Vec::new();
     }
     let da = to_f32(a);
     let db = to_f32(b);
     let ratio2 = p.ratio * p.ratio;
-    let (row_best, col_best) = nearest(&da, &db, nb);
+    let (row_best, col_best) = nearest(&da, &db);
     let mut out = Vec::new();
     for (i, &(d1, j1, d2)) in row_best.iter().enumerate() {
         if j1 == usize::MAX {
@@ -94,28 +93,29 @@ type Nearest = (Vec<(f32, usize, f32)>, Vec<(f32, usize)>);
 
 /// Each query's nearest and second nearest train distances `(d1, j1, d2)`, and each train
 /// descriptor's nearest query `(d, i)`, over flattened `f32` descriptors.
-fn nearest(da: &[f32], db: &[f32], nb: usize) -> Nearest {
+fn nearest(da: &[f32], db: &[f32]) -> Nearest {
     #[cfg(target_arch = "x86_64")]
     if std::arch::is_x86_feature_detected!("avx2") {
         // SAFETY: the CPU supports AVX2 (checked just above), the only requirement of calling
         // a function compiled with that target feature.
-        return unsafe { nearest_avx2(da, db, nb) };
+        return unsafe { nearest_avx2(da, db) };
     }
-    nearest_impl(da, db, nb)
+    nearest_impl(da, db)
 }
 
 /// [`nearest_impl`] compiled for AVX2 (one 8-wide register per accumulator set). Distances are
 /// sums of integers below 2²⁴ either way, so the results are identical to the baseline build.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
-fn nearest_avx2(da: &[f32], db: &[f32], nb: usize) -> Nearest {
-    nearest_impl(da, db, nb)
+fn nearest_avx2(da: &[f32], db: &[f32]) -> Nearest {
+    nearest_impl(da, db)
 }
 
 /// See [`nearest`]: one query's distances to every train descriptor first (a loop without
 /// branches, which vectorises), then the bookkeeping of the nearest ones.
 #[inline(always)]
-fn nearest_impl(da: &[f32], db: &[f32], nb: usize) -> Nearest {
+fn nearest_impl(da: &[f32], db: &[f32]) -> Nearest {
+    let nb = db.len() / DESCRIPTOR_LEN;
     let mut col_best = vec![(f32::INFINITY, usize::MAX); nb];
     let mut row_best = Vec::with_capacity(da.len() / DESCRIPTOR_LEN);
     let mut dists = vec![0f32; nb];

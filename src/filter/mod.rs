@@ -335,14 +335,14 @@ impl ParticleFilter {
                 .collect()
         };
         let min_axis = self.params.min_axis;
-        let (max_cx, max_cy, max_axis) = match self.frame {
-            Some((w, h)) => ((w - 1.0).max(0.0), (h - 1.0).max(0.0), w.max(h)),
-            None => (f64::INFINITY, f64::INFINITY, f64::INFINITY),
-        };
-        let min_c = if self.frame.is_some() {
-            0.0
-        } else {
-            f64::NEG_INFINITY
+        let (min_c, max_cx, max_cy, max_axis) = match self.frame {
+            Some((w, h)) => (0.0, (w - 1.0).max(0.0), (h - 1.0).max(0.0), w.max(h)),
+            None => (
+                f64::NEG_INFINITY,
+                f64::INFINITY,
+                f64::INFINITY,
+                f64::INFINITY,
+            ),
         };
         let max_axis = self.params.max_axis.min(max_axis).max(min_axis);
         let scale = if motion.scale.is_finite() && motion.scale > 0.0 {

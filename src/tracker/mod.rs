@@ -628,9 +628,8 @@ impl Tracker {
     }
 
     /// Looks for the target over the whole frame by colour: ellipses of the last confident
-    /// estimate's size on a
-    /// grid of half a semi-axis, all evaluated in one engine call. Returns the best one when its
-    /// colour similarity reaches [`TrackerConfig::reacquire_rho`].
+    /// estimate's size on a grid of half a semi-axis, all evaluated in one engine call. Returns
+    /// the best one when its colour similarity reaches [`TrackerConfig::reacquire_rho`].
     fn reacquire(
         &mut self,
         frame: &image::RgbImage,

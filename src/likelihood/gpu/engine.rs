@@ -700,8 +700,7 @@ impl LikelihoodEngine for GpuEngine {
     fn set_colour_model(&mut self, model: &ColourHistogram) -> Result<(), LikelihoodError> {
         self.gpu.check()?;
         // Same checks as the CPU engine, and the same f32 sum in bin order.
-        let q_sum = cpu::colour::Model::checked(&model.0)?.q_sum;
-        self.q_sum = q_sum;
+        self.q_sum = cpu::colour::Model::checked(&model.0)?.q_sum;
         self.gpu
             .queue
             .write_buffer(&self.bufs.model, 0, bytemuck::cast_slice(&model.0));
