@@ -134,17 +134,17 @@ for name, img in imgs.items():
         ocv2 = np.array([[k.pt[0], k.pt[1], k.size / 2.0] for k in kp2]).reshape(-1, 3)
         # The two OpenCV variants against each other: how far the quarter-pixel shift alone
         # moves the detections, the ceiling of any grid-exact SIFT's agreement with the default.
-        precise = (share(ours, ocv2), share(ocv2, ours), share(ocv2, ocv), share(ocv, ocv2))
+        more = (share(ours, ocv2), share(ocv2, ours), share(ocv2, ocv), share(ocv, ocv2))
     except Exception:
-        precise = (float("nan"),) * 4
+        more = (float("nan"),) * 4
     # Ours doubling the image as OpenCV's default does (`--opencv-upscale`), against the default.
     csv_cv = os.path.join(out, name.split()[0] + "-cvgrid.csv")
     subprocess.run([cfg["pftrack"], "sift", path, "--opencv-upscale", "--out", csv_cv],
                    capture_output=True, check=True)
     ours_cv = np.loadtxt(csv_cv, delimiter=",", skiprows=1, usecols=(0, 1, 2), ndmin=2)
-    precise = precise + (share(ours_cv, ocv), share(ocv, ours_cv))
+    more = more + (share(ours_cv, ocv), share(ocv, ours_cv))
     rows.append((name, len(ours), len(ocv), med_ours, med_ocv * 1e3, cpu_ours * 1e3, cpu_ocv * 1e3,
-                 share(ours, ocv), share(ocv, ours)) + precise)
+                 share(ours, ocv), share(ocv, ours)) + more)
 
 print("| image | ours kps | OpenCV kps | ours ms (wall, median) | OpenCV ms (wall, median) | ours ms (CPU, mean) | OpenCV ms (CPU, mean) | ours→OpenCV | OpenCV→ours | ours→OpenCV precise | OpenCV precise→ours | OpenCV precise→default | OpenCV default→precise | ours (OpenCV grid)→OpenCV | OpenCV→ours (OpenCV grid) |")
 print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
