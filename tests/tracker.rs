@@ -117,6 +117,20 @@ fn bad_input_is_an_error() {
     ] {
         assert!(Tracker::new(TrackerConfig::default(), &img, Init::frontal(e)).is_err());
     }
+    // The keyframe fits' rotation prior needs positive sigmas.
+    for px in [0.0, -1.0, f64::NAN] {
+        let cfg = TrackerConfig {
+            fit_pixel_sigma: Some(px),
+            ..TrackerConfig::default()
+        };
+        let err = Tracker::new(cfg, &img, Init::frontal(r.init_ellipse())).unwrap_err();
+        assert!(err.to_string().contains("fit_pixel_sigma"), "{err}");
+    }
+    let mut cfg = TrackerConfig::default();
+    cfg.filter.dynamics.rotation[1] = 0.0;
+    assert!(Tracker::new(cfg.clone(), &img, Init::frontal(r.init_ellipse())).is_err());
+    cfg.fit_pixel_sigma = None;
+    assert!(Tracker::new(cfg, &img, Init::frontal(r.init_ellipse())).is_ok());
     // A frame of another size.
     let mut t = Tracker::new(
         TrackerConfig::default(),

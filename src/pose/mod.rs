@@ -78,6 +78,9 @@ pub enum PoseError {
     /// No consistent solution (e.g. RANSAC found no model, chirality failed).
     #[error("no solution: {0}")]
     NoSolution(&'static str),
+    /// A setting of a solver is out of range (e.g. a prior's σ not positive and finite).
+    #[error("invalid parameter: {0}")]
+    InvalidParameter(&'static str),
 }
 
 /// The estimate of one 2D solver: the rotation block, the translation and the fit quality.

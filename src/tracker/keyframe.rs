@@ -15,7 +15,9 @@ use crate::features::{Features, MatchParams, match_features};
 use crate::filter::Hypothesis;
 use crate::geometry::{Ellipse, angle_between};
 use crate::likelihood::FeaturePair;
-use crate::pose::prior::{Ellipsoid, Pinhole, PriorFit, fit_with_depth_prior};
+use crate::pose::prior::{
+    Ellipsoid, FitStart, Pinhole, PriorFit, RotationPrior, fit_with_depth_prior,
+};
 
 /// One reference view.
 #[derive(Debug, Clone)]
@@ -47,6 +49,9 @@ pub(crate) struct FitContext<'a> {
     pub max_residual: f64,
     /// Largest rotation (radians) from the previous estimate an accepted fit may imply.
     pub max_step: f64,
+    /// The rotation prior's σ per axis (radians) and the matches' σ (pixels); `None` for
+    /// no prior.
+    pub prior: Option<([f64; 3], f64)>,
 }
 
 /// An accepted fit against one keyframe.
@@ -83,8 +88,18 @@ pub(crate) fn accepted_fit(
         .iter()
         .map(|f| [f.q[0] as f64, f.q[1] as f64])
         .collect();
-    let t0 = Vector2::new(ctx.prev.cx, ctx.prev.cy) + ctx.shift;
-    let fit = fit_with_depth_prior(&p, &q, model, ctx.camera, rot0, scale0, t0).ok()?;
+    let start = FitStart {
+        rot: *rot0,
+        scale: scale0,
+        centre: Vector2::new(ctx.prev.cx, ctx.prev.cy) + ctx.shift,
+    };
+    // The prior's mean is the start: the previous estimate, seen from the keyframe.
+    let prior = ctx.prior.map(|(sigma, pixel_sigma)| RotationPrior {
+        mean: *rot0,
+        sigma,
+        pixel_sigma,
+    });
+    let fit = fit_with_depth_prior(&p, &q, model, ctx.camera, &start, prior.as_ref()).ok()?;
     let inliers: Vec<FeaturePair> = pairs
         .iter()
         .zip(&fit.inliers)

@@ -53,6 +53,9 @@ pub enum TrackError {
     /// The initial ellipse is unusable.
     #[error("invalid initial ellipse ({0})")]
     BadInit(String),
+    /// A setting of the configuration is out of range.
+    #[error("invalid tracker configuration: {0}")]
+    BadConfig(String),
     /// A frame's size differs from the first frame's.
     #[error("frame {frame} is {got_w}x{got_h}, the first frame was {want_w}x{want_h}")]
     FrameSize {
@@ -175,6 +178,27 @@ fn check_init(init: &Init, w: u32, h: u32) -> Result<(), TrackError> {
     Ok(())
 }
 
+/// Checks the settings the tracker itself uses (the filter, SIFT and the likelihood check
+/// theirs).
+fn check_config(cfg: &TrackerConfig) -> Result<(), TrackError> {
+    let positive = |v: f64| v.is_finite() && v > 0.0;
+    if let Some(px) = cfg.fit_pixel_sigma {
+        if !positive(px) {
+            return Err(TrackError::BadConfig(format!(
+                "fit_pixel_sigma must be positive and finite, got {px}"
+            )));
+        }
+        if !cfg.filter.dynamics.rotation.iter().all(|&s| positive(s)) {
+            return Err(TrackError::BadConfig(format!(
+                "the keyframe fits' rotation prior needs a positive, finite rotation walk \
+                 (filter.dynamics.rotation {:?}); set fit_pixel_sigma to None to fit without it",
+                cfg.filter.dynamics.rotation
+            )));
+        }
+    }
+    Ok(())
+}
+
 /// The search region of SIFT around an ellipse: its bounding box grown by half its larger
 /// semi-axis plus 8 px (the largest inter-frame motion followed), clipped to the frame.
 fn search_region(e: &Ellipse, w: u32, h: u32) -> BoxRect {
@@ -206,6 +230,7 @@ impl Tracker {
         first_frame: &image::RgbImage,
         init: Init,
     ) -> crate::Result<Self> {
+        check_config(&cfg).map_err(track_err)?;
         let sift = Sift::new(cfg.sift.clone());
         let filter = ParticleFilter::new(
             cfg.filter,
@@ -378,6 +403,10 @@ impl Tracker {
             min_inliers: self.cfg.min_fit_inliers,
             max_residual: self.cfg.max_fit_residual,
             max_step: self.cfg.max_rotation_step,
+            prior: self
+                .cfg
+                .fit_pixel_sigma
+                .map(|px| (self.cfg.filter.dynamics.rotation, px)),
         };
         let key_fit = if use_key {
             self.keyframes

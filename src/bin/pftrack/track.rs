@@ -63,6 +63,11 @@ pub struct TrackArgs {
     /// pass for a turn.
     #[arg(long, value_name = "R", default_value_t = 1.0)]
     pub depth_ratio: f64,
+    /// Fit each frame's rotation against the keyframes by least squares alone, without
+    /// holding it to the previous estimate (the motion prior, on by default; see
+    /// `TrackerConfig::fit_pixel_sigma`).
+    #[arg(long)]
+    pub no_fit_prior: bool,
     /// Resize every frame to WxH first.
     #[arg(long, value_name = "WxH")]
     pub resize: Option<String>,
@@ -220,6 +225,9 @@ pub fn run(a: TrackArgs) -> anyhow::Result<()> {
     let mut cfg = config(&a.mode, a.particles, a.seed)?;
     apply_hfov(&mut cfg, a.hfov)?;
     apply_depth_ratio(&mut cfg, a.depth_ratio)?;
+    if a.no_fit_prior {
+        cfg.fit_pixel_sigma = None;
+    }
     let backend: Backend = a
         .backend
         .parse()
