@@ -116,8 +116,9 @@ pub struct TrackerConfig {
     /// estimate with the filter's random-walk σ ([`FilterParams::dynamics`]), so a fit on a
     /// handful of matches cannot jump further than the filter's own motion model allows
     /// without strong evidence. `None` fits by least squares alone. 1 px by default, the
-    /// order of SIFT's localisation error at this scale; not tuned (the note of issue 4 gives
-    /// the figures at 0.8 and 1.25 px too).
+    /// order of SIFT's localisation error at this scale, not a tuned value: summed synthetic
+    /// RMSE over seeds 0-5 was 77, 71, 76 and 83 degrees at 0.7, 0.95, 1.0 and 1.15 px,
+    /// against 83.5 without the prior (over seeds 0-11 at 1 px: 84 against 98).
     pub fit_pixel_sigma: Option<f64>,
 }
 
