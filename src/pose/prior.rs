@@ -252,9 +252,9 @@ pub struct RotationPrior {
 }
 
 impl RotationPrior {
-    /// The prior's weight on each rotation component, `(σ_px / σ_k)²` (the matches' weight is
-    /// 1), or an error when a value is not positive and finite.
-    fn weights(&self) -> Result<[f64; 3], PoseError> {
+    /// Checks the prior: a finite mean ([`PoseError::NonFinite`]) and positive, finite sigmas
+    /// ([`PoseError::InvalidParameter`]).
+    pub fn check(&self) -> Result<(), PoseError> {
         let ok = |v: f64| v.is_finite() && v > 0.0;
         if !self.mean.iter().all(|v| v.is_finite()) {
             return Err(PoseError::NonFinite);
@@ -264,6 +264,13 @@ impl RotationPrior {
                 "a rotation prior's sigmas must be positive and finite",
             ));
         }
+        Ok(())
+    }
+
+    /// The prior's weight on each rotation component, `(σ_px / σ_k)²` (the matches' weight is
+    /// 1), once [`RotationPrior::check`] passes.
+    fn weights(&self) -> Result<[f64; 3], PoseError> {
+        self.check()?;
         Ok(self.sigma.map(|s| (self.pixel_sigma / s).powi(2)))
     }
 }
@@ -299,6 +306,11 @@ pub fn fit_with_depth_prior(
         .any(|v| !v[0].is_finite() || !v[1].is_finite())
         || !model.is_valid()
         || !camera_ok
+        || !start
+            .rot
+            .iter()
+            .chain(start.centre.iter())
+            .all(|v| v.is_finite())
     {
         return Err(PoseError::NonFinite);
     }
@@ -306,9 +318,6 @@ pub fn fit_with_depth_prior(
         Some(pr) => Some((pr.mean, pr.weights()?)),
         None => None,
     };
-    if !start.rot.iter().all(|v| v.is_finite()) || !start.centre.iter().all(|v| v.is_finite()) {
-        return Err(PoseError::NonFinite);
-    }
     let x = lift(p, model, camera);
     let mut rot = start.rot;
     let mut s = if start.scale.is_finite() && start.scale > 0.0 {

@@ -179,22 +179,22 @@ fn check_init(init: &Init, w: u32, h: u32) -> Result<(), TrackError> {
 }
 
 /// Checks the settings the tracker itself uses (the filter, SIFT and the likelihood check
-/// theirs).
+/// theirs): the keyframe fits' rotation prior, by the rule of the fit itself
+/// ([`crate::pose::prior::RotationPrior::check`]).
 fn check_config(cfg: &TrackerConfig) -> Result<(), TrackError> {
-    let positive = |v: f64| v.is_finite() && v > 0.0;
     if let Some(px) = cfg.fit_pixel_sigma {
-        if !positive(px) {
-            return Err(TrackError::BadConfig(format!(
-                "fit_pixel_sigma must be positive and finite, got {px}"
-            )));
-        }
-        if !cfg.filter.dynamics.rotation.iter().all(|&s| positive(s)) {
-            return Err(TrackError::BadConfig(format!(
-                "the keyframe fits' rotation prior needs a positive, finite rotation walk \
-                 (filter.dynamics.rotation {:?}); set fit_pixel_sigma to None to fit without it",
+        let prior = crate::pose::prior::RotationPrior {
+            mean: Matrix3::identity(),
+            sigma: cfg.filter.dynamics.rotation,
+            pixel_sigma: px,
+        };
+        prior.check().map_err(|e| {
+            TrackError::BadConfig(format!(
+                "fit_pixel_sigma {px} with the filter's rotation walk {:?}: {e}; set \
+                 fit_pixel_sigma to None to fit without the prior",
                 cfg.filter.dynamics.rotation
-            )));
-        }
+            ))
+        })?;
     }
     Ok(())
 }
