@@ -3,7 +3,7 @@
 
 use pftrack::geometry::{Ellipse, angle_between, rot_x};
 use pftrack::synth::{Renderer, Scenario, SynthConfig};
-use pftrack::tracker::{Init, Tracker, TrackerConfig};
+use pftrack::tracker::{ColourUpdate, Init, Tracker, TrackerConfig};
 
 type Track = (
     Vec<pftrack::tracker::Estimate>,
@@ -126,6 +126,18 @@ fn bad_input_is_an_error() {
         let err = Tracker::new(cfg, &img, Init::frontal(r.init_ellipse())).unwrap_err();
         assert!(err.to_string().contains("fit_pixel_sigma"), "{err}");
     }
+    // The adaptive colour model's rate is a share in (0, 1], its threshold a confidence.
+    for (rate, min_confidence) in [(0.0, 0.5), (1.5, 0.5), (f64::NAN, 0.5), (0.1, 2.0)] {
+        let cfg = TrackerConfig {
+            colour_update: Some(ColourUpdate {
+                rate,
+                min_confidence,
+            }),
+            ..TrackerConfig::default()
+        };
+        let err = Tracker::new(cfg, &img, Init::frontal(r.init_ellipse())).unwrap_err();
+        assert!(err.to_string().contains("colour update"), "{err}");
+    }
     let mut cfg = TrackerConfig::default();
     cfg.filter.dynamics.rotation[1] = 0.0;
     assert!(Tracker::new(cfg.clone(), &img, Init::frontal(r.init_ellipse())).is_err());
@@ -144,4 +156,46 @@ fn bad_input_is_an_error() {
     let e = t.step(&flat).unwrap();
     assert_eq!(e.matches, 0);
     assert!(e.confidence < 0.9);
+}
+
+#[test]
+fn the_adaptive_colour_model_follows_a_gradual_change_of_light() {
+    // `nod` dimmed by 1.5 % a frame, to 48 % at frame 35: the geometry is the scenario's, only
+    // the colours move, as under a passing shadow.
+    let n = 36;
+    let r = Renderer::new(&SynthConfig::new(Scenario::Nod)).unwrap();
+    let dim = |img: image::RgbImage, k: usize| {
+        let f = 1.0 - 0.015 * k as f64;
+        image::RgbImage::from_fn(img.width(), img.height(), |x, y| {
+            image::Rgb(img.get_pixel(x, y).0.map(|c| (c as f64 * f).round() as u8))
+        })
+    };
+    let run = |update: Option<ColourUpdate>| {
+        let (first, _) = r.render(0);
+        let cfg = TrackerConfig {
+            colour_update: update,
+            ..TrackerConfig::default()
+        };
+        let mut t = Tracker::new(cfg, &first, Init::frontal(r.init_ellipse())).unwrap();
+        let mut worst: f64 = 0.0;
+        let mut conf = Vec::new();
+        for k in 1..n {
+            let (img, truth) = r.render(k);
+            let e = t.step(&dim(img, k)).unwrap();
+            worst = worst.max((e.state.cx - truth.cx).hypot(e.state.cy - truth.cy));
+            conf.push(e.confidence);
+        }
+        // The mean confidence over the last ten frames.
+        let tail = conf[conf.len() - 10..].iter().sum::<f64>() / 10.0;
+        (worst, tail)
+    };
+    let (worst, adaptive) = run(Some(ColourUpdate::default()));
+    let (_, fixed) = run(None);
+    // On the head (semi-axes about 20 px), and sure of it where the fixed model is not.
+    assert!(worst < 4.0, "adaptive model: centre {worst:.2} px off");
+    assert!(adaptive > 0.7, "adaptive model: confidence {adaptive:.3}");
+    assert!(
+        fixed < adaptive - 0.2,
+        "fixed {fixed:.3} vs adaptive {adaptive:.3}"
+    );
 }

@@ -31,7 +31,7 @@
 mod config;
 mod keyframe;
 
-pub use config::{Init, Mode, TrackerConfig};
+pub use config::{ColourUpdate, Init, Mode, TrackerConfig};
 
 use nalgebra::Matrix3;
 
@@ -136,6 +136,8 @@ pub struct Tracker {
     particles: Vec<Particle>,
     terms: Vec<TermLogs>,
     first: Estimate,
+    /// The colour model the engine holds (it adapts, [`TrackerConfig::colour_update`]).
+    colour_model: ColourHistogram,
 }
 
 impl std::fmt::Debug for Tracker {
@@ -193,6 +195,13 @@ fn check_config(cfg: &TrackerConfig) -> Result<(), TrackError> {
                 "fit_pixel_sigma {px} with the filter's rotation walk {:?}: {e}; set \
                  fit_pixel_sigma to None to fit without the prior",
                 cfg.filter.dynamics.rotation
+            ))
+        })?;
+    }
+    if let Some(u) = &cfg.colour_update {
+        u.check().map_err(|e| {
+            TrackError::BadConfig(format!(
+                "{e}; set colour_update to None for a fixed colour model"
             ))
         })?;
     }
@@ -256,6 +265,7 @@ impl Tracker {
             lost: false,
             particles: Vec::new(),
             terms: Vec::new(),
+            colour_model: ColourHistogram(Vec::new()),
             first: Estimate {
                 frame: 0,
                 state: PoseState::default(),
@@ -280,6 +290,7 @@ impl Tracker {
         self.theta0 = init.ellipse.theta;
         let model = ColourHistogram::from_ellipse(frame, &init.ellipse)?;
         self.engine.set_colour_model(&model)?;
+        self.colour_model = model;
         let state = PoseState::from_parts(&init.ellipse, init.pose);
         let hyp = Hypothesis::from_state(&state);
         self.filter.set_frame(w, h);
@@ -511,6 +522,10 @@ impl Tracker {
             }
         }
 
+        if !self.lost {
+            self.adapt_colour(frame, &est, confidence)?;
+        }
+
         // Angles continuous with the previous output.
         let euler = continuous_euler(&est.rot, &self.prev_euler);
         let state = PoseState {
@@ -548,6 +563,30 @@ impl Tracker {
             matches: pairs.len(),
             ess: info.ess,
         })
+    }
+
+    /// After a frame with at least [`ColourUpdate::min_confidence`], moves the colour model
+    /// towards the histogram inside the estimate `est` and hands it to the engine. An estimate
+    /// whose ellipse holds no pixel of the frame leaves the model as it is.
+    fn adapt_colour(
+        &mut self,
+        frame: &image::RgbImage,
+        est: &Hypothesis,
+        confidence: f64,
+    ) -> crate::Result<()> {
+        let Some(u) = self.cfg.colour_update else {
+            return Ok(());
+        };
+        if confidence < u.min_confidence {
+            return Ok(());
+        }
+        let e = est.to_state().ellipse(self.theta0);
+        let Ok(seen) = ColourHistogram::from_ellipse(frame, &e) else {
+            return Ok(());
+        };
+        self.colour_model.blend_towards(&seen, u.rate as f32);
+        self.engine.set_colour_model(&self.colour_model)?;
+        Ok(())
     }
 
     /// The camera of the keyframe fits, `None` for weak perspective.

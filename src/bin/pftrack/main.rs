@@ -25,7 +25,7 @@ enum Command {
     /// Render the default synthetic scenario, track it and print the error table.
     Demo(demo::DemoArgs),
     /// Track an object through a video and write its pose per frame.
-    Track(track::TrackArgs),
+    Track(Box<track::TrackArgs>),
     /// Render a synthetic sequence with exact ground truth.
     Synth(synth::SynthArgs),
     /// Score an estimate against ground truth.
@@ -44,7 +44,7 @@ fn main() {
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Demo(a) => demo::run(a),
-        Command::Track(a) => track::run(a),
+        Command::Track(a) => track::run(*a),
         Command::Synth(a) => synth::run(a),
         Command::Eval(a) => eval::run(a),
         Command::Sift(a) => sift::run(a),

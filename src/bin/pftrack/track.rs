@@ -10,7 +10,7 @@ use pftrack::geometry::{BoxRect, Ellipse, Euler};
 use pftrack::io::{PoseCsvWriter, PoseRecord};
 use pftrack::likelihood::{Backend, create_engine};
 use pftrack::output::{Overlay, render_overlay, write_png};
-use pftrack::tracker::{Estimate, Init, Mode, Tracker, TrackerConfig};
+use pftrack::tracker::{ColourUpdate, Estimate, Init, Mode, Tracker, TrackerConfig};
 
 /// Arguments of `pftrack track`.
 #[derive(Debug, Args)]
@@ -68,6 +68,12 @@ pub struct TrackArgs {
     /// `TrackerConfig::fit_pixel_sigma`).
     #[arg(long)]
     pub no_fit_prior: bool,
+    /// Adapt the colour model: after each confident frame it moves this share (0.1 is a
+    /// memory of about ten frames) towards the colours inside the estimate, for targets whose
+    /// colours change as they turn or the light changes (see `TrackerConfig::colour_update`).
+    /// 0, the default, keeps the first frame's model throughout, as the paper does.
+    #[arg(long, value_name = "R", default_value_t = 0.0)]
+    pub colour_rate: f64,
     /// Resize every frame to WxH first.
     #[arg(long, value_name = "WxH")]
     pub resize: Option<String>,
@@ -228,6 +234,14 @@ pub fn run(a: TrackArgs) -> anyhow::Result<()> {
     if a.no_fit_prior {
         cfg.fit_pixel_sigma = None;
     }
+    cfg.colour_update = if a.colour_rate == 0.0 {
+        None
+    } else {
+        Some(ColourUpdate {
+            rate: a.colour_rate,
+            ..Default::default()
+        })
+    };
     let backend: Backend = a
         .backend
         .parse()

@@ -107,6 +107,16 @@ impl ColourHistogram {
         }
         Ok(Self(colour::normalise(&counts, total)))
     }
+
+    /// Moves the model a share `rate` of the way towards `other`: `q ← (1 − rate) q + rate p`
+    /// (the adaptive colour model of Nummiaro, Koller-Meier and Van Gool, 2003). Both are
+    /// normalised, so the result is too; `rate` is clamped to `[0, 1]`.
+    pub fn blend_towards(&mut self, other: &ColourHistogram, rate: f32) {
+        let r = rate.clamp(0.0, 1.0);
+        for (q, p) in self.0.iter_mut().zip(&other.0) {
+            *q = (1.0 - r) * *q + r * p;
+        }
+    }
 }
 
 /// How an engine runs its parallel loops.
@@ -327,5 +337,36 @@ impl LikelihoodEngine for CpuEngine {
                 r
             }
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn hist(pairs: &[(usize, f32)]) -> ColourHistogram {
+        let mut q = vec![0.0; crate::likelihood::HIST_BINS];
+        for &(k, v) in pairs {
+            q[k] = v;
+        }
+        ColourHistogram(q)
+    }
+
+    #[test]
+    fn blending_moves_the_model_by_the_rate_and_keeps_it_normalised() {
+        let other = hist(&[(3, 0.5), (7, 0.5)]);
+        let mut q = hist(&[(0, 1.0)]);
+        q.blend_towards(&other, 0.1);
+        assert!((q.0[0] - 0.9).abs() < 1e-6);
+        assert!((q.0[3] - 0.05).abs() < 1e-6);
+        assert!((q.0[7] - 0.05).abs() < 1e-6);
+        assert!((q.0.iter().sum::<f32>() - 1.0).abs() < 1e-6);
+        assert!(colour::Model::checked(&q.0).is_ok());
+        // Rate 0 keeps the model, rate 1 (or more, clamped) replaces it.
+        let before = q.clone();
+        q.blend_towards(&other, 0.0);
+        assert_eq!(q, before);
+        q.blend_towards(&other, 2.0);
+        assert_eq!(q, other);
     }
 }
