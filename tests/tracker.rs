@@ -199,3 +199,72 @@ fn the_adaptive_colour_model_follows_a_gradual_change_of_light() {
         "fixed {fixed:.3} vs adaptive {adaptive:.3}"
     );
 }
+
+/// `img` moved `dx` pixels to the right (left when negative), wrapping around.
+fn shifted(img: &image::RgbImage, dx: i64) -> image::RgbImage {
+    let w = img.width() as i64;
+    image::RgbImage::from_fn(w as u32, img.height(), |x, y| {
+        *img.get_pixel((x as i64 - dx).rem_euclid(w) as u32, y)
+    })
+}
+
+/// Frames of `nod` where, from frame `jump` on, the head is 55 px to the left of where it
+/// was, alone on a flat grey frame: beyond the reach of block matching and of the features
+/// searched around the last estimate.
+fn jumped(r: &Renderer, k: usize, jump: usize) -> (image::RgbImage, (f64, f64)) {
+    let (img, truth) = r.render(k);
+    if k < jump {
+        return (img, (truth.cx, truth.cy));
+    }
+    let mut img = shifted(&img, -55);
+    let around = Ellipse::new(truth.cx - 55.0, truth.cy, 1.2 * truth.a, 1.2 * truth.b);
+    for (x, y, p) in img.enumerate_pixels_mut() {
+        if !around.contains(x as f64, y as f64) {
+            *p = image::Rgb([128, 128, 128]);
+        }
+    }
+    (img, (truth.cx - 55.0, truth.cy))
+}
+
+#[test]
+fn a_target_that_jumps_away_is_lost_then_reacquired_by_its_features() {
+    let r = Renderer::new(&SynthConfig::new(Scenario::Nod)).unwrap();
+    let (jump, n) = (6, 30);
+    let (first, _) = jumped(&r, 0, jump);
+    let mut t = Tracker::new(
+        TrackerConfig::default(),
+        &first,
+        Init::frontal(r.init_ellipse()),
+    )
+    .unwrap();
+    let track: Vec<_> = (1..n)
+        .map(|k| {
+            let (img, centre) = jumped(&r, k, jump);
+            (t.step(&img).unwrap(), centre)
+        })
+        .collect();
+    // (`track[k]` is frame `k + 1`.) At the jump the filter stays where the head was, with
+    // no confidence.
+    let (e, (cx, _)) = &track[jump - 1];
+    assert!((e.state.cx - cx).abs() > 20.0 && e.confidence < 0.25);
+    // On the third such frame (`lost_after`) the target is lost and searched for: the colour
+    // search finds it, its features fit the anchor view, and the estimate is placed there in
+    // the same step (the filter alone never got there).
+    let (e, (cx, cy)) = &track[jump + 1];
+    assert!(
+        e.confidence < 0.25,
+        "frame {}: found by the filter",
+        e.frame
+    );
+    assert!((e.state.cx - cx).hypot(e.state.cy - cy) < 3.0 && !e.lost);
+    // Then followed.
+    for (e, (cx, cy)) in &track[n - 10..] {
+        let d = (e.state.cx - cx).hypot(e.state.cy - cy);
+        assert!(
+            d < 3.0 && !e.lost,
+            "frame {}: {d:.1} px off, lost {}",
+            e.frame,
+            e.lost
+        );
+    }
+}

@@ -514,7 +514,7 @@ impl Tracker {
         }
         if self.low_count >= self.cfg.lost_after {
             self.lost = true;
-            if let Some(found) = self.reacquire(frame, &est)? {
+            if let Some(found) = self.reacquire(frame, &gray, &est)? {
                 self.filter.reset(&found);
                 est = found;
                 self.low_count = 0;
@@ -540,14 +540,15 @@ impl Tracker {
         self.prev = est;
         self.prev_euler = euler;
         self.prev_gray = gray;
-        // A new keyframe when the pool's views have drifted out of reach of the matcher.
+        // A new keyframe when the pool's views have drifted out of reach of the matcher, taken
+        // only on a confident frame: a view taken off the target would recognise the background.
         let due = use_key
             && self.keyframes.record(
                 key_fit.as_ref(),
                 self.cfg.min_fit_inliers,
                 self.cfg.keyframe_refresh_percent,
             );
-        if due && !self.lost {
+        if due && !self.lost && self.low_count == 0 {
             let e = state.ellipse(self.theta0);
             let model = self.model(&est.rot, &e);
             self.keyframes.add(&features, &e, est, model);
@@ -695,12 +696,15 @@ impl Tracker {
         if rotation_measured { c } else { 0.8 * c }
     }
 
-    /// Looks for the target over the whole frame by colour: ellipses of the last confident
-    /// estimate's size on a grid of half a semi-axis, all evaluated in one engine call. Returns
-    /// the best one when its colour similarity reaches [`TrackerConfig::reacquire_rho`].
+    /// Looks for the target over the whole frame: by colour first, ellipses of the last
+    /// confident estimate's size on a grid of half a semi-axis, all evaluated in one engine
+    /// call; the best one, when its colour similarity reaches
+    /// [`TrackerConfig::reacquire_rho`], is then verified by its features, which must fit one
+    /// of the keyframes (any pose). Returns the target as that fit places it.
     fn reacquire(
         &mut self,
         frame: &image::RgbImage,
+        gray: &GrayF32,
         est: &Hypothesis,
     ) -> crate::Result<Option<Hypothesis>> {
         let (w, h) = self.size;
@@ -743,19 +747,47 @@ impl Tracker {
             .enumerate()
             .max_by(|a, b| a.1.colour.total_cmp(&b.1.colour))
             .map(|(i, t)| (i, 1.0 + s2 * t.colour as f64));
-        Ok(match best {
+        let found = match best {
             Some((i, rho)) if rho >= self.cfg.reacquire_rho => {
                 let c = cands[i];
-                Some(Hypothesis {
+                Hypothesis {
                     cx: c.cx as f64,
                     cy: c.cy as f64,
                     a,
                     b,
                     rot: est.rot,
-                })
+                }
             }
-            _ => None,
-        })
+            _ => return Ok(None),
+        };
+        // Colour alone is not enough: another object of the target's colours (a brown box
+        // for a face) is not the target. The candidate must be recognised, its features
+        // fitted to one of the keyframes; the fit then places the target.
+        let e = found.to_state().ellipse(self.theta0);
+        let region = search_region(&e, w, h);
+        let features = self.sift.detect(gray, Some(region))?;
+        let camera = self.camera();
+        let ctx = FitContext {
+            prev: &found,
+            shift: nalgebra::Vector2::zeros(),
+            camera: camera.as_ref(),
+            matching: &self.cfg.matching,
+            min_inliers: self.cfg.min_fit_inliers,
+            max_residual: self.cfg.max_fit_residual,
+            // Any pose: the candidate's rotation is unknown.
+            max_step: std::f64::consts::PI,
+            prior: None,
+        };
+        let fit = self
+            .keyframes
+            .best_fit(&features, &ctx, KEYFRAMES, std::f64::consts::PI);
+        Ok(fit.map(|k| Hypothesis {
+            cx: k.fit.centre.x,
+            cy: k.fit.centre.y,
+            a: k.key.a * k.fit.scale,
+            b: k.key.b * k.fit.scale,
+            rot: k.fit.rot * k.key.rot,
+        }))
     }
 }
 
