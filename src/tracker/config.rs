@@ -86,7 +86,8 @@ pub struct TrackerConfig {
     pub lost_below: f64,
     /// Consecutive low-confidence frames before the target is declared lost.
     pub lost_after: usize,
-    /// A re-acquisition candidate must reach this colour similarity (Bhattacharyya ρ).
+    /// A re-acquisition candidate must reach this colour similarity (Bhattacharyya ρ), and
+    /// then be recognised: its features must fit one of the keyframes.
     pub reacquire_rho: f64,
     /// Weight of the feature term's log in the particle weights (the colour and gradient
     /// terms have weight 1). 8 by default: the feature term is the log of a sum of inverse
@@ -123,7 +124,7 @@ pub struct TrackerConfig {
     /// How the colour model follows the target's appearance; `None` (the default) keeps the
     /// first frame's histogram throughout, as the paper does. Adapting helps where the
     /// target's colours change while it is followed: a head that turns away shows hair where
-    /// the model holds a face (OTB girl, success AUC over seeds 0-7: 0.28 fixed, 0.40 with
+    /// the model holds a face (OTB girl, success AUC over seeds 0-7: 0.32 fixed, 0.40 with
     /// [`ColourUpdate::default`]). It is not the default because it also learns whatever a
     /// drifting estimate covers: on grayscale car4 the AUC fell from 0.21 to 0.18 (seeds
     /// 0-5), and the synthetic `combo` scenario's summed angle RMSE rose from about 29 to 73

@@ -26,7 +26,8 @@
 //! adaptive block matching for the translation and scale, then the particle filter: proposal
 //! around `x + Δx`, all particles' likelihoods in one call of the likelihood engine (CPU or
 //! GPU), weights, estimate, resampling. A confidence in `[0, 1]` and a lost flag come with
-//! every estimate; a lost target is searched for over the whole frame by colour.
+//! every estimate; a lost target is searched for over the whole frame by colour and taken back
+//! where its features fit a keyframe.
 
 mod config;
 mod keyframe;
