@@ -59,6 +59,21 @@ pub struct FeaturePair {
     pub q: [f32; 2],
 }
 
+impl FeaturePair {
+    /// The pairs' positions as two lists in `f64`, `(p, q)`, the form the pose solvers take.
+    pub fn split(pairs: &[FeaturePair]) -> (Vec<[f64; 2]>, Vec<[f64; 2]>) {
+        pairs
+            .iter()
+            .map(|f| {
+                (
+                    [f.p[0] as f64, f.p[1] as f64],
+                    [f.q[0] as f64, f.q[1] as f64],
+                )
+            })
+            .unzip()
+    }
+}
+
 /// Number of bins of the colour histogram: 8×8×8 RGB.
 pub const HIST_BINS: usize = 512;
 
@@ -325,6 +340,24 @@ pub const DEGENERATE: f32 = -1e30;
 #[cfg(test)]
 mod backend_tests {
     use super::*;
+
+    #[test]
+    fn feature_pairs_split_into_their_two_position_lists() {
+        let pairs = [
+            FeaturePair {
+                p: [1.5, 2.0],
+                q: [3.0, -4.25],
+            },
+            FeaturePair {
+                p: [0.1, 0.0],
+                q: [7.0, 8.0],
+            },
+        ];
+        let (p, q) = FeaturePair::split(&pairs);
+        assert_eq!(p, vec![[1.5, 2.0], [0.1f32 as f64, 0.0]]);
+        assert_eq!(q, vec![[3.0, -4.25], [7.0, 8.0]]);
+        assert_eq!(FeaturePair::split(&[]), (vec![], vec![]));
+    }
 
     #[test]
     fn backend_parses_case_insensitively_and_rejects_others() {

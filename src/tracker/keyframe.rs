@@ -80,14 +80,7 @@ pub(crate) fn accepted_fit(
     rot0: &Matrix3<f64>,
     scale0: f64,
 ) -> Option<(PriorFit, Vec<FeaturePair>)> {
-    let p: Vec<[f64; 2]> = pairs
-        .iter()
-        .map(|f| [f.p[0] as f64, f.p[1] as f64])
-        .collect();
-    let q: Vec<[f64; 2]> = pairs
-        .iter()
-        .map(|f| [f.q[0] as f64, f.q[1] as f64])
-        .collect();
+    let (p, q) = FeaturePair::split(pairs);
     let start = FitStart {
         rot: *rot0,
         scale: scale0,

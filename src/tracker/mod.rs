@@ -393,14 +393,8 @@ impl Tracker {
             Mode::Rls => SolverKind::Rls,
         };
         let use_key = self.cfg.mode != Mode::Tpe;
-        let to_xy = |v: &[FeaturePair]| -> (Vec<[f64; 2]>, Vec<[f64; 2]>) {
-            (
-                v.iter().map(|f| [f.p[0] as f64, f.p[1] as f64]).collect(),
-                v.iter().map(|f| [f.q[0] as f64, f.q[1] as f64]).collect(),
-            )
-        };
         let inter = if pairs.len() >= 3 {
-            let (p, q) = to_xy(&pairs);
+            let (p, q) = FeaturePair::split(&pairs);
             interframe(&p, &q, [prev_state.cx, prev_state.cy], solver).ok()
         } else {
             None
