@@ -1,7 +1,8 @@
-//! Benchmarks of the `features` stage (criterion, rayon's global pool set to one thread): SIFT per frame at 160x120,
-//! 320x240 and 640x480, SIFT restricted to a tracker's region, matching, and the tracker's
-//! per-frame-pair work (SIFT on both frames + matching + slope/length rejection + SEA), on the
-//! full frame with and without the doubled first octave and on a tracker's region.
+//! Benchmarks of the `features` stage (criterion, rayon's global pool set to one thread):
+//! SIFT per frame at 160x120, 320x240 and 640x480, SIFT restricted to a tracker's region,
+//! matching, and the tracker's per-frame-pair work (SIFT on both frames + matching +
+//! slope/length rejection + SEA), on the full frame with and without the doubled first
+//! octave and on a tracker's region.
 //!
 //! Frames are a synthetic textured scene (a sum of Gaussian blobs, fixed seed), so the
 //! benches need no data files; the second frame of a pair is the scene moved by

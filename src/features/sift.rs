@@ -707,8 +707,6 @@ impl Sift {
     }
 }
 
-/// Sorts keypoints (with their descriptors) into a canonical order and removes exact
-/// duplicates (two candidates refined to the same point).
 /// Fewest extrema for which orientations and descriptors are spread over rayon's threads (below
 /// it, the fork costs more than it saves).
 const PARALLEL_MIN_EXTREMA: usize = 16;
@@ -796,6 +794,8 @@ impl Describer<'_> {
     }
 }
 
+/// Sorts keypoints (with their descriptors) into a canonical order and removes exact
+/// duplicates (two candidates refined to the same point).
 fn finish(f: &mut Features) {
     let mut idx: Vec<usize> = (0..f.keypoints.len()).collect();
     let key = |k: &Keypoint| [k.y, k.x, k.scale, k.angle];
