@@ -69,6 +69,21 @@ pub(crate) struct KeyFit {
     index: usize,
 }
 
+impl KeyFit {
+    /// The target as this fit places it in the current frame: the fitted centre, the
+    /// keyframe's ellipse scaled by the fit, and the keyframe's rotation carried on by the
+    /// fitted one.
+    pub fn placed(&self) -> Hypothesis {
+        Hypothesis {
+            cx: self.fit.centre.x,
+            cy: self.fit.centre.y,
+            a: self.key.a * self.fit.scale,
+            b: self.key.b * self.fit.scale,
+            rot: self.fit.rot * self.key.rot,
+        }
+    }
+}
+
 /// Fits the view of `model` to the matches `pairs` (its points → the current frame) from the
 /// start `(rot0, scale0)` and the predicted centre `prev + shift`, and keeps the fit only when
 /// it is plausible: enough inliers, a small residual, and no more rotation from `rot0` than

@@ -441,12 +441,12 @@ impl Tracker {
         let (dx, dy, scale, rotations) = match (&key_fit, &inter, self.cfg.mode) {
             (_, _, Mode::Tpe) => (dx, dy, scale, vec![(1.0, Matrix3::identity())]),
             (Some(k), _, _) => {
-                let delta = k.fit.rot * k.key.rot * self.prev.rot.transpose();
+                let at = k.placed();
                 (
-                    k.fit.centre.x - self.prev.cx,
-                    k.fit.centre.y - self.prev.cy,
+                    at.cx - self.prev.cx,
+                    at.cy - self.prev.cy,
                     k.fit.scale / k.prev_scale,
-                    vec![(1.0, delta)],
+                    vec![(1.0, at.rot * self.prev.rot.transpose())],
                 )
             }
             (None, _, _) if let Some(f) = &prior_prev => (
@@ -776,13 +776,7 @@ impl Tracker {
         let fit = self
             .keyframes
             .best_fit(&features, &ctx, KEYFRAMES, std::f64::consts::PI);
-        Ok(fit.map(|k| Hypothesis {
-            cx: k.fit.centre.x,
-            cy: k.fit.centre.y,
-            a: k.key.a * k.fit.scale,
-            b: k.key.b * k.fit.scale,
-            rot: k.fit.rot * k.key.rot,
-        }))
+        Ok(fit.map(|k| k.placed()))
     }
 }
 
