@@ -138,6 +138,15 @@ fn bad_input_is_an_error() {
         let err = Tracker::new(cfg, &img, Init::frontal(r.init_ellipse())).unwrap_err();
         assert!(err.to_string().contains("colour update"), "{err}");
     }
+    // The aspect bound's slack widens the model's range: a finite factor of at least 1.
+    for k in [0.5, 0.0, -1.0, f64::NAN, f64::INFINITY] {
+        let cfg = TrackerConfig {
+            aspect_slack: Some(k),
+            ..TrackerConfig::default()
+        };
+        let err = Tracker::new(cfg, &img, Init::frontal(r.init_ellipse())).unwrap_err();
+        assert!(err.to_string().contains("aspect_slack"), "{err}");
+    }
     let mut cfg = TrackerConfig::default();
     cfg.filter.dynamics.rotation[1] = 0.0;
     assert!(Tracker::new(cfg.clone(), &img, Init::frontal(r.init_ellipse())).is_err());

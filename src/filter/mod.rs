@@ -216,6 +216,47 @@ pub struct ParticleFilter {
     last_resampling: Option<Resampling>,
     /// The frame's size `(w, h)` when known ([`ParticleFilter::set_frame`]).
     frame: Option<(f64, f64)>,
+    /// The range of `a / b` proposals are held to, when set
+    /// ([`ParticleFilter::set_aspect_range`]).
+    aspect: Option<AspectRange>,
+}
+
+/// A range `lo <= a / b <= hi` of an ellipse's aspect ([`ParticleFilter::set_aspect_range`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct AspectRange {
+    lo: f64,
+    hi: f64,
+}
+
+impl AspectRange {
+    /// The range `[lo, hi]`; `None` unless `0 < lo <= hi` with `lo` finite (`hi` may be
+    /// infinite).
+    pub fn new(lo: f64, hi: f64) -> Option<Self> {
+        (lo > 0.0 && lo.is_finite() && hi >= lo).then_some(Self { lo, hi })
+    }
+
+    /// The smallest aspect.
+    pub fn lo(&self) -> f64 {
+        self.lo
+    }
+
+    /// The largest aspect.
+    pub fn hi(&self) -> f64 {
+        self.hi
+    }
+
+    /// Semi-axes `(a, b)` with their aspect brought into the range at the same size
+    /// `sqrt(a b)`; unchanged when already inside (or when `a / b` is not positive and
+    /// finite).
+    pub fn hold(&self, a: f64, b: f64) -> (f64, f64) {
+        let r = a / b;
+        if !(r.is_finite() && r > 0.0) || (self.lo..=self.hi).contains(&r) {
+            return (a, b);
+        }
+        let k = r.clamp(self.lo, self.hi).sqrt();
+        let g = (a * b).sqrt();
+        (g * k, g / k)
+    }
 }
 
 /// `ln N(x; 0, σ²)` up to the constant `-½ ln 2π`; a component with `σ = 0` is deterministic
@@ -264,6 +305,7 @@ impl ParticleFilter {
             estimate: *init,
             last_resampling: None,
             frame: None,
+            aspect: None,
         }
     }
 
@@ -374,13 +416,18 @@ impl ParticleFilter {
                 self.normal() * sg.rotation[1],
                 self.normal() * sg.rotation[2],
             );
-            let x = Hypothesis {
+            let mut x = Hypothesis {
                 cx: (mean_cx + noise[0] * sg.centre).clamp(min_c, max_cx),
                 cy: (mean_cy + noise[1] * sg.centre).clamp(min_c, max_cy),
                 a: (mean_a + noise[2] * sg.axes).clamp(min_axis, max_axis),
                 b: (mean_b + noise[3] * sg.axes).clamp(min_axis, max_axis),
                 rot: exp_so3(&wn) * cands[c].1 * parent.rot,
             };
+            if let Some(range) = &self.aspect {
+                (x.a, x.b) = range.hold(x.a, x.b);
+                x.a = x.a.clamp(min_axis, max_axis);
+                x.b = x.b.clamp(min_axis, max_axis);
+            }
             // ln q: the mixture over the rotation candidates given this parent.
             let d = [x.cx - mean_cx, x.cy - mean_cy, x.a - mean_a, x.b - mean_b];
             let terms: Vec<f64> = cands
@@ -412,6 +459,21 @@ impl ParticleFilter {
     /// centre -335 px).
     pub fn set_frame(&mut self, w: u32, h: u32) {
         self.frame = Some((w as f64, h as f64));
+    }
+
+    /// Holds the proposals' aspect `a / b` to `range` (`None`: no bound): a proposal outside
+    /// it is brought to the nearer end at the same size `sqrt(a b)`, before the semi-axis
+    /// bounds. A rigid object's outline cannot take any shape: the tracker sets the range its
+    /// object model allows ([`crate::pose::prior::Ellipsoid::outline_aspect_range`]), which
+    /// keeps the ellipse from collapsing into a sliver that a few pixels of the right colour
+    /// fill. Like the frame and semi-axis bounds, the weight of a moved proposal takes the
+    /// proposal density `q` where the proposal lands, which is nearer the proposal's mean than
+    /// where it was drawn, so a proposal pushed against the bound weighs a little less than
+    /// one drawn inside it. (Taking `q` where it was drawn instead, or giving proposals
+    /// outside the range no weight at all, was measured worse: see
+    /// [`crate::tracker::TrackerConfig::aspect_slack`].)
+    pub fn set_aspect_range(&mut self, range: Option<AspectRange>) {
+        self.aspect = range;
     }
 
     /// The particles in the engines' layout.
@@ -531,6 +593,73 @@ mod tests {
         let mut free = ParticleFilter::new(FilterParams::default(), 3, &init());
         free.propose(&m, 1.0);
         assert!(free.particles().iter().all(|p| p.cx > 400.0 && p.a > 500.0));
+    }
+
+    #[test]
+    fn an_aspect_range_is_checked_and_holds_the_size() {
+        assert!(AspectRange::new(0.5, 2.0).is_some());
+        assert!(AspectRange::new(1.0, f64::INFINITY).is_some());
+        for (lo, hi) in [
+            (0.0, 2.0),
+            (-1.0, 2.0),
+            (2.0, 0.5),
+            (f64::NAN, 2.0),
+            (0.5, f64::NAN),
+        ] {
+            assert!(AspectRange::new(lo, hi).is_none(), "({lo}, {hi})");
+        }
+        let r = AspectRange::new(0.5, 2.0).unwrap();
+        // Inside: unchanged. Outside: at the nearer end, same sqrt(a b).
+        assert_eq!(r.hold(10.0, 12.0), (10.0, 12.0));
+        for (a, b, want) in [(40.0, 5.0, 2.0), (3.0, 30.0, 0.5)] {
+            let (x, y) = r.hold(a, b);
+            assert!((x / y - want).abs() < 1e-12, "{a} {b}: {x} {y}");
+            assert!(
+                ((x * y).sqrt() - (a * b).sqrt()).abs() < 1e-9,
+                "{a} {b}: {x} {y}"
+            );
+        }
+    }
+
+    #[test]
+    fn proposals_keep_the_aspect_range_once_it_is_set() {
+        // A wide random walk on the semi-axes makes slivers; with a range none is left, and
+        // without it some are.
+        let params = FilterParams {
+            proposal: StateSigma {
+                centre: 1.0,
+                axes: 15.0,
+                rotation: [0.01; 3],
+            },
+            ..FilterParams::default()
+        };
+        let still = Motion::still();
+        let range = AspectRange::new(0.75, 4.0 / 3.0).unwrap();
+        let mut f = ParticleFilter::new(params, 5, &init());
+        f.set_aspect_range(Some(range));
+        let mut free = ParticleFilter::new(params, 5, &init());
+        for _ in 0..3 {
+            f.propose(&still, 1.0);
+            free.propose(&still, 1.0);
+        }
+        for p in f.particles() {
+            let r = p.a / p.b;
+            assert!((0.75 - 1e-12..=4.0 / 3.0 + 1e-12).contains(&r), "{p:?}");
+        }
+        let outside = free
+            .particles()
+            .iter()
+            .filter(|p| !(0.75..=4.0 / 3.0).contains(&(p.a / p.b)))
+            .count();
+        assert!(outside > 50, "only {outside} of 200 free proposals outside");
+        // Clearing the range frees them again.
+        f.set_aspect_range(None);
+        f.propose(&still, 1.0);
+        assert!(
+            f.particles()
+                .iter()
+                .any(|p| !(0.75..=4.0 / 3.0).contains(&(p.a / p.b)))
+        );
     }
 
     #[test]

@@ -108,6 +108,16 @@ impl Ellipsoid {
         }
     }
 
+    /// The range `(min/max, max/min)` of the semi-axes' ratios: the aspect `a / b` of any
+    /// orthographic outline of the ellipsoid lies in it, whatever its rotation, and so does
+    /// the ratio of the outline's extents along any two perpendicular image axes (the
+    /// outline's semi-axes interlace the ellipsoid's, `s1 <= minor <= s2 <= major <= s3`, and
+    /// an extent along any direction lies between the minor and major semi-axes).
+    pub fn outline_aspect_range(&self) -> (f64, f64) {
+        let (mn, mx) = (self.semi.min(), self.semi.max());
+        (mn / mx, mx / mn)
+    }
+
     /// Whether every value is finite and the semi-axes positive.
     pub fn is_valid(&self) -> bool {
         self.centre
@@ -406,6 +416,51 @@ pub fn fit_with_depth_prior(
 mod tests {
     use super::*;
     use crate::geometry::{Euler, angle_between};
+
+    #[test]
+    fn every_outline_of_the_model_keeps_to_its_aspect_range() {
+        // The orthographic outline of {x : xᵀ M⁻¹ x <= 1} with M = R diag(s²) Rᵀ is the ellipse
+        // whose shape matrix is M's top-left 2x2 block: its semi-axes are the square roots of
+        // that block's eigenvalues, its extents along the image axes those of its diagonal.
+        let e = Ellipse::new(80.0, 60.0, 18.0, 24.0);
+        for depth_ratio in [1.0, 0.25, 1.6] {
+            let model = Ellipsoid::facing(&e, depth_ratio);
+            let (lo, hi) = model.outline_aspect_range();
+            let (mut seen_lo, mut seen_hi) = (f64::INFINITY, 0.0f64);
+            for i in 0..13 {
+                for j in 0..13 {
+                    for k in 0..7 {
+                        let r = Euler::new(
+                            -1.5 + 0.25 * i as f64,
+                            -1.5 + 0.25 * j as f64,
+                            -1.5 + 0.5 * k as f64,
+                        )
+                        .matrix();
+                        let m =
+                            r * Matrix3::from_diagonal(&model.semi.map(|v| v * v)) * r.transpose();
+                        let s = m.fixed_view::<2, 2>(0, 0).into_owned();
+                        let ev = s.symmetric_eigenvalues();
+                        let axes = (ev.min().sqrt(), ev.max().sqrt());
+                        let extents = (s[(0, 0)].sqrt(), s[(1, 1)].sqrt());
+                        for ratio in [axes.0 / axes.1, extents.0 / extents.1] {
+                            assert!(
+                                ratio >= lo * (1.0 - 1e-9) && ratio <= hi * (1.0 + 1e-9),
+                                "depth {depth_ratio}, angles {i} {j} {k}: {ratio} not in \
+                                 ({lo}, {hi})"
+                            );
+                            seen_lo = seen_lo.min(ratio);
+                            seen_hi = seen_hi.max(ratio);
+                        }
+                    }
+                }
+            }
+            // The range is tight: the views reach (nearly) both of its ends.
+            assert!(
+                seen_lo < lo * 1.05 && seen_hi > hi / 1.05,
+                "{seen_lo} {seen_hi}"
+            );
+        }
+    }
 
     /// A start at the keyframe's pose and scale, centred on `centre`.
     fn at(centre: Vector2<f64>) -> FitStart {

@@ -37,7 +37,7 @@ pub use config::{ColourUpdate, Init, Mode, TrackerConfig};
 use nalgebra::Matrix3;
 
 use crate::features::{Features, Sift, keep_slope_length, match_features};
-use crate::filter::{Hypothesis, Motion, ParticleFilter};
+use crate::filter::{AspectRange, Hypothesis, Motion, ParticleFilter};
 use crate::frames::GrayF32;
 use crate::geometry::{BoxRect, Ellipse, Euler, PoseState, deg};
 use crate::likelihood::{
@@ -206,7 +206,23 @@ fn check_config(cfg: &TrackerConfig) -> Result<(), TrackError> {
             ))
         })?;
     }
+    if let Some(k) = cfg.aspect_slack
+        && !(k.is_finite() && k >= 1.0)
+    {
+        return Err(TrackError::BadConfig(format!(
+            "aspect_slack {k} is not a finite factor of at least 1; set aspect_slack to None \
+             to leave the ellipse's aspect free"
+        )));
+    }
     Ok(())
+}
+
+/// The aspects `a / b` the object model of a track starting in `init` can show, widened by
+/// `slack` ([`TrackerConfig::aspect_slack`]); `None` without slack or for a degenerate model.
+fn aspect_range(init: &Ellipse, depth_ratio: f64, slack: Option<f64>) -> Option<AspectRange> {
+    let k = slack?;
+    let (lo, hi) = crate::pose::prior::Ellipsoid::facing(init, depth_ratio).outline_aspect_range();
+    AspectRange::new(lo / k, hi * k)
 }
 
 /// The search region of SIFT around an ellipse: its bounding box grown by half its larger
@@ -295,6 +311,11 @@ impl Tracker {
         let state = PoseState::from_parts(&init.ellipse, init.pose);
         let hyp = Hypothesis::from_state(&state);
         self.filter.set_frame(w, h);
+        self.filter.set_aspect_range(aspect_range(
+            &init.ellipse,
+            self.cfg.likelihood.depth_ratio as f64,
+            self.cfg.aspect_slack,
+        ));
         self.filter.reset(&hyp);
         self.prev = hyp;
         self.last_good = hyp;
@@ -841,6 +862,23 @@ mod tests {
             assert!((e.ry - truth.ry).abs() < 1e-9, "k {k}: {e:?}");
             prev = e;
         }
+    }
+
+    #[test]
+    fn the_aspect_range_is_the_model_outlines_widened_by_the_slack() {
+        // Semi-axes 18 and 24, as deep as sqrt(18 · 24) = 20.78 (depth ratio 1): the
+        // outlines' aspect runs from 18/24 to 24/18.
+        let e = Ellipse::new(50.0, 40.0, 18.0, 24.0);
+        let r = aspect_range(&e, 1.0, Some(1.0)).unwrap();
+        assert!((r.lo() - 0.75).abs() < 1e-12 && (r.hi() - 4.0 / 3.0).abs() < 1e-12);
+        // A flat object (depth ratio 0.25, 5.196 deep) can turn edge-on: a wider range.
+        let flat = aspect_range(&e, 0.25, Some(1.0)).unwrap();
+        let d = 0.25 * (18.0f64 * 24.0).sqrt();
+        assert!((flat.lo() - d / 24.0).abs() < 1e-12 && (flat.hi() - 24.0 / d).abs() < 1e-12);
+        // The slack widens it by its factor on both sides; no slack, no range.
+        let wide = aspect_range(&e, 1.0, Some(1.5)).unwrap();
+        assert!((wide.lo() - 0.5).abs() < 1e-12 && (wide.hi() - 2.0).abs() < 1e-12);
+        assert!(aspect_range(&e, 1.0, None).is_none());
     }
 
     #[test]

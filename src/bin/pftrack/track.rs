@@ -74,6 +74,19 @@ pub struct TrackArgs {
     /// 0, the default, keeps the first frame's model throughout, as the paper does.
     #[arg(long, value_name = "R", default_value_t = 0.0)]
     pub colour_rate: f64,
+    /// Widen the range of shapes the ellipse may take by this factor: by default its aspect
+    /// stays within what the object model's outlines can show (the first ellipse, as deep as
+    /// `--depth-ratio` says; see `TrackerConfig::aspect_slack`).
+    #[arg(
+        long,
+        value_name = "K",
+        default_value_t = 1.0,
+        conflicts_with = "no_aspect_bound"
+    )]
+    pub aspect_slack: f64,
+    /// Leave the ellipse's aspect free, as the paper does.
+    #[arg(long)]
+    pub no_aspect_bound: bool,
     /// Resize every frame to WxH first.
     #[arg(long, value_name = "WxH")]
     pub resize: Option<String>,
@@ -234,6 +247,7 @@ pub fn run(a: TrackArgs) -> anyhow::Result<()> {
     if a.no_fit_prior {
         cfg.fit_pixel_sigma = None;
     }
+    cfg.aspect_slack = (!a.no_aspect_bound).then_some(a.aspect_slack);
     cfg.colour_update = if a.colour_rate == 0.0 {
         None
     } else {
