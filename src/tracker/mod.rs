@@ -422,19 +422,7 @@ impl Tracker {
         };
         // Against the keyframes: the ellipsoid depth-prior fit from the previous pose.
         let camera = self.camera();
-        let ctx = FitContext {
-            prev: &self.prev,
-            shift: nalgebra::Vector2::new(dx, dy),
-            camera: camera.as_ref(),
-            matching: &self.cfg.matching,
-            min_inliers: self.cfg.min_fit_inliers,
-            max_residual: self.cfg.max_fit_residual,
-            max_step: self.cfg.max_rotation_step,
-            prior: self
-                .cfg
-                .fit_pixel_sigma
-                .map(|px| (self.cfg.filter.dynamics.rotation, px)),
-        };
+        let ctx = self.fit_context(&self.prev, nalgebra::Vector2::new(dx, dy), camera.as_ref());
         let key_fit = if use_key {
             self.keyframes
                 .best_fit(&features, &ctx, KEYFRAME_TRIES, KEYFRAME_REACH)
@@ -604,6 +592,30 @@ impl Tracker {
         self.colour_model.blend_towards(&seen, u.rate as f32);
         self.engine.set_colour_model(&self.colour_model)?;
         Ok(())
+    }
+
+    /// The keyframe fits' settings from the configuration, for a fit from `prev` moved by
+    /// `shift` seen through `camera` ([`Tracker::camera`]): matching, the acceptance
+    /// thresholds, the largest step and the rotation prior.
+    fn fit_context<'a>(
+        &'a self,
+        prev: &'a Hypothesis,
+        shift: nalgebra::Vector2<f64>,
+        camera: Option<&'a crate::pose::prior::Pinhole>,
+    ) -> FitContext<'a> {
+        FitContext {
+            prev,
+            shift,
+            camera,
+            matching: &self.cfg.matching,
+            min_inliers: self.cfg.min_fit_inliers,
+            max_residual: self.cfg.max_fit_residual,
+            max_step: self.cfg.max_rotation_step,
+            prior: self
+                .cfg
+                .fit_pixel_sigma
+                .map(|px| (self.cfg.filter.dynamics.rotation, px)),
+        }
     }
 
     /// The camera of the keyframe fits, `None` for weak perspective.
@@ -784,15 +796,10 @@ impl Tracker {
         let features = self.sift.detect(gray, Some(region))?;
         let camera = self.camera();
         let ctx = FitContext {
-            prev: &found,
-            shift: nalgebra::Vector2::zeros(),
-            camera: camera.as_ref(),
-            matching: &self.cfg.matching,
-            min_inliers: self.cfg.min_fit_inliers,
-            max_residual: self.cfg.max_fit_residual,
-            // Any pose: the candidate's rotation is unknown.
+            // Any pose, with no prior: the candidate's rotation is unknown.
             max_step: std::f64::consts::PI,
             prior: None,
+            ..self.fit_context(&found, nalgebra::Vector2::zeros(), camera.as_ref())
         };
         let fit = self
             .keyframes
