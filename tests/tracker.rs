@@ -277,3 +277,38 @@ fn a_target_that_jumps_away_is_lost_then_reacquired_by_its_features() {
         );
     }
 }
+
+#[test]
+fn the_tracker_keeps_its_particles_to_the_models_aspect_range() {
+    // `nod` starts on its ellipsoid's narrowest outline (a/b = 18.5/24.7, the depth between
+    // them), so a free filter soon proposes narrower ellipses; the default config holds every
+    // particle to [a/b, b/a] of the first ellipse, and `aspect_slack: None` does not.
+    let r = Renderer::new(&SynthConfig::new(Scenario::Nod)).unwrap();
+    let init = r.init_ellipse();
+    let (lo, hi) = (init.a / init.b, init.b / init.a);
+    assert!(lo < 1.0);
+    let outside = |slack: Option<f64>| {
+        let cfg = TrackerConfig {
+            aspect_slack: slack,
+            ..TrackerConfig::default()
+        };
+        let mut t = Tracker::new(cfg, &r.render(0).0, Init::frontal(init)).unwrap();
+        let mut n = 0;
+        for k in 1..8 {
+            t.step(&r.render(k).0).unwrap();
+            n += t
+                .filter()
+                .particles()
+                .iter()
+                .filter(|p| !(lo * (1.0 - 1e-9)..=hi * (1.0 + 1e-9)).contains(&(p.a / p.b)))
+                .count();
+        }
+        n
+    };
+    assert_eq!(outside(Some(1.0)), 0);
+    let free = outside(None);
+    assert!(
+        free > 100,
+        "only {free} free particles left the range in 7 frames"
+    );
+}
