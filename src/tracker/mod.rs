@@ -229,12 +229,17 @@ fn aspect_range(init: &Ellipse, depth_ratio: f64, slack: Option<f64>) -> Option<
 /// semi-axis plus 8 px (the largest inter-frame motion followed), clipped to the frame.
 fn search_region(e: &Ellipse, w: u32, h: u32) -> BoxRect {
     let bb = e.bounding_box();
-    let m = 0.5 * e.a.max(e.b) + 8.0;
+    let m = search_margin(e);
     let x0 = (bb.x - m).max(0.0);
     let y0 = (bb.y - m).max(0.0);
     let x1 = (bb.x + bb.w + m).min(w as f64);
     let y1 = (bb.y + bb.h + m).min(h as f64);
     BoxRect::new(x0, y0, (x1 - x0).max(0.0), (y1 - y0).max(0.0))
+}
+
+/// The margin of [`search_region`] around an ellipse's bounding box.
+fn search_margin(e: &Ellipse) -> f64 {
+    0.5 * e.a.max(e.b) + 8.0
 }
 
 impl Tracker {
@@ -804,8 +809,37 @@ impl Tracker {
         let fit = self
             .keyframes
             .best_fit(&features, &ctx, KEYFRAMES, std::f64::consts::PI);
-        Ok(fit.map(|k| k.placed()))
+        let Some(placed) = fit.map(|k| k.placed()) else {
+            return Ok(None);
+        };
+        // The fit may place the target only where its evidence came from, and the target so
+        // placed must still look like it: a fit to a few stray matches can put a target
+        // larger than the frame beside it (seen on OTB car4: a 1230 px ellipse centred at
+        // (-290, -198), reported found).
+        if !placed_within(&placed.to_state().ellipse(self.theta0), &e, &region) {
+            return Ok(None);
+        }
+        let mut check = Vec::new();
+        self.engine
+            .evaluate(&input, &lp, &[placed.to_particle()], &mut check)?;
+        let rho = check.first().map_or(0.0, |t| 1.0 + s2 * t.colour as f64);
+        Ok((rho >= self.cfg.reacquire_rho).then_some(placed))
     }
+}
+
+/// Whether `placed`, the target as a re-acquisition fit places it, lies where that fit's
+/// features were searched: its centre inside `region` (the search region around the colour
+/// candidate `searched`, clipped to the frame), and each semi-axis at most half the extent of
+/// that region before clipping, so no bigger than the largest target it can hold.
+fn placed_within(placed: &Ellipse, searched: &Ellipse, region: &BoxRect) -> bool {
+    let inside = placed.cx >= region.x
+        && placed.cx <= region.x + region.w
+        && placed.cy >= region.y
+        && placed.cy <= region.y + region.h;
+    let bb = placed.bounding_box();
+    let sb = searched.bounding_box();
+    let m = search_margin(searched);
+    inside && bb.w <= sb.w + 2.0 * m && bb.h <= sb.h + 2.0 * m
 }
 
 fn track_err(e: TrackError) -> crate::Error {
@@ -886,6 +920,77 @@ mod tests {
         let wide = aspect_range(&e, 1.0, Some(1.5)).unwrap();
         assert!((wide.lo() - 0.5).abs() < 1e-12 && (wide.hi() - 2.0).abs() < 1e-12);
         assert!(aspect_range(&e, 1.0, None).is_none());
+    }
+
+    #[test]
+    fn a_reacquired_target_must_lie_in_the_region_searched() {
+        // Candidate 20 x 10 semi-axes at (100, 60): box 40 x 20, margin 18, so the region
+        // before clipping is 76 x 56 px, [62, 138] x [32, 88].
+        let cand = Ellipse::new(100.0, 60.0, 20.0, 10.0);
+        let region = search_region(&cand, 320, 240);
+        assert_eq!(
+            (region.x, region.y, region.w, region.h),
+            (62.0, 32.0, 76.0, 56.0)
+        );
+        assert!(placed_within(&cand, &cand, &region));
+        // Moved within the region, and grown to fill it exactly.
+        assert!(placed_within(
+            &Ellipse::new(130.0, 40.0, 20.0, 10.0),
+            &cand,
+            &region
+        ));
+        assert!(placed_within(
+            &Ellipse::new(100.0, 60.0, 38.0, 28.0),
+            &cand,
+            &region
+        ));
+        // Centre outside it, or larger than it can hold, on either axis.
+        assert!(!placed_within(
+            &Ellipse::new(140.0, 60.0, 20.0, 10.0),
+            &cand,
+            &region
+        ));
+        assert!(!placed_within(
+            &Ellipse::new(100.0, 30.0, 20.0, 10.0),
+            &cand,
+            &region
+        ));
+        assert!(!placed_within(
+            &Ellipse::new(100.0, 60.0, 38.5, 10.0),
+            &cand,
+            &region
+        ));
+        assert!(!placed_within(
+            &Ellipse::new(100.0, 60.0, 20.0, 28.5),
+            &cand,
+            &region
+        ));
+        // The car4 case: a huge ellipse centred off the frame.
+        assert!(!placed_within(
+            &Ellipse::new(-290.0, -198.0, 615.0, 538.0),
+            &cand,
+            &region
+        ));
+        // Clipping at the frame's edge limits where the centre may be, not the size.
+        let edge = Ellipse::new(10.0, 60.0, 20.0, 10.0);
+        let clipped = search_region(&edge, 320, 240);
+        assert_eq!(clipped.x, 0.0);
+        assert!(placed_within(
+            &Ellipse::new(5.0, 60.0, 38.0, 28.0),
+            &edge,
+            &clipped
+        ));
+        assert!(!placed_within(
+            &Ellipse::new(-1.0, 60.0, 20.0, 10.0),
+            &edge,
+            &clipped
+        ));
+        // NaN is never inside.
+        assert!(!placed_within(
+            &Ellipse::new(f64::NAN, 60.0, 20.0, 10.0),
+            &cand,
+            &region
+        ));
     }
 
     #[test]
