@@ -11,7 +11,7 @@
 //! * [`optimal::Optimal`]: the certified global minimiser of `f` over the blocks of rotations.
 //! * [`lsm::Lsm`]: unconstrained least squares `R2 = B A^-1`.
 //! * [`ransac::Rls`]: RANSAC on the matches, then least squares on the inliers.
-//! * [`kabsch`]: the 3D-3D case (SVD and SEA's equation in 3D).
+//! * [`kabsch`](mod@kabsch): the 3D-3D case (SVD and SEA's equation in 3D).
 //! * [`essential`]: the essential-matrix (8-point) baseline on calibrated perspective points.
 //!
 //! A block determines the rotation up to the Necker pair ([`complete`]); inter-frame rotations

@@ -3,7 +3,7 @@
 //!
 //! One WGSL file per stage in `shaders/` (`colour.wgsl`, `gradient.wgsl`, `feature.wgsl`,
 //! `combine.wgsl`), each prefixed with `common.wgsl`, which mirrors the shared Rust structs
-//! ([`Particle`](super::Particle), [`TermLogs`](crate::likelihood::TermLogs),
+//! ([`Particle`], [`TermLogs`](crate::likelihood::TermLogs),
 //! [`FeaturePair`](crate::likelihood::FeaturePair),
 //! [`LikelihoodParams`](crate::likelihood::LikelihoodParams) and [`FrameUniform`]); a unit
 //! test checks that sizes and field offsets agree.
