@@ -90,7 +90,8 @@ pub struct Estimate {
     /// The ellipse, turned by `theta0 + rz`.
     pub ellipse: Ellipse,
     /// Confidence in `[0, 1]`: colour similarity and contour support of the estimate, lowered
-    /// when no features could measure the rotation.
+    /// when no features could measure the rotation. On a frame where a lost target is
+    /// re-acquired, the found target's own (at least [`TrackerConfig::lost_below`]).
     pub confidence: f64,
     /// Whether the target is considered lost.
     pub lost: bool,
@@ -513,7 +514,7 @@ impl Tracker {
         let weights = crate::filter::resample::normalise_log_weights(
             &totals.iter().map(|&t| t as f64).collect::<Vec<_>>(),
         );
-        let confidence = self.confidence(&lp, &weights, inter.is_some() || key_inter);
+        let mut confidence = self.confidence(&lp, &weights, inter.is_some() || key_inter);
         if confidence < self.cfg.lost_below {
             self.low_count += 1;
         } else {
@@ -524,10 +525,21 @@ impl Tracker {
         if self.low_count >= self.cfg.lost_after {
             self.lost = true;
             if let Some(found) = self.reacquire(frame, &gray, &est)? {
-                self.filter.reset(&found);
-                est = found;
-                self.low_count = 0;
-                self.lost = false;
+                // The frame reports the target found, so its confidence is the found
+                // target's own (its features measured the rotation), not the lost track's;
+                // a target that is not confident where it was found is not taken.
+                let mut lc = lp;
+                lc.terms &= TERM_COLOUR | TERM_GRADIENT;
+                self.engine
+                    .evaluate(&input, &lc, &[found.to_particle()], &mut self.terms)?;
+                let c = self.confidence(&lc, &[1.0], true);
+                if c >= self.cfg.lost_below {
+                    self.filter.reset(&found);
+                    est = found;
+                    confidence = c;
+                    self.low_count = 0;
+                    self.lost = false;
+                }
             }
         }
 
