@@ -524,22 +524,12 @@ impl Tracker {
         }
         if self.low_count >= self.cfg.lost_after {
             self.lost = true;
-            if let Some(found) = self.reacquire(frame, &gray, &est)? {
-                // The frame reports the target found, so its confidence is the found
-                // target's own (its features measured the rotation), not the lost track's;
-                // a target that is not confident where it was found is not taken.
-                let mut lc = lp;
-                lc.terms &= TERM_COLOUR | TERM_GRADIENT;
-                self.engine
-                    .evaluate(&input, &lc, &[found.to_particle()], &mut self.terms)?;
-                let c = self.confidence(&lc, &[1.0], true);
-                if c >= self.cfg.lost_below {
-                    self.filter.reset(&found);
-                    est = found;
-                    confidence = c;
-                    self.low_count = 0;
-                    self.lost = false;
-                }
+            if let Some((found, c)) = self.reacquire(frame, &gray, &est)? {
+                self.filter.reset(&found);
+                est = found;
+                confidence = c;
+                self.low_count = 0;
+                self.lost = false;
             }
         }
 
@@ -745,13 +735,15 @@ impl Tracker {
     /// confident estimate's size on a grid of half a semi-axis, all evaluated in one engine
     /// call; the best one, when its colour similarity reaches
     /// [`TrackerConfig::reacquire_rho`], is then verified by its features, which must fit one
-    /// of the keyframes (any pose). Returns the target as that fit places it.
+    /// of the keyframes (any pose). Returns the target as that fit places it, with its own
+    /// confidence, when it lies where it was searched ([`placed_within`]), passes the
+    /// candidate's colour test and is confident ([`TrackerConfig::lost_below`]).
     fn reacquire(
         &mut self,
         frame: &image::RgbImage,
         gray: &GrayF32,
         est: &Hypothesis,
-    ) -> crate::Result<Option<Hypothesis>> {
+    ) -> crate::Result<Option<(Hypothesis, f64)>> {
         let (w, h) = self.size;
         // The size of the last confident estimate: the lost track's own may have drifted.
         let (a, b) = (self.last_good.a, self.last_good.b);
@@ -831,11 +823,20 @@ impl Tracker {
         if !placed_within(&placed.to_state().ellipse(self.theta0), &e, &region) {
             return Ok(None);
         }
-        let mut check = Vec::new();
+        // The frame will report the target found, so its confidence is the found target's
+        // own (its features measured the rotation), not the lost track's; one evaluation
+        // gives the colour test and the confidence.
+        let mut shown = self.cfg.likelihood;
+        shown.terms &= TERM_COLOUR | TERM_GRADIENT;
+        lp.terms = TERM_COLOUR | shown.terms;
         self.engine
-            .evaluate(&input, &lp, &[placed.to_particle()], &mut check)?;
-        let rho = check.first().map_or(0.0, |t| 1.0 + s2 * t.colour as f64);
-        Ok((rho >= self.cfg.reacquire_rho).then_some(placed))
+            .evaluate(&input, &lp, &[placed.to_particle()], &mut self.terms)?;
+        let rho = self
+            .terms
+            .first()
+            .map_or(0.0, |t| 1.0 + s2 * t.colour as f64);
+        let c = self.confidence(&shown, &[1.0], true);
+        Ok((rho >= self.cfg.reacquire_rho && c >= self.cfg.lost_below).then_some((placed, c)))
     }
 }
 
@@ -944,65 +945,36 @@ mod tests {
             (region.x, region.y, region.w, region.h),
             (62.0, 32.0, 76.0, 56.0)
         );
-        assert!(placed_within(&cand, &cand, &region));
-        // Moved within the region, and grown to fill it exactly.
-        assert!(placed_within(
-            &Ellipse::new(130.0, 40.0, 20.0, 10.0),
-            &cand,
-            &region
-        ));
-        assert!(placed_within(
-            &Ellipse::new(100.0, 60.0, 38.0, 28.0),
-            &cand,
-            &region
-        ));
-        // Centre outside it, or larger than it can hold, on either axis.
-        assert!(!placed_within(
-            &Ellipse::new(140.0, 60.0, 20.0, 10.0),
-            &cand,
-            &region
-        ));
-        assert!(!placed_within(
-            &Ellipse::new(100.0, 30.0, 20.0, 10.0),
-            &cand,
-            &region
-        ));
-        assert!(!placed_within(
-            &Ellipse::new(100.0, 60.0, 38.5, 10.0),
-            &cand,
-            &region
-        ));
-        assert!(!placed_within(
-            &Ellipse::new(100.0, 60.0, 20.0, 28.5),
-            &cand,
-            &region
-        ));
-        // The car4 case: a huge ellipse centred off the frame.
-        assert!(!placed_within(
-            &Ellipse::new(-290.0, -198.0, 615.0, 538.0),
-            &cand,
-            &region
-        ));
-        // Clipping at the frame's edge limits where the centre may be, not the size.
         let edge = Ellipse::new(10.0, 60.0, 20.0, 10.0);
         let clipped = search_region(&edge, 320, 240);
         assert_eq!(clipped.x, 0.0);
-        assert!(placed_within(
-            &Ellipse::new(5.0, 60.0, 38.0, 28.0),
-            &edge,
-            &clipped
-        ));
-        assert!(!placed_within(
-            &Ellipse::new(-1.0, 60.0, 20.0, 10.0),
-            &edge,
-            &clipped
-        ));
-        // NaN is never inside.
-        assert!(!placed_within(
-            &Ellipse::new(f64::NAN, 60.0, 20.0, 10.0),
-            &cand,
-            &region
-        ));
+        let e = Ellipse::new;
+        // (placed, candidate searched, its region, expected)
+        let cases = [
+            (cand, cand, region, true),
+            // Moved within the region, and grown to fill it exactly.
+            (e(130.0, 40.0, 20.0, 10.0), cand, region, true),
+            (e(100.0, 60.0, 38.0, 28.0), cand, region, true),
+            // Centre outside it, or larger than it can hold, on either axis.
+            (e(140.0, 60.0, 20.0, 10.0), cand, region, false),
+            (e(100.0, 30.0, 20.0, 10.0), cand, region, false),
+            (e(100.0, 60.0, 38.5, 10.0), cand, region, false),
+            (e(100.0, 60.0, 20.0, 28.5), cand, region, false),
+            // The car4 case: a huge ellipse centred off the frame.
+            (e(-290.0, -198.0, 615.0, 538.0), cand, region, false),
+            // Clipping at the frame's edge limits where the centre may be, not the size.
+            (e(5.0, 60.0, 38.0, 28.0), edge, clipped, true),
+            (e(-1.0, 60.0, 20.0, 10.0), edge, clipped, false),
+            // NaN is never inside.
+            (e(f64::NAN, 60.0, 20.0, 10.0), cand, region, false),
+        ];
+        for (placed, searched, region, want) in cases {
+            assert_eq!(
+                placed_within(&placed, &searched, &region),
+                want,
+                "{placed:?} in {region:?}"
+            );
+        }
     }
 
     #[test]
