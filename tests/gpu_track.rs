@@ -204,12 +204,19 @@ fn compare_tracks(name: &str, cpu: &Run, gpu: &Run, others: &[Run]) -> Compariso
         for o in others {
             envelope = envelope.max(Diff::between(&cpu.est[k], &o.est[k]));
         }
+        // This frame's decisions first: a flipped likelihood or a resampling of frame k
+        // already moves frame k's estimate (the weighted mean after the update).
+        if c.first_decision.is_none()
+            && let Some(why) = frame_decision(name, k, cpu, gpu, &mut c)
+        {
+            c.first_decision = Some((k, why));
+        }
         let d = Diff::between(&cpu.est[k], &gpu.est[k]);
         if c.departure.is_none() && !d.within(&TIGHT) {
             assert!(
                 c.first_decision.is_some(),
                 "{name} frame {k}: the GPU track left the CPU track ({d:?}) with no differing \
-                 decision before it"
+                 decision before it or in that frame"
             );
             c.departure = Some(k);
         }
@@ -225,69 +232,71 @@ fn compare_tracks(name: &str, cpu: &Run, gpu: &Run, others: &[Run]) -> Compariso
                 );
             }
         }
-        if c.first_decision.is_some() {
-            continue;
-        }
-        // Still synchronised: the decisions of this frame.
-        let (ec, eg) = (&cpu.est[k], &gpu.est[k]);
-        let (flipped, largest) = likelihood_flips(&cpu.w[k], &gpu.w[k]);
-        if flipped > 0 {
-            assert!(
-                flipped <= MAX_FLIPS,
-                "{name} frame {k}: {flipped} particles' weights differ by more than \
-                 {TOL_FLIP:e} (largest {largest:e}): not a flip, the engines disagree"
-            );
-            c.first_decision = Some((
-                k,
-                format!("{flipped} particle likelihood flip(s), log-weight off by {largest:.2e}"),
-            ));
-            continue;
-        }
-        if ec.matches != eg.matches {
-            c.first_decision = Some((k, format!("matches {} vs {}", ec.matches, eg.matches)));
-            continue;
-        }
-        match (&cpu.res[k], &gpu.res[k]) {
-            (None, None) => {}
-            (Some(rc), Some(rg)) => {
-                c.resamplings += 1;
-                assert_eq!(rc.u0, rg.u0, "{name} frame {k}: different comb offsets");
-                let dcum = max_cumulative_difference(&rc.weights, &rg.weights);
-                let margin = systematic_margin(&rc.weights, rc.indices.len(), rc.u0);
-                assert!(
-                    dcum <= TOL_CUM_WEIGHT,
-                    "{name} frame {k}: weights differ, running sums by {dcum:e}"
-                );
-                let tie = dcum >= margin;
-                c.ties += usize::from(tie);
-                if rc.indices != rg.indices {
-                    assert!(
-                        tie,
-                        "{name} frame {k}: index sets differ without a tie ({dcum:e} < {margin:e})"
-                    );
-                    c.first_decision = Some((
-                        k,
-                        format!(
-                            "resampling tie: margin {margin:.2e} < weight difference {dcum:.2e}"
-                        ),
-                    ));
-                }
-            }
-            _ => {
-                // One resampled, the other not: the ESS straddles the threshold.
-                let rel = (ec.ess - eg.ess).abs() / ec.ess.max(1.0);
-                assert!(
-                    rel <= 1e-3,
-                    "{name} frame {k}: ESS {} vs {}",
-                    ec.ess,
-                    eg.ess
-                );
-                c.first_decision = Some((k, "resampling decision at the ESS threshold".into()));
-            }
-        }
     }
     c.envelope_at_end = envelope;
     c
+}
+
+/// The first discrete decision of frame `k` that differs between two synchronised runs
+/// (checking along the way that everything else agrees), or `None`.
+fn frame_decision(
+    name: &str,
+    k: usize,
+    cpu: &Run,
+    gpu: &Run,
+    c: &mut Comparison,
+) -> Option<String> {
+    let (ec, eg) = (&cpu.est[k], &gpu.est[k]);
+    let (flipped, largest) = likelihood_flips(&cpu.w[k], &gpu.w[k]);
+    if flipped > 0 {
+        assert!(
+            flipped <= MAX_FLIPS,
+            "{name} frame {k}: {flipped} particles' weights differ by more than \
+             {TOL_FLIP:e} (largest {largest:e}): not a flip, the engines disagree"
+        );
+        return Some(format!(
+            "{flipped} particle likelihood flip(s), log-weight off by {largest:.2e}"
+        ));
+    }
+    if ec.matches != eg.matches {
+        return Some(format!("matches {} vs {}", ec.matches, eg.matches));
+    }
+    match (&cpu.res[k], &gpu.res[k]) {
+        (None, None) => None,
+        (Some(rc), Some(rg)) => {
+            c.resamplings += 1;
+            assert_eq!(rc.u0, rg.u0, "{name} frame {k}: different comb offsets");
+            let dcum = max_cumulative_difference(&rc.weights, &rg.weights);
+            let margin = systematic_margin(&rc.weights, rc.indices.len(), rc.u0);
+            assert!(
+                dcum <= TOL_CUM_WEIGHT,
+                "{name} frame {k}: weights differ, running sums by {dcum:e}"
+            );
+            let tie = dcum >= margin;
+            c.ties += usize::from(tie);
+            if rc.indices == rg.indices {
+                return None;
+            }
+            assert!(
+                tie,
+                "{name} frame {k}: index sets differ without a tie ({dcum:e} < {margin:e})"
+            );
+            Some(format!(
+                "resampling tie: margin {margin:.2e} < weight difference {dcum:.2e}"
+            ))
+        }
+        _ => {
+            // One resampled, the other not: the ESS straddles the threshold.
+            let rel = (ec.ess - eg.ess).abs() / ec.ess.max(1.0);
+            assert!(
+                rel <= 1e-3,
+                "{name} frame {k}: ESS {} vs {}",
+                ec.ess,
+                eg.ess
+            );
+            Some("resampling decision at the ESS threshold".into())
+        }
+    }
 }
 
 /// A particle's log-weight (relative to the others) may differ between the runs by this much
