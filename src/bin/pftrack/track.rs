@@ -63,6 +63,12 @@ pub struct TrackArgs {
     /// pass for a turn.
     #[arg(long, value_name = "R", default_value_t = 1.0)]
     pub depth_ratio: f64,
+    /// Edge threshold of the contour term (luma per pixel, half the luma step across a pixel
+    /// pair; the library's default when absent, see `LikelihoodParams::edge_threshold`).
+    /// Lower finds weaker contours and more texture: on the project's synthetic sequences,
+    /// whose outlines are sharp, 0.05 gave lower angle errors than the default.
+    #[arg(long, value_name = "T")]
+    pub edge_threshold: Option<f64>,
     /// Fit each frame's rotation against the keyframes by least squares alone, without
     /// holding it to the previous estimate (the motion prior, on by default; see
     /// `TrackerConfig::fit_pixel_sigma`).
@@ -206,6 +212,17 @@ pub fn apply_depth_ratio(cfg: &mut TrackerConfig, r: f64) -> anyhow::Result<()> 
     Ok(())
 }
 
+/// Checks and applies `--edge-threshold` (none: the default stays).
+pub fn apply_edge_threshold(cfg: &mut TrackerConfig, t: Option<f64>) -> anyhow::Result<()> {
+    if let Some(t) = t {
+        if !(t.is_finite() && (0.0..=1.0).contains(&t)) {
+            bail!("--edge-threshold must lie between 0 and 1, got {t}");
+        }
+        cfg.likelihood.edge_threshold = t as f32;
+    }
+    Ok(())
+}
+
 /// The pose CSV record of an estimate.
 pub fn record(e: &Estimate) -> PoseRecord {
     PoseRecord {
@@ -244,6 +261,7 @@ pub fn run(a: TrackArgs) -> anyhow::Result<()> {
     let mut cfg = config(&a.mode, a.particles, a.seed)?;
     apply_hfov(&mut cfg, a.hfov)?;
     apply_depth_ratio(&mut cfg, a.depth_ratio)?;
+    apply_edge_threshold(&mut cfg, a.edge_threshold)?;
     if a.no_fit_prior {
         cfg.fit_pixel_sigma = None;
     }
@@ -358,6 +376,23 @@ mod tests {
             assert!(e.starts_with("--depth-ratio must lie"), "{e}");
         }
         assert_eq!(cfg.likelihood.depth_ratio, 0.25);
+    }
+
+    #[test]
+    fn edge_threshold_is_checked_and_applied() {
+        let mut cfg = TrackerConfig::default();
+        let default = cfg.likelihood.edge_threshold;
+        apply_edge_threshold(&mut cfg, None).unwrap();
+        assert_eq!(cfg.likelihood.edge_threshold, default);
+        apply_edge_threshold(&mut cfg, Some(0.05)).unwrap();
+        assert_eq!(cfg.likelihood.edge_threshold, 0.05);
+        for bad in [-0.01, 1.5, f64::NAN, f64::NEG_INFINITY] {
+            let e = apply_edge_threshold(&mut cfg, Some(bad))
+                .unwrap_err()
+                .to_string();
+            assert!(e.starts_with("--edge-threshold must lie"), "{e}");
+        }
+        assert_eq!(cfg.likelihood.edge_threshold, 0.05);
     }
 
     #[test]
