@@ -162,8 +162,11 @@ impl Default for LikelihoodParams {
     ///   flat background strayed up to 2.8 px instead of 1.4 (`tests/tracker.rs`, the jump
     ///   test), and one dimmed to half its brightness was followed up to 4.0 px off instead
     ///   of 1.9, with a confidence of 0.53 instead of 0.83, its outline mostly below the
-    ///   threshold. A threshold relative to the frame's own contrast and clutter would be the
-    ///   way to have both; it is not built yet.
+    ///   threshold. Weighing the nearest edge by its strength instead (nothing at 0.05, fully
+    ///   from 0.1) made the same trade at a lower rate: girl 0.47, car4 0.22, and the synthetic
+    ///   sum up by 15-18 % (seeds 0-11, filter seeds 0 and 1), so it was not kept. A threshold
+    ///   relative to the frame's own contrast and clutter would be the way to have both; it
+    ///   is not built yet.
     /// - `p_no_contour` 0.15: the measured share of lines with no edge within 4 px at that
     ///   threshold (18 % girl, 13 % car4).
     /// - `clutter_density` 0.1 edges per pixel: measured 0.080 (girl) and 0.137 (car4) edges
