@@ -40,6 +40,7 @@ use crate::features::{Features, Sift, keep_slope_length, match_features};
 use crate::filter::{AspectRange, Hypothesis, Motion, ParticleFilter};
 use crate::frames::GrayF32;
 use crate::geometry::{BoxRect, Ellipse, Euler, PoseState, deg};
+use crate::likelihood::cpu::colour::rho_from_log;
 use crate::likelihood::{
     ColourHistogram, FeaturePair, FrameInput, LikelihoodEngine, LikelihoodParams, Particle,
     TERM_COLOUR, TERM_FEATURE, TERM_GRADIENT, TermLogs,
@@ -702,12 +703,11 @@ impl Tracker {
     fn confidence(&self, lp: &LikelihoodParams, w: &[f64], rotation_measured: bool) -> f64 {
         let mut colour = 1.0;
         if lp.terms & TERM_COLOUR != 0 {
-            let s2 = 2.0 * (lp.sigma_colour as f64).powi(2);
             let rho: f64 = self
                 .terms
                 .iter()
                 .zip(w)
-                .map(|(t, w)| w * (1.0 + s2 * t.colour as f64))
+                .map(|(t, w)| w * rho_from_log(t.colour, lp.sigma_colour))
                 .sum();
             colour = ((rho - 0.5) / 0.5).clamp(0.0, 1.0);
         }
@@ -778,12 +778,11 @@ impl Tracker {
         };
         let mut out = Vec::new();
         self.engine.evaluate(&input, &lp, &cands, &mut out)?;
-        let s2 = 2.0 * (lp.sigma_colour as f64).powi(2);
         let best = out
             .iter()
             .enumerate()
             .max_by(|a, b| a.1.colour.total_cmp(&b.1.colour))
-            .map(|(i, t)| (i, 1.0 + s2 * t.colour as f64));
+            .map(|(i, t)| (i, rho_from_log(t.colour, lp.sigma_colour)));
         let found = match best {
             Some((i, rho)) if rho >= self.cfg.reacquire_rho => {
                 let c = cands[i];
@@ -834,7 +833,7 @@ impl Tracker {
         let rho = self
             .terms
             .first()
-            .map_or(0.0, |t| 1.0 + s2 * t.colour as f64);
+            .map_or(0.0, |t| rho_from_log(t.colour, lp.sigma_colour));
         let c = self.confidence(&shown, &[1.0], true);
         Ok((rho >= self.cfg.reacquire_rho && c >= self.cfg.lost_below).then_some((placed, c)))
     }

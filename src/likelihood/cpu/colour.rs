@@ -322,6 +322,12 @@ pub fn log_from_rho(rho: f32, sigma_colour: f32) -> f32 {
     -(1.0 - rho) / (2.0 * sigma_colour * sigma_colour)
 }
 
+/// ρ back from `ln p_colour` (the inverse of [`log_from_rho`], in `f64`):
+/// `ρ = 1 + 2 σc² ln p_colour`.
+pub fn rho_from_log(log: f32, sigma_colour: f32) -> f64 {
+    1.0 + 2.0 * (sigma_colour as f64).powi(2) * log as f64
+}
+
 /// `ln p_colour` of an ellipse on a frame against the model.
 pub fn log_likelihood(image: &RgbImage, e: &EllipseF32, model: &Model, sigma_colour: f32) -> f32 {
     let (counts, total) = histogram(image, e);
@@ -488,5 +494,10 @@ mod tests {
         let rho = bhattacharyya(&c1, 20, &m);
         assert!((rho - 0.5f32.sqrt()).abs() < 1e-6, "{rho}");
         assert!((log_from_rho(rho, 0.5) + (1.0 - rho) / 0.5).abs() < 1e-7);
+        // And back.
+        for (r, sc) in [(rho, 0.5), (0.9, 0.1), (0.0, 0.1), (1.0, 0.3)] {
+            let back = rho_from_log(log_from_rho(r, sc), sc);
+            assert!((back - r as f64).abs() < 1e-6, "{r} {sc}: {back}");
+        }
     }
 }
