@@ -19,26 +19,9 @@ use pftrack::io::read_otb_boxes;
 use pftrack::likelihood::LikelihoodParams;
 use pftrack::likelihood::cpu::EllipseF32;
 use pftrack::likelihood::cpu::gradient::{
-    GradientImage, LineTables, contour_point, half_samples, line_angles, log_likelihood_ellipse,
-    strength,
+    GradientImage, LineTables, contour_point, half_samples, line_angles, line_edges,
+    log_likelihood_ellipse,
 };
-
-/// Edge positions `t` (local maxima of the normal strength at or above `thr`) on a line.
-fn edges(g: &GradientImage, x: f32, y: f32, nx: f32, ny: f32, h: i32, thr: f32) -> Vec<i32> {
-    let at = |t: i32| {
-        if t < -h || t > h {
-            0.0
-        } else {
-            strength(g, x + t as f32 * nx, y + t as f32 * ny, nx, ny)
-        }
-    };
-    (-h..=h)
-        .filter(|&t| {
-            let c = at(t);
-            c >= thr && c > at(t - 1) && c >= at(t + 1)
-        })
-        .collect()
-}
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let mut args = std::env::args().skip(1);
@@ -90,7 +73,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             for &(cp, sp) in &angles {
                 let (s, c) = e.theta.sin_cos();
                 let (x, y, nx, ny) = contour_point(e, s, c, cp, sp);
-                let ts = edges(g, x, y, nx, ny, h, thr);
+                let ts: Vec<i32> = line_edges(g, x, y, nx, ny, h, thr).collect();
                 let d = ts.iter().map(|t| t.unsigned_abs()).min();
                 lines += 1;
                 let hit = d.is_some_and(|d| d <= 4);

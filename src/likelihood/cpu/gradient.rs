@@ -232,25 +232,44 @@ fn scan_edge_distance(
     h: i32,
     threshold: f32,
 ) -> Option<u32> {
-    let at = |t: i32| {
+    line_edges(grad, x, y, nx, ny, h, threshold)
+        .map(i32::unsigned_abs)
+        .min()
+}
+
+/// Every edge of the line through `(x, y)` along `(nx, ny)`, samples `t = -h ..= h`, as its
+/// `t`, in increasing order: the definition of the module's semantics, one pass over the
+/// samples.
+pub fn line_edges(
+    grad: &GradientImage,
+    x: f32,
+    y: f32,
+    nx: f32,
+    ny: f32,
+    h: i32,
+    threshold: f32,
+) -> impl Iterator<Item = i32> + '_ {
+    let at = move |t: i32| {
         let tf = t as f32;
         strength(grad, x + tf * nx, y + tf * ny, nx, ny)
     };
-    let mut best: Option<u32> = None;
+    let mut t = -h;
     let mut prev = 0.0f32;
     let mut cur = at(-h);
-    for t in -h..=h {
-        let next = if t < h { at(t + 1) } else { 0.0 };
-        if cur >= threshold && cur > prev && cur >= next {
-            let d = t.unsigned_abs();
-            if best.is_none_or(|b| d < b) {
-                best = Some(d);
+    std::iter::from_fn(move || {
+        while t <= h {
+            let next = if t < h { at(t + 1) } else { 0.0 };
+            let edge = cur >= threshold && cur > prev && cur >= next;
+            let here = t;
+            prev = cur;
+            cur = next;
+            t += 1;
+            if edge {
+                return Some(here);
             }
         }
-        prev = cur;
-        cur = next;
-    }
-    best
+        None
+    })
 }
 
 /// The per-line edge distances of an ellipse (`None`: no edge on that line), in line order.
