@@ -35,11 +35,13 @@
 //!   for AVX2 and picked at run time (bit-identical results: Rust never fuses multiply-adds
 //!   on its own), and pyramid buffers come from a per-thread pool so a tracker calling
 //!   [`Sift::detect`] every frame reuses them. Restrict detection to the target's region to
-//!   pay only for it. The pyramid and the extrema are built on the calling thread; the
-//!   orientations and descriptors of 16 or more extrema are spread over rayon's current pool
-//!   (in the tracker, the second core picks them up once block matching beside SIFT is
-//!   done), with the same output on any number of threads. Run inside a one-thread pool for
-//!   a single-threaded detector.
+//!   pay only for it. The work is spread over rayon's current pool (in the tracker, the
+//!   second core joins in once block matching beside SIFT is done): the blurs and the
+//!   extremum search of images of 8192 pixels or more by bands of rows (the blurs of one
+//!   octave still follow each other), the orientations and descriptors of 16 or more
+//!   extrema one extremum at a time. Every pixel and keypoint is computed the same way and
+//!   the parts are joined in order, so the output is the same on any number of threads. Run
+//!   inside a one-thread pool for a single-threaded detector.
 
 use std::f32::consts::{PI, TAU};
 
@@ -245,7 +247,12 @@ struct BlurScratch {
     row: Vec<f32>,
     /// Row offsets of the vertical pass.
     offs: Vec<(usize, usize)>,
+    /// `row` and `offs` of each band when the blur is spread over threads.
+    bands: Vec<BandScratch>,
 }
+
+/// A band's `row` and `offs` (see [`BlurScratch`]).
+type BandScratch = (Vec<f32>, Vec<(usize, usize)>);
 
 /// A refined extremum, in octave coordinates.
 struct Extremum {
@@ -445,8 +452,7 @@ impl Sift {
         };
         let mut scratch = BlurScratch {
             tmp: take_buf(base_len),
-            row: Vec::new(),
-            offs: Vec::new(),
+            ..BlurScratch::default()
         };
         let octaves = self.build_pyramid(data, w, h, &mut scratch);
         recycle(scratch.tmp);
@@ -458,23 +464,56 @@ impl Sift {
         // enough, in extremum order either way, so the output does not depend on threads.
         let mut found: Vec<(usize, Extremum)> = Vec::new();
         for (o, oct) in octaves.iter().enumerate() {
-            // Plain loops, not closures, so the code inlines into the AVX2 build.
-            let mut mx = Vec::with_capacity(oct.dog.len());
-            let mut mn = Vec::with_capacity(oct.dog.len());
-            for d in &oct.dog {
-                let (a, b) = max_min_3x3(d, oct.w, oct.h);
-                mx.push(a);
-                mn.push(b);
-            }
-            let mut candidates = Vec::new();
-            for layer in 1..=n {
-                candidates.clear();
-                self.find_extrema(oct, &mx, &mn, layer, &mut candidates);
-                for &(r, c) in &candidates {
-                    if let Some(e) = self.refine(oct, r, c, layer) {
-                        found.push((o, e));
+            let (w, h) = (oct.w, oct.h);
+            let mut mx: Vec<Vec<f32>> = oct.dog.iter().map(|_| take_buf(w * h)).collect();
+            let mut mn: Vec<Vec<f32>> = oct.dog.iter().map(|_| take_buf(w * h)).collect();
+            // The 3x3 maxima and minima of every DoG layer, then the extrema of each inner
+            // layer, by bands of rows; the bands' extrema are concatenated in layer and row
+            // order, the order of a single pass.
+            let bands = parallel_bands(w, h);
+            let rows = h.div_ceil(bands);
+            if bands <= 1 {
+                // Plain loops, not closures, so the code inlines into the AVX2 build.
+                let mut vrow = Vec::new();
+                for ((d, a), b) in oct.dog.iter().zip(&mut mx).zip(&mut mn) {
+                    max_min_rows(d, w, h, 0, a, b, &mut vrow);
+                }
+                for layer in 1..=n {
+                    self.extrema_in_rows(oct, &mx, &mn, layer, 0, h, &mut found, o);
+                }
+            } else {
+                use rayon::prelude::*;
+                let mut tasks = Vec::with_capacity(oct.dog.len() * bands);
+                for (l, (a, b)) in mx.iter_mut().zip(mn.iter_mut()).enumerate() {
+                    let chunks = a.chunks_mut(rows * w).zip(b.chunks_mut(rows * w));
+                    for (i, (ca, cb)) in chunks.enumerate() {
+                        tasks.push((l, i * rows, ca, cb));
                     }
                 }
+                tasks.into_par_iter().for_each(|(l, y0, a, b)| {
+                    with_simd(
+                        #[inline(always)]
+                        || max_min_rows(&oct.dog[l], w, h, y0, a, b, &mut Vec::new()),
+                    );
+                });
+                let (mx, mn) = (&mx[..], &mn[..]);
+                let parts: Vec<Vec<(usize, Extremum)>> = (1..=n)
+                    .flat_map(|layer| (0..bands).map(move |i| (layer, i * rows)))
+                    .collect::<Vec<_>>()
+                    .into_par_iter()
+                    .map(|(layer, r0)| {
+                        with_simd(
+                            #[inline(always)]
+                            || {
+                                let mut v = Vec::new();
+                                let r1 = (r0 + rows).min(h);
+                                self.extrema_in_rows(oct, mx, mn, layer, r0, r1, &mut v, o);
+                                v
+                            },
+                        )
+                    })
+                    .collect();
+                found.extend(parts.into_iter().flatten());
             }
             mx.into_iter().chain(mn).for_each(recycle);
         }
@@ -596,9 +635,34 @@ impl Sift {
         octaves
     }
 
-    /// Local extrema of DoG layer `layer` over its 26 neighbours (`≥` all for a maximum,
-    /// `≤` all for a minimum), above the prefilter threshold (half the final contrast
-    /// threshold). `mx` and `mn` are the 3x3 maxima and minima of each DoG layer.
+    /// The refined extrema of DoG layer `layer` of octave `o` whose candidates lie in rows
+    /// `r0..r1`, appended to `out` in row order with the octave number.
+    #[allow(clippy::too_many_arguments)]
+    #[inline(always)]
+    fn extrema_in_rows(
+        &self,
+        oct: &Octave,
+        mx: &[Vec<f32>],
+        mn: &[Vec<f32>],
+        layer: usize,
+        r0: usize,
+        r1: usize,
+        out: &mut Vec<(usize, Extremum)>,
+        o: usize,
+    ) {
+        let mut candidates = Vec::new();
+        self.find_extrema(oct, mx, mn, layer, r0, r1, &mut candidates);
+        for &(r, c) in &candidates {
+            if let Some(e) = self.refine(oct, r, c, layer) {
+                out.push((o, e));
+            }
+        }
+    }
+
+    /// Local extrema of DoG layer `layer` in rows `r0..r1` over their 26 neighbours (`≥` all
+    /// for a maximum, `≤` all for a minimum), above the prefilter threshold (half the final
+    /// contrast threshold). `mx` and `mn` are the 3x3 maxima and minima of each DoG layer.
+    #[allow(clippy::too_many_arguments)]
     #[inline(always)]
     fn find_extrema(
         &self,
@@ -606,6 +670,8 @@ impl Sift {
         mx: &[Vec<f32>],
         mn: &[Vec<f32>],
         layer: usize,
+        r0: usize,
+        r1: usize,
         out: &mut Vec<(usize, usize)>,
     ) {
         let (w, h) = (oct.w, oct.h);
@@ -618,7 +684,7 @@ impl Sift {
         let (na, nb, nc) = (&mn[layer - 1], &mn[layer], &mn[layer + 1]);
         let len = w - 2 * IMG_BORDER;
         let mut flags = vec![0u8; len];
-        for r in IMG_BORDER..h - IMG_BORDER {
+        for r in r0.max(IMG_BORDER)..r1.min(h - IMG_BORDER) {
             let s = r * w + IMG_BORDER;
             let (v, ma, mb, mc) = (
                 &cur[s..s + len],
@@ -833,53 +899,60 @@ fn fmin(a: f32, b: f32) -> f32 {
     if a < b { a } else { b }
 }
 
-/// Maximum and minimum over each pixel's 3x3 neighbourhood (separable). The outermost rows
-/// and columns of the results are unspecified: extrema are never searched there.
+/// Maximum and minimum over each pixel's 3x3 neighbourhood in `src` (`w x h`), for the rows
+/// `y0..` that `mx` and `mn` hold (whole rows): the maxima and minima down each column of
+/// three rows first, into `vrow`, then across. The outermost rows and columns of the image
+/// are left as they were: extrema are never searched there.
 #[inline(always)]
-fn max_min_3x3(src: &[f32], w: usize, h: usize) -> (Vec<f32>, Vec<f32>) {
-    let mut hmax = take_buf(src.len());
-    let mut hmin = take_buf(src.len());
-    if w >= 3 {
-        for y in 0..h {
-            let r = &src[y * w..(y + 1) * w];
-            let (om, on) = (
-                &mut hmax[y * w + 1..(y + 1) * w - 1],
-                &mut hmin[y * w + 1..(y + 1) * w - 1],
-            );
-            for (((a, b), c), (m, n)) in r
-                .iter()
-                .zip(&r[1..])
-                .zip(&r[2..])
-                .zip(om.iter_mut().zip(on.iter_mut()))
-            {
-                *m = fmax(fmax(*a, *b), *c);
-                *n = fmin(fmin(*a, *b), *c);
-            }
-        }
+fn max_min_rows(
+    src: &[f32],
+    w: usize,
+    h: usize,
+    y0: usize,
+    mx: &mut [f32],
+    mn: &mut [f32],
+    vrow: &mut Vec<f32>,
+) {
+    if w < 3 {
+        return;
     }
-    let mut vmax = take_buf(src.len());
-    let mut vmin = take_buf(src.len());
-    for y in 1..h.saturating_sub(1) {
+    grow(vrow, 2 * w);
+    let (vmax, vmin) = vrow[..2 * w].split_at_mut(w);
+    for (j, (om, on)) in mx
+        .chunks_exact_mut(w)
+        .zip(mn.chunks_exact_mut(w))
+        .enumerate()
+    {
+        let y = y0 + j;
+        if y == 0 || y + 1 >= h {
+            continue;
+        }
         let (a, b, c) = (
-            &hmax[(y - 1) * w..y * w],
-            &hmax[y * w..(y + 1) * w],
-            &hmax[(y + 1) * w..(y + 2) * w],
+            &src[(y - 1) * w..y * w],
+            &src[y * w..(y + 1) * w],
+            &src[(y + 1) * w..(y + 2) * w],
         );
-        for (((o, a), b), c) in vmax[y * w..(y + 1) * w].iter_mut().zip(a).zip(b).zip(c) {
+        for ((((m, n), a), b), c) in vmax.iter_mut().zip(vmin.iter_mut()).zip(a).zip(b).zip(c) {
+            *m = fmax(fmax(*a, *b), *c);
+            *n = fmin(fmin(*a, *b), *c);
+        }
+        for (((o, a), b), c) in om[1..w - 1]
+            .iter_mut()
+            .zip(&vmax[..])
+            .zip(&vmax[1..])
+            .zip(&vmax[2..])
+        {
             *o = fmax(fmax(*a, *b), *c);
         }
-        let (a, b, c) = (
-            &hmin[(y - 1) * w..y * w],
-            &hmin[y * w..(y + 1) * w],
-            &hmin[(y + 1) * w..(y + 2) * w],
-        );
-        for (((o, a), b), c) in vmin[y * w..(y + 1) * w].iter_mut().zip(a).zip(b).zip(c) {
+        for (((o, a), b), c) in on[1..w - 1]
+            .iter_mut()
+            .zip(&vmin[..])
+            .zip(&vmin[1..])
+            .zip(&vmin[2..])
+        {
             *o = fmin(fmin(*a, *b), *c);
         }
     }
-    recycle(hmax);
-    recycle(hmin);
-    (vmax, vmin)
 }
 
 /// Gradient `(dx, dy, ds)` and Hessian of the DoG at an integer position.
@@ -993,7 +1066,10 @@ fn conv_row<'a>(
     }
 }
 
-/// Separable Gaussian blur of a `w x h` image with reflect-101 borders.
+/// Separable Gaussian blur of a `w x h` image with reflect-101 borders. Images of at least
+/// [`PARALLEL_MIN_PIXELS`] are cut into bands of rows spread over rayon's current pool (the
+/// horizontal pass, then the vertical one); every pixel is computed the same way however the
+/// rows are split, so the result does not depend on the number of threads.
 #[inline(always)]
 fn blur(src: &[f32], dst: &mut [f32], w: usize, h: usize, k: &Kernel, s: &mut BlurScratch) {
     let r = k.radius();
@@ -1002,33 +1078,132 @@ fn blur(src: &[f32], dst: &mut [f32], w: usize, h: usize, k: &Kernel, s: &mut Bl
     if s.tmp.len() < w * h {
         s.tmp.resize(w * h, 0.0);
     }
-    s.row.resize(w + 2 * r, 0.0);
-    // Horizontal pass into tmp, from a copy of the row with reflected borders.
-    for y in 0..h {
+    let tmp = &mut s.tmp[..w * h];
+    let dst = &mut dst[..w * h];
+    let bands = parallel_bands(w, h);
+    if bands <= 1 {
+        blur_rows_h(src, tmp, w, 0, kh, r, &mut s.row);
+        blur_rows_v(tmp, dst, w, h, 0, kh, r, &mut s.offs);
+        return;
+    }
+    use rayon::prelude::*;
+    let rows = h.div_ceil(bands);
+    if s.bands.len() < bands {
+        s.bands.resize_with(bands, Default::default);
+    }
+    let scratch = &mut s.bands[..bands];
+    tmp.par_chunks_mut(rows * w)
+        .zip(scratch.par_iter_mut())
+        .enumerate()
+        .for_each(|(i, (t, (row, _)))| {
+            with_simd(
+                #[inline(always)]
+                || blur_rows_h(src, t, w, i * rows, kh, r, row),
+            );
+        });
+    let tmp = &*tmp;
+    dst.par_chunks_mut(rows * w)
+        .zip(scratch.par_iter_mut())
+        .enumerate()
+        .for_each(|(i, (d, (_, offs)))| {
+            with_simd(
+                #[inline(always)]
+                || blur_rows_v(tmp, d, w, h, i * rows, kh, r, offs),
+            );
+        });
+}
+
+/// Fewest pixels of an image whose blur, differences of Gaussians and extremum search are
+/// spread over rayon's threads (below it, the fork costs more than it saves).
+const PARALLEL_MIN_PIXELS: usize = 8192;
+
+/// Most bands an image is cut into for the threads.
+const MAX_BANDS: usize = 8;
+
+/// How many bands of rows a `w x h` image's work is cut into: one (no fork) on a one-thread
+/// pool or for a small image, else one per thread, each at least 8 rows.
+fn parallel_bands(w: usize, h: usize) -> usize {
+    if w * h < PARALLEL_MIN_PIXELS {
+        return 1;
+    }
+    rayon::current_num_threads().min(h / 8).clamp(1, MAX_BANDS)
+}
+
+/// Runs `f` inside a function compiled for AVX2 when the CPU has it, so that the SIMD loops
+/// of work handed to rayon's threads (which run outside the AVX2 build of
+/// [`Sift::detect_window`]) are compiled for it too: `f` must be an `#[inline(always)]`
+/// closure. Rust never fuses multiply-adds on its own, so the results are bit-identical
+/// either way.
+#[inline(always)]
+fn with_simd<R>(f: impl FnOnce() -> R) -> R {
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx2") {
+        // SAFETY: the CPU supports AVX2 (checked just above), the only requirement of
+        // calling a function compiled with that target feature.
+        return unsafe { in_avx2(f) };
+    }
+    f()
+}
+
+/// Calls `f` from a function compiled for AVX2 (see [`with_simd`]).
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+fn in_avx2<R>(f: impl FnOnce() -> R) -> R {
+    f()
+}
+
+/// The horizontal pass of [`blur`] for the rows `y0..` that `out` holds (whole rows of
+/// `w`), from a copy of each row with reflected borders.
+#[inline(always)]
+fn blur_rows_h(
+    src: &[f32],
+    out: &mut [f32],
+    w: usize,
+    y0: usize,
+    kh: &[f32],
+    r: usize,
+    row: &mut Vec<f32>,
+) {
+    row.resize(w + 2 * r, 0.0);
+    for (j, out) in out.chunks_exact_mut(w).enumerate() {
+        let y = y0 + j;
         let srow = &src[y * w..(y + 1) * w];
-        let row = &mut s.row;
         row[r..r + w].copy_from_slice(srow);
         for i in 1..=r {
             row[r - i] = srow[reflect101(-(i as isize), w)];
             row[r + w - 1 + i] = srow[reflect101((w - 1 + i) as isize, w)];
         }
-        let row = &s.row[..];
-        let out = &mut s.tmp[y * w..(y + 1) * w];
+        let row = &row[..];
         conv_row(kh, &row[r..], |i| (&row[r - i..], &row[r + i..]), out);
     }
-    // Vertical pass into dst: rows above and below each output row, reflected at the edges.
-    let tmp = &s.tmp[..];
-    for y in 0..h {
+}
+
+/// The vertical pass of [`blur`] for the rows `y0..` that `out` holds, from the whole
+/// horizontally blurred image `tmp` (`h` rows): rows above and below each output row,
+/// reflected at the edges.
+#[allow(clippy::too_many_arguments)]
+#[inline(always)]
+fn blur_rows_v(
+    tmp: &[f32],
+    out: &mut [f32],
+    w: usize,
+    h: usize,
+    y0: usize,
+    kh: &[f32],
+    r: usize,
+    offs: &mut Vec<(usize, usize)>,
+) {
+    for (j, out) in out.chunks_exact_mut(w).enumerate() {
+        let y = y0 + j;
         // Offsets of the rows at -i and +i (index 0 unused), reflected once per row.
-        s.offs.clear();
-        s.offs.extend((0..=r).map(|i| {
+        offs.clear();
+        offs.extend((0..=r).map(|i| {
             (
                 reflect101(y as isize - i as isize, h) * w,
                 reflect101((y + i) as isize, h) * w,
             )
         }));
-        let offs = &s.offs[..];
-        let out = &mut dst[y * w..(y + 1) * w];
+        let offs = &offs[..];
         conv_row(
             kh,
             &tmp[y * w..(y + 1) * w],
@@ -1506,13 +1681,62 @@ mod tests {
         assert_eq!(ex[2 * w2 + 4], src[w + 2]);
     }
 
+    /// Runs `f` in a rayon pool of `n` threads.
+    fn on_threads<R: Send>(n: usize, f: impl FnOnce() -> R + Send) -> R {
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(n)
+            .build()
+            .unwrap()
+            .install(f)
+    }
+
     #[test]
-    fn max_min_3x3_matches_naive_inside() {
+    fn a_blur_by_bands_is_the_blur_on_one_thread() {
+        // Large enough to be cut into bands, with rows that do not divide evenly.
+        let (w, h) = (131, 97);
+        assert!(w * h >= PARALLEL_MIN_PIXELS);
+        let src: Vec<f32> = (0..w * h)
+            .map(|i| ((i * 37 % 101) as f32) / 101.0)
+            .collect();
+        let k = Kernel::gaussian(2.3);
+        let run = |n| {
+            on_threads(n, || {
+                assert_eq!(parallel_bands(w, h), n);
+                let mut dst = vec![0f32; w * h];
+                blur(&src, &mut dst, w, h, &k, &mut BlurScratch::default());
+                dst
+            })
+        };
+        let one = run(1);
+        for n in [2, 3, 5] {
+            assert!(run(n) == one, "{n} bands differ from one");
+        }
+    }
+
+    #[test]
+    fn max_min_by_bands_of_rows_is_the_whole_pass() {
+        let (w, h) = (23, 17);
+        let src: Vec<f32> = (0..w * h).map(|i| ((i * 29 % 31) as f32) - 15.0).collect();
+        let (mut mx, mut mn) = (vec![0f32; w * h], vec![0f32; w * h]);
+        max_min_rows(&src, w, h, 0, &mut mx, &mut mn, &mut Vec::new());
+        for rows in [1, 4, 5, 16] {
+            let (mut bx, mut bn) = (vec![0f32; w * h], vec![0f32; w * h]);
+            let bands = bx.chunks_mut(rows * w).zip(bn.chunks_mut(rows * w));
+            for (i, (a, b)) in bands.enumerate() {
+                max_min_rows(&src, w, h, i * rows, a, b, &mut Vec::new());
+            }
+            assert!(bx == mx && bn == mn, "bands of {rows} rows");
+        }
+    }
+
+    #[test]
+    fn max_min_rows_matches_naive_inside() {
         let (w, h) = (9, 7);
         // Stale pool contents must not leak into the interior.
         recycle(vec![f32::NAN; 200]);
         let src: Vec<f32> = (0..w * h).map(|i| ((i * 29 % 17) as f32) - 8.0).collect();
-        let (mx, mn) = max_min_3x3(&src, w, h);
+        let (mut mx, mut mn) = (take_buf(w * h), take_buf(w * h));
+        max_min_rows(&src, w, h, 0, &mut mx, &mut mn, &mut Vec::new());
         for y in 1..h - 1 {
             for x in 1..w - 1 {
                 let nb = (0..9).map(|k| src[(y + k / 3 - 1) * w + x + k % 3 - 1]);
