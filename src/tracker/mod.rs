@@ -402,15 +402,6 @@ impl Tracker {
             || block_match(&self.prev_gray, &gray, &prev_ellipse, &abm),
         );
         let features = features?;
-        let pairs = self.correspondences(&prev_ellipse, &features);
-        // The features' median motion when block matching fails.
-        let (dx, dy, scale) = match abm_result {
-            Ok(r) => (r.translation[0], r.translation[1], r.scale),
-            Err(_) => {
-                let (mx, my) = median_displacement(&pairs);
-                (mx, my, 1.0)
-            }
-        };
 
         // Rotation candidates from Sylvester's equation: against the keyframe when it still
         // matches (both members of the Necker pair, and "no change"), else between successive
@@ -421,20 +412,45 @@ impl Tracker {
             Mode::Rls => SolverKind::Rls,
         };
         let use_key = self.cfg.mode != Mode::Tpe;
-        let inter = if pairs.len() >= 3 {
-            let (p, q) = FeaturePair::split(&pairs);
-            interframe(&p, &q, [prev_state.cx, prev_state.cy], solver).ok()
-        } else {
-            None
+        // The matches with the previous frame and the rotation between the two frames.
+        let (prev_features, matching) = (&self.prev_features, &self.cfg.matching);
+        let between_frames = || {
+            let pairs = correspondences(prev_features, matching, &prev_ellipse, &features);
+            let inter = if pairs.len() >= 3 {
+                let (p, q) = FeaturePair::split(&pairs);
+                interframe(&p, &q, [prev_state.cx, prev_state.cy], solver).ok()
+            } else {
+                None
+            };
+            (pairs, inter)
         };
-        // Against the keyframes: the ellipsoid depth-prior fit from the previous pose.
+        // Against the keyframes: the ellipsoid depth-prior fit from the previous pose, moved as
+        // block matching says. It does not need the matches with the previous frame, so on two
+        // cores both run side by side; when block matching failed, the features' median
+        // motion stands in for it and the keyframe fit waits for the matches.
         let camera = self.camera();
-        let ctx = self.fit_context(&self.prev, nalgebra::Vector2::new(dx, dy), camera.as_ref());
-        let key_fit = if use_key {
-            self.keyframes
-                .best_fit(&features, &ctx, KEYFRAME_TRIES, KEYFRAME_REACH)
-        } else {
-            None
+        let keyframes = &self.keyframes;
+        let against_keys = |ctx: &FitContext<'_>| {
+            use_key
+                .then(|| keyframes.best_fit(&features, ctx, KEYFRAME_TRIES, KEYFRAME_REACH))
+                .flatten()
+        };
+        let (dx, dy, scale, ctx, ((pairs, inter), key_fit)) = match abm_result {
+            Ok(r) => {
+                let (dx, dy) = (r.translation[0], r.translation[1]);
+                let ctx =
+                    self.fit_context(&self.prev, nalgebra::Vector2::new(dx, dy), camera.as_ref());
+                let both = rayon::join(between_frames, || against_keys(&ctx));
+                (dx, dy, r.scale, ctx, both)
+            }
+            Err(_) => {
+                let (pairs, inter) = between_frames();
+                let (dx, dy) = median_displacement(&pairs);
+                let ctx =
+                    self.fit_context(&self.prev, nalgebra::Vector2::new(dx, dy), camera.as_ref());
+                let key_fit = against_keys(&ctx);
+                (dx, dy, 1.0, ctx, ((pairs, inter), key_fit))
+            }
         };
         // Without a usable keyframe fit, the same model between the previous frame and this one.
         let mut inter_pairs = pairs.clone();
@@ -669,33 +685,6 @@ impl Tracker {
             .collect()
     }
 
-    /// Matched features between the previous frame (inside the previous ellipse) and this one,
-    /// after the paper's slope/length outlier rejection.
-    fn correspondences(&self, prev_ellipse: &Ellipse, cur: &Features) -> Vec<FeaturePair> {
-        let matches = match_features(&self.prev_features, cur, &self.cfg.matching);
-        let mut p = Vec::new();
-        let mut q = Vec::new();
-        for m in &matches {
-            let a = &self.prev_features.keypoints[m.query];
-            let b = &cur.keypoints[m.train];
-            if prev_ellipse.contains(a.x as f64, a.y as f64) {
-                p.push([a.x as f64, a.y as f64]);
-                q.push([b.x as f64, b.y as f64]);
-            }
-        }
-        if p.len() < 3 {
-            return Vec::new();
-        }
-        let (p, q) = keep_slope_length(&p, &q, 0.2, 0.3);
-        p.iter()
-            .zip(&q)
-            .map(|(p, q)| FeaturePair {
-                p: [p[0] as f32, p[1] as f32],
-                q: [q[0] as f32, q[1] as f32],
-            })
-            .collect()
-    }
-
     /// Confidence in `[0, 1]`: the weighted colour similarity ρ̄ (recovered from the colour
     /// term, `ρ = 1 + 2σc² ln p_colour`) mapped from [0.5, 1] to [0, 1], times the weighted
     /// share of normal lines with contour support, square-rooted (a geometric mean); times 0.8
@@ -856,6 +845,38 @@ fn placed_within(placed: &Ellipse, searched: &Ellipse, region: &BoxRect) -> bool
 
 fn track_err(e: TrackError) -> crate::Error {
     crate::Error::Track(e)
+}
+
+/// Matched features between the previous frame's (`prev`, those inside `prev_ellipse`) and
+/// this one's (`cur`), after the paper's slope/length outlier rejection.
+fn correspondences(
+    prev: &Features,
+    matching: &crate::features::MatchParams,
+    prev_ellipse: &Ellipse,
+    cur: &Features,
+) -> Vec<FeaturePair> {
+    let matches = match_features(prev, cur, matching);
+    let mut p = Vec::new();
+    let mut q = Vec::new();
+    for m in &matches {
+        let a = &prev.keypoints[m.query];
+        let b = &cur.keypoints[m.train];
+        if prev_ellipse.contains(a.x as f64, a.y as f64) {
+            p.push([a.x as f64, a.y as f64]);
+            q.push([b.x as f64, b.y as f64]);
+        }
+    }
+    if p.len() < 3 {
+        return Vec::new();
+    }
+    let (p, q) = keep_slope_length(&p, &q, 0.2, 0.3);
+    p.iter()
+        .zip(&q)
+        .map(|(p, q)| FeaturePair {
+            p: [p[0] as f32, p[1] as f32],
+            q: [q[0] as f32, q[1] as f32],
+        })
+        .collect()
 }
 
 /// The median displacement of matched features, (0, 0) without any.
