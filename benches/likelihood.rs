@@ -21,8 +21,8 @@ use pftrack::geometry::Ellipse;
 use pftrack::likelihood::cpu::CpuEngine;
 use pftrack::likelihood::gpu::GpuEngine;
 use pftrack::likelihood::{
-    ColourHistogram, FeaturePair, FrameInput, LikelihoodEngine, LikelihoodParams, Particle,
-    TERM_COLOUR, TERM_FEATURE, TERM_GRADIENT,
+    COLOUR_RGB, ColourHistogram, FeaturePair, FrameInput, LikelihoodEngine, LikelihoodParams,
+    Particle, TERM_COLOUR, TERM_FEATURE, TERM_GRADIENT,
 };
 use rand::{Rng, SeedableRng, rngs::StdRng};
 
@@ -123,7 +123,7 @@ fn whole_pass(c: &mut Criterion) {
             prev: prev_of(&target),
             theta0: 0.0,
         };
-        let model = ColourHistogram::from_ellipse(&img, &target).expect("model");
+        let model = ColourHistogram::from_ellipse(&img, &target, COLOUR_RGB).expect("model");
         let params = LikelihoodParams::default();
         let mut group =
             c.benchmark_group(format!("likelihood_cpu/{}x{}", img.width(), img.height()));
@@ -166,7 +166,7 @@ fn per_term(c: &mut Criterion) {
         prev: prev_of(&target),
         theta0: 0.0,
     };
-    let model = ColourHistogram::from_ellipse(&img, &target).expect("model");
+    let model = ColourHistogram::from_ellipse(&img, &target, COLOUR_RGB).expect("model");
     let ps = particles(&target, 200, 1.0);
     let mut group = c.benchmark_group("likelihood_cpu_terms/160x120/1thr/200");
     group.sample_size(20);
@@ -214,7 +214,7 @@ fn gpu_pass(c: &mut Criterion) {
             prev: prev_of(&target),
             theta0: 0.0,
         };
-        let model = ColourHistogram::from_ellipse(&img, &target).expect("model");
+        let model = ColourHistogram::from_ellipse(&img, &target, COLOUR_RGB).expect("model");
         gpu.set_colour_model(&model).expect("model");
         let params = LikelihoodParams::default();
         let mut group =

@@ -1,5 +1,7 @@
 // Colour term (twin of src/likelihood/cpu/colour.rs): one workgroup per particle.
-// The 8x8x8 RGB histogram of the pixel centres inside the particle's ellipse is built in
+// The 8x8x8 RGB histogram (or with params.colour_bins == 1, for grayscale footage, the 64
+// luma levels (77 r + 150 g + 29 b + 128) >> 8 >> 2 in the same 512 bins) of the pixel
+// centres inside the particle's ellipse is built in
 // workgroup memory with atomics (exact integer counts), then reduced in the same workgroup to
 // the Bhattacharyya coefficient against the model, rho = sum_k sqrt(p_k q_k), and
 // ln p_colour = -(1 - rho) / (2 sigma_c^2). As on the CPU, rho is divided by
@@ -76,7 +78,10 @@ fn colour(
                     let r = px & 0xffu;
                     let g = (px >> 8u) & 0xffu;
                     let b = (px >> 16u) & 0xffu;
-                    let bin = (r >> 5u) * 64u + (g >> 5u) * 8u + (b >> 5u);
+                    var bin = (r >> 5u) * 64u + (g >> 5u) * 8u + (b >> 5u);
+                    if params.colour_bins == 1u {
+                        bin = ((77u * r + 150u * g + 29u * b + 128u) >> 8u) >> 2u;
+                    }
                     atomicAdd(&hist[bin], 1u);
                 }
             }

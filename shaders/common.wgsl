@@ -41,8 +41,8 @@ struct LikelihoodParams {
     depth_ratio: f32,
     num_lines: u32,
     terms: u32,
+    colour_bins: u32,
     pad0: u32,
-    pad1: u32,
 }
 
 // `likelihood::gpu::FrameUniform`: what a frame adds to the constant parameters.

@@ -9,8 +9,8 @@ use std::io::Write;
 use image::{Rgb, RgbImage};
 use pftrack::likelihood::gpu::{GpuDevice, GpuEngine, NO_EDGE};
 use pftrack::likelihood::{
-    ColourHistogram, FrameInput, HIST_BINS, LikelihoodEngine, LikelihoodError, LikelihoodParams,
-    Particle, TERM_COLOUR, TERM_GRADIENT,
+    COLOUR_LUMA, COLOUR_RGB, ColourHistogram, FrameInput, HIST_BINS, LikelihoodEngine,
+    LikelihoodError, LikelihoodParams, Particle, TERM_COLOUR, TERM_GRADIENT,
 };
 
 fn skip(reason: &str) {
@@ -459,6 +459,7 @@ fn compare(
             model_ellipse.a as f64,
             model_ellipse.b as f64,
         ),
+        params.colour_bins,
     )
     .unwrap();
     let mut cpu_engine = CpuEngine::new();
@@ -483,7 +484,7 @@ fn compare(
             continue;
         }
         let e = EllipseF32::from_particle(p, frame.theta0);
-        let (counts, _) = cpu::colour::histogram(image, &e);
+        let (counts, _) = cpu::colour::histogram(image, &e, params.colour_bins);
         let same_hist = counts[..] == got.histograms[i * HIST_BINS..(i + 1) * HIST_BINS];
         if !same_hist {
             a.hist_mismatch += 1;
@@ -561,11 +562,12 @@ fn sequence(name: &str, step: usize, count: usize) -> Option<Vec<(std::path::Pat
     )
 }
 
+/// Both colour binnings: the RGB bins, and the luma bins the tracker uses on grayscale
+/// footage (car4), here also on colour frames (girl), where luma is a weighted sum.
 #[test]
 fn gpu_agrees_with_cpu_on_real_frames() {
     let Some(mut gpu) = engine() else { return };
     let mut rng = StdRng::seed_from_u64(5);
-    let params = LikelihoodParams::default();
     let mut any = false;
     for name in ["girl", "car4"] {
         let Some(frames) = sequence(name, 40, 4) else {
@@ -586,8 +588,14 @@ fn gpu_agrees_with_cpu_on_real_frames() {
                 theta0: 0.02,
             };
             let ps = random_particles(&mut rng, e, 300);
-            let a = compare(&mut gpu, &image, &model_e, &frame, &params, &ps);
-            assert_agreement(&format!("{}", path.display()), &a);
+            for colour_bins in [COLOUR_RGB, COLOUR_LUMA] {
+                let params = LikelihoodParams {
+                    colour_bins,
+                    ..LikelihoodParams::default()
+                };
+                let a = compare(&mut gpu, &image, &model_e, &frame, &params, &ps);
+                assert_agreement(&format!("{} bins {colour_bins}", path.display()), &a);
+            }
             any = true;
         }
     }
@@ -675,6 +683,7 @@ fn seventy_thousand_particles_agree_with_cpu_on_a_subset() {
     let model = ColourHistogram::from_ellipse(
         &image,
         &pftrack::geometry::Ellipse::new(e.cx as f64, e.cy as f64, e.a as f64, e.b as f64),
+        COLOUR_RGB,
     )
     .unwrap();
     gpu.set_colour_model(&model).unwrap();
@@ -838,6 +847,7 @@ fn model_of(image: &RgbImage, e: &Particle) -> ColourHistogram {
     ColourHistogram::from_ellipse(
         image,
         &pftrack::geometry::Ellipse::new(e.cx as f64, e.cy as f64, e.a as f64, e.b as f64),
+        COLOUR_RGB,
     )
     .unwrap()
 }

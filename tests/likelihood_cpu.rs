@@ -8,7 +8,7 @@ use image::{Rgb, RgbImage};
 use pftrack::geometry::{Ellipse, Euler};
 use pftrack::likelihood::cpu::{self, CpuEngine, EllipseF32, colour, feature, gradient};
 use pftrack::likelihood::{
-    ColourHistogram, DEGENERATE, FeaturePair, FrameInput, HIST_BINS, LikelihoodEngine,
+    COLOUR_RGB, ColourHistogram, DEGENERATE, FeaturePair, FrameInput, HIST_BINS, LikelihoodEngine,
     LikelihoodError, LikelihoodParams, Particle, TERM_COLOUR, TERM_FEATURE, TERM_GRADIENT,
     TermLogs,
 };
@@ -78,7 +78,7 @@ fn brute_histogram(img: &RgbImage, e: &EllipseF32) -> ([u32; HIST_BINS], u32) {
 }
 
 fn model_of(img: &RgbImage, e: &Ellipse) -> colour::Model {
-    colour::Model::new(&ColourHistogram::from_ellipse(img, e).unwrap().0)
+    colour::Model::new(&ColourHistogram::from_ellipse(img, e, COLOUR_RGB).unwrap().0)
 }
 
 #[test]
@@ -87,10 +87,13 @@ fn colour_model_particle_has_rho_one_and_rho_falls_off_target() {
     let model = model_of(&img, &e);
     let (p, theta0) = particle_of(&e);
     let ef = EllipseF32::from_particle(&p, theta0);
-    let (c, t) = colour::histogram(&img, &ef);
+    let (c, t) = colour::histogram(&img, &ef, COLOUR_RGB);
     assert!(t > 500, "{t}");
     assert_eq!(colour::bhattacharyya(&c, t, &model), 1.0);
-    assert_eq!(colour::log_likelihood(&img, &ef, &model, 0.1), 0.0);
+    assert_eq!(
+        colour::log_likelihood(&img, &ef, &model, &LikelihoodParams::default()),
+        0.0
+    );
 
     // Moving off the target in each direction: rho falls, and further falls further.
     for (ux, uy) in [(1.0f32, 0.0f32), (-1.0, 0.0), (0.0, 1.0), (0.0, -1.0)] {
@@ -100,7 +103,7 @@ fn colour_model_particle_has_rho_one_and_rho_falls_off_target() {
                 cy: ef.cy + uy * d,
                 ..ef
             };
-            let (c, t) = colour::histogram(&img, &q);
+            let (c, t) = colour::histogram(&img, &q, COLOUR_RGB);
             colour::bhattacharyya(&c, t, &model)
         };
         let rhos: Vec<f32> = [0.0, 4.0, 10.0, 20.0].iter().map(|&d| rho_at(d)).collect();
@@ -114,7 +117,7 @@ fn colour_model_particle_has_rho_one_and_rho_falls_off_target() {
 #[test]
 fn colour_histograms_equal_brute_force_on_random_ellipses() {
     let Some((img, _)) = girl_first() else { return };
-    let bins = colour::BinImage::new(&img);
+    let bins = colour::BinImage::new(&img, COLOUR_RGB);
     let mut rng = StdRng::seed_from_u64(42);
     let (w, h) = (img.width() as f32, img.height() as f32);
     for i in 0..1000 {
@@ -130,7 +133,7 @@ fn colour_histograms_equal_brute_force_on_random_ellipses() {
             },
         };
         let want = brute_histogram(&img, &e);
-        assert_eq!(colour::histogram(&img, &e), want, "{e:?}");
+        assert_eq!(colour::histogram(&img, &e, COLOUR_RGB), want, "{e:?}");
         let mut counts = [0; HIST_BINS];
         let t = colour::histogram_bins(&bins, &e, &mut counts);
         assert_eq!((counts, t), want, "{e:?}");
@@ -153,7 +156,7 @@ fn colour_histograms_equal_brute_force_on_large_ellipses() {
             theta: rng.random_range(-4.0..4.0),
         };
         assert_eq!(
-            colour::histogram(&img, &e),
+            colour::histogram(&img, &e, COLOUR_RGB),
             brute_histogram(&img, &e),
             "{e:?}"
         );
@@ -163,10 +166,20 @@ fn colour_histograms_equal_brute_force_on_large_ellipses() {
 #[test]
 fn colour_model_errors_on_empty_or_degenerate_ellipses() {
     let img = RgbImage::new(20, 20);
-    assert!(ColourHistogram::from_ellipse(&img, &Ellipse::new(100.0, 100.0, 5.0, 5.0)).is_err());
-    assert!(ColourHistogram::from_ellipse(&img, &Ellipse::new(10.0, 10.0, 0.0, 5.0)).is_err());
-    assert!(ColourHistogram::from_ellipse(&img, &Ellipse::new(f64::NAN, 10.0, 3.0, 5.0)).is_err());
-    let m = ColourHistogram::from_ellipse(&img, &Ellipse::new(10.0, 10.0, 3.0, 5.0)).unwrap();
+    assert!(
+        ColourHistogram::from_ellipse(&img, &Ellipse::new(100.0, 100.0, 5.0, 5.0), COLOUR_RGB)
+            .is_err()
+    );
+    assert!(
+        ColourHistogram::from_ellipse(&img, &Ellipse::new(10.0, 10.0, 0.0, 5.0), COLOUR_RGB)
+            .is_err()
+    );
+    assert!(
+        ColourHistogram::from_ellipse(&img, &Ellipse::new(f64::NAN, 10.0, 3.0, 5.0), COLOUR_RGB)
+            .is_err()
+    );
+    let m = ColourHistogram::from_ellipse(&img, &Ellipse::new(10.0, 10.0, 3.0, 5.0), COLOUR_RGB)
+        .unwrap();
     assert_eq!(m.0.len(), HIST_BINS);
     assert_eq!(m.0[0], 1.0);
 }
@@ -470,7 +483,7 @@ fn engine_is_deterministic_and_thread_count_independent() {
         theta0,
     };
     let params = LikelihoodParams::default();
-    let model = ColourHistogram::from_ellipse(&img, &e).unwrap();
+    let model = ColourHistogram::from_ellipse(&img, &e, COLOUR_RGB).unwrap();
 
     let mut one = CpuEngine::with_threads(1).unwrap();
     let mut all = CpuEngine::new();
@@ -523,7 +536,7 @@ fn engine_is_deterministic_and_thread_count_independent() {
     let cm = colour::Model::new(&model.0);
     for (p, t) in particles.iter().zip(&r1).skip(6).take(100) {
         let ef = EllipseF32::from_particle(p, theta0);
-        let c = colour::log_likelihood(&img, &ef, &cm, params.sigma_colour);
+        let c = colour::log_likelihood(&img, &ef, &cm, &params);
         let g = gradient::log_likelihood(&grad, p, theta0, &params);
         let f = feature::log_likelihood(&feats, p, &prev, theta0, &params);
         assert_eq!(*t, cpu::combine::combine(c, g, f, &params));
@@ -562,7 +575,7 @@ fn engine_terms_flags_and_errors() {
     assert_eq!(out.len(), 2);
     assert_eq!(out[0].colour, 0.0);
     assert_eq!(out[0].total, out[0].gradient + out[0].feature);
-    eng.set_colour_model(&ColourHistogram::from_ellipse(&img, &e).unwrap())
+    eng.set_colour_model(&ColourHistogram::from_ellipse(&img, &e, COLOUR_RGB).unwrap())
         .unwrap();
     let only_colour = LikelihoodParams {
         terms: TERM_COLOUR,

@@ -316,3 +316,43 @@ fn the_tracker_keeps_its_particles_to_the_models_aspect_range() {
         "only {free} free particles left the range in 7 frames"
     );
 }
+
+/// A frame with every pixel replaced by its grey level (`R = G = B`), as grayscale footage
+/// is read.
+fn greyed(img: &image::RgbImage) -> image::RgbImage {
+    let mut g = img.clone();
+    for p in g.pixels_mut() {
+        let [r, gr, b] = p.0.map(u32::from);
+        let l = ((77 * r + 150 * gr + 29 * b + 128) >> 8) as u8;
+        p.0 = [l, l, l];
+    }
+    g
+}
+
+#[test]
+fn grayscale_footage_gets_luma_bins_and_is_followed() {
+    use pftrack::likelihood::{COLOUR_LUMA, COLOUR_RGB};
+    let cfg = SynthConfig::new(Scenario::Nod);
+    let r = Renderer::new(&cfg).unwrap();
+    let first = greyed(&r.render(0).0);
+    let init = Init::frontal(r.init_ellipse());
+    // Colour frames keep the RGB bins; grey ones get luma bins unless that is switched off.
+    let colour = Tracker::new(TrackerConfig::default(), &r.render(0).0, init).unwrap();
+    assert_eq!(colour.config().likelihood.colour_bins, COLOUR_RGB);
+    let off = TrackerConfig {
+        grey_luma: false,
+        ..TrackerConfig::default()
+    };
+    let kept = Tracker::new(off, &first, init).unwrap();
+    assert_eq!(kept.config().likelihood.colour_bins, COLOUR_RGB);
+    let mut t = Tracker::new(TrackerConfig::default(), &first, init).unwrap();
+    assert_eq!(t.config().likelihood.colour_bins, COLOUR_LUMA);
+    let mut worst: f64 = 0.0;
+    for k in 1..30 {
+        let (img, truth) = r.render(k);
+        let e = t.step(&greyed(&img)).unwrap();
+        assert!(!e.lost, "frame {k} declared lost");
+        worst = worst.max((e.state.cx - truth.cx).hypot(e.state.cy - truth.cy));
+    }
+    assert!(worst < 5.0, "centre off by {worst:.2} px");
+}

@@ -126,9 +126,19 @@ pub struct LikelihoodParams {
     pub num_lines: u32,
     /// Bit flags of the enabled terms: [`TERM_COLOUR`], [`TERM_GRADIENT`], [`TERM_FEATURE`].
     pub terms: u32,
+    /// What the colour histogram's bins count: [`COLOUR_RGB`] (8x8x8 RGB, the paper's) or
+    /// [`COLOUR_LUMA`] (64 levels of luma, for grayscale footage, where RGB bins leave only
+    /// the 8 on their diagonal).
+    pub colour_bins: u32,
     /// Padding to a multiple of 16 bytes.
-    pub _pad: [u32; 2],
+    pub _pad: u32,
 }
+
+/// [`LikelihoodParams::colour_bins`]: bin `(r >> 5) * 64 + (g >> 5) * 8 + (b >> 5)` of 512.
+pub const COLOUR_RGB: u32 = 0;
+/// [`LikelihoodParams::colour_bins`]: bin `luma >> 2` (64 of the 512 bins used), luma the
+/// integer `(77 r + 150 g + 29 b + 128) >> 8`, which is exactly the grey level of a grey pixel.
+pub const COLOUR_LUMA: u32 = 1;
 
 /// Flag of the colour term in [`LikelihoodParams::terms`].
 pub const TERM_COLOUR: u32 = 1;
@@ -202,7 +212,8 @@ impl Default for LikelihoodParams {
             depth_ratio: 1.0,
             num_lines: 24,
             terms: TERM_COLOUR | TERM_GRADIENT | TERM_FEATURE,
-            _pad: [0; 2],
+            colour_bins: COLOUR_RGB,
+            _pad: 0,
         }
     }
 }

@@ -42,8 +42,8 @@ use crate::frames::GrayF32;
 use crate::geometry::{BoxRect, Ellipse, Euler, PoseState, deg};
 use crate::likelihood::cpu::colour::rho_from_log;
 use crate::likelihood::{
-    ColourHistogram, FeaturePair, FrameInput, LikelihoodEngine, LikelihoodParams, Particle,
-    TERM_COLOUR, TERM_FEATURE, TERM_GRADIENT, TermLogs,
+    COLOUR_LUMA, ColourHistogram, FeaturePair, FrameInput, LikelihoodEngine, LikelihoodParams,
+    Particle, TERM_COLOUR, TERM_FEATURE, TERM_GRADIENT, TermLogs,
 };
 use crate::motion::block_match;
 use crate::pose::{SolverKind, interframe};
@@ -264,6 +264,10 @@ impl Tracker {
         init: Init,
     ) -> crate::Result<Self> {
         check_config(&cfg).map_err(track_err)?;
+        let mut cfg = cfg;
+        if cfg.grey_luma && is_grey(first_frame) {
+            cfg.likelihood.colour_bins = COLOUR_LUMA;
+        }
         let sift = Sift::new(cfg.sift.clone());
         let filter = ParticleFilter::new(
             cfg.filter,
@@ -312,7 +316,8 @@ impl Tracker {
         check_init(&init, w, h).map_err(track_err)?;
         self.size = (w, h);
         self.theta0 = init.ellipse.theta;
-        let model = ColourHistogram::from_ellipse(frame, &init.ellipse)?;
+        let model =
+            ColourHistogram::from_ellipse(frame, &init.ellipse, self.cfg.likelihood.colour_bins)?;
         self.engine.set_colour_model(&model)?;
         self.colour_model = model;
         let state = PoseState::from_parts(&init.ellipse, init.pose);
@@ -610,7 +615,8 @@ impl Tracker {
             return Ok(());
         }
         let e = est.to_state().ellipse(self.theta0);
-        let Ok(seen) = ColourHistogram::from_ellipse(frame, &e) else {
+        let Ok(seen) = ColourHistogram::from_ellipse(frame, &e, self.cfg.likelihood.colour_bins)
+        else {
             return Ok(());
         };
         self.colour_model.blend_towards(&seen, u.rate as f32);
@@ -841,6 +847,14 @@ fn placed_within(placed: &Ellipse, searched: &Ellipse, region: &BoxRect) -> bool
     let sb = searched.bounding_box();
     let m = search_margin(searched);
     inside && bb.w <= sb.w + 2.0 * m && bb.h <= sb.h + 2.0 * m
+}
+
+/// Whether every pixel of `frame` is grey (`R = G = B`): grayscale footage read as RGB.
+fn is_grey(frame: &image::RgbImage) -> bool {
+    frame
+        .as_raw()
+        .chunks_exact(3)
+        .all(|p| p[0] == p[1] && p[1] == p[2])
 }
 
 fn track_err(e: TrackError) -> crate::Error {

@@ -1,5 +1,7 @@
 //! Colour term (CPU twin of `shaders/colour.wgsl`): an 8×8×8 RGB histogram of the pixels inside
-//! a particle's ellipse, compared with the model histogram by the Bhattacharyya coefficient.
+//! a particle's ellipse (or, for grayscale footage, a 64-level luma histogram in the same 512
+//! bins: [`bin_in`], [`crate::likelihood::LikelihoodParams::colour_bins`]), compared with the
+//! model histogram by the Bhattacharyya coefficient.
 //!
 //! # Pixel set (exact, shared with the GPU)
 //! A pixel `(x, y)` of the frame (integer centre) belongs to an ellipse iff, in `f32`,
@@ -17,12 +19,25 @@
 use image::RgbImage;
 
 use super::EllipseF32;
-use crate::likelihood::{HIST_BINS, LikelihoodError};
+use crate::likelihood::{COLOUR_LUMA, HIST_BINS, LikelihoodError};
 
 /// The histogram bin of an RGB pixel: `(r >> 5) * 64 + (g >> 5) * 8 + (b >> 5)`.
 #[inline]
 pub fn bin_of(r: u8, g: u8, b: u8) -> u16 {
     ((r as u16 >> 5) << 6) | ((g as u16 >> 5) << 3) | (b as u16 >> 5)
+}
+
+/// The histogram bin of an RGB pixel under `colour_bins` ([`crate::likelihood::COLOUR_RGB`]
+/// or [`crate::likelihood::COLOUR_LUMA`]; the latter: `luma >> 2`, luma the integer
+/// `(77 r + 150 g + 29 b + 128) >> 8`).
+#[inline]
+pub fn bin_in(colour_bins: u32, r: u8, g: u8, b: u8) -> u16 {
+    if colour_bins == COLOUR_LUMA {
+        let luma = (77 * r as u32 + 150 * g as u32 + 29 * b as u32 + 128) >> 8;
+        (luma >> 2) as u16
+    } else {
+        bin_of(r, g, b)
+    }
 }
 
 /// The exact `f32` inside test of the pixel centre `(x, y)` against an ellipse with
@@ -186,15 +201,15 @@ pub struct BinImage {
 }
 
 impl BinImage {
-    /// The bins of every pixel of `image`.
-    pub fn new(image: &RgbImage) -> Self {
+    /// The bins of every pixel of `image` under `colour_bins` ([`bin_in`]).
+    pub fn new(image: &RgbImage, colour_bins: u32) -> Self {
         let mut b = Self::default();
-        b.fill(image);
+        b.fill(image, colour_bins);
         b
     }
 
     /// Recomputes the bins for `image`, reusing the allocation.
-    pub fn fill(&mut self, image: &RgbImage) {
+    pub fn fill(&mut self, image: &RgbImage, colour_bins: u32) {
         self.width = image.width();
         self.height = image.height();
         self.bins.clear();
@@ -202,13 +217,14 @@ impl BinImage {
             image
                 .as_raw()
                 .chunks_exact(3)
-                .map(|p| bin_of(p[0], p[1], p[2])),
+                .map(|p| bin_in(colour_bins, p[0], p[1], p[2])),
         );
     }
 }
 
-/// Integer histogram of the pixels of `image` inside the ellipse: `(counts, total)`.
-pub fn histogram(image: &RgbImage, e: &EllipseF32) -> ([u32; HIST_BINS], u32) {
+/// Integer histogram of the pixels of `image` inside the ellipse, binned under `colour_bins`
+/// ([`bin_in`]): `(counts, total)`.
+pub fn histogram(image: &RgbImage, e: &EllipseF32, colour_bins: u32) -> ([u32; HIST_BINS], u32) {
     let mut counts = [0u32; HIST_BINS];
     let mut total = 0u32;
     let w = image.width() as usize;
@@ -216,7 +232,7 @@ pub fn histogram(image: &RgbImage, e: &EllipseF32) -> ([u32; HIST_BINS], u32) {
     for_each_span(e, image.width(), image.height(), |y, x0, x1| {
         let row = &raw[3 * (y * w + x0)..3 * (y * w + x1 + 1)];
         for p in row.chunks_exact(3) {
-            counts[bin_of(p[0], p[1], p[2]) as usize] += 1;
+            counts[bin_in(colour_bins, p[0], p[1], p[2]) as usize] += 1;
         }
         total += (x1 - x0 + 1) as u32;
     });
@@ -328,10 +344,16 @@ pub fn rho_from_log(log: f32, sigma_colour: f32) -> f64 {
     1.0 + 2.0 * (sigma_colour as f64).powi(2) * log as f64
 }
 
-/// `ln p_colour` of an ellipse on a frame against the model.
-pub fn log_likelihood(image: &RgbImage, e: &EllipseF32, model: &Model, sigma_colour: f32) -> f32 {
-    let (counts, total) = histogram(image, e);
-    log_from_rho(bhattacharyya(&counts, total, model), sigma_colour)
+/// `ln p_colour` of an ellipse on a frame against the model, with the bins and σc of
+/// `params`.
+pub fn log_likelihood(
+    image: &RgbImage,
+    e: &EllipseF32,
+    model: &Model,
+    params: &crate::likelihood::LikelihoodParams,
+) -> f32 {
+    let (counts, total) = histogram(image, e, params.colour_bins);
+    log_from_rho(bhattacharyya(&counts, total, model), params.sigma_colour)
 }
 
 #[cfg(test)]
@@ -339,7 +361,15 @@ mod tests {
     use super::*;
     use rand::{Rng, SeedableRng, rngs::StdRng};
 
+    use crate::likelihood::COLOUR_RGB;
+
     fn brute(image: &RgbImage, e: &EllipseF32) -> ([u32; HIST_BINS], u32) {
+        brute_in(image, e, COLOUR_RGB)
+    }
+
+    /// The histogram by the per-pixel test over the whole frame, each pixel binned by the
+    /// spec's formulas (written out here, not [`bin_in`]).
+    fn brute_in(image: &RgbImage, e: &EllipseF32, mode: u32) -> ([u32; HIST_BINS], u32) {
         let mut counts = [0u32; HIST_BINS];
         let mut total = 0;
         if !e.is_valid() {
@@ -350,7 +380,13 @@ mod tests {
             for x in 0..image.width() {
                 if inside(e, s, c, x as i64, y as i64) {
                     let p = image.get_pixel(x, y).0;
-                    counts[bin_of(p[0], p[1], p[2]) as usize] += 1;
+                    let [r, g, b] = p.map(u32::from);
+                    let bin = if mode == COLOUR_LUMA {
+                        ((77 * r + 150 * g + 29 * b + 128) >> 8) >> 2
+                    } else {
+                        (r >> 5) * 64 + (g >> 5) * 8 + (b >> 5)
+                    };
+                    counts[bin as usize] += 1;
                     total += 1;
                 }
             }
@@ -392,6 +428,16 @@ mod tests {
     }
 
     #[test]
+    fn luma_bins_are_the_grey_level_over_four() {
+        for v in 0..=255u8 {
+            assert_eq!(bin_in(COLOUR_LUMA, v, v, v), u16::from(v >> 2), "{v}");
+            assert_eq!(bin_in(COLOUR_RGB, v, v, v), bin_of(v, v, v));
+        }
+        assert_eq!(bin_in(COLOUR_LUMA, 255, 0, 0), 19); // (77·255 + 128) >> 8 = 77
+        assert_eq!(bin_in(COLOUR_LUMA, 0, 0, 255), 7); // 29
+    }
+
+    #[test]
     fn span_matches_brute_force() {
         let img = noise_image(37, 29, 1);
         let mut rng = StdRng::seed_from_u64(7);
@@ -403,11 +449,14 @@ mod tests {
                 b: rng.random_range(0.05..30.0),
                 theta: rng.random_range(-4.0..4.0),
             };
-            assert_eq!(histogram(&img, &e), brute(&img, &e), "{e:?}");
-            let bins = BinImage::new(&img);
-            let mut counts = [0; HIST_BINS];
-            let t = histogram_bins(&bins, &e, &mut counts);
-            assert_eq!((counts, t), brute(&img, &e));
+            for mode in [COLOUR_RGB, COLOUR_LUMA] {
+                let want = brute_in(&img, &e, mode);
+                assert_eq!(histogram(&img, &e, mode), want, "{e:?} {mode}");
+                let bins = BinImage::new(&img, mode);
+                let mut counts = [0; HIST_BINS];
+                let t = histogram_bins(&bins, &e, &mut counts);
+                assert_eq!((counts, t), want);
+            }
         }
     }
 
@@ -430,7 +479,7 @@ mod tests {
                             b: b as f32,
                             theta,
                         };
-                        assert_eq!(histogram(&img, &e), brute(&img, &e), "{e:?}");
+                        assert_eq!(histogram(&img, &e, COLOUR_RGB), brute(&img, &e), "{e:?}");
                     }
                 }
             }
@@ -447,19 +496,19 @@ mod tests {
             b: 3.0,
             theta: 0.0,
         };
-        assert_eq!(histogram(&img, &e).1, 0);
+        assert_eq!(histogram(&img, &e, COLOUR_RGB).1, 0);
         e.a = f32::NAN;
-        assert_eq!(histogram(&img, &e).1, 0);
+        assert_eq!(histogram(&img, &e, COLOUR_RGB).1, 0);
         e.a = 3.0;
         e.cx = 100.0;
-        assert_eq!(histogram(&img, &e).1, 0);
+        assert_eq!(histogram(&img, &e, COLOUR_RGB).1, 0);
         e.cx = 1e30;
-        assert_eq!(histogram(&img, &e).1, 0);
+        assert_eq!(histogram(&img, &e, COLOUR_RGB).1, 0);
         e.cx = 5.0;
         e.a = 1e30;
         e.b = 1e30;
         // A huge ellipse covers the frame.
-        assert_eq!(histogram(&img, &e).1, 100);
+        assert_eq!(histogram(&img, &e, COLOUR_RGB).1, 100);
     }
 
     #[test]
@@ -474,7 +523,7 @@ mod tests {
                 b: rng.random_range(1.0..20.0),
                 theta: rng.random_range(-3.0..3.0),
             };
-            let (c, t) = histogram(&img, &e);
+            let (c, t) = histogram(&img, &e, COLOUR_RGB);
             if t == 0 {
                 continue;
             }

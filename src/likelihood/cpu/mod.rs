@@ -20,8 +20,8 @@ pub mod gradient;
 use rayon::prelude::*;
 
 use super::{
-    ColourHistogram, FrameInput, HIST_BINS, LikelihoodEngine, LikelihoodError, LikelihoodParams,
-    Particle, TERM_COLOUR, TERM_FEATURE, TERM_GRADIENT, TermLogs,
+    COLOUR_LUMA, ColourHistogram, FrameInput, HIST_BINS, LikelihoodEngine, LikelihoodError,
+    LikelihoodParams, Particle, TERM_COLOUR, TERM_FEATURE, TERM_GRADIENT, TermLogs,
 };
 use crate::geometry::Ellipse;
 
@@ -84,20 +84,29 @@ pub fn is_degenerate(p: &Particle) -> bool {
 
 impl ColourHistogram {
     /// The normalised colour model of the pixels of `image` inside `ellipse` (the same pixel
-    /// set as a particle's histogram, [`colour`]): `q_k = count_k / total` in `f32`.
+    /// set as a particle's histogram, [`colour`]), binned under `colour_bins`
+    /// ([`LikelihoodParams::colour_bins`], which the engines must then be given):
+    /// `q_k = count_k / total` in `f32`.
     ///
-    /// Errors when the ellipse is degenerate or holds no pixel of the frame.
+    /// Errors when the ellipse is degenerate or holds no pixel of the frame, or `colour_bins`
+    /// is unknown.
     pub fn from_ellipse(
         image: &image::RgbImage,
         ellipse: &Ellipse,
+        colour_bins: u32,
     ) -> Result<Self, LikelihoodError> {
+        if colour_bins > COLOUR_LUMA {
+            return Err(LikelihoodError::Invalid(format!(
+                "unknown colour_bins {colour_bins}"
+            )));
+        }
         let e = EllipseF32::from_ellipse(ellipse);
         if !e.is_valid() {
             return Err(LikelihoodError::Invalid(format!(
                 "colour model ellipse is degenerate: {ellipse:?}"
             )));
         }
-        let (counts, total) = colour::histogram(image, &e);
+        let (counts, total) = colour::histogram(image, &e, colour_bins);
         if total == 0 {
             return Err(LikelihoodError::Invalid(format!(
                 "colour model ellipse holds no pixel of the {}x{} frame: {ellipse:?}",
@@ -204,7 +213,7 @@ impl CpuEngine {
             _ => None,
         };
         if use_colour {
-            self.bins.fill(frame.image);
+            self.bins.fill(frame.image, params.colour_bins);
         }
         if use_gradient {
             self.grad.fill(frame.image, &mut self.luma, parallel);
@@ -268,6 +277,9 @@ pub fn validate(frame: &FrameInput<'_>, params: &LikelihoodParams) -> Result<(),
     }
     if params.terms & TERM_COLOUR != 0 && !pos(params.sigma_colour) {
         return bad("sigma_colour must be positive and finite");
+    }
+    if params.colour_bins > COLOUR_LUMA {
+        return bad("colour_bins must be COLOUR_RGB (0) or COLOUR_LUMA (1)");
     }
     if params.terms & TERM_GRADIENT != 0 {
         if !(pos(params.sigma_z) && pos(params.p_no_contour) && pos(params.clutter_density)) {

@@ -239,8 +239,8 @@ mod tests {
                 ("depth_ratio", offset_of!(LikelihoodParams, depth_ratio)),
                 ("num_lines", offset_of!(LikelihoodParams, num_lines)),
                 ("terms", offset_of!(LikelihoodParams, terms)),
-                ("_pad[0]", offset_of!(LikelihoodParams, _pad)),
-                ("_pad[1]", offset_of!(LikelihoodParams, _pad) + 4),
+                ("colour_bins", offset_of!(LikelihoodParams, colour_bins)),
+                ("_pad", offset_of!(LikelihoodParams, _pad)),
             ],
         );
         check(

@@ -77,6 +77,7 @@ pub fn workload(width: u32, height: u32, seed: u64) -> Result<Workload, Likeliho
             target.a as f64,
             target.b as f64,
         ),
+        LikelihoodParams::default().colour_bins,
     )?;
     Ok(Workload {
         image,
