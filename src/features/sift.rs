@@ -479,7 +479,7 @@ impl Sift {
                     max_min_rows(d, w, h, 0, a, b, &mut vrow);
                 }
                 for layer in 1..=n {
-                    self.extrema_in_rows(oct, &mx, &mn, layer, 0, h, &mut found, o);
+                    self.find_extrema(oct, &mx, &mn, layer, 0, h, &mut found, o);
                 }
             } else {
                 use rayon::prelude::*;
@@ -507,7 +507,7 @@ impl Sift {
                             || {
                                 let mut v = Vec::new();
                                 let r1 = (r0 + rows).min(h);
-                                self.extrema_in_rows(oct, mx, mn, layer, r0, r1, &mut v, o);
+                                self.find_extrema(oct, mx, mn, layer, r0, r1, &mut v, o);
                                 v
                             },
                         )
@@ -635,33 +635,11 @@ impl Sift {
         octaves
     }
 
-    /// The refined extrema of DoG layer `layer` of octave `o` whose candidates lie in rows
-    /// `r0..r1`, appended to `out` in row order with the octave number.
-    #[allow(clippy::too_many_arguments)]
-    #[inline(always)]
-    fn extrema_in_rows(
-        &self,
-        oct: &Octave,
-        mx: &[Vec<f32>],
-        mn: &[Vec<f32>],
-        layer: usize,
-        r0: usize,
-        r1: usize,
-        out: &mut Vec<(usize, Extremum)>,
-        o: usize,
-    ) {
-        let mut candidates = Vec::new();
-        self.find_extrema(oct, mx, mn, layer, r0, r1, &mut candidates);
-        for &(r, c) in &candidates {
-            if let Some(e) = self.refine(oct, r, c, layer) {
-                out.push((o, e));
-            }
-        }
-    }
-
-    /// Local extrema of DoG layer `layer` in rows `r0..r1` over their 26 neighbours (`≥` all
-    /// for a maximum, `≤` all for a minimum), above the prefilter threshold (half the final
-    /// contrast threshold). `mx` and `mn` are the 3x3 maxima and minima of each DoG layer.
+    /// The refined extrema ([`Self::refine`]) of DoG layer `layer` of octave `o` in rows
+    /// `r0..r1`, appended to `out` with the octave number in row order: local extrema over
+    /// their 26 neighbours (`≥` all for a maximum, `≤` all for a minimum) above the prefilter
+    /// threshold (half the final contrast threshold). `mx` and `mn` are the 3x3 maxima and
+    /// minima of each DoG layer.
     #[allow(clippy::too_many_arguments)]
     #[inline(always)]
     fn find_extrema(
@@ -672,7 +650,8 @@ impl Sift {
         layer: usize,
         r0: usize,
         r1: usize,
-        out: &mut Vec<(usize, usize)>,
+        out: &mut Vec<(usize, Extremum)>,
+        o: usize,
     ) {
         let (w, h) = (oct.w, oct.h);
         if w <= 2 * IMG_BORDER || h <= 2 * IMG_BORDER {
@@ -706,7 +685,9 @@ impl Sift {
                     continue;
                 }
                 for (k, _) in ch.iter().enumerate().filter(|(_, f)| **f != 0) {
-                    out.push((r, IMG_BORDER + 16 * j + k));
+                    if let Some(e) = self.refine(oct, r, IMG_BORDER + 16 * j + k, layer) {
+                        out.push((o, e));
+                    }
                 }
             }
         }
