@@ -14,6 +14,7 @@
 
 use std::path::{Path, PathBuf};
 
+use pftrack::geometry::Ellipse;
 use pftrack::io::pose_csv::read_pose_csv;
 use pftrack::io::read_otb_boxes;
 use pftrack::likelihood::LikelihoodParams;
@@ -34,14 +35,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         for r in truth.iter().step_by(step) {
             let path = dir.join("frames").join(format!("{:05}.png", r.frame));
             let img = image::open(&path)?.to_rgb8();
-            let st = &r.state;
-            let e = EllipseF32 {
-                cx: st.cx as f32,
-                cy: st.cy as f32,
-                a: st.a as f32,
-                b: st.b as f32,
-                theta: st.rz as f32,
-            };
+            let e = EllipseF32::from_ellipse(&r.state.ellipse(0.0));
             frames.push((GradientImage::new(&img), e));
         }
     } else {
@@ -52,13 +46,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 break;
             }
             let img = image::open(&path)?.to_rgb8();
-            let e = EllipseF32 {
-                cx: (b.x + b.w / 2.0) as f32,
-                cy: (b.y + b.h / 2.0) as f32,
-                a: (b.w / 2.0) as f32,
-                b: (b.h / 2.0) as f32,
-                theta: 0.0,
-            };
+            let e = EllipseF32::from_ellipse(&Ellipse::from_box(b));
             frames.push((GradientImage::new(&img), e));
         }
     }
