@@ -167,6 +167,15 @@ pub fn strength(grad: &GradientImage, x: f32, y: f32, nx: f32, ny: f32) -> f32 {
     (gx as f32 * nx + gy as f32 * ny).abs() / STRENGTH_SCALE
 }
 
+/// Edge strength at sample `t` of the line through `(x, y)` along `(nx, ny)`: at
+/// `(x + t nx, y + t ny)`, the position both walks along a line ([`line_edge_distance`],
+/// [`line_edges`]) sample.
+#[inline]
+fn line_strength(grad: &GradientImage, x: f32, y: f32, nx: f32, ny: f32, t: i32) -> f32 {
+    let tf = t as f32;
+    strength(grad, x + tf * nx, y + tf * ny, nx, ny)
+}
+
 /// Longest line ([`line_edge_distance`]) whose strengths are gathered on the stack first.
 const STACK_SAMPLES: usize = 61;
 
@@ -181,10 +190,7 @@ pub fn line_edge_distance(
     h: i32,
     threshold: f32,
 ) -> Option<u32> {
-    let at = |t: i32| {
-        let tf = t as f32;
-        strength(grad, x + tf * nx, y + tf * ny, nx, ny)
-    };
+    let at = |t: i32| line_strength(grad, x, y, nx, ny, t);
     let n = (2 * h + 1) as usize;
     if n <= STACK_SAMPLES {
         // Search outwards from the contour, d = 0, 1, 2, ..., and stop at the first edge:
@@ -249,10 +255,7 @@ pub fn line_edges(
     h: i32,
     threshold: f32,
 ) -> impl Iterator<Item = i32> + '_ {
-    let at = move |t: i32| {
-        let tf = t as f32;
-        strength(grad, x + tf * nx, y + tf * ny, nx, ny)
-    };
+    let at = move |t: i32| line_strength(grad, x, y, nx, ny, t);
     let mut t = -h;
     let mut prev = 0.0f32;
     let mut cur = at(-h);
