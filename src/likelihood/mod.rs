@@ -165,7 +165,8 @@ impl Default for LikelihoodParams {
     ///   and 89-90 % at 0.1 and 0.12 (car4: 79-82 % at every threshold from 0.03 to 0.15; the
     ///   car's outline is a box, which no ellipse fits well). With `--edge-threshold 0.1` the
     ///   success AUC over seeds 0-11 goes from 0.38 to 0.53 on girl and from 0.18 to 0.25 on
-    ///   car4. It is not the default because it costs where outlines are clean but faint in
+    ///   car4 (car4 measured with the RGB colour bins, before the tracker's luma bins for
+    ///   grayscale footage, `TrackerConfig::grey_luma`, raised its default to 0.22). It is not the default because it costs where outlines are clean but faint in
     ///   places, and under dimmer light, whose edges an absolute threshold loses: the
     ///   synthetic scenarios' angle RMSE summed over scenarios and axes rose from 73.4 to 89.3
     ///   degrees (seeds 0-5; `combo` the most, and at 0.12 it broke); a synthetic head on a

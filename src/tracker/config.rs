@@ -127,7 +127,7 @@ pub struct TrackerConfig {
     /// the model holds a face (OTB girl, success AUC over seeds 0-7: 0.32 fixed, 0.40 with
     /// [`ColourUpdate::default`]). It is not the default because it also learns whatever a
     /// drifting estimate covers: on grayscale car4 the AUC fell from 0.21 to 0.18 (seeds
-    /// 0-5), and the synthetic `combo` scenario's summed angle RMSE rose from about 29 to 73
+    /// 0-5, with the RGB bins, before [`Self::grey_luma`]), and the synthetic `combo` scenario's summed angle RMSE rose from about 29 to 73
     /// degrees over seeds 6-11.
     pub colour_update: Option<ColourUpdate>,
     /// On grayscale footage (every pixel of the first frame given to [`super::Tracker::new`]
