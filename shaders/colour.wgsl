@@ -8,6 +8,9 @@
 // sqrt(sum_k p_k * sum_k q_k) (1 in exact arithmetic; it cancels the rounding of the two
 // normalisations, so a histogram against itself gives exactly 1) and clamped to at most 1;
 // total == 0 or an empty model gives rho = 0. q_sum (bin order, f32) comes from the host.
+// The same histogram gives the contrast term: params.contrast_scale * sum_k count_k L_k, with
+// the contrast table L in model[512..1024] (the sum's order differs from the CPU's bin order,
+// so the two agree to f32 rounding, not bit for bit).
 
 @group(0) @binding(2) var<storage, read> pixels: array<u32>;
 @group(0) @binding(4) var<storage, read> particles: array<Particle>;
@@ -23,6 +26,7 @@ var<workgroup> hist: array<atomic<u32>, 512>;
 var<workgroup> red_u: array<u32, 64>;
 var<workgroup> red_f: array<f32, 64>;
 var<workgroup> red_p: array<f32, 64>;
+var<workgroup> red_l: array<f32, 64>;
 
 @compute @workgroup_size(64)
 fn colour(
@@ -108,6 +112,13 @@ fn colour(
     // rho = sum_k sqrt(p_k q_k), p_k = count_k / total.
     var acc = 0.0;
     var psum = 0.0;
+    var lsum = 0.0;
+    for (var k = 0u; k < BINS_PER_THREAD; k++) {
+        let cnt_k = atomicLoad(&hist[k0 + k]);
+        if cnt_k != 0u {
+            lsum += f32(cnt_k) * model[BINS + k0 + k];
+        }
+    }
     if total > 0u {
         let tf = f32(total);
         for (var k = 0u; k < BINS_PER_THREAD; k++) {
@@ -121,11 +132,13 @@ fn colour(
     }
     red_f[lid] = acc;
     red_p[lid] = psum;
+    red_l[lid] = lsum;
     workgroupBarrier();
     for (var stride = WG / 2u; stride > 0u; stride /= 2u) {
         if lid < stride {
             red_f[lid] += red_f[lid + stride];
             red_p[lid] += red_p[lid + stride];
+            red_l[lid] += red_l[lid + stride];
         }
         workgroupBarrier();
     }
@@ -143,6 +156,7 @@ fn colour(
             }
             let sc = params.sigma_colour;
             terms[i].colour = -(1.0 - rho) / (2.0 * sc * sc);
+            terms[i].contrast = params.contrast_scale * red_l[0];
         }
     }
 }

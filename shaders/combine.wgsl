@@ -1,7 +1,7 @@
 // Combination (twin of src/likelihood/cpu/combine.rs): one invocation per particle.
 // ln p_gradient = sum over lines (in line order) of ln(1 + K exp(-d^2 / (2 sigma_z^2))),
 // K = 1 / (sqrt(2 pi) sigma_z p0 gamma), 0 for a line without an edge; total = the sum of the
-// enabled terms (colour + gradient + feature), a disabled term is 0; a degenerate particle
+// enabled terms (colour + gradient + feature + contrast), a disabled term is 0; a degenerate particle
 // gets 0 for each term and total = DEGENERATE, and so does a particle whose total is not
 // finite.
 
@@ -20,10 +20,10 @@ fn combine(
         return;
     }
     if is_degenerate(particles[i]) {
-        terms[i] = TermLogs(0.0, 0.0, 0.0, DEGENERATE);
+        terms[i] = TermLogs(0.0, 0.0, 0.0, 0.0, DEGENERATE);
         return;
     }
-    var out = TermLogs(0.0, 0.0, 0.0, 0.0);
+    var out = TermLogs(0.0, 0.0, 0.0, 0.0, 0.0);
     if (params.terms & TERM_COLOUR) != 0u {
         out.colour = terms[i].colour;
     }
@@ -46,10 +46,13 @@ fn combine(
     if (params.terms & TERM_FEATURE) != 0u && fu.num_features > 0u {
         out.feature = terms[i].feature;
     }
-    out.total = out.colour + out.gradient + out.feature;
+    if (params.terms & TERM_CONTRAST) != 0u {
+        out.contrast = terms[i].contrast;
+    }
+    out.total = out.colour + out.gradient + out.feature + out.contrast;
     // Non-finite results never escape (as on the CPU).
     if non_finite(out.total) {
-        out = TermLogs(0.0, 0.0, 0.0, DEGENERATE);
+        out = TermLogs(0.0, 0.0, 0.0, 0.0, DEGENERATE);
     }
     terms[i] = out;
 }

@@ -19,6 +19,7 @@ struct TermLogs {
     colour: f32,
     gradient: f32,
     feature: f32,
+    contrast: f32,
     total: f32,
 }
 
@@ -28,8 +29,7 @@ struct FeaturePair {
     q: vec2<f32>,
 }
 
-// `likelihood::LikelihoodParams` (the `_pad: [u32; 2]` as two scalars: uniform arrays need a
-// 16-byte stride).
+// `likelihood::LikelihoodParams`.
 struct LikelihoodParams {
     sigma_colour: f32,
     sigma_z: f32,
@@ -42,7 +42,7 @@ struct LikelihoodParams {
     num_lines: u32,
     terms: u32,
     colour_bins: u32,
-    pad0: u32,
+    contrast_scale: f32,
 }
 
 // `likelihood::gpu::FrameUniform`: what a frame adds to the constant parameters.
@@ -61,6 +61,7 @@ struct FrameUniform {
 const TERM_COLOUR: u32 = 1u;
 const TERM_GRADIENT: u32 = 2u;
 const TERM_FEATURE: u32 = 4u;
+const TERM_CONTRAST: u32 = 8u;
 // FrameUniform::flags: write each particle's histogram counts to `hist_debug`.
 const FLAG_DEBUG_HIST: u32 = 1u;
 // `likelihood::DEGENERATE`.

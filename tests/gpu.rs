@@ -9,8 +9,9 @@ use std::io::Write;
 use image::{Rgb, RgbImage};
 use pftrack::likelihood::gpu::{GpuDevice, GpuEngine, NO_EDGE};
 use pftrack::likelihood::{
-    COLOUR_LUMA, COLOUR_RGB, ColourHistogram, FrameInput, HIST_BINS, LikelihoodEngine,
-    LikelihoodError, LikelihoodParams, Particle, TERM_COLOUR, TERM_GRADIENT,
+    COLOUR_LUMA, COLOUR_RGB, ColourHistogram, ContrastTable, FrameInput, HIST_BINS,
+    LikelihoodEngine, LikelihoodError, LikelihoodParams, Particle, TERM_ALL, TERM_COLOUR,
+    TERM_CONTRAST, TERM_GRADIENT,
 };
 
 fn skip(reason: &str) {
@@ -375,6 +376,12 @@ const MAX_LINE_TIE_FRACTION: f64 = 1e-3;
 const TOL_COLOUR: f32 = 1e-4;
 const TOL_GRADIENT: f32 = 1e-4;
 const TOL_FEATURE: f32 = 1e-5;
+/// The contrast term's sum runs in bin order on the CPU and by a tree on the GPU: relative
+/// to the sum of its magnitudes, `f32` rounding.
+const TOL_CONTRAST_REL: f32 = 1e-5;
+/// The contrast term in the tests is at most about `60 · 3 = 180` (a share of the area times
+/// the limit), so its rounding is well within this.
+const TOL_CONTRAST_ABS: f32 = 2e-3;
 
 fn data_dir() -> Option<std::path::PathBuf> {
     [
@@ -439,6 +446,8 @@ struct Agreement {
     max_colour: f32,
     max_gradient: f32,
     max_feature: f32,
+    /// Largest contrast difference relative to `contrast_scale · Σ count_k |L_k|`.
+    max_contrast_rel: f32,
     max_total: f32,
 }
 
@@ -462,9 +471,24 @@ fn compare(
         params.colour_bins,
     )
     .unwrap();
+    // The contrast table of the model against the whole frame.
+    let whole = ColourHistogram::from_ellipse(
+        image,
+        &pftrack::geometry::Ellipse::new(
+            image.width() as f64 / 2.0,
+            image.height() as f64 / 2.0,
+            image.width() as f64,
+            image.height() as f64,
+        ),
+        params.colour_bins,
+    )
+    .unwrap();
+    let table = ContrastTable::from_histograms(&model, &whole, 3.0).unwrap();
     let mut cpu_engine = CpuEngine::new();
     cpu_engine.set_colour_model(&model).unwrap();
+    cpu_engine.set_contrast_table(&table).unwrap();
     gpu.set_colour_model(&model).unwrap();
+    gpu.set_contrast_table(&table).unwrap();
     let mut want = Vec::new();
     cpu_engine.evaluate(frame, params, ps, &mut want).unwrap();
     let got = gpu.evaluate_debug(frame, params, ps).unwrap();
@@ -489,7 +513,11 @@ fn compare(
         if !same_hist {
             a.hist_mismatch += 1;
         }
-        let dists = cpu::gradient::edge_distances(&grad, p, frame.theta0, params);
+        let dists = if params.terms & TERM_GRADIENT != 0 {
+            cpu::gradient::edge_distances(&grad, p, frame.theta0, params)
+        } else {
+            Vec::new()
+        };
         let mut same_lines = true;
         for (k, d) in dists.iter().enumerate() {
             a.lines += 1;
@@ -501,6 +529,18 @@ fn compare(
         }
         if same_hist {
             a.max_colour = a.max_colour.max((w.colour - g.colour).abs());
+            if params.terms & TERM_CONTRAST != 0 {
+                // The exact term from the histogram, and the scale of its rounding.
+                let (mut exact, mut size) = (0.0f64, 0.0f64);
+                for (c, l) in counts.iter().zip(&table.0) {
+                    exact += *c as f64 * *l as f64;
+                    size += *c as f64 * l.abs() as f64;
+                }
+                let scale = params.contrast_scale as f64;
+                let size = (scale * size).max(1e-30);
+                let rel = |v: f32| ((v as f64 - scale * exact).abs() / size) as f32;
+                a.max_contrast_rel = a.max_contrast_rel.max(rel(w.contrast)).max(rel(g.contrast));
+            }
         }
         if same_lines {
             a.max_gradient = a.max_gradient.max((w.gradient - g.gradient).abs());
@@ -523,8 +563,10 @@ fn assert_agreement(what: &str, a: &Agreement) {
     assert!(a.max_colour <= TOL_COLOUR, "{what}: {a:?}");
     assert!(a.max_gradient <= TOL_GRADIENT, "{what}: {a:?}");
     assert!(a.max_feature <= TOL_FEATURE, "{what}: {a:?}");
+    assert!(a.max_contrast_rel <= TOL_CONTRAST_REL, "{what}: {a:?}");
+    // The contrast term's share of the total is checked against its own tolerance above.
     assert!(
-        a.max_total <= TOL_COLOUR + TOL_GRADIENT + TOL_FEATURE,
+        a.max_total <= TOL_COLOUR + TOL_GRADIENT + TOL_FEATURE + TOL_CONTRAST_ABS,
         "{what}: {a:?}"
     );
 }
@@ -591,6 +633,8 @@ fn gpu_agrees_with_cpu_on_real_frames() {
             for colour_bins in [COLOUR_RGB, COLOUR_LUMA] {
                 let params = LikelihoodParams {
                     colour_bins,
+                    terms: TERM_ALL,
+                    contrast_scale: 60.0 / (std::f32::consts::PI * e.a * e.b),
                     ..LikelihoodParams::default()
                 };
                 let a = compare(&mut gpu, &image, &model_e, &frame, &params, &ps);
@@ -646,6 +690,14 @@ fn gpu_agrees_with_cpu_on_synthetic_frames() {
                     line_half_length: 12.4,
                     edge_threshold: 0.02,
                     terms: TERM_COLOUR | TERM_GRADIENT,
+                    ..Default::default()
+                },
+            ),
+            (
+                0.3,
+                LikelihoodParams {
+                    terms: TERM_CONTRAST,
+                    contrast_scale: 0.05,
                     ..Default::default()
                 },
             ),

@@ -8,9 +8,9 @@ use image::{Rgb, RgbImage};
 use pftrack::geometry::{Ellipse, Euler};
 use pftrack::likelihood::cpu::{self, CpuEngine, EllipseF32, colour, feature, gradient};
 use pftrack::likelihood::{
-    COLOUR_RGB, ColourHistogram, DEGENERATE, FeaturePair, FrameInput, HIST_BINS, LikelihoodEngine,
-    LikelihoodError, LikelihoodParams, Particle, TERM_COLOUR, TERM_FEATURE, TERM_GRADIENT,
-    TermLogs,
+    COLOUR_RGB, ColourHistogram, ContrastTable, DEGENERATE, FeaturePair, FrameInput, HIST_BINS,
+    LikelihoodEngine, LikelihoodError, LikelihoodParams, Particle, TERM_ALL, TERM_COLOUR,
+    TERM_CONTRAST, TERM_FEATURE, TERM_GRADIENT, TermLogs,
 };
 use rand::{Rng, SeedableRng, rngs::StdRng};
 
@@ -484,26 +484,42 @@ fn engine_is_deterministic_and_thread_count_independent() {
     };
     let params = LikelihoodParams::default();
     let model = ColourHistogram::from_ellipse(&img, &e, COLOUR_RGB).unwrap();
+    let whole = ColourHistogram::from_ellipse(&img, &Ellipse::new(64.0, 48.0, 96.0, 72.0), 0);
+    let table = ContrastTable::from_histograms(&model, &whole.unwrap(), 3.0).unwrap();
+    let with_contrast = LikelihoodParams {
+        terms: TERM_ALL,
+        contrast_scale: 0.01,
+        ..params
+    };
 
     let mut one = CpuEngine::with_threads(1).unwrap();
     let mut all = CpuEngine::new();
     let mut two = CpuEngine::with_threads(2).unwrap();
     for eng in [&mut one, &mut all, &mut two] {
         eng.set_colour_model(&model).unwrap();
+        eng.set_contrast_table(&table).unwrap();
     }
+    let (mut k1, mut k2) = (Vec::new(), Vec::new());
+    one.evaluate(&frame, &with_contrast, &particles, &mut k1)
+        .unwrap();
+    two.evaluate(&frame, &with_contrast, &particles, &mut k2)
+        .unwrap();
+    assert_eq!(k1, k2);
+    assert!(k1.iter().skip(6).all(|t| t.contrast != 0.0));
     let (mut r1, mut r2, mut r3, mut r4) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
     one.evaluate(&frame, &params, &particles, &mut r1).unwrap();
     all.evaluate(&frame, &params, &particles, &mut r2).unwrap();
     two.evaluate(&frame, &params, &particles, &mut r3).unwrap();
     all.evaluate(&frame, &params, &particles, &mut r4).unwrap();
     assert_eq!(r1.len(), particles.len());
-    let bits = |r: &[TermLogs]| -> Vec<[u32; 4]> {
+    let bits = |r: &[TermLogs]| -> Vec<[u32; 5]> {
         r.iter()
             .map(|t| {
                 [
                     t.colour.to_bits(),
                     t.gradient.to_bits(),
                     t.feature.to_bits(),
+                    t.contrast.to_bits(),
                     t.total.to_bits(),
                 ]
             })
@@ -518,6 +534,7 @@ fn engine_is_deterministic_and_thread_count_independent() {
         colour: 0.0,
         gradient: 0.0,
         feature: 0.0,
+        contrast: 0.0,
         total: DEGENERATE,
     };
     for (i, r) in r1.iter().enumerate().take(6).skip(1) {
@@ -539,7 +556,7 @@ fn engine_is_deterministic_and_thread_count_independent() {
         let c = colour::log_likelihood(&img, &ef, &cm, &params);
         let g = gradient::log_likelihood(&grad, p, theta0, &params);
         let f = feature::log_likelihood(&feats, p, &prev, theta0, &params);
-        assert_eq!(*t, cpu::combine::combine(c, g, f, &params));
+        assert_eq!(*t, cpu::combine::combine([c, g, f, 0.0], &params));
     }
 }
 
@@ -598,6 +615,35 @@ fn engine_terms_flags_and_errors() {
         out[0]
     );
 
+    // The contrast term needs its table; with one, it works without the colour term.
+    let contrast = LikelihoodParams {
+        terms: TERM_CONTRAST,
+        contrast_scale: 0.5,
+        ..params
+    };
+    assert!(matches!(
+        eng.evaluate(&frame, &contrast, &[prev], &mut out),
+        Err(LikelihoodError::NoContrastTable)
+    ));
+    let mut table = ContrastTable(vec![0.0; HIST_BINS]);
+    table.0[colour::bin_of(130, 120, 50) as usize] = 2.0;
+    eng.set_contrast_table(&table).unwrap();
+    eng.evaluate(&frame, &contrast, &[prev], &mut out).unwrap();
+    let ef = EllipseF32::from_particle(&prev, theta0);
+    let (counts, _) = brute_histogram(&img, &ef);
+    let want = 0.5 * 2.0 * counts[colour::bin_of(130, 120, 50) as usize] as f32;
+    assert!(want > 0.0);
+    assert_eq!(out[0].contrast, want);
+    assert_eq!(out[0].total, want);
+    assert!(matches!(
+        eng.set_contrast_table(&ContrastTable(vec![f32::NAN; HIST_BINS])),
+        Err(LikelihoodError::Invalid(_))
+    ));
+    assert!(matches!(
+        eng.set_contrast_table(&ContrastTable(vec![0.0; 3])),
+        Err(LikelihoodError::Invalid(_))
+    ));
+
     let bad = |p: LikelihoodParams, eng: &mut CpuEngine| {
         let mut o = Vec::new();
         matches!(
@@ -640,7 +686,21 @@ fn engine_terms_flags_and_errors() {
         },
         &mut eng
     ));
-    assert!(bad(LikelihoodParams { terms: 8, ..params }, &mut eng));
+    assert!(bad(
+        LikelihoodParams {
+            terms: 16,
+            ..params
+        },
+        &mut eng
+    ));
+    assert!(bad(
+        LikelihoodParams {
+            terms: TERM_CONTRAST,
+            contrast_scale: f32::INFINITY,
+            ..params
+        },
+        &mut eng
+    ));
     let nan_frame = FrameInput {
         theta0: f32::NAN,
         ..frame
@@ -662,4 +722,94 @@ fn engine_terms_flags_and_errors() {
     );
     assert!(eng.name().contains("cpu"));
     let _ = TERM_FEATURE;
+}
+
+/// A dark disc on a bright textured background: the colour term cannot tell an ellipse
+/// inside the disc from the disc (both hold only its colours), the contrast term can. Its
+/// value is the table summed over the particle's pixels (brute force), and over sizes it
+/// peaks at the disc's.
+#[test]
+fn contrast_term_is_the_table_summed_over_the_pixels_and_peaks_at_the_target_size() {
+    let (w, h) = (96u32, 72u32);
+    let disc = Ellipse::new(47.0, 35.0, 15.0, 12.0);
+    let ef = EllipseF32::from_ellipse(&disc);
+    let (s, c) = ef.theta.sin_cos();
+    let mut rng = StdRng::seed_from_u64(3);
+    let img = RgbImage::from_fn(w, h, |x, y| {
+        let n: u8 = rng.random_range(0..40);
+        if colour::inside(&ef, s, c, x as i64, y as i64) {
+            Rgb([30 + n, 40 + n, 20 + n])
+        } else {
+            Rgb([160 + n, 170 + n / 2, 120 + n])
+        }
+    });
+    let fg = ColourHistogram::from_ellipse(&img, &disc, COLOUR_RGB).unwrap();
+    let bg = ColourHistogram::from_ellipse(&img, &Ellipse::new(48.0, 36.0, 60.0, 60.0), 0).unwrap();
+    let table = ContrastTable::from_histograms(&fg, &bg, 3.0).unwrap();
+    // Log-odds by hand for two bins: one only in the disc, one mostly background.
+    let eps = ContrastTable::EPSILON;
+    for k in 0..HIST_BINS {
+        let want = ((fg.0[k] + eps) / (bg.0[k] + eps)).ln().clamp(-3.0, 3.0);
+        assert_eq!(table.0[k], want, "bin {k}");
+    }
+    assert!(table.0[colour::bin_of(40, 50, 30) as usize] > 0.0);
+    assert!(table.0[colour::bin_of(170, 175, 130) as usize] < 0.0);
+
+    let mut eng = CpuEngine::with_threads(1).unwrap();
+    eng.set_colour_model(&fg).unwrap();
+    eng.set_contrast_table(&table).unwrap();
+    let params = LikelihoodParams {
+        terms: TERM_COLOUR | TERM_CONTRAST,
+        contrast_scale: 0.02,
+        ..LikelihoodParams::default()
+    };
+    let scales: Vec<f32> = (0..=20).map(|k| 0.5 + 0.05 * k as f32).collect();
+    let ps: Vec<Particle> = scales
+        .iter()
+        .map(|k| Particle {
+            cx: 47.0,
+            cy: 35.0,
+            a: 15.0 * k,
+            b: 12.0 * k,
+            ..Default::default()
+        })
+        .collect();
+    let frame = FrameInput {
+        image: &img,
+        features: &[],
+        prev: ps[10],
+        theta0: 0.0,
+    };
+    let mut out = Vec::new();
+    eng.evaluate(&frame, &params, &ps, &mut out).unwrap();
+    for (p, t) in ps.iter().zip(&out) {
+        let (counts, _) = brute_histogram(&img, &EllipseF32::from_particle(p, 0.0));
+        let exact: f64 = counts
+            .iter()
+            .zip(&table.0)
+            .map(|(&n, &l)| n as f64 * l as f64)
+            .sum();
+        let got = t.contrast as f64;
+        assert!(
+            (got - 0.02 * exact).abs() <= 1e-5 * (0.02 * exact).abs().max(1.0),
+            "{p:?}"
+        );
+    }
+    // Every ellipse inside the disc has the colour term's best value; the contrast term
+    // grows up to the disc and falls beyond it.
+    for (k, t) in scales.iter().zip(&out) {
+        if *k <= 1.0 {
+            assert!(t.colour > -0.05, "scale {k}: {t:?}");
+        }
+    }
+    let best = (0..out.len())
+        .max_by(|&i, &j| out[i].contrast.total_cmp(&out[j].contrast))
+        .unwrap();
+    assert!(
+        (scales[best] - 1.0).abs() <= 0.051,
+        "peak at {}",
+        scales[best]
+    );
+    assert!(out[best].contrast > out[0].contrast + 1.0);
+    assert!(out[best].contrast > out[20].contrast + 1.0);
 }

@@ -3,7 +3,7 @@
 
 use pftrack::geometry::{Ellipse, angle_between, rot_x};
 use pftrack::synth::{Renderer, Scenario, SynthConfig};
-use pftrack::tracker::{ColourUpdate, Init, Tracker, TrackerConfig};
+use pftrack::tracker::{ColourUpdate, Contrast, Init, Tracker, TrackerConfig};
 
 type Track = (
     Vec<pftrack::tracker::Estimate>,
@@ -16,12 +16,19 @@ fn run(scenario: Scenario, steps: usize, seed: u64) -> Track {
 }
 
 fn run_cfg(cfg: SynthConfig, steps: usize, seed: u64) -> Track {
+    run_with(
+        cfg,
+        steps,
+        TrackerConfig {
+            seed,
+            ..TrackerConfig::default()
+        },
+    )
+}
+
+fn run_with(cfg: SynthConfig, steps: usize, tc: TrackerConfig) -> Track {
     let r = Renderer::new(&cfg).unwrap();
     let (first, _) = r.render(0);
-    let tc = TrackerConfig {
-        seed,
-        ..TrackerConfig::default()
-    };
     let mut t = Tracker::new(tc, &first, Init::frontal(r.init_ellipse())).unwrap();
     let mut est = vec![t.initial_estimate()];
     let mut truth = vec![r.truth(0)];
@@ -146,6 +153,36 @@ fn bad_input_is_an_error() {
         };
         let err = Tracker::new(cfg, &img, Init::frontal(r.init_ellipse())).unwrap_err();
         assert!(err.to_string().contains("aspect_slack"), "{err}");
+    }
+    // The contrast term: a ring beyond the ellipse, a positive bound, shares in [0, 1].
+    let d = Contrast::default();
+    for c in [
+        Contrast { ring: 1.0, ..d },
+        Contrast {
+            ring: f64::NAN,
+            ..d
+        },
+        Contrast { limit: 0.0, ..d },
+        Contrast {
+            weight: f64::NAN,
+            ..d
+        },
+        Contrast { weight: -1.0, ..d },
+        Contrast {
+            background_rate: 1.5,
+            ..d
+        },
+        Contrast {
+            min_confidence: -0.1,
+            ..d
+        },
+    ] {
+        let cfg = TrackerConfig {
+            contrast: Some(c),
+            ..TrackerConfig::default()
+        };
+        let err = Tracker::new(cfg, &img, Init::frontal(r.init_ellipse())).unwrap_err();
+        assert!(err.to_string().contains("contrast"), "{c:?}: {err}");
     }
     let mut cfg = TrackerConfig::default();
     cfg.filter.dynamics.rotation[1] = 0.0;
@@ -355,4 +392,37 @@ fn grayscale_footage_gets_luma_bins_and_is_followed() {
         worst = worst.max((e.state.cx - truth.cx).hypot(e.state.cy - truth.cy));
     }
     assert!(worst < 5.0, "centre off by {worst:.2} px");
+}
+
+/// Mean and largest relative error of the ellipse's size `sqrt(a b)` over a track.
+fn size_errors((est, truth): &Track) -> (f64, f64) {
+    let errs: Vec<f64> = est
+        .iter()
+        .zip(truth)
+        .map(|(e, t)| ((e.state.a * e.state.b).sqrt() / (t.a * t.b).sqrt() - 1.0).abs())
+        .collect();
+    let mean = errs.iter().sum::<f64>() / errs.len() as f64;
+    (mean, errs.iter().cloned().fold(0.0, f64::max))
+}
+
+/// A head approaching to 0.6 of its depth and receding to 1.4: the contrast term (on by
+/// default) keeps the ellipse to the head's size. Measured on this sequence (filter seed 0):
+/// mean 1.3 %, largest 4.0 % with it; 1.9 % and 7.9 % without it (the colour term alone
+/// cannot tell an ellipse a little too small or too large from the right one).
+#[test]
+fn the_contrast_term_keeps_the_ellipse_to_the_targets_size() {
+    let cfg = SynthConfig::new(Scenario::Depth);
+    let steps = cfg.frames;
+    let with = size_errors(&run_with(cfg, steps, TrackerConfig::default()));
+    let without = size_errors(&run_with(
+        cfg,
+        steps,
+        TrackerConfig {
+            contrast: None,
+            ..TrackerConfig::default()
+        },
+    ));
+    eprintln!("size error (mean, max): with contrast {with:?}, without {without:?}");
+    assert!(with.0 < 0.02 && with.1 < 0.07, "{with:?}");
+    assert!(with.0 < without.0, "{with:?} against {without:?}");
 }

@@ -3,13 +3,13 @@
 
 use super::cpu::CpuEngine;
 use super::{
-    ColourHistogram, FrameInput, LikelihoodEngine, LikelihoodError, LikelihoodParams, Particle,
-    TermLogs,
+    ColourHistogram, ContrastTable, FrameInput, LikelihoodEngine, LikelihoodError,
+    LikelihoodParams, Particle, TermLogs,
 };
 
 /// Wraps an engine (the GPU's) so that a lost device does not end the run: on the first
 /// [`LikelihoodError::DeviceLost`] it opens the CPU engine on all threads, gives it the colour
-/// model it was given, repeats the failed call there and stays on the CPU from then on, with a
+/// model and contrast table it was given, repeats the failed call there and stays on the CPU from then on, with a
 /// one-line notice for the caller to print ([`LikelihoodEngine::take_notice`]). Every other
 /// error is passed through unchanged.
 ///
@@ -19,6 +19,7 @@ pub struct FallbackEngine {
     active: Box<dyn LikelihoodEngine + Send>,
     on_cpu: bool,
     model: Option<ColourHistogram>,
+    contrast: Option<ContrastTable>,
     notice: Option<String>,
 }
 
@@ -29,6 +30,7 @@ impl FallbackEngine {
             active: primary,
             on_cpu: false,
             model: None,
+            contrast: None,
             notice: None,
         }
     }
@@ -43,6 +45,9 @@ impl FallbackEngine {
         let mut cpu = CpuEngine::new();
         if let Some(m) = &self.model {
             cpu.set_colour_model(m)?;
+        }
+        if let Some(t) = &self.contrast {
+            cpu.set_contrast_table(t)?;
         }
         self.active = Box::new(cpu);
         self.on_cpu = true;
@@ -70,6 +75,20 @@ impl LikelihoodEngine for FallbackEngine {
             }
             Ok(()) => {
                 self.model = Some(model.clone());
+                Ok(())
+            }
+            Err(e) => Err(e),
+        }
+    }
+
+    fn set_contrast_table(&mut self, table: &ContrastTable) -> Result<(), LikelihoodError> {
+        match self.active.set_contrast_table(table) {
+            Err(LikelihoodError::DeviceLost(msg)) if !self.on_cpu => {
+                self.contrast = Some(table.clone());
+                self.fall_back(&msg)
+            }
+            Ok(()) => {
+                self.contrast = Some(table.clone());
                 Ok(())
             }
             Err(e) => Err(e),
@@ -114,6 +133,9 @@ mod tests {
         fn set_colour_model(&mut self, _: &ColourHistogram) -> Result<(), LikelihoodError> {
             Ok(())
         }
+        fn set_contrast_table(&mut self, _: &ContrastTable) -> Result<(), LikelihoodError> {
+            Ok(())
+        }
         fn evaluate(
             &mut self,
             _: &FrameInput<'_>,
@@ -149,7 +171,15 @@ mod tests {
             },
             theta0: 0.0,
         };
-        let params = LikelihoodParams::default();
+        // With the contrast term on, so the CPU engine also needs the table given before.
+        let params = LikelihoodParams {
+            terms: crate::likelihood::TERM_ALL,
+            contrast_scale: 0.01,
+            ..Default::default()
+        };
+        let table =
+            ContrastTable::from_histograms(&model, &ColourHistogram(vec![1.0 / 512.0; 512]), 3.0)
+                .unwrap();
         let ps = [
             frame.prev,
             Particle {
@@ -159,12 +189,13 @@ mod tests {
         ];
         let mut e = FallbackEngine::new(Box::new(Flaky { ok_calls: 1 }));
         e.set_colour_model(&model).unwrap();
+        e.set_contrast_table(&table).unwrap();
         let mut out = Vec::new();
         e.evaluate(&frame, &params, &ps, &mut out).unwrap();
         assert!(!e.fell_back() && e.take_notice().is_none());
         assert_eq!(out, vec![TermLogs::default(); 2]);
 
-        // The failing call is repeated on the CPU, with the model given before.
+        // The failing call is repeated on the CPU, with the model and table given before.
         e.evaluate(&frame, &params, &ps, &mut out).unwrap();
         assert!(e.fell_back());
         let notice = e.take_notice().expect("a notice");
@@ -176,8 +207,10 @@ mod tests {
         assert!(e.name().starts_with("cpu"), "{}", e.name());
         let mut cpu = CpuEngine::new();
         cpu.set_colour_model(&model).unwrap();
+        cpu.set_contrast_table(&table).unwrap();
         let mut want = Vec::new();
         cpu.evaluate(&frame, &params, &ps, &mut want).unwrap();
+        assert!(want[0].contrast > 0.0, "{want:?}");
         assert_eq!(out, want);
         e.evaluate(&frame, &params, &ps, &mut out).unwrap();
         assert_eq!(out, want);

@@ -1,6 +1,8 @@
 //! Particle likelihoods `p(z | x) = p_colour · p_gradient · p_feature` (SPEC section 3), for all
 //! particles of a frame at once, behind one interface with two implementations: the CPU
-//! reference ([`cpu`]) and the WGSL compute engine ([`gpu`]).
+//! reference ([`cpu`]) and the WGSL compute engine ([`gpu`]). A fourth, optional term,
+//! `p_contrast` ([`TERM_CONTRAST`], [`ContrastTable`]), is the project's addition: the
+//! target's colours against its surroundings, read from the same per-particle histogram.
 //!
 //! The data crossing this interface is flat and `Pod` so the GPU engine uploads it as is.
 
@@ -45,6 +47,9 @@ pub struct TermLogs {
     pub gradient: f32,
     /// `ln p_feature`.
     pub feature: f32,
+    /// The foreground/background contrast of the ellipse's pixels ([`ContrastTable`]):
+    /// `contrast_scale · Σ_pixels L[bin]`.
+    pub contrast: f32,
     /// The sum of the enabled terms: the particle's log-likelihood.
     pub total: f32,
 }
@@ -80,6 +85,80 @@ pub const HIST_BINS: usize = 512;
 /// A normalised 8×8×8 RGB histogram, bin `(r >> 5) * 64 + (g >> 5) * 8 + (b >> 5)`.
 #[derive(Debug, Clone, PartialEq)]
 pub struct ColourHistogram(pub Vec<f32>);
+
+/// Per-bin log-odds of the target against its surroundings, under the same binning as the
+/// colour model: `L_k = ln((f_k + ε) / (g_k + ε))` with `f` the target's normalised
+/// histogram, `g` the background's (a ring around the target), `ε` =
+/// [`ContrastTable::EPSILON`], clamped to `±limit`.
+///
+/// Summed over the pixels inside an ellipse, `Σ L[bin]` grows while the ellipse takes in
+/// pixels that look like the target and shrinks when it takes in background. It gives the
+/// colour cue a scale: the Bhattacharyya similarity of the colour term is nearly as high for
+/// an ellipse inside the target, or one a little larger on a background of similar colours,
+/// as for the right one. This is the object-versus-surroundings colour model of
+/// discriminative colour trackers (e.g. Possegger, Mauthner and Bischof, "In defense of
+/// color-based model-free tracking", CVPR 2015), evaluated here per particle from the
+/// histogram the colour term builds anyway.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ContrastTable(pub Vec<f32>);
+
+impl ContrastTable {
+    /// `ε` of the log-odds: a bin seen in neither histogram scores 0; one seen in only one
+    /// of them is bounded by `limit` in any case.
+    pub const EPSILON: f32 = 1e-3;
+
+    /// The table of a target histogram `fg` against a background histogram `bg` (both
+    /// normalised, [`HIST_BINS`] bins), clamped to `±limit`. Errors on a wrong bin count or
+    /// a negative, non-finite or non-positive `limit`.
+    pub fn from_histograms(
+        fg: &ColourHistogram,
+        bg: &ColourHistogram,
+        limit: f32,
+    ) -> Result<Self, LikelihoodError> {
+        if fg.0.len() != HIST_BINS || bg.0.len() != HIST_BINS {
+            return Err(LikelihoodError::Invalid(format!(
+                "contrast histograms have {} and {} bins, expected {HIST_BINS}",
+                fg.0.len(),
+                bg.0.len()
+            )));
+        }
+        if !(limit.is_finite() && limit > 0.0) {
+            return Err(LikelihoodError::Invalid(format!(
+                "contrast limit {limit} is not positive and finite"
+            )));
+        }
+        let eps = Self::EPSILON;
+        Ok(Self(
+            fg.0.iter()
+                .zip(&bg.0)
+                .map(|(&f, &g)| {
+                    let l = ((f.max(0.0) + eps) / (g.max(0.0) + eps)).ln();
+                    if l.is_nan() {
+                        0.0
+                    } else {
+                        l.clamp(-limit, limit)
+                    }
+                })
+                .collect(),
+        ))
+    }
+
+    /// Checks what both engines need: [`HIST_BINS`] finite entries.
+    pub fn check(&self) -> Result<(), LikelihoodError> {
+        if self.0.len() != HIST_BINS {
+            return Err(LikelihoodError::Invalid(format!(
+                "contrast table has {} bins, expected {HIST_BINS}",
+                self.0.len()
+            )));
+        }
+        if !self.0.iter().all(|v| v.is_finite()) {
+            return Err(LikelihoodError::Invalid(
+                "contrast table has a non-finite entry".into(),
+            ));
+        }
+        Ok(())
+    }
+}
 
 /// What the likelihood of one frame depends on besides the particles.
 #[derive(Debug, Clone, Copy)]
@@ -130,8 +209,13 @@ pub struct LikelihoodParams {
     /// [`COLOUR_LUMA`] (64 levels of luma, for grayscale footage, where RGB bins leave only
     /// the 8 on their diagonal).
     pub colour_bins: u32,
-    /// Padding to a multiple of 16 bytes.
-    pub _pad: u32,
+    /// The factor of the contrast term ([`TERM_CONTRAST`]): `ln p_contrast = contrast_scale ·
+    /// Σ L[bin]` over the pixels inside the ellipse, with `L` the engine's
+    /// [`ContrastTable`]. The tracker sets it every frame to its weight divided by the area
+    /// of the previous estimate, so that the term is a share of that area: per particle it
+    /// is the same sum at every size, which is what lets it prefer the ellipse that holds the
+    /// target's pixels and no more.
+    pub contrast_scale: f32,
 }
 
 /// [`LikelihoodParams::colour_bins`]: bin `(r >> 5) * 64 + (g >> 5) * 8 + (b >> 5)` of 512.
@@ -146,6 +230,12 @@ pub const TERM_COLOUR: u32 = 1;
 pub const TERM_GRADIENT: u32 = 2;
 /// Flag of the feature term in [`LikelihoodParams::terms`].
 pub const TERM_FEATURE: u32 = 4;
+/// Flag of the contrast term in [`LikelihoodParams::terms`] (needs a [`ContrastTable`] set
+/// on the engine). Not in the default terms: it is the tracker's addition to the paper's
+/// three ([`crate::tracker::Contrast`]).
+pub const TERM_CONTRAST: u32 = 8;
+/// Every term flag.
+pub const TERM_ALL: u32 = TERM_COLOUR | TERM_GRADIENT | TERM_FEATURE | TERM_CONTRAST;
 
 impl Default for LikelihoodParams {
     /// Starting values, reviewed against the spec's formulas for targets of about 40 px at
@@ -214,7 +304,7 @@ impl Default for LikelihoodParams {
             num_lines: 24,
             terms: TERM_COLOUR | TERM_GRADIENT | TERM_FEATURE,
             colour_bins: COLOUR_RGB,
-            _pad: 0,
+            contrast_scale: 0.0,
         }
     }
 }
@@ -225,6 +315,9 @@ pub enum LikelihoodError {
     /// The engine has no colour model yet.
     #[error("no colour model set")]
     NoModel,
+    /// The contrast term is enabled but the engine has no contrast table.
+    #[error("no contrast table set")]
+    NoContrastTable,
     /// Invalid input to an engine: parameters, frame data, colour model or thread count.
     #[error("invalid likelihood input: {0}")]
     Invalid(String),
@@ -347,6 +440,9 @@ pub trait LikelihoodEngine {
 
     /// Sets the colour model (from the initial frame).
     fn set_colour_model(&mut self, model: &ColourHistogram) -> Result<(), LikelihoodError>;
+
+    /// Sets the table of the contrast term ([`TERM_CONTRAST`]).
+    fn set_contrast_table(&mut self, table: &ContrastTable) -> Result<(), LikelihoodError>;
 
     /// Evaluates every particle on one frame; `out` is resized to `particles.len()`.
     fn evaluate(

@@ -32,7 +32,7 @@
 mod config;
 mod keyframe;
 
-pub use config::{ColourUpdate, Init, Mode, TrackerConfig};
+pub use config::{ColourUpdate, Contrast, Init, Mode, TrackerConfig};
 
 use nalgebra::Matrix3;
 
@@ -42,8 +42,8 @@ use crate::frames::GrayF32;
 use crate::geometry::{BoxRect, Ellipse, Euler, PoseState, deg};
 use crate::likelihood::cpu::colour::rho_from_log;
 use crate::likelihood::{
-    COLOUR_LUMA, ColourHistogram, FeaturePair, FrameInput, LikelihoodEngine, LikelihoodParams,
-    Particle, TERM_COLOUR, TERM_FEATURE, TERM_GRADIENT, TermLogs,
+    COLOUR_LUMA, ColourHistogram, ContrastTable, FeaturePair, FrameInput, LikelihoodEngine,
+    LikelihoodParams, Particle, TERM_COLOUR, TERM_CONTRAST, TERM_FEATURE, TERM_GRADIENT, TermLogs,
 };
 use crate::motion::block_match;
 use crate::pose::{SolverKind, interframe};
@@ -141,6 +141,9 @@ pub struct Tracker {
     first: Estimate,
     /// The colour model the engine holds (it adapts, [`TrackerConfig::colour_update`]).
     colour_model: ColourHistogram,
+    /// The contrast term's background histogram (a ring around the target), when the term is
+    /// on and the ring held pixels on the initial frame ([`TrackerConfig::contrast`]).
+    background: Option<ColourHistogram>,
 }
 
 impl std::fmt::Debug for Tracker {
@@ -208,6 +211,13 @@ fn check_config(cfg: &TrackerConfig) -> Result<(), TrackError> {
             ))
         })?;
     }
+    if let Some(c) = &cfg.contrast {
+        c.check().map_err(|e| {
+            TrackError::BadConfig(format!(
+                "{e}; set contrast to None for the paper's three terms alone"
+            ))
+        })?;
+    }
     if let Some(k) = cfg.aspect_slack
         && !(k.is_finite() && k >= 1.0)
     {
@@ -217,6 +227,30 @@ fn check_config(cfg: &TrackerConfig) -> Result<(), TrackError> {
         )));
     }
     Ok(())
+}
+
+/// The normalised histogram of the pixels of `frame` in the ring between `e` and `e` scaled
+/// by `c.ring` (the contrast term's background); `None` when the ring holds no pixel of the
+/// frame (a target filling it).
+fn ring_histogram(
+    frame: &image::RgbImage,
+    e: &Ellipse,
+    c: &Contrast,
+    colour_bins: u32,
+) -> Option<ColourHistogram> {
+    use crate::likelihood::cpu::{EllipseF32, colour};
+    let outer = Ellipse {
+        a: e.a * c.ring,
+        b: e.b * c.ring,
+        ..*e
+    };
+    let (inner, _) = colour::histogram(frame, &EllipseF32::from_ellipse(e), colour_bins);
+    let (mut ring, _) = colour::histogram(frame, &EllipseF32::from_ellipse(&outer), colour_bins);
+    for (r, i) in ring.iter_mut().zip(inner) {
+        *r = r.saturating_sub(i);
+    }
+    let total: u32 = ring.iter().sum();
+    (total > 0).then(|| ColourHistogram(colour::normalise(&ring, total)))
 }
 
 /// The aspects `a / b` the object model of a track starting in `init` can show, widened by
@@ -294,6 +328,7 @@ impl Tracker {
             particles: Vec::new(),
             terms: Vec::new(),
             colour_model: ColourHistogram(Vec::new()),
+            background: None,
             first: Estimate {
                 frame: 0,
                 state: PoseState::default(),
@@ -320,6 +355,11 @@ impl Tracker {
             ColourHistogram::from_ellipse(frame, &init.ellipse, self.cfg.likelihood.colour_bins)?;
         self.engine.set_colour_model(&model)?;
         self.colour_model = model;
+        self.background = None;
+        if let Some(c) = self.cfg.contrast {
+            self.background = ring_histogram(frame, &init.ellipse, &c, self.colour_bins());
+            self.send_contrast_table()?;
+        }
         let state = PoseState::from_parts(&init.ellipse, init.pose);
         let hyp = Hypothesis::from_state(&state);
         self.filter.set_frame(w, h);
@@ -504,6 +544,14 @@ impl Tracker {
         if self.cfg.mode == Mode::Tpe || lik_pairs.is_empty() {
             lp.terms &= !TERM_FEATURE;
         }
+        // The contrast term as a share of the previous estimate's area.
+        if let (Some(c), Some(_)) = (self.cfg.contrast, &self.background) {
+            let area = std::f64::consts::PI * prev_state.a * prev_state.b;
+            if c.weight > 0.0 && area > 0.0 {
+                lp.terms |= TERM_CONTRAST;
+                lp.contrast_scale = (c.weight / area) as f32;
+            }
+        }
 
         // The filter step.
         let spread = if self.lost { 3.0 } else { 1.0 };
@@ -557,6 +605,7 @@ impl Tracker {
 
         if !self.lost {
             self.adapt_colour(frame, &est, confidence)?;
+            self.adapt_background(frame, &est, confidence)?;
         }
 
         // Angles continuous with the previous output.
@@ -599,6 +648,44 @@ impl Tracker {
         })
     }
 
+    /// The colour bins in use.
+    fn colour_bins(&self) -> u32 {
+        self.cfg.likelihood.colour_bins
+    }
+
+    /// Gives the engine the contrast table of the colour model against the background, when
+    /// the contrast term is on.
+    fn send_contrast_table(&mut self) -> crate::Result<()> {
+        if let (Some(c), Some(bg)) = (self.cfg.contrast, &self.background) {
+            let table = ContrastTable::from_histograms(&self.colour_model, bg, c.limit as f32)?;
+            self.engine.set_contrast_table(&table)?;
+        }
+        Ok(())
+    }
+
+    /// After a frame with at least [`Contrast::min_confidence`], moves the contrast term's
+    /// background towards the ring around the estimate `est`
+    /// ([`Contrast::background_rate`]).
+    fn adapt_background(
+        &mut self,
+        frame: &image::RgbImage,
+        est: &Hypothesis,
+        confidence: f64,
+    ) -> crate::Result<()> {
+        let (Some(c), Some(bg)) = (self.cfg.contrast, self.background.as_mut()) else {
+            return Ok(());
+        };
+        if confidence < c.min_confidence || c.background_rate <= 0.0 {
+            return Ok(());
+        }
+        let e = est.to_state().ellipse(self.theta0);
+        let Some(seen) = ring_histogram(frame, &e, &c, self.cfg.likelihood.colour_bins) else {
+            return Ok(());
+        };
+        bg.blend_towards(&seen, c.background_rate as f32);
+        self.send_contrast_table()
+    }
+
     /// After a frame with at least [`ColourUpdate::min_confidence`], moves the colour model
     /// towards the histogram inside the estimate `est` and hands it to the engine. An estimate
     /// whose ellipse holds no pixel of the frame leaves the model as it is.
@@ -621,7 +708,7 @@ impl Tracker {
         };
         self.colour_model.blend_towards(&seen, u.rate as f32);
         self.engine.set_colour_model(&self.colour_model)?;
-        Ok(())
+        self.send_contrast_table()
     }
 
     /// The keyframe fits' settings from the configuration, for a fit from `prev` moved by
@@ -685,6 +772,9 @@ impl Tracker {
                 }
                 if lp.terms & TERM_FEATURE != 0 {
                     s += wf * t.feature;
+                }
+                if lp.terms & TERM_CONTRAST != 0 {
+                    s += t.contrast;
                 }
                 s
             })

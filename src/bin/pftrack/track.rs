@@ -93,6 +93,11 @@ pub struct TrackArgs {
     /// Leave the ellipse's aspect free, as the paper does.
     #[arg(long)]
     pub no_aspect_bound: bool,
+    /// Weight of the contrast term: the target's colours against a ring around it, which
+    /// keeps the ellipse to the target's size (see `tracker::Contrast`). 0 leaves the
+    /// paper's three terms alone.
+    #[arg(long, value_name = "W", default_value_t = pftrack::tracker::Contrast::default().weight)]
+    pub contrast_weight: f64,
     /// Resize every frame to WxH first.
     #[arg(long, value_name = "WxH")]
     pub resize: Option<String>,
@@ -266,6 +271,14 @@ pub fn run(a: TrackArgs) -> anyhow::Result<()> {
         cfg.fit_pixel_sigma = None;
     }
     cfg.aspect_slack = (!a.no_aspect_bound).then_some(a.aspect_slack);
+    cfg.contrast = if a.contrast_weight == 0.0 {
+        None
+    } else {
+        Some(pftrack::tracker::Contrast {
+            weight: a.contrast_weight,
+            ..Default::default()
+        })
+    };
     cfg.colour_update = if a.colour_rate == 0.0 {
         None
     } else {

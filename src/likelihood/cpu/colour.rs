@@ -254,6 +254,20 @@ pub fn histogram_bins(bins: &BinImage, e: &EllipseF32, counts: &mut [u32; HIST_B
     total
 }
 
+/// `Σ_k count_k · L_k` in `f32`, in bin order, zero bins skipped: the sum of the contrast
+/// table `table` ([`crate::likelihood::ContrastTable`]) over the pixels the histogram
+/// counted. The contrast term is this times
+/// [`crate::likelihood::LikelihoodParams::contrast_scale`].
+pub fn contrast_sum(counts: &[u32; HIST_BINS], table: &[f32]) -> f32 {
+    let mut acc = 0.0f32;
+    for (&n, &l) in counts.iter().zip(table) {
+        if n != 0 {
+            acc += n as f32 * l;
+        }
+    }
+    acc
+}
+
 /// The colour model prepared for comparisons: `q` and its `f32` sum in bin order.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Model {

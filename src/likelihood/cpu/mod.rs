@@ -2,7 +2,8 @@
 //! checked against and what the tracker runs without a GPU.
 //!
 //! One file per stage, each the twin of the WGSL shader of the same name in `shaders/`:
-//! [`colour`], [`gradient`], [`feature`], [`combine`]. The exact semantics (shared with the
+//! [`colour`] (which also holds the contrast term: it reads the same histogram), [`gradient`],
+//! [`feature`], [`combine`]. The exact semantics (shared with the
 //! GPU) are in `prompts/likelihood-spec.md` and in each file's documentation.
 //!
 //! [`CpuEngine`] evaluates all particles of a frame: it prepares the per-frame data once per
@@ -20,8 +21,9 @@ pub mod gradient;
 use rayon::prelude::*;
 
 use super::{
-    COLOUR_LUMA, ColourHistogram, FrameInput, HIST_BINS, LikelihoodEngine, LikelihoodError,
-    LikelihoodParams, Particle, TERM_COLOUR, TERM_FEATURE, TERM_GRADIENT, TermLogs,
+    COLOUR_LUMA, ColourHistogram, ContrastTable, FrameInput, HIST_BINS, LikelihoodEngine,
+    LikelihoodError, LikelihoodParams, Particle, TERM_ALL, TERM_COLOUR, TERM_CONTRAST,
+    TERM_FEATURE, TERM_GRADIENT, TermLogs,
 };
 use crate::geometry::Ellipse;
 
@@ -144,6 +146,7 @@ enum Exec {
 pub struct CpuEngine {
     exec: Exec,
     model: Option<colour::Model>,
+    contrast: Option<Vec<f32>>,
     bins: colour::BinImage,
     grad: gradient::GradientImage,
     luma: Vec<u32>,
@@ -181,6 +184,7 @@ impl CpuEngine {
         Self {
             exec,
             model: None,
+            contrast: None,
             bins: Default::default(),
             grad: Default::default(),
             luma: Vec::new(),
@@ -207,12 +211,18 @@ impl CpuEngine {
         let use_colour = params.terms & TERM_COLOUR != 0;
         let use_gradient = params.terms & TERM_GRADIENT != 0;
         let use_feature = params.terms & TERM_FEATURE != 0 && !frame.features.is_empty();
+        let use_contrast = params.terms & TERM_CONTRAST != 0;
         let model = match (&self.model, use_colour) {
             (Some(m), true) => Some(m),
             (None, true) => return Err(LikelihoodError::NoModel),
             _ => None,
         };
-        if use_colour {
+        let table = match (&self.contrast, use_contrast) {
+            (Some(t), true) => Some(t.as_slice()),
+            (None, true) => return Err(LikelihoodError::NoContrastTable),
+            _ => None,
+        };
+        if use_colour || use_contrast {
             self.bins.fill(frame.image, params.colour_bins);
         }
         if use_gradient {
@@ -229,17 +239,21 @@ impl CpuEngine {
                 return combine::DEGENERATE_LOGS;
             }
             let e = EllipseF32::from_particle(p, theta0);
-            let c = match model {
-                Some(m) => {
-                    let mut counts = [0u32; HIST_BINS];
-                    let total = colour::histogram_bins(bins, &e, &mut counts);
-                    colour::log_from_rho(
+            let (mut c, mut k) = (0.0, 0.0);
+            if model.is_some() || table.is_some() {
+                // One histogram serves both terms.
+                let mut counts = [0u32; HIST_BINS];
+                let total = colour::histogram_bins(bins, &e, &mut counts);
+                if let Some(m) = model {
+                    c = colour::log_from_rho(
                         colour::bhattacharyya(&counts, total, m),
                         params.sigma_colour,
-                    )
+                    );
                 }
-                None => 0.0,
-            };
+                if let Some(t) = table {
+                    k = params.contrast_scale * colour::contrast_sum(&counts, t);
+                }
+            }
             let g = match &lines {
                 Some(lt) => gradient::log_likelihood_ellipse(grad, &e, lt, params),
                 None => 0.0,
@@ -248,7 +262,7 @@ impl CpuEngine {
                 Some(ff) => ff.log_likelihood(p, params.feature_eps),
                 None => 0.0,
             };
-            combine::combine(c, g, f, params)
+            combine::combine([c, g, f, k], params)
         };
 
         out.clear();
@@ -269,8 +283,11 @@ impl CpuEngine {
 pub fn validate(frame: &FrameInput<'_>, params: &LikelihoodParams) -> Result<(), LikelihoodError> {
     let bad = |what: &str| Err(LikelihoodError::Invalid(what.to_string()));
     let pos = |v: f32| v.is_finite() && v > 0.0;
-    if params.terms & !(TERM_COLOUR | TERM_GRADIENT | TERM_FEATURE) != 0 {
+    if params.terms & !TERM_ALL != 0 {
         return bad("unknown bits in the likelihood terms flags");
+    }
+    if params.terms & TERM_CONTRAST != 0 && !params.contrast_scale.is_finite() {
+        return bad("contrast_scale is not finite");
     }
     if !frame.theta0.is_finite() {
         return bad("theta0 is not finite");
@@ -326,6 +343,12 @@ impl LikelihoodEngine for CpuEngine {
 
     fn set_colour_model(&mut self, model: &ColourHistogram) -> Result<(), LikelihoodError> {
         self.model = Some(colour::Model::checked(&model.0)?);
+        Ok(())
+    }
+
+    fn set_contrast_table(&mut self, table: &ContrastTable) -> Result<(), LikelihoodError> {
+        table.check()?;
+        self.contrast = Some(table.0.clone());
         Ok(())
     }
 

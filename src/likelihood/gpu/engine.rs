@@ -7,8 +7,9 @@ use super::device::GpuDevice;
 use super::{FLAG_DEBUG_HIST, FrameUniform, STAGES, stage_source};
 use crate::likelihood::cpu;
 use crate::likelihood::{
-    ColourHistogram, FeaturePair, FrameInput, HIST_BINS, LikelihoodEngine, LikelihoodError,
-    LikelihoodParams, Particle, TERM_COLOUR, TERM_FEATURE, TERM_GRADIENT, TermLogs,
+    ColourHistogram, ContrastTable, FeaturePair, FrameInput, HIST_BINS, LikelihoodEngine,
+    LikelihoodError, LikelihoodParams, Particle, TERM_COLOUR, TERM_CONTRAST, TERM_FEATURE,
+    TERM_GRADIENT, TermLogs,
 };
 
 /// Invocations per workgroup of the per-particle and per-line kernels (as in the shaders).
@@ -132,6 +133,8 @@ pub struct GpuEngine {
     bufs: Buffers,
     bind_group: Option<wgpu::BindGroup>,
     has_model: bool,
+    /// Whether [`LikelihoodEngine::set_contrast_table`] was called.
+    has_contrast: bool,
     q_sum: f32,
     timestamps: Option<Timestamps>,
     pixel_scratch: Vec<u32>,
@@ -275,7 +278,8 @@ impl GpuEngine {
             trig: GrowBuf::new(device, "particle sin cos", st),
             model: device.create_buffer(&wgpu::BufferDescriptor {
                 label: Some("model"),
-                size: (HIST_BINS * 4) as u64,
+                // The colour model, then the contrast table.
+                size: (2 * HIST_BINS * 4) as u64,
                 usage: st,
                 mapped_at_creation: false,
             }),
@@ -316,6 +320,7 @@ impl GpuEngine {
             bufs,
             bind_group: None,
             has_model: false,
+            has_contrast: false,
             q_sum: 0.0,
             timestamps,
             pixel_scratch: Vec::new(),
@@ -437,9 +442,16 @@ impl GpuEngine {
         let colour_on = params.terms & TERM_COLOUR != 0;
         let grad_on = params.terms & TERM_GRADIENT != 0 && params.num_lines > 0;
         let feat_on = params.terms & TERM_FEATURE != 0 && !frame.features.is_empty();
+        let contrast_on = params.terms & TERM_CONTRAST != 0;
         if colour_on && !self.has_model {
             return Err(LikelihoodError::NoModel);
         }
+        if contrast_on && !self.has_contrast {
+            return Err(LikelihoodError::NoContrastTable);
+        }
+        // The colour kernel builds the histogram both terms read.
+        let hist_on = colour_on || contrast_on;
+        let logs = size_of::<TermLogs>() as u64;
         let (w, h) = frame.image.dimensions();
         self.check_frame_size(w, h)?;
         let n = particles.len();
@@ -462,9 +474,9 @@ impl GpuEngine {
         changed |= b.particles.ensure(device, n64 * 32);
         changed |= b.trig.ensure(device, n64 * 8);
         changed |= b.features.ensure(device, frame.features.len() as u64 * 16);
-        changed |= b.terms.ensure(device, n64 * 16);
+        changed |= b.terms.ensure(device, n64 * logs);
         changed |= b.line_d.ensure(device, n64 * num_lines as u64 * 4);
-        let hist_bytes = if debug.is_some() && colour_on {
+        let hist_bytes = if debug.is_some() && hist_on {
             n64 * HIST_BINS as u64 * 4
         } else {
             0
@@ -476,7 +488,7 @@ impl GpuEngine {
             0
         };
         b.staging
-            .ensure(device, (n64 * 16).max(hist_bytes).max(line_bytes));
+            .ensure(device, (n64 * logs).max(hist_bytes).max(line_bytes));
         if changed || self.bind_group.is_none() {
             fn entry(binding: u32, buf: &wgpu::Buffer) -> wgpu::BindGroupEntry<'_> {
                 wgpu::BindGroupEntry {
@@ -517,12 +529,12 @@ impl GpuEngine {
         };
         queue.write_buffer(&b.params, 0, bytemuck::bytes_of(params));
         queue.write_buffer(&b.frame, 0, bytemuck::bytes_of(&fu));
-        if colour_on || grad_on {
+        if hist_on || grad_on {
             pack_pixels(frame.image.as_raw(), &mut self.pixel_scratch);
             queue.write_buffer(&b.pixels.buf, 0, bytemuck::cast_slice(&self.pixel_scratch));
         }
         queue.write_buffer(&b.particles.buf, 0, bytemuck::cast_slice(particles));
-        if colour_on || grad_on {
+        if hist_on || grad_on {
             particle_sin_cos(particles, frame.theta0, &mut self.trig_scratch);
             queue.write_buffer(&b.trig.buf, 0, bytemuck::cast_slice(&self.trig_scratch));
         }
@@ -542,7 +554,7 @@ impl GpuEngine {
         let per_particle = grid((n as u32).div_ceil(WG), max_dim).ok_or_else(too_many)?;
         let dispatches: [(bool, (u32, u32)); 5] = [
             (grad_on, (w.div_ceil(TILE), h.div_ceil(TILE))),
-            (colour_on, grid(n as u32, max_dim).ok_or_else(too_many)?),
+            (hist_on, grid(n as u32, max_dim).ok_or_else(too_many)?),
             (
                 grad_on,
                 grid((n as u32 * num_lines).div_ceil(WG), max_dim).ok_or_else(too_many)?,
@@ -590,7 +602,7 @@ impl GpuEngine {
                 kernel_wall.push((KERNELS[k], t0.elapsed()));
             }
         }
-        let terms_bytes = n64 * 16;
+        let terms_bytes = n64 * logs;
         encoder.copy_buffer_to_buffer(&b.terms.buf, 0, &b.staging.buf, 0, terms_bytes);
         if let Some(t) = ts {
             let count = 2 * KERNELS.len() as u32;
@@ -608,7 +620,7 @@ impl GpuEngine {
         if let Some(dbg) = debug {
             dbg.histograms.clear();
             dbg.line_distances.clear();
-            for (on, src, bytes) in [(colour_on, 0, hist_bytes), (grad_on, 1, line_bytes)] {
+            for (on, src, bytes) in [(hist_on, 0, hist_bytes), (grad_on, 1, line_bytes)] {
                 if !on || bytes == 0 {
                     continue;
                 }
@@ -705,6 +717,18 @@ impl LikelihoodEngine for GpuEngine {
             .queue
             .write_buffer(&self.bufs.model, 0, bytemuck::cast_slice(&model.0));
         self.has_model = true;
+        Ok(())
+    }
+
+    fn set_contrast_table(&mut self, table: &ContrastTable) -> Result<(), LikelihoodError> {
+        self.gpu.check()?;
+        table.check()?;
+        self.gpu.queue.write_buffer(
+            &self.bufs.model,
+            (HIST_BINS * 4) as u64,
+            bytemuck::cast_slice(&table.0),
+        );
+        self.has_contrast = true;
         Ok(())
     }
 

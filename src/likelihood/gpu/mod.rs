@@ -205,6 +205,7 @@ mod tests {
                 ("colour", offset_of!(TermLogs, colour)),
                 ("gradient", offset_of!(TermLogs, gradient)),
                 ("feature", offset_of!(TermLogs, feature)),
+                ("contrast", offset_of!(TermLogs, contrast)),
                 ("total", offset_of!(TermLogs, total)),
             ],
         );
@@ -240,7 +241,10 @@ mod tests {
                 ("num_lines", offset_of!(LikelihoodParams, num_lines)),
                 ("terms", offset_of!(LikelihoodParams, terms)),
                 ("colour_bins", offset_of!(LikelihoodParams, colour_bins)),
-                ("_pad", offset_of!(LikelihoodParams, _pad)),
+                (
+                    "contrast_scale",
+                    offset_of!(LikelihoodParams, contrast_scale),
+                ),
             ],
         );
         check(
