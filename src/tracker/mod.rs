@@ -357,7 +357,8 @@ impl Tracker {
         self.colour_model = model;
         self.background = None;
         if let Some(c) = self.cfg.contrast {
-            self.background = ring_histogram(frame, &init.ellipse, &c, self.colour_bins());
+            let bins = self.cfg.likelihood.colour_bins;
+            self.background = ring_histogram(frame, &init.ellipse, &c, bins);
             self.send_contrast_table()?;
         }
         let state = PoseState::from_parts(&init.ellipse, init.pose);
@@ -646,11 +647,6 @@ impl Tracker {
             matches: pairs.len(),
             ess: info.ess,
         })
-    }
-
-    /// The colour bins in use.
-    fn colour_bins(&self) -> u32 {
-        self.cfg.likelihood.colour_bins
     }
 
     /// Gives the engine the contrast table of the colour model against the background, when
