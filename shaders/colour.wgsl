@@ -109,16 +109,11 @@ fn colour(
     }
     let total = red_u[0];
 
-    // rho = sum_k sqrt(p_k q_k), p_k = count_k / total.
+    // rho = sum_k sqrt(p_k q_k), p_k = count_k / total, and the contrast sum; with
+    // total == 0 every count is 0 and all three sums stay 0.
     var acc = 0.0;
     var psum = 0.0;
     var lsum = 0.0;
-    for (var k = 0u; k < BINS_PER_THREAD; k++) {
-        let cnt_k = atomicLoad(&hist[k0 + k]);
-        if cnt_k != 0u {
-            lsum += f32(cnt_k) * model[BINS + k0 + k];
-        }
-    }
     if total > 0u {
         let tf = f32(total);
         for (var k = 0u; k < BINS_PER_THREAD; k++) {
@@ -127,6 +122,7 @@ fn colour(
                 let pk = f32(cnt_k) / tf;
                 acc += sqrt(pk * model[k0 + k]);
                 psum += pk;
+                lsum += f32(cnt_k) * model[BINS + k0 + k];
             }
         }
     }

@@ -605,8 +605,11 @@ impl Tracker {
         }
 
         if !self.lost {
-            self.adapt_colour(frame, &est, confidence)?;
-            self.adapt_background(frame, &est, confidence)?;
+            let model_moved = self.adapt_colour(frame, &est, confidence)?;
+            let ring_moved = self.adapt_background(frame, &est, confidence);
+            if model_moved || ring_moved {
+                self.send_contrast_table()?;
+            }
         }
 
         // Angles continuous with the previous output.
@@ -661,50 +664,53 @@ impl Tracker {
 
     /// After a frame with at least [`Contrast::min_confidence`], moves the contrast term's
     /// background towards the ring around the estimate `est`
-    /// ([`Contrast::background_rate`]).
+    /// ([`Contrast::background_rate`]). Returns whether it moved; the caller then sends the
+    /// new table ([`Self::send_contrast_table`]).
     fn adapt_background(
         &mut self,
         frame: &image::RgbImage,
         est: &Hypothesis,
         confidence: f64,
-    ) -> crate::Result<()> {
+    ) -> bool {
         let (Some(c), Some(bg)) = (self.cfg.contrast, self.background.as_mut()) else {
-            return Ok(());
+            return false;
         };
         if confidence < c.min_confidence || c.background_rate <= 0.0 {
-            return Ok(());
+            return false;
         }
         let e = est.to_state().ellipse(self.theta0);
         let Some(seen) = ring_histogram(frame, &e, &c, self.cfg.likelihood.colour_bins) else {
-            return Ok(());
+            return false;
         };
         bg.blend_towards(&seen, c.background_rate as f32);
-        self.send_contrast_table()
+        true
     }
 
     /// After a frame with at least [`ColourUpdate::min_confidence`], moves the colour model
     /// towards the histogram inside the estimate `est` and hands it to the engine. An estimate
-    /// whose ellipse holds no pixel of the frame leaves the model as it is.
+    /// whose ellipse holds no pixel of the frame leaves the model as it is. Returns whether
+    /// the model moved; the contrast table, which depends on it, is then the caller's to send
+    /// ([`Self::send_contrast_table`]).
     fn adapt_colour(
         &mut self,
         frame: &image::RgbImage,
         est: &Hypothesis,
         confidence: f64,
-    ) -> crate::Result<()> {
+    ) -> crate::Result<bool> {
         let Some(u) = self.cfg.colour_update else {
-            return Ok(());
+            return Ok(false);
         };
         if confidence < u.min_confidence {
-            return Ok(());
+            return Ok(false);
         }
         let e = est.to_state().ellipse(self.theta0);
         let Ok(seen) = ColourHistogram::from_ellipse(frame, &e, self.cfg.likelihood.colour_bins)
         else {
-            return Ok(());
+            return Ok(false);
         };
         self.colour_model.blend_towards(&seen, u.rate as f32);
         self.engine.set_colour_model(&self.colour_model)?;
-        self.send_contrast_table()
+        Ok(true)
     }
 
     /// The keyframe fits' settings from the configuration, for a fit from `prev` moved by
