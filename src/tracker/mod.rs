@@ -111,11 +111,22 @@ impl Estimate {
 
 /// Most keyframes held (the first view and those taken as the target turned).
 const KEYFRAMES: usize = 12;
+
 /// Keyframes fitted per frame, the nearest to the previous estimate first.
 const KEYFRAME_TRIES: usize = 3;
 /// Keyframes further than this from the previous estimate (radians, 45°) are not tried: SIFT
 /// matches few features across larger turns.
 const KEYFRAME_REACH: f64 = std::f64::consts::FRAC_PI_4;
+
+/// Sizes a re-acquisition searches at, times the initial ellipse's: an octave either way in
+/// half-octave steps.
+const REACQUIRE_SCALES: [f64; 5] = [
+    0.5,
+    std::f64::consts::FRAC_1_SQRT_2,
+    1.0,
+    std::f64::consts::SQRT_2,
+    2.0,
+];
 
 /// The joint tracker and pose estimator.
 pub struct Tracker {
@@ -132,8 +143,6 @@ pub struct Tracker {
     keyframes: KeyframePool,
     prev: Hypothesis,
     prev_euler: Euler,
-    /// The last estimate with enough confidence: a re-acquisition searches at its size.
-    last_good: Hypothesis,
     low_count: usize,
     lost: bool,
     particles: Vec<Particle>,
@@ -322,7 +331,6 @@ impl Tracker {
             keyframes: KeyframePool::new(KEYFRAMES),
             prev: Hypothesis::from_state(&PoseState::default()),
             prev_euler: Euler::default(),
-            last_good: Hypothesis::from_state(&PoseState::default()),
             low_count: 0,
             lost: false,
             particles: Vec::new(),
@@ -371,7 +379,6 @@ impl Tracker {
         ));
         self.filter.reset(&hyp);
         self.prev = hyp;
-        self.last_good = hyp;
         self.prev_euler = init.pose;
         self.prev_gray = GrayF32::from_rgb(frame);
         let region = search_region(&init.ellipse, w, h);
@@ -546,13 +553,7 @@ impl Tracker {
             lp.terms &= !TERM_FEATURE;
         }
         // The contrast term as a share of the previous estimate's area.
-        if let (Some(c), Some(_)) = (self.cfg.contrast, &self.background) {
-            let area = std::f64::consts::PI * prev_state.a * prev_state.b;
-            if c.weight > 0.0 && area > 0.0 {
-                lp.terms |= TERM_CONTRAST;
-                lp.contrast_scale = (c.weight / area) as f32;
-            }
-        }
+        self.enable_contrast(&mut lp, prev_state.a * prev_state.b);
 
         // The filter step.
         let spread = if self.lost { 3.0 } else { 1.0 };
@@ -591,7 +592,6 @@ impl Tracker {
         } else {
             self.low_count = 0;
             self.lost = false;
-            self.last_good = est;
         }
         if self.low_count >= self.cfg.lost_after {
             self.lost = true;
@@ -650,6 +650,18 @@ impl Tracker {
             matches: pairs.len(),
             ess: info.ess,
         })
+    }
+
+    /// Turns the contrast term on in `lp` when it is configured and has a background, as the
+    /// mean log-odds over an ellipse of semi-axes product `ab` ([`Contrast::weight`]).
+    fn enable_contrast(&self, lp: &mut LikelihoodParams, ab: f64) {
+        if let (Some(c), Some(_)) = (self.cfg.contrast, &self.background) {
+            let area = std::f64::consts::PI * ab;
+            if c.weight > 0.0 && area > 0.0 {
+                lp.terms |= TERM_CONTRAST;
+                lp.contrast_scale = (c.weight / area) as f32;
+            }
+        }
     }
 
     /// Gives the engine the contrast table of the colour model against the background, when
@@ -818,13 +830,20 @@ impl Tracker {
         if rotation_measured { c } else { 0.8 * c }
     }
 
-    /// Looks for the target over the whole frame: by colour first, ellipses of the last
-    /// confident estimate's size on a grid of half a semi-axis, all evaluated in one engine
-    /// call; the best one, when its colour similarity reaches
-    /// [`TrackerConfig::reacquire_rho`], is then verified by its features, which must fit one
-    /// of the keyframes (any pose). Returns the target as that fit places it, with its own
-    /// confidence, when it lies where it was searched ([`placed_within`]), passes the
-    /// candidate's colour test and is confident ([`TrackerConfig::lost_below`]).
+    /// Looks for the target over the whole frame: by colour first, ellipses at
+    /// [`REACQUIRE_SCALES`] times the initial ellipse's size on a grid of half a semi-axis,
+    /// all evaluated in one engine call and ranked by the colour term plus, when it is on,
+    /// the contrast term (which prefers the size holding the target's colours and no more);
+    /// the best one, when its colour similarity reaches [`TrackerConfig::reacquire_rho`], is
+    /// then verified by its features, which must fit one of the keyframes (any pose).
+    /// Returns the target as that fit places it, with its own confidence, when it lies where
+    /// it was searched ([`placed_within`]), passes the candidate's colour test and is
+    /// confident ([`TrackerConfig::lost_below`]).
+    ///
+    /// The sizes come from the initial ellipse, not from the track: a track is declared lost
+    /// only after its estimate has drifted for a while, and by then its size is no guide (on
+    /// OTB girl the last estimate above the lost threshold was 2 x 2 px on a 13 x 17 px head,
+    /// on car4 96 x 104 px on a 34 x 26 px car).
     fn reacquire(
         &mut self,
         frame: &image::RgbImage,
@@ -832,31 +851,11 @@ impl Tracker {
         est: &Hypothesis,
     ) -> crate::Result<Option<(Hypothesis, f64)>> {
         let (w, h) = self.size;
-        // The size of the last confident estimate: the lost track's own may have drifted.
-        let (a, b) = (self.last_good.a, self.last_good.b);
-        let step = (0.5 * a.min(b)).max(2.0);
-        let e = Euler::from_matrix(&est.rot);
-        let mut cands = Vec::new();
-        let mut y = 0.0;
-        while y < h as f64 {
-            let mut x = 0.0;
-            while x < w as f64 {
-                cands.push(Particle {
-                    cx: x as f32,
-                    cy: y as f32,
-                    a: a as f32,
-                    b: b as f32,
-                    rx: e.rx as f32,
-                    ry: e.ry as f32,
-                    rz: e.rz as f32,
-                    _pad: 0.0,
-                });
-                x += step;
-            }
-            y += step;
-        }
+        let cands = search_grid(&self.reference, w, h, &Euler::from_matrix(&est.rot));
         let mut lp = self.cfg.likelihood;
         lp.terms = TERM_COLOUR;
+        // The contrast sum over the same area for every size, the initial ellipse's.
+        self.enable_contrast(&mut lp, self.reference.a * self.reference.b);
         let input = FrameInput {
             image: frame,
             features: &[],
@@ -868,7 +867,7 @@ impl Tracker {
         let best = out
             .iter()
             .enumerate()
-            .max_by(|a, b| a.1.colour.total_cmp(&b.1.colour))
+            .max_by(|a, b| a.1.total.total_cmp(&b.1.total))
             .map(|(i, t)| (i, rho_from_log(t.colour, lp.sigma_colour)));
         let found = match best {
             Some((i, rho)) if rho >= self.cfg.reacquire_rho => {
@@ -876,8 +875,8 @@ impl Tracker {
                 Hypothesis {
                     cx: c.cx as f64,
                     cy: c.cy as f64,
-                    a,
-                    b,
+                    a: c.a as f64,
+                    b: c.b as f64,
                     rot: est.rot,
                 }
             }
@@ -924,6 +923,36 @@ impl Tracker {
         let c = self.confidence(&shown, &[1.0], true);
         Ok((rho >= self.cfg.reacquire_rho && c >= self.cfg.lost_below).then_some((placed, c)))
     }
+}
+
+/// The candidates of a re-acquisition in a `w x h` frame: for each of [`REACQUIRE_SCALES`],
+/// ellipses of `reference`'s semi-axes times the scale, centred on a grid from the frame's
+/// corner with a step of half the smaller semi-axis (at least 2 px), at angles `e`.
+fn search_grid(reference: &Ellipse, w: u32, h: u32, e: &Euler) -> Vec<Particle> {
+    let mut cands = Vec::new();
+    for scale in REACQUIRE_SCALES {
+        let (a, b) = (scale * reference.a, scale * reference.b);
+        let step = (0.5 * a.min(b)).max(2.0);
+        let mut y = 0.0;
+        while y < h as f64 {
+            let mut x = 0.0;
+            while x < w as f64 {
+                cands.push(Particle {
+                    cx: x as f32,
+                    cy: y as f32,
+                    a: a as f32,
+                    b: b as f32,
+                    rx: e.rx as f32,
+                    ry: e.ry as f32,
+                    rz: e.rz as f32,
+                    _pad: 0.0,
+                });
+                x += step;
+            }
+            y += step;
+        }
+    }
+    cands
 }
 
 /// Whether `placed`, the target as a re-acquisition fit places it, lies where that fit's
@@ -1101,6 +1130,52 @@ mod tests {
                 "{placed:?} in {region:?}"
             );
         }
+    }
+
+    #[test]
+    fn a_reacquisition_searches_the_whole_frame_at_five_sizes_of_the_initial_ellipse() {
+        // 20 x 12 semi-axes in a 100 x 60 frame: steps 3 (6 x 0.5), 4.24, 6, 8.49, 12 px.
+        let reference = Ellipse::new(30.0, 20.0, 20.0, 12.0);
+        let e = Euler::from_degrees(10.0, -20.0, 5.0);
+        let cands = search_grid(&reference, 100, 60, &e);
+        let per_axis = |len: f64, step: f64| (len / step).ceil() as usize;
+        let mut expected = 0;
+        for scale in REACQUIRE_SCALES {
+            let (a, b) = (20.0 * scale, 12.0 * scale);
+            let step = 0.5 * b;
+            let these: Vec<&Particle> = cands
+                .iter()
+                .filter(|p| (p.a as f64 - a).abs() < 1e-4 && (p.b as f64 - b).abs() < 1e-4)
+                .collect();
+            assert_eq!(
+                these.len(),
+                per_axis(100.0, step) * per_axis(60.0, step),
+                "{scale}"
+            );
+            // The grid reaches across the frame, from the corner to within a step of the far
+            // sides.
+            let max_x = these.iter().map(|p| p.cx).fold(0.0f32, f32::max) as f64;
+            let max_y = these.iter().map(|p| p.cy).fold(0.0f32, f32::max) as f64;
+            assert!(these.iter().any(|p| p.cx == 0.0 && p.cy == 0.0));
+            assert!(
+                max_x < 100.0 && max_x >= 100.0 - step - 1e-3,
+                "{scale}: {max_x}"
+            );
+            assert!(
+                max_y < 60.0 && max_y >= 60.0 - step - 1e-3,
+                "{scale}: {max_y}"
+            );
+            expected += these.len();
+        }
+        assert_eq!(cands.len(), expected);
+        assert!(
+            cands
+                .iter()
+                .all(|p| p.rx == e.rx as f32 && p.ry == e.ry as f32 && p.rz == e.rz as f32)
+        );
+        // A tiny reference still steps by at least 2 px.
+        let tiny = search_grid(&Ellipse::new(5.0, 5.0, 1.0, 1.0), 10, 10, &e);
+        assert_eq!(tiny.len(), 5 * 25);
     }
 
     #[test]
