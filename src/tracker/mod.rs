@@ -812,11 +812,8 @@ impl Tracker {
         }
         let mut edges = 1.0;
         if lp.terms & TERM_GRADIENT != 0 && lp.num_lines > 0 {
-            let k = 1.0
-                / ((2.0 * std::f64::consts::PI).sqrt()
-                    * lp.sigma_z as f64
-                    * lp.p_no_contour as f64
-                    * lp.clutter_density as f64);
+            // Every line's edge on the contour: the term's largest value.
+            let k = f64::from(crate::likelihood::cpu::gradient::clutter_gain(lp));
             let full = lp.num_lines as f64 * (1.0 + k).ln();
             let g: f64 = self
                 .terms
