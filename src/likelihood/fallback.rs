@@ -40,6 +40,27 @@ impl FallbackEngine {
         self.on_cpu
     }
 
+    /// What a setter's result `r` means here: on success, or on a lost device (which then
+    /// falls back), `keep` records the value for the CPU engine a fall-back opens; any other
+    /// error passes through and nothing is recorded.
+    fn settle(
+        &mut self,
+        r: Result<(), LikelihoodError>,
+        keep: impl FnOnce(&mut Self),
+    ) -> Result<(), LikelihoodError> {
+        match r {
+            Err(LikelihoodError::DeviceLost(msg)) if !self.on_cpu => {
+                keep(self);
+                self.fall_back(&msg)
+            }
+            Ok(()) => {
+                keep(self);
+                Ok(())
+            }
+            Err(e) => Err(e),
+        }
+    }
+
     fn fall_back(&mut self, lost: &str) -> Result<(), LikelihoodError> {
         let from = self.active.name();
         let mut cpu = CpuEngine::new();
@@ -68,31 +89,13 @@ impl LikelihoodEngine for FallbackEngine {
     }
 
     fn set_colour_model(&mut self, model: &ColourHistogram) -> Result<(), LikelihoodError> {
-        match self.active.set_colour_model(model) {
-            Err(LikelihoodError::DeviceLost(msg)) if !self.on_cpu => {
-                self.model = Some(model.clone());
-                self.fall_back(&msg)
-            }
-            Ok(()) => {
-                self.model = Some(model.clone());
-                Ok(())
-            }
-            Err(e) => Err(e),
-        }
+        let r = self.active.set_colour_model(model);
+        self.settle(r, |s| s.model = Some(model.clone()))
     }
 
     fn set_contrast_table(&mut self, table: &ContrastTable) -> Result<(), LikelihoodError> {
-        match self.active.set_contrast_table(table) {
-            Err(LikelihoodError::DeviceLost(msg)) if !self.on_cpu => {
-                self.contrast = Some(table.clone());
-                self.fall_back(&msg)
-            }
-            Ok(()) => {
-                self.contrast = Some(table.clone());
-                Ok(())
-            }
-            Err(e) => Err(e),
-        }
+        let r = self.active.set_contrast_table(table);
+        self.settle(r, |s| s.contrast = Some(table.clone()))
     }
 
     fn evaluate(

@@ -111,7 +111,6 @@ impl Estimate {
 
 /// Most keyframes held (the first view and those taken as the target turned).
 const KEYFRAMES: usize = 12;
-
 /// Keyframes fitted per frame, the nearest to the previous estimate first.
 const KEYFRAME_TRIES: usize = 3;
 /// Keyframes further than this from the previous estimate (radians, 45°) are not tried: SIFT
