@@ -23,7 +23,7 @@
 //! Per frame ([`Tracker::step`]): SIFT in the previous ellipse's neighbourhood, matching
 //! against the previous frame's features, the paper's slope/length outlier rejection, the
 //! inter-frame rotation from Sylvester's equation (both members of its Necker pair),
-//! adaptive block matching for the translation and scale, then the particle filter: proposal
+//! adaptive block matching for the translation, then the particle filter: proposal
 //! around `x + Δx`, all particles' likelihoods in one call of the likelihood engine (CPU or
 //! GPU), weights, estimate, resampling. A confidence in `[0, 1]` and a lost flag come with
 //! every estimate; a lost target is searched for over the whole frame by colour and taken back
@@ -445,7 +445,7 @@ impl Tracker {
         let prev_ellipse = prev_state.ellipse(self.theta0);
 
         // Features: SIFT around the previous ellipse, matched to the previous frame's.
-        // SIFT around the previous ellipse and block matching for the translation and scale do
+        // SIFT around the previous ellipse and block matching for the translation do
         // not depend on each other: on two cores they run side by side.
         let region = search_region(&prev_ellipse, w, h);
         let abm = crate::motion::AbmParams::for_target(&prev_ellipse);
@@ -545,7 +545,7 @@ impl Tracker {
         let motion = Motion {
             dx,
             dy,
-            scale,
+            scale: if self.cfg.motion_scale { scale } else { 1.0 },
             rotations,
         };
         if self.cfg.mode == Mode::Tpe || lik_pairs.is_empty() {

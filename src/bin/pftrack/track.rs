@@ -93,6 +93,11 @@ pub struct TrackArgs {
     /// Leave the ellipse's aspect free, as the paper does.
     #[arg(long)]
     pub no_aspect_bound: bool,
+    /// Scale the ellipse in the proposal by the size change block matching and the keyframe
+    /// fits measure between frames. Off by default, as in the paper: on real footage that
+    /// change follows the background too (see `TrackerConfig::motion_scale`).
+    #[arg(long)]
+    pub motion_scale: bool,
     /// Weight of the contrast term: the target's colours against a ring around it, which
     /// keeps the ellipse to the target's size (see `tracker::Contrast`). 0 leaves the
     /// paper's three terms alone.
@@ -271,6 +276,7 @@ pub fn run(a: TrackArgs) -> anyhow::Result<()> {
         cfg.fit_pixel_sigma = None;
     }
     cfg.aspect_slack = (!a.no_aspect_bound).then_some(a.aspect_slack);
+    cfg.motion_scale = a.motion_scale;
     cfg.contrast = if a.contrast_weight == 0.0 {
         None
     } else {
