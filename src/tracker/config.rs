@@ -168,15 +168,16 @@ pub struct TrackerConfig {
     /// footage that includes the background. On OTB car4 block matching and the keyframe fits
     /// read 2-5 % growth per frame from the road and trees beside the car for tens of frames,
     /// and the ellipse swelled to about eight times the car's width while it drifted off.
-    /// Measured with `pftrack track --backend cpu` and `pftrack eval` (success AUC, filter
-    /// seeds 0-7): car4 0.33 with the scale, 0.57 without it (0.53 over seeds 0-15); girl
-    /// 0.43 and 0.41 (within its seed spread, 0.23-0.50 per seed). Keeping only block
-    /// matching's scale gave girl 0.36 and car4 0.26; only the keyframe fits' gave 0.38 and
-    /// 0.43; bounding the scale to ±0.5 % per frame gave car4 0.46 (seeds 0-15). On the
-    /// synthetic scenarios, whose background is still, it is a wash: the angle RMSE summed
-    /// over scenarios and axes went from 64.5 to 63.6 degrees on seeds 0-5 and from 77.6 to
-    /// 78.1 on seeds 6-11 (`depth` 7.0 to 9.3, from two seeds of six), and the `car`
-    /// scenario's mean centre error fell from 3.8 to 1.6 px and from 3.5 to 1.7 px.
+    /// Measured with `pftrack track --backend cpu` and `pftrack eval` (success AUC): car4
+    /// 0.33 with the scale and 0.57 without it over filter seeds 0-7, 0.33 and 0.53 over
+    /// seeds 0-15; girl 0.43 and 0.41 over seeds 0-7, 0.44 and 0.40 over seeds 0-15, a real
+    /// cost on girl but a fifth of car4's gain. Keeping only block matching's scale gave girl
+    /// 0.36 and car4 0.26 (seeds 0-7); only the keyframe fits' gave 0.38 and 0.43; bounding
+    /// the scale to ±0.5 % per frame gave car4 0.46 (seeds 0-15). On the synthetic
+    /// scenarios, whose background is still, it is a wash: the angle RMSE summed over
+    /// scenarios and axes went from 64.5 to 63.6 degrees on seeds 0-5 and from 77.6 to 78.1
+    /// on seeds 6-11 (`depth` 7.0 to 9.3, from two seeds of six), and the `car` scenario's
+    /// mean centre error fell from 3.8 to 1.6 px and from 3.5 to 1.7 px.
     pub motion_scale: bool,
 }
 
