@@ -154,6 +154,18 @@ fn bad_input_is_an_error() {
         let err = Tracker::new(cfg, &img, Init::frontal(r.init_ellipse())).unwrap_err();
         assert!(err.to_string().contains("aspect_slack"), "{err}");
     }
+    // The inter-frame consensus: a positive threshold and at least the 3 matches of a map.
+    for (threshold, min_inliers) in [(0.0, 5), (f64::NAN, 5), (-1.0, 5), (1.0, 2)] {
+        let cfg = TrackerConfig {
+            interframe_consensus: Some(pftrack::pose::Consensus {
+                threshold,
+                min_inliers,
+            }),
+            ..TrackerConfig::default()
+        };
+        let err = Tracker::new(cfg, &img, Init::frontal(r.init_ellipse())).unwrap_err();
+        assert!(err.to_string().contains("consensus"), "{err}");
+    }
     // The contrast term: a ring beyond the ellipse, a positive bound, shares in [0, 1].
     let d = Contrast::default();
     for c in [

@@ -42,57 +42,81 @@ fn affine3(p: &[[f64; 2]; 3], q: &[[f64; 2]; 3]) -> Option<(Matrix2<f64>, Vector
     Some((r2, m.mean_q - r2 * m.mean_p))
 }
 
+/// The largest set of matches `p -> q` that one affine map `q = M p + l` carries to within
+/// `threshold` pixels, found by RANSAC on minimal samples of 3 (see the module's notes on the
+/// number of iterations and ties); `true` marks an inlier. Deterministic for the seed.
+///
+/// Errors: fewer than 3 matches, NaN/inf or degenerate points ([`moments`]), a threshold that
+/// is not positive, or no sample that fixes a map ([`PoseError::NoSolution`]).
+pub fn affine_consensus(
+    p: &[[f64; 2]],
+    q: &[[f64; 2]],
+    threshold: f64,
+    confidence: f64,
+    max_iter: usize,
+    seed: u64,
+) -> Result<Vec<bool>, PoseError> {
+    moments(p, q, 3)?;
+    if threshold.is_nan() || threshold <= 0.0 {
+        return Err(PoseError::NoSolution("RANSAC threshold must be positive"));
+    }
+    let n = p.len();
+    let mut rng = StdRng::seed_from_u64(seed);
+    let t2 = threshold * threshold;
+    let mut best: Option<(usize, f64, Vec<bool>)> = None;
+    let mut needed = max_iter;
+    let mut it = 0;
+    while it < needed.min(max_iter) {
+        it += 1;
+        let idx = sample(&mut rng, n, 3);
+        let (i, j, k) = (idx.index(0), idx.index(1), idx.index(2));
+        let Some((r2, l)) = affine3(&[p[i], p[j], p[k]], &[q[i], q[j], q[k]]) else {
+            continue;
+        };
+        let mut mask = vec![false; n];
+        let mut count = 0;
+        let mut err = 0.0;
+        for (jj, (x, y)) in p.iter().zip(q).enumerate() {
+            let e = (Vector2::new(y[0], y[1]) - r2 * Vector2::new(x[0], x[1]) - l).norm_squared();
+            if e < t2 {
+                mask[jj] = true;
+                count += 1;
+                err += e;
+            }
+        }
+        let better = match &best {
+            None => true,
+            Some((c, e, _)) => count > *c || (count == *c && err < *e),
+        };
+        if better {
+            let w = count as f64 / n as f64;
+            let denom = (1.0 - w.powi(3)).ln();
+            needed = if denom < 0.0 {
+                ((1.0 - confidence).ln() / denom).ceil().max(1.0) as usize
+            } else {
+                max_iter
+            };
+            best = Some((count, err, mask));
+        }
+    }
+    best.map(|(_, _, mask)| mask)
+        .ok_or(PoseError::NoSolution("RANSAC found no model"))
+}
+
 impl RotationSolver for Rls {
     fn name(&self) -> &'static str {
         "rls"
     }
 
     fn solve(&self, p: &[[f64; 2]], q: &[[f64; 2]]) -> Result<BlockEstimate, PoseError> {
-        moments(p, q, 3)?;
-        if self.threshold.is_nan() || self.threshold <= 0.0 {
-            return Err(PoseError::NoSolution("RANSAC threshold must be positive"));
-        }
-        let n = p.len();
-        let mut rng = StdRng::seed_from_u64(self.seed);
-        let t2 = self.threshold * self.threshold;
-        let mut best: Option<(usize, f64, Vec<bool>)> = None;
-        let mut needed = self.max_iter;
-        let mut it = 0;
-        while it < needed.min(self.max_iter) {
-            it += 1;
-            let idx = sample(&mut rng, n, 3);
-            let (i, j, k) = (idx.index(0), idx.index(1), idx.index(2));
-            let Some((r2, l)) = affine3(&[p[i], p[j], p[k]], &[q[i], q[j], q[k]]) else {
-                continue;
-            };
-            let mut mask = vec![false; n];
-            let mut count = 0;
-            let mut err = 0.0;
-            for (jj, (x, y)) in p.iter().zip(q).enumerate() {
-                let e =
-                    (Vector2::new(y[0], y[1]) - r2 * Vector2::new(x[0], x[1]) - l).norm_squared();
-                if e < t2 {
-                    mask[jj] = true;
-                    count += 1;
-                    err += e;
-                }
-            }
-            let better = match &best {
-                None => true,
-                Some((c, e, _)) => count > *c || (count == *c && err < *e),
-            };
-            if better {
-                let w = count as f64 / n as f64;
-                let denom = (1.0 - w.powi(3)).ln();
-                needed = if denom < 0.0 {
-                    ((1.0 - self.confidence).ln() / denom).ceil().max(1.0) as usize
-                } else {
-                    self.max_iter
-                };
-                best = Some((count, err, mask));
-            }
-        }
-        let (_, _, mask) = best.ok_or(PoseError::NoSolution("RANSAC found no model"))?;
+        let mask = affine_consensus(
+            p,
+            q,
+            self.threshold,
+            self.confidence,
+            self.max_iter,
+            self.seed,
+        )?;
         let (pi, qi): (Vec<[f64; 2]>, Vec<[f64; 2]>) = p
             .iter()
             .zip(q)

@@ -6,6 +6,7 @@ use crate::filter::FilterParams;
 use crate::geometry::{Ellipse, Euler};
 use crate::likelihood::LikelihoodParams;
 use crate::motion::AbmParams;
+use crate::pose::Consensus;
 
 /// Which of the paper's systems to run.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
@@ -95,6 +96,11 @@ pub struct TrackerConfig {
     /// is the only term that sees the rotation; 8 (with the filter's 0.05 rad rotation walk)
     /// gave the lowest angle errors on held-out synthetic seeds of the values tried (1, 4, 8).
     pub feature_weight: f64,
+    /// The consensus test the matches with the previous frame must pass before the rotation
+    /// between the two frames is estimated from them ([`Consensus`]: at least 5 matches that
+    /// one affine map carries to within 1 px, by default). `None` estimates it from any 3 or
+    /// more matches, as the paper does.
+    pub interframe_consensus: Option<Consensus>,
     /// Largest rotation between two frames a keyframe fit may imply (radians); a fit beyond it
     /// is taken for a mismatch and ignored for that frame.
     pub max_rotation_step: f64,
@@ -328,6 +334,7 @@ impl Default for TrackerConfig {
             lost_after: 3,
             reacquire_rho: 0.8,
             feature_weight: 8.0,
+            interframe_consensus: Some(Consensus::default()),
             max_rotation_step: 20f64.to_radians(),
             max_fit_residual: 3.0,
             min_fit_inliers: 10,

@@ -46,7 +46,7 @@ use crate::likelihood::{
     LikelihoodParams, Particle, TERM_COLOUR, TERM_CONTRAST, TERM_FEATURE, TERM_GRADIENT, TermLogs,
 };
 use crate::motion::block_match;
-use crate::pose::{SolverKind, interframe};
+use crate::pose::{SolverKind, interframe_consensus};
 use keyframe::{FitContext, KeyframePool};
 
 /// Errors of the tracker.
@@ -223,6 +223,13 @@ fn check_config(cfg: &TrackerConfig) -> Result<(), TrackError> {
         c.check().map_err(|e| {
             TrackError::BadConfig(format!(
                 "{e}; set contrast to None for the paper's three terms alone"
+            ))
+        })?;
+    }
+    if let Some(c) = &cfg.interframe_consensus {
+        c.check().map_err(|e| {
+            TrackError::BadConfig(format!(
+                "{e}; set interframe_consensus to None to estimate the rotation from any 3 matches"
             ))
         })?;
     }
@@ -466,11 +473,13 @@ impl Tracker {
         let use_key = self.cfg.mode != Mode::Tpe;
         // The matches with the previous frame and the rotation between the two frames.
         let (prev_features, matching) = (&self.prev_features, &self.cfg.matching);
+        let consensus = self.cfg.interframe_consensus.as_ref();
         let between_frames = || {
             let pairs = correspondences(prev_features, matching, &prev_ellipse, &features);
             let inter = if pairs.len() >= 3 {
                 let (p, q) = FeaturePair::split(&pairs);
-                interframe(&p, &q, [prev_state.cx, prev_state.cy], solver).ok()
+                let centre = [prev_state.cx, prev_state.cy];
+                interframe_consensus(&p, &q, centre, solver, consensus).ok()
             } else {
                 None
             };

@@ -93,6 +93,11 @@ pub struct TrackArgs {
     /// Leave the ellipse's aspect free, as the paper does.
     #[arg(long)]
     pub no_aspect_bound: bool,
+    /// Estimate the rotation between successive frames from any 3 or more matches, as the
+    /// paper does, instead of from at least 5 that one affine map carries to within 1 px
+    /// (see `pose::Consensus`).
+    #[arg(long)]
+    pub no_interframe_consensus: bool,
     /// Scale the ellipse in the proposal by the size change block matching and the keyframe
     /// fits measure between frames. Off by default, as in the paper: on real footage that
     /// change follows the background too (see `TrackerConfig::motion_scale`).
@@ -277,6 +282,9 @@ pub fn run(a: TrackArgs) -> anyhow::Result<()> {
     }
     cfg.aspect_slack = (!a.no_aspect_bound).then_some(a.aspect_slack);
     cfg.motion_scale = a.motion_scale;
+    if a.no_interframe_consensus {
+        cfg.interframe_consensus = None;
+    }
     cfg.contrast = if a.contrast_weight == 0.0 {
         None
     } else {
