@@ -130,11 +130,16 @@ pub struct TrackerConfig {
     /// How the colour model follows the target's appearance; `None` (the default) keeps the
     /// first frame's histogram throughout, as the paper does. Adapting helps where the
     /// target's colours change while it is followed: a head that turns away shows hair where
-    /// the model holds a face (OTB girl, success AUC over seeds 0-7: 0.32 fixed, 0.40 with
-    /// [`ColourUpdate::default`]). It is not the default because it also learns whatever a
-    /// drifting estimate covers: on grayscale car4 the AUC fell from 0.21 to 0.18 (seeds
-    /// 0-5, with the RGB bins, before [`Self::grey_luma`]), and the synthetic `combo` scenario's summed angle RMSE rose from about 29 to 73
-    /// degrees over seeds 6-11.
+    /// the model holds a face. With today's other defaults (success AUC with `pftrack eval`,
+    /// filter seeds 0-15) OTB girl goes from 0.41 fixed to 0.53 with
+    /// [`ColourUpdate::default`], every seed between 0.50 and 0.56, the head followed
+    /// through the frames where she turns her back. It is not the default because it also
+    /// learns whatever a drifting estimate covers: on grayscale car4 the AUC falls from 0.57
+    /// to 0.17, in every seed, the ellipse sliding onto the road from about frame 60 while its
+    /// confidence stays high. On the synthetic scenarios it is a wash (angle RMSE summed over
+    /// scenarios and axes 64.9 against 65.7 degrees, seeds 0-11, filter seed 0); before the
+    /// contrast term and today's proposal it made `combo` much worse (29 to 73 over seeds
+    /// 6-11).
     pub colour_update: Option<ColourUpdate>,
     /// On grayscale footage (every pixel of the first frame given to [`super::Tracker::new`]
     /// grey, `R = G = B`), count 64 levels of luma in the colour histogram
