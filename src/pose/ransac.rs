@@ -103,6 +103,16 @@ pub fn affine_consensus(
         .ok_or(PoseError::NoSolution("RANSAC found no model"))
 }
 
+/// The matches `p -> q` that `mask` marks (`true`), as two point sets.
+pub fn select(p: &[[f64; 2]], q: &[[f64; 2]], mask: &[bool]) -> (Vec<[f64; 2]>, Vec<[f64; 2]>) {
+    p.iter()
+        .zip(q)
+        .zip(mask)
+        .filter(|(_, m)| **m)
+        .map(|((a, b), _)| (*a, *b))
+        .unzip()
+}
+
 impl RotationSolver for Rls {
     fn name(&self) -> &'static str {
         "rls"
@@ -117,13 +127,7 @@ impl RotationSolver for Rls {
             self.max_iter,
             self.seed,
         )?;
-        let (pi, qi): (Vec<[f64; 2]>, Vec<[f64; 2]>) = p
-            .iter()
-            .zip(q)
-            .zip(&mask)
-            .filter(|(_, m)| **m)
-            .map(|((a, b), _)| (*a, *b))
-            .unzip();
+        let (pi, qi) = select(p, q, &mask);
         let mo = moments(&pi, &qi, 3)
             .map_err(|_| PoseError::NoSolution("RANSAC inliers are degenerate"))?;
         let r2 = lsm_block(&mo)?;
