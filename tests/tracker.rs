@@ -154,6 +154,15 @@ fn bad_input_is_an_error() {
         let err = Tracker::new(cfg, &img, Init::frontal(r.init_ellipse())).unwrap_err();
         assert!(err.to_string().contains("aspect_slack"), "{err}");
     }
+    // The size hold, likewise.
+    for k in [0.9, 0.0, -1.2, f64::NAN, f64::INFINITY] {
+        let cfg = TrackerConfig {
+            size_hold: Some(k),
+            ..TrackerConfig::default()
+        };
+        let err = Tracker::new(cfg, &img, Init::frontal(r.init_ellipse())).unwrap_err();
+        assert!(err.to_string().contains("size_hold"), "{err}");
+    }
     // The inter-frame consensus: a positive threshold and at least the 3 matches of a map.
     for (threshold, min_inliers) in [(0.0, 5), (f64::NAN, 5), (-1.0, 5), (1.0, 2)] {
         let cfg = TrackerConfig {
@@ -363,6 +372,70 @@ fn the_tracker_keeps_its_particles_to_the_models_aspect_range() {
     assert!(
         free > 100,
         "only {free} free particles left the range in 7 frames"
+    );
+}
+
+/// While the tracker is unsure of its target, its particles keep the size of the last
+/// confident estimate (within `size_hold`); without the hold nothing keeps them there. The
+/// head of `nod` is followed for a few frames, then leaves nothing but a flat grey frame: no
+/// likelihood can rank sizes there, and the random walk (three times wider once the target
+/// is lost) spreads them.
+#[test]
+fn an_uncertain_tracker_holds_the_last_confident_size() {
+    let r = Renderer::new(&SynthConfig::new(Scenario::Nod)).unwrap();
+    let (first, _) = r.render(0);
+    let grey = image::RgbImage::from_pixel(first.width(), first.height(), image::Rgb([128; 3]));
+    let (gone, n) = (6, 26);
+    let run = |hold: Option<f64>| {
+        let cfg = TrackerConfig {
+            size_hold: hold,
+            ..TrackerConfig::default()
+        };
+        let lost_below = cfg.lost_below;
+        let mut t = Tracker::new(cfg, &first, Init::frontal(r.init_ellipse())).unwrap();
+        let mut held = (r.init_ellipse().a, r.init_ellipse().b);
+        // The largest factor between a particle's semi-axis and the held one, over the frames
+        // where the tracker was unsure.
+        let mut worst: f64 = 1.0;
+        let mut unsure = 0;
+        for k in 1..n {
+            let img = if k < gone {
+                r.render(k).0
+            } else {
+                grey.clone()
+            };
+            let e = t.step(&img).unwrap();
+            if k < gone {
+                assert!(e.confidence >= lost_below && !e.lost, "frame {k}: {e:?}");
+            }
+            if e.confidence < lost_below {
+                unsure += 1;
+                for p in t.filter().particles() {
+                    for (x, h) in [(p.a, held.0), (p.b, held.1)] {
+                        worst = worst.max(x / h).max(h / x);
+                    }
+                }
+            } else {
+                held = (e.state.a, e.state.b);
+            }
+        }
+        assert!(
+            t.step(&grey).unwrap().lost,
+            "still not lost after {} empty frames",
+            n - gone
+        );
+        assert!(unsure >= n - gone - 1, "unsure on only {unsure} frames");
+        worst
+    };
+    let held = run(Some(1.2));
+    assert!(
+        held <= 1.2 + 1e-9,
+        "a particle {held:.3} times the held size"
+    );
+    let free = run(None);
+    assert!(
+        free > 1.5,
+        "free particles stayed within {free:.3} of the held size"
     );
 }
 

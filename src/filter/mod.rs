@@ -219,6 +219,43 @@ pub struct ParticleFilter {
     /// The range of `a / b` proposals are held to, when set
     /// ([`ParticleFilter::set_aspect_range`]).
     aspect: Option<AspectRange>,
+    /// The semi-axes proposals are held to, when set ([`ParticleFilter::set_size_range`]).
+    size: Option<SizeRange>,
+}
+
+/// Bounds on each semi-axis of an ellipse ([`ParticleFilter::set_size_range`]): `a` within
+/// `[a0 / k, a0 · k]` and `b` within `[b0 / k, b0 · k]` around a held size `(a0, b0)`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SizeRange {
+    a: (f64, f64),
+    b: (f64, f64),
+}
+
+impl SizeRange {
+    /// The semi-axes within a factor `k` of `(a, b)`; `None` unless both semi-axes are
+    /// positive and finite and `k` is a finite factor of at least 1.
+    pub fn around(a: f64, b: f64, k: f64) -> Option<Self> {
+        let ok = |x: f64| x.is_finite() && x > 0.0;
+        (ok(a) && ok(b) && k.is_finite() && k >= 1.0).then_some(Self {
+            a: (a / k, a * k),
+            b: (b / k, b * k),
+        })
+    }
+
+    /// The bounds of `a`, `(lo, hi)`.
+    pub fn a(&self) -> (f64, f64) {
+        self.a
+    }
+
+    /// The bounds of `b`, `(lo, hi)`.
+    pub fn b(&self) -> (f64, f64) {
+        self.b
+    }
+
+    /// Semi-axes `(a, b)`, each brought to the nearer of its bounds when outside them.
+    pub fn hold(&self, a: f64, b: f64) -> (f64, f64) {
+        (a.clamp(self.a.0, self.a.1), b.clamp(self.b.0, self.b.1))
+    }
 }
 
 /// A range `lo <= a / b <= hi` of an ellipse's aspect ([`ParticleFilter::set_aspect_range`]).
@@ -306,6 +343,7 @@ impl ParticleFilter {
             last_resampling: None,
             frame: None,
             aspect: None,
+            size: None,
         }
     }
 
@@ -423,8 +461,13 @@ impl ParticleFilter {
                 b: (mean_b + noise[3] * sg.axes).clamp(min_axis, max_axis),
                 rot: exp_so3(&wn) * cands[c].1 * parent.rot,
             };
+            if let Some(range) = &self.size {
+                (x.a, x.b) = range.hold(x.a, x.b);
+            }
             if let Some(range) = &self.aspect {
                 (x.a, x.b) = range.hold(x.a, x.b);
+            }
+            if self.size.is_some() || self.aspect.is_some() {
                 x.a = x.a.clamp(min_axis, max_axis);
                 x.b = x.b.clamp(min_axis, max_axis);
             }
@@ -474,6 +517,17 @@ impl ParticleFilter {
     /// [`crate::tracker::TrackerConfig::aspect_slack`].)
     pub fn set_aspect_range(&mut self, range: Option<AspectRange>) {
         self.aspect = range;
+    }
+
+    /// Holds the proposals' semi-axes to `range` (`None`: no bound), each brought to the
+    /// nearer end of its bounds, before the aspect range ([`Self::set_aspect_range`]) and
+    /// the semi-axis bounds. The tracker sets it while it is unsure of the target
+    /// ([`crate::tracker::TrackerConfig::size_hold`]): a likelihood that has lost its target
+    /// still ranks sizes, and a colour model prefers the smallest ellipse on a few pixels of
+    /// the right colour. As with the aspect range, a moved proposal is weighed by the
+    /// proposal density where it lands.
+    pub fn set_size_range(&mut self, range: Option<SizeRange>) {
+        self.size = range;
     }
 
     /// The particles in the engines' layout.
@@ -619,6 +673,80 @@ mod tests {
                 "{a} {b}: {x} {y}"
             );
         }
+    }
+
+    #[test]
+    fn a_size_range_is_checked_and_clamps_each_axis() {
+        let r = SizeRange::around(10.0, 20.0, 1.25).unwrap();
+        assert_eq!(r.a(), (8.0, 12.5));
+        assert_eq!(r.b(), (16.0, 25.0));
+        assert_eq!(
+            SizeRange::around(10.0, 20.0, 1.0).unwrap().a(),
+            (10.0, 10.0)
+        );
+        for (a, b, k) in [
+            (0.0, 20.0, 1.2),
+            (10.0, -1.0, 1.2),
+            (f64::NAN, 20.0, 1.2),
+            (10.0, f64::INFINITY, 1.2),
+            (10.0, 20.0, 0.9),
+            (10.0, 20.0, f64::NAN),
+            (10.0, 20.0, f64::INFINITY),
+        ] {
+            assert!(SizeRange::around(a, b, k).is_none(), "({a}, {b}, {k})");
+        }
+        // Inside: unchanged; outside: each axis at its nearer bound, independently.
+        assert_eq!(r.hold(9.0, 17.0), (9.0, 17.0));
+        assert_eq!(r.hold(2.0, 17.0), (8.0, 17.0));
+        assert_eq!(r.hold(9.0, 90.0), (9.0, 25.0));
+        assert_eq!(r.hold(100.0, 1.0), (12.5, 16.0));
+    }
+
+    #[test]
+    fn proposals_keep_the_size_range_once_it_is_set() {
+        // A wide random walk on the semi-axes leaves any size band; with a range none is
+        // outside it, and the aspect range still holds inside it.
+        let params = FilterParams {
+            proposal: StateSigma {
+                centre: 1.0,
+                axes: 15.0,
+                rotation: [0.01; 3],
+            },
+            ..FilterParams::default()
+        };
+        let still = Motion::still();
+        let (a0, b0) = (init().a, init().b);
+        let size = SizeRange::around(a0, b0, 1.2).unwrap();
+        let aspect = AspectRange::new(0.75, 4.0 / 3.0).unwrap();
+        let inside = |p: &Hypothesis| {
+            let tol = 1.0 + 1e-9;
+            p.a <= a0 * 1.2 * tol
+                && p.a >= a0 / 1.2 / tol
+                && p.b <= b0 * 1.2 * tol
+                && p.b >= b0 / 1.2 / tol
+        };
+        let mut f = ParticleFilter::new(params, 5, &init());
+        f.set_size_range(Some(size));
+        f.set_aspect_range(Some(aspect));
+        let mut free = ParticleFilter::new(params, 5, &init());
+        for _ in 0..3 {
+            f.propose(&still, 1.0);
+            free.propose(&still, 1.0);
+            for p in f.particles() {
+                assert!(inside(p), "{p:?}");
+                let r = p.a / p.b;
+                assert!((0.75 - 1e-12..=4.0 / 3.0 + 1e-12).contains(&r), "{p:?}");
+            }
+        }
+        let outside = free.particles().iter().filter(|p| !inside(p)).count();
+        assert!(
+            outside > 100,
+            "only {outside} of 200 free proposals outside"
+        );
+        // Clearing the range frees them again.
+        f.set_size_range(None);
+        f.propose(&still, 1.0);
+        assert!(f.particles().iter().any(|p| !inside(p)));
     }
 
     #[test]

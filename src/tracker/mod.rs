@@ -37,7 +37,7 @@ pub use config::{ColourUpdate, Contrast, Init, Mode, TrackerConfig};
 use nalgebra::Matrix3;
 
 use crate::features::{Features, Sift, keep_slope_length, match_features};
-use crate::filter::{AspectRange, Hypothesis, Motion, ParticleFilter};
+use crate::filter::{AspectRange, Hypothesis, Motion, ParticleFilter, SizeRange};
 use crate::frames::GrayF32;
 use crate::geometry::{BoxRect, Ellipse, Euler, PoseState, deg};
 use crate::likelihood::cpu::colour::rho_from_log;
@@ -144,6 +144,9 @@ pub struct Tracker {
     prev_euler: Euler,
     low_count: usize,
     lost: bool,
+    /// The semi-axes of the last confident estimate, which the filter's proposals are held
+    /// near while the tracker is unsure ([`TrackerConfig::size_hold`]).
+    held_axes: (f64, f64),
     particles: Vec<Particle>,
     terms: Vec<TermLogs>,
     first: Estimate,
@@ -232,6 +235,14 @@ fn check_config(cfg: &TrackerConfig) -> Result<(), TrackError> {
                 "{e}; set interframe_consensus to None to estimate the rotation from any 3 matches"
             ))
         })?;
+    }
+    if let Some(k) = cfg.size_hold
+        && !(k.is_finite() && k >= 1.0)
+    {
+        return Err(TrackError::BadConfig(format!(
+            "size_hold {k} is not a finite factor of at least 1; set size_hold to None to \
+             leave the ellipse's size free while the target is uncertain"
+        )));
     }
     if let Some(k) = cfg.aspect_slack
         && !(k.is_finite() && k >= 1.0)
@@ -339,6 +350,7 @@ impl Tracker {
             prev_euler: Euler::default(),
             low_count: 0,
             lost: false,
+            held_axes: (1.0, 1.0),
             particles: Vec::new(),
             terms: Vec::new(),
             colour_model: ColourHistogram(Vec::new()),
@@ -395,6 +407,7 @@ impl Tracker {
             .reset(&self.prev_features, &init.ellipse, hyp, model);
         self.low_count = 0;
         self.lost = false;
+        self.held_axes = (hyp.a, hyp.b);
         self.first = Estimate {
             frame: self.frame,
             state,
@@ -565,6 +578,13 @@ impl Tracker {
 
         // The filter step.
         let spread = if self.lost { 3.0 } else { 1.0 };
+        let unsure = self.lost || self.low_count > 0;
+        self.filter.set_size_range(
+            self.cfg
+                .size_hold
+                .filter(|_| unsure)
+                .and_then(|k| SizeRange::around(self.held_axes.0, self.held_axes.1, k)),
+        );
         self.filter.propose(&motion, spread);
         self.filter.particles_f32(&mut self.particles);
         let input = FrameInput {
@@ -631,6 +651,9 @@ impl Tracker {
             ry: euler.ry,
             rz: euler.rz,
         };
+        if !self.lost && self.low_count == 0 {
+            self.held_axes = (est.a, est.b);
+        }
         self.prev = est;
         self.prev_euler = euler;
         self.prev_gray = gray;

@@ -93,6 +93,20 @@ pub struct TrackArgs {
     /// Leave the ellipse's aspect free, as the paper does.
     #[arg(long)]
     pub no_aspect_bound: bool,
+    /// While the target is uncertain (confidence below the lost threshold), keep the
+    /// ellipse's semi-axes within this factor of the last confident estimate's, so a
+    /// likelihood that has lost the target cannot shrink it to a few pixels (see
+    /// `TrackerConfig::size_hold`).
+    #[arg(
+        long,
+        value_name = "K",
+        default_value_t = 1.2,
+        conflicts_with = "no_size_hold"
+    )]
+    pub size_hold: f64,
+    /// Leave the ellipse's size free while the target is uncertain, as the paper does.
+    #[arg(long)]
+    pub no_size_hold: bool,
     /// Estimate the rotation between successive frames from any 3 or more matches, as the
     /// paper does, instead of from at least 5 that one affine map carries to within 1 px
     /// (see `pose::Consensus`).
@@ -281,6 +295,7 @@ pub fn run(a: TrackArgs) -> anyhow::Result<()> {
         cfg.fit_pixel_sigma = None;
     }
     cfg.aspect_slack = (!a.no_aspect_bound).then_some(a.aspect_slack);
+    cfg.size_hold = (!a.no_size_hold).then_some(a.size_hold);
     cfg.motion_scale = a.motion_scale;
     if a.no_interframe_consensus {
         cfg.interframe_consensus = None;
