@@ -702,18 +702,23 @@ mod tests {
         assert_eq!(r.hold(100.0, 1.0), (12.5, 16.0));
     }
 
-    #[test]
-    fn proposals_keep_the_size_range_once_it_is_set() {
-        // A wide random walk on the semi-axes leaves any size band; with a range none is
-        // outside it, and the aspect range still holds inside it.
-        let params = FilterParams {
+    /// Filter settings whose proposals walk the semi-axes widely (σ 15 px per step).
+    fn wide_axis_walk() -> FilterParams {
+        FilterParams {
             proposal: StateSigma {
                 centre: 1.0,
                 axes: 15.0,
                 rotation: [0.01; 3],
             },
             ..FilterParams::default()
-        };
+        }
+    }
+
+    #[test]
+    fn proposals_keep_the_size_range_once_it_is_set() {
+        // A wide random walk on the semi-axes leaves any size band; with a range none is
+        // outside it, and the aspect range still holds inside it.
+        let params = wide_axis_walk();
         let still = Motion::still();
         let (a0, b0) = (init().a, init().b);
         let size = SizeRange::around(a0, b0, 1.2).unwrap();
@@ -753,14 +758,7 @@ mod tests {
     fn proposals_keep_the_aspect_range_once_it_is_set() {
         // A wide random walk on the semi-axes makes slivers; with a range none is left, and
         // without it some are.
-        let params = FilterParams {
-            proposal: StateSigma {
-                centre: 1.0,
-                axes: 15.0,
-                rotation: [0.01; 3],
-            },
-            ..FilterParams::default()
-        };
+        let params = wide_axis_walk();
         let still = Motion::still();
         let range = AspectRange::new(0.75, 4.0 / 3.0).unwrap();
         let mut f = ParticleFilter::new(params, 5, &init());
