@@ -236,23 +236,28 @@ fn check_config(cfg: &TrackerConfig) -> Result<(), TrackError> {
             ))
         })?;
     }
-    if let Some(k) = cfg.size_hold
-        && !(k.is_finite() && k >= 1.0)
-    {
-        return Err(TrackError::BadConfig(format!(
-            "size_hold {k} is not a finite factor of at least 1; set size_hold to None to \
-             leave the ellipse's size free while the target is uncertain"
-        )));
-    }
-    if let Some(k) = cfg.aspect_slack
-        && !(k.is_finite() && k >= 1.0)
-    {
-        return Err(TrackError::BadConfig(format!(
-            "aspect_slack {k} is not a finite factor of at least 1; set aspect_slack to None \
-             to leave the ellipse's aspect free"
-        )));
-    }
+    check_factor(
+        "size_hold",
+        cfg.size_hold,
+        "leave the ellipse's size free while the target is uncertain",
+    )?;
+    check_factor(
+        "aspect_slack",
+        cfg.aspect_slack,
+        "leave the ellipse's aspect free",
+    )?;
     Ok(())
+}
+
+/// A widening factor of the configuration, `name`, must be finite and at least 1; the
+/// error says what setting it to `None` does instead (`none_does`).
+fn check_factor(name: &str, k: Option<f64>, none_does: &str) -> Result<(), TrackError> {
+    match k {
+        Some(k) if !(k.is_finite() && k >= 1.0) => Err(TrackError::BadConfig(format!(
+            "{name} {k} is not a finite factor of at least 1; set {name} to None to {none_does}"
+        ))),
+        _ => Ok(()),
+    }
 }
 
 /// The normalised histogram of the pixels of `frame` in the ring between `e` and `e` scaled
@@ -578,7 +583,7 @@ impl Tracker {
 
         // The filter step.
         let spread = if self.lost { 3.0 } else { 1.0 };
-        let unsure = self.lost || self.low_count > 0;
+        let unsure = self.unsure();
         self.filter.set_size_range(
             self.cfg
                 .size_hold
@@ -651,7 +656,7 @@ impl Tracker {
             ry: euler.ry,
             rz: euler.rz,
         };
-        if !self.lost && self.low_count == 0 {
+        if !self.unsure() {
             self.held_axes = (est.a, est.b);
         }
         self.prev = est;
@@ -665,7 +670,7 @@ impl Tracker {
                 self.cfg.min_fit_inliers,
                 self.cfg.keyframe_refresh_percent,
             );
-        if due && !self.lost && self.low_count == 0 {
+        if due && !self.unsure() {
             let e = state.ellipse(self.theta0);
             let model = self.model(&est.rot, &e);
             self.keyframes.add(&features, &e, est, model);
@@ -681,6 +686,12 @@ impl Tracker {
             matches: pairs.len(),
             ess: info.ess,
         })
+    }
+
+    /// Whether the tracker is unsure of the target: lost, or its confidence below
+    /// [`TrackerConfig::lost_below`] on the last frame.
+    fn unsure(&self) -> bool {
+        self.lost || self.low_count > 0
     }
 
     /// Turns the contrast term on in `lp` when it is configured and has a background, as the
