@@ -465,38 +465,18 @@ impl Sift {
         let mut found: Vec<(usize, Extremum)> = Vec::new();
         for (o, oct) in octaves.iter().enumerate() {
             let (w, h) = (oct.w, oct.h);
-            let mut mx: Vec<Vec<f32>> = oct.dog.iter().map(|_| take_buf(w * h)).collect();
-            let mut mn: Vec<Vec<f32>> = oct.dog.iter().map(|_| take_buf(w * h)).collect();
-            // The 3x3 maxima and minima of every DoG layer, then the extrema of each inner
-            // layer, by bands of rows; the bands' extrema are concatenated in layer and row
-            // order, the order of a single pass.
+            // The extrema of each inner layer by bands of rows; the bands' extrema are
+            // concatenated in layer and row order, the order of a single pass.
             let bands = parallel_bands(w, h);
             let rows = h.div_ceil(bands);
             if bands <= 1 {
                 // Plain loops, not closures, so the code inlines into the AVX2 build.
-                let mut vrow = Vec::new();
-                for ((d, a), b) in oct.dog.iter().zip(&mut mx).zip(&mut mn) {
-                    max_min_rows(d, w, h, 0, a, b, &mut vrow);
-                }
+                let mut scratch = ExtremaScratch::default();
                 for layer in 1..=n {
-                    self.find_extrema(oct, &mx, &mn, layer, 0, h, &mut found, o);
+                    self.find_extrema(oct, layer, 0, h, &mut found, o, &mut scratch);
                 }
             } else {
                 use rayon::prelude::*;
-                let mut tasks = Vec::with_capacity(oct.dog.len() * bands);
-                for (l, (a, b)) in mx.iter_mut().zip(mn.iter_mut()).enumerate() {
-                    let chunks = a.chunks_mut(rows * w).zip(b.chunks_mut(rows * w));
-                    for (i, (ca, cb)) in chunks.enumerate() {
-                        tasks.push((l, i * rows, ca, cb));
-                    }
-                }
-                tasks.into_par_iter().for_each(|(l, y0, a, b)| {
-                    with_simd(
-                        #[inline(always)]
-                        || max_min_rows(&oct.dog[l], w, h, y0, a, b, &mut Vec::new()),
-                    );
-                });
-                let (mx, mn) = (&mx[..], &mn[..]);
                 let parts: Vec<Vec<(usize, Extremum)>> = (1..=n)
                     .flat_map(|layer| (0..bands).map(move |i| (layer, i * rows)))
                     .collect::<Vec<_>>()
@@ -507,7 +487,8 @@ impl Sift {
                             || {
                                 let mut v = Vec::new();
                                 let r1 = (r0 + rows).min(h);
-                                self.find_extrema(oct, mx, mn, layer, r0, r1, &mut v, o);
+                                let mut scratch = ExtremaScratch::default();
+                                self.find_extrema(oct, layer, r0, r1, &mut v, o, &mut scratch);
                                 v
                             },
                         )
@@ -515,7 +496,6 @@ impl Sift {
                     .collect();
                 found.extend(parts.into_iter().flatten());
             }
-            mx.into_iter().chain(mn).for_each(recycle);
         }
         let d = Describer {
             sigma: self.params.sigma,
@@ -636,49 +616,32 @@ impl Sift {
     }
 
     /// The refined extrema ([`Self::refine`]) of DoG layer `layer` of octave `o` in rows
-    /// `r0..r1`, appended to `out` with the octave number in row order: local extrema over
-    /// their 26 neighbours (`≥` all for a maximum, `≤` all for a minimum) above the prefilter
-    /// threshold (half the final contrast threshold). `mx` and `mn` are the 3x3 maxima and
-    /// minima of each DoG layer.
+    /// `r0..r1`, appended to `out` with the octave number in row order: the candidates of
+    /// [`extremum_flags`] with the prefilter threshold (half the final contrast threshold).
     #[allow(clippy::too_many_arguments)]
     #[inline(always)]
     fn find_extrema(
         &self,
         oct: &Octave,
-        mx: &[Vec<f32>],
-        mn: &[Vec<f32>],
         layer: usize,
         r0: usize,
         r1: usize,
         out: &mut Vec<(usize, Extremum)>,
         o: usize,
+        s: &mut ExtremaScratch,
     ) {
         let (w, h) = (oct.w, oct.h);
         if w <= 2 * IMG_BORDER || h <= 2 * IMG_BORDER {
             return;
         }
         let thr = 0.5 * self.params.contrast_threshold / self.params.n_octave_layers as f32;
-        let cur = &oct.dog[layer];
-        let (ma, mb, mc) = (&mx[layer - 1], &mx[layer], &mx[layer + 1]);
-        let (na, nb, nc) = (&mn[layer - 1], &mn[layer], &mn[layer + 1]);
-        let len = w - 2 * IMG_BORDER;
-        let mut flags = vec![0u8; len];
+        let layers = [
+            &oct.dog[layer - 1][..],
+            &oct.dog[layer],
+            &oct.dog[layer + 1],
+        ];
         for r in r0.max(IMG_BORDER)..r1.min(h - IMG_BORDER) {
-            let s = r * w + IMG_BORDER;
-            let (v, ma, mb, mc) = (
-                &cur[s..s + len],
-                &ma[s..s + len],
-                &mb[s..s + len],
-                &mc[s..s + len],
-            );
-            let (na, nb, nc) = (&na[s..s + len], &nb[s..s + len], &nc[s..s + len]);
-            // Branch-free tests (vectorised): the 3x3 maxima include the centre itself.
-            for k in 0..len {
-                let x = v[k];
-                let is_max = (x > thr) & (x >= ma[k]) & (x >= mb[k]) & (x >= mc[k]);
-                let is_min = (x < -thr) & (x <= na[k]) & (x <= nb[k]) & (x <= nc[k]);
-                flags[k] = u8::from(is_max | is_min);
-            }
+            let flags = extremum_flags(layers, w, r, thr, s);
             // Candidates are rare: skip 16 flags at a time while they are all zero.
             for (j, ch) in flags.chunks(16).enumerate() {
                 if ch.iter().fold(0, |a, &f| a | f) == 0 {
@@ -880,60 +843,73 @@ fn fmin(a: f32, b: f32) -> f32 {
     if a < b { a } else { b }
 }
 
-/// Maximum and minimum over each pixel's 3x3 neighbourhood in `src` (`w x h`), for the rows
-/// `y0..` that `mx` and `mn` hold (whole rows): the maxima and minima down each column of
-/// three rows first, into `vrow`, then across. The outermost rows and columns of the image
-/// are left as they were: extrema are never searched there.
+/// Scratch of [`extremum_flags`]: one row of column maxima and minima, and the flags.
+#[derive(Default)]
+struct ExtremaScratch {
+    vmax: Vec<f32>,
+    vmin: Vec<f32>,
+    flags: Vec<u8>,
+}
+
+/// Which pixels of row `r` of the middle layer of `layers` (three DoG layers, `w` wide, `r`
+/// at least one row from the top and bottom) are extremum candidates, for the columns
+/// `IMG_BORDER..w - IMG_BORDER`: above `thr` and `≥` all 26 neighbours in the three layers,
+/// or below `-thr` and `≤` all of them.
+///
+/// The maxima and minima of each column's 9 samples (three rows of three layers) come
+/// first, then those of three neighbouring columns: one pass over the 27-neighbourhoods of a
+/// row, branch-free and vectorised, with nothing written but the row's flags.
 #[inline(always)]
-fn max_min_rows(
-    src: &[f32],
+fn extremum_flags<'s>(
+    layers: [&[f32]; 3],
     w: usize,
-    h: usize,
-    y0: usize,
-    mx: &mut [f32],
-    mn: &mut [f32],
-    vrow: &mut Vec<f32>,
-) {
-    if w < 3 {
-        return;
+    r: usize,
+    thr: f32,
+    s: &'s mut ExtremaScratch,
+) -> &'s [u8] {
+    let len = w.saturating_sub(2 * IMG_BORDER);
+    // Columns IMG_BORDER - 1 ..= w - IMG_BORDER: the inner ones and one on each side.
+    let vlen = len + 2;
+    grow(&mut s.vmax, vlen);
+    grow(&mut s.vmin, vlen);
+    grow(&mut s.flags, len);
+    let (vmax, vmin, flags) = (
+        &mut s.vmax[..vlen],
+        &mut s.vmin[..vlen],
+        &mut s.flags[..len],
+    );
+    let s0 = r * w + IMG_BORDER - 1;
+    let [below, cur, above] = layers;
+    // Slices written out one by one: their lengths are then known, and the loop vectorises.
+    let (up, mid, down) = (s0 - w, s0, s0 + w);
+    let rows = [
+        &below[up..up + vlen],
+        &below[mid..mid + vlen],
+        &below[down..down + vlen],
+        &cur[up..up + vlen],
+        &cur[mid..mid + vlen],
+        &cur[down..down + vlen],
+        &above[up..up + vlen],
+        &above[mid..mid + vlen],
+        &above[down..down + vlen],
+    ];
+    for k in 0..vlen {
+        let (mut m, mut n) = (rows[0][k], rows[0][k]);
+        for row in &rows[1..] {
+            m = fmax(m, row[k]);
+            n = fmin(n, row[k]);
+        }
+        vmax[k] = m;
+        vmin[k] = n;
     }
-    grow(vrow, 2 * w);
-    let (vmax, vmin) = vrow[..2 * w].split_at_mut(w);
-    for (j, (om, on)) in mx
-        .chunks_exact_mut(w)
-        .zip(mn.chunks_exact_mut(w))
-        .enumerate()
-    {
-        let y = y0 + j;
-        if y == 0 || y + 1 >= h {
-            continue;
-        }
-        let (a, b, c) = (
-            &src[(y - 1) * w..y * w],
-            &src[y * w..(y + 1) * w],
-            &src[(y + 1) * w..(y + 2) * w],
-        );
-        for ((((m, n), a), b), c) in vmax.iter_mut().zip(vmin.iter_mut()).zip(a).zip(b).zip(c) {
-            *m = fmax(fmax(*a, *b), *c);
-            *n = fmin(fmin(*a, *b), *c);
-        }
-        for (((o, a), b), c) in om[1..w - 1]
-            .iter_mut()
-            .zip(&vmax[..])
-            .zip(&vmax[1..])
-            .zip(&vmax[2..])
-        {
-            *o = fmax(fmax(*a, *b), *c);
-        }
-        for (((o, a), b), c) in on[1..w - 1]
-            .iter_mut()
-            .zip(&vmin[..])
-            .zip(&vmin[1..])
-            .zip(&vmin[2..])
-        {
-            *o = fmin(fmin(*a, *b), *c);
-        }
+    let v = &cur[s0 + 1..][..len];
+    for k in 0..len {
+        let x = v[k];
+        let mx = fmax(fmax(vmax[k], vmax[k + 1]), vmax[k + 2]);
+        let mn = fmin(fmin(vmin[k], vmin[k + 1]), vmin[k + 2]);
+        flags[k] = u8::from(((x > thr) & (x >= mx)) | ((x < -thr) & (x <= mn)));
     }
+    flags
 }
 
 /// Gradient `(dx, dy, ds)` and Hessian of the DoG at an integer position.
@@ -998,31 +974,35 @@ fn reflect101(mut i: isize, n: usize) -> usize {
     }
 }
 
-/// Taps of a symmetric convolution applied per pass over a row (see [`conv_row`]).
-const BLUR_TAPS: usize = 4;
-
-/// Adds `T` symmetric taps to a row of partial sums: `out[x] += k[t]·(a[t][x] + b[t][x])`
-/// for `t = 0, 1, …` in that order. All slices have the length of `out`, so the loop has no
-/// bounds checks and vectorises; `out` stays in L1 between passes.
+/// `L` outputs of a symmetric convolution from `x` on: one accumulator per output, all taps
+/// in order, so the block stays in registers.
 #[inline(always)]
-fn add_taps<const T: usize>(out: &mut [f32], k: &[f32], a: [&[f32]; T], b: [&[f32]; T]) {
-    let n = out.len();
-    let k: [f32; T] = std::array::from_fn(|t| k[t]);
-    let a = a.map(|s| &s[..n]);
-    let b = b.map(|s| &s[..n]);
-    for x in 0..n {
-        let mut acc = out[x];
-        for t in 0..T {
-            acc += k[t] * (a[t][x] + b[t][x]);
-        }
-        out[x] = acc;
+fn conv_block<'a, const L: usize>(
+    k: &[f32],
+    c: &[f32],
+    side: &impl Fn(usize) -> (&'a [f32], &'a [f32]),
+    out: &mut [f32],
+    x: usize,
+) {
+    let c = &c[x..x + L];
+    let mut acc = [0f32; L];
+    for j in 0..L {
+        acc[j] = k[0] * c[j];
     }
+    for (t, &kt) in k.iter().enumerate().skip(1) {
+        let (a, b) = side(t);
+        let (a, b) = (&a[x..x + L], &b[x..x + L]);
+        for j in 0..L {
+            acc[j] += kt * (a[j] + b[j]);
+        }
+    }
+    out[x..x + L].copy_from_slice(&acc);
 }
 
 /// One output row of a symmetric convolution with the half kernel `k`: `c` is the centre
 /// samples, `side(i)` the samples at `-i` and `+i` (each at least as long as `out`).
 /// Summation order per pixel is `k0·c + k1·(a1 + b1) + k2·(a2 + b2) + …`, the same for
-/// every code path, so results are bit-identical however the taps are grouped.
+/// every block size, so results are bit-identical however the row is cut.
 #[inline(always)]
 fn conv_row<'a>(
     k: &[f32],
@@ -1031,19 +1011,18 @@ fn conv_row<'a>(
     out: &mut [f32],
 ) {
     let n = out.len();
-    for (o, c) in out.iter_mut().zip(&c[..n]) {
-        *o = k[0] * c;
+    let mut x = 0;
+    while x + 32 <= n {
+        conv_block::<32>(k, c, &side, out, x);
+        x += 32;
     }
-    let mut i = 1;
-    while i + BLUR_TAPS <= k.len() {
-        let s: [(&[f32], &[f32]); BLUR_TAPS] = std::array::from_fn(|t| side(i + t));
-        add_taps(out, &k[i..], s.map(|p| p.0), s.map(|p| p.1));
-        i += BLUR_TAPS;
+    while x + 8 <= n {
+        conv_block::<8>(k, c, &side, out, x);
+        x += 8;
     }
-    while i < k.len() {
-        let (a, b) = side(i);
-        add_taps(out, &k[i..], [a], [b]);
-        i += 1;
+    while x < n {
+        conv_block::<1>(k, c, &side, out, x);
+        x += 1;
     }
 }
 
@@ -1307,7 +1286,8 @@ fn orientations(
     let sw = ORI_SIG_FCTR * sigma;
     let scale = -1.0 / (2.0 * sw * sw);
     let mut hist = [0f32; ORI_BINS];
-    let gw: Vec<f32> = (-radius..=radius)
+    // Window weights for offsets -radius..=radius, and 8 more for the vectors' extra lanes.
+    let gw: Vec<f32> = (-radius..=radius + 8)
         .map(|i| ((i * i) as f32 * scale).exp())
         .collect();
     let bins_per_rad = ORI_BINS as f32 / TAU;
@@ -1325,23 +1305,29 @@ fn orientations(
         }
         // Weighted magnitudes and bins of the row in one vectorised pass, then the scatter.
         let n = x_hi - x_lo + 1;
-        grow(&mut s.mag, n);
-        grow(&mut s.obin, n);
-        let left = &img[y * w + x_lo - 1..y * w + x_lo - 1 + n];
-        let right = &img[y * w + x_lo + 1..y * w + x_lo + 1 + n];
-        let up = &img[(y - 1) * w + x_lo..(y - 1) * w + x_lo + n];
-        let down = &img[(y + 1) * w + x_lo..(y + 1) * w + x_lo + n];
+        // Whole vectors of 8 where the image has the room, as in `descriptor` (the window
+        // weights `gw` run 8 past the radius for it); the extra samples are not added.
+        let m = match n.next_multiple_of(8) {
+            m if (y + 1) * w + x_lo + m <= img.len() => m,
+            _ => n,
+        };
+        grow(&mut s.mag, m);
+        grow(&mut s.obin, m);
+        let left = &img[y * w + x_lo - 1..][..m];
+        let right = &img[y * w + x_lo + 1..][..m];
+        let up = &img[(y - 1) * w + x_lo..][..m];
+        let down = &img[(y + 1) * w + x_lo..][..m];
         let g0 = (x_lo as isize - c as isize + radius) as usize;
-        let gwx = &gw[g0..g0 + n];
-        let (mags, bins) = (&mut s.mag[..n], &mut s.obin[..n]);
-        for k in 0..n {
+        let gwx = &gw[g0..][..m];
+        let (mags, bins) = (&mut s.mag[..m], &mut s.obin[..m]);
+        for k in 0..m {
             let gx = right[k] - left[k];
             let gy = down[k] - up[k];
             mags[k] = (gx * gx + gy * gy).sqrt() * gwx[k] * wy;
             // Rounded to the nearest bin (the angle is ≥ 0, so truncation of +0.5 rounds).
             bins[k] = whole_to_u32((fast_atan2(gy, gx) * bins_per_rad + 0.5).trunc());
         }
-        for (&m, &b) in mags.iter().zip(bins.iter()) {
+        for (&m, &b) in mags[..n].iter().zip(&bins[..n]) {
             let bin = b as usize;
             let bin = if bin >= ORI_BINS { bin - ORI_BINS } else { bin };
             // `min`: a no-op for finite gradients; keeps a NaN in bounds.
@@ -1394,14 +1380,14 @@ struct GradScratch {
     /// Offsets from the keypoint and Gaussian window weights of the descriptor's columns.
     dx: Vec<f32>,
     wx: Vec<f32>,
-    /// Start of the padded histogram cell `(r0, c0)` of each sample.
-    cell: Vec<u32>,
-    /// Lower orientation bin of each sample, and the share of the upper one.
-    o0: Vec<u32>,
+    /// Anchor of each sample: its lower bins `(r0, c0, o0)` as `(r0 · (d + 1) + c0) · bins
+    /// + o0`, spatial bins counted in the grid padded by one cell.
+    anchor: Vec<u32>,
+    /// Share of each sample's magnitude that goes to the upper orientation bin.
     fo: Vec<f32>,
     /// Weighted magnitude split over the 2x2 spatial cells `(r0, c0), (r0, c0 + 1),
     /// (r0 + 1, c0), (r0 + 1, c0 + 1)`.
-    vrc: [Vec<f32>; 4],
+    vrc: Vec<[f32; 4]>,
 }
 
 /// A whole number `v` in `[0, 2²³)` as an integer, without a (saturating, hence slow and
@@ -1433,7 +1419,9 @@ fn linear_interval(a: f32, b: f32, lo: f32, hi: f32) -> (f32, f32) {
 ///
 /// Samples are the interior pixels whose rotated position falls inside the 4x4 cell grid
 /// grown by one cell (each contributes trilinearly to up to 8 bins); the per-row range of
-/// such pixels is computed analytically, so no sample is visited in vain.
+/// such pixels is computed analytically, so no sample is visited in vain. Per row, one
+/// vectorised pass computes every sample's gradient, bins and shares, then a second adds
+/// each sample's 8 shares to the histogram as one block (see the anchors below).
 #[allow(clippy::too_many_arguments)]
 #[inline(always)]
 fn descriptor(
@@ -1466,22 +1454,23 @@ fn descriptor(
     if x_min > x_max {
         return [0; DESCRIPTOR_LEN];
     }
+    // Columns x_min..=x_max, and 8 more for the vectors' extra lanes.
     s.dx.clear();
-    s.dx.extend((x_min..=x_max).map(|x| x as f32 - xo));
+    s.dx.extend((x_min..=x_max + 8).map(|x| x as f32 - xo));
     s.wx.clear();
     s.wx.extend(s.dx.iter().map(|dx| (dx * dx * exp_scale).exp()));
     // Shrink the open bin interval (-1, d) a hair so rounding never puts a sample outside.
     let (lo, hi) = (-1.0 + 1e-4, df - 1e-4);
     let bins_per_rad = nb as f32 / TAU;
     let nbf = nb as f32;
-    // Histogram with one cell of padding on each spatial side: cell (r, c) of the padded
-    // 6x6 grid starts at `(r · (d + 2) + c) · nb`.
-    let row_stride = (d + 2) * nb;
-    let max_cell = (d * (d + 2) + d) * nb;
-    let mut hist = [0f32; (DESCR_WIDTH + 2) * (DESCR_WIDTH + 2) * DESCR_BINS];
+    // The histogram by anchors: a sample whose lower bins are (r, c, o), in the grid padded
+    // by one cell on each side, adds its whole 2x2x2 block of trilinear shares, lanes
+    // [dr][dc][do], to anchor (r, c, o) with one 8-lane add instead of eight scattered ones;
+    // the anchors are folded into the bins at the end. Lower spatial bins run 0..=d.
+    let na = d + 1;
+    let mut anchors = [[0f32; 8]; (DESCR_WIDTH + 1) * (DESCR_WIDTH + 1) * DESCR_BINS];
     for y in (ri - radius).max(1)..=(ri + radius).min(h as isize - 2) {
         let dy = y as f32 - yo;
-        // cbin = half_d + dy·sin + dx·cos, rbin = half_d + dy·cos - dx·sin, linear in dx.
         let (c0, c1) = linear_interval(half_d + dy * sin_t, cos_t, lo, hi);
         let (r0, r1) = linear_interval(half_d + dy * cos_t, -sin_t, lo, hi);
         let dx_lo = c0.max(r0);
@@ -1496,74 +1485,70 @@ fn descriptor(
         }
         let wy = (dy * dy * exp_scale).exp();
         let (yu, xa, n) = (y as usize, xa as usize, (xb - xa + 1) as usize);
-        let left = &img[yu * w + xa - 1..][..n];
-        let right = &img[yu * w + xa + 1..][..n];
-        let up = &img[(yu - 1) * w + xa..][..n];
-        let down = &img[(yu + 1) * w + xa..][..n];
-        let wxs = &s.wx[xa - x_min as usize..][..n];
-        let dxs = &s.dx[xa - x_min as usize..][..n];
+        // The per-sample pass runs over whole vectors of 8 where the image has the room
+        // (past the row's end, into the next row): the extra samples are computed, never
+        // added, and the loop needs no scalar tail.
+        let m = match n.next_multiple_of(8) {
+            m if (yu + 1) * w + xa + m <= img.len() => m,
+            _ => n,
+        };
+        let left = &img[yu * w + xa - 1..][..m];
+        let right = &img[yu * w + xa + 1..][..m];
+        let up = &img[(yu - 1) * w + xa..][..m];
+        let down = &img[(yu + 1) * w + xa..][..m];
+        let wxs = &s.wx[xa - x_min as usize..][..m];
+        let dxs = &s.dx[xa - x_min as usize..][..m];
         let cb0 = half_d + dy * sin_t;
         let rb0 = half_d + dy * cos_t;
-        grow(&mut s.cell, n);
-        grow(&mut s.o0, n);
-        grow(&mut s.fo, n);
-        for v in &mut s.vrc {
-            grow(v, n);
-        }
-        // Per sample, branch-free and vectorised: gradient, weighted magnitude, the three
-        // bin coordinates, and the spatial (bilinear) shares of the magnitude.
-        let (cell, o0s, fos) = (&mut s.cell[..n], &mut s.o0[..n], &mut s.fo[..n]);
-        let [v00, v01, v10, v11] = &mut s.vrc;
-        let (v00, v01, v10, v11) = (&mut v00[..n], &mut v01[..n], &mut v10[..n], &mut v11[..n]);
-        for k in 0..n {
+        grow(&mut s.anchor, m);
+        grow(&mut s.fo, m);
+        grow(&mut s.vrc, m);
+        let (anchor, fos, vrc) = (&mut s.anchor[..m], &mut s.fo[..m], &mut s.vrc[..m]);
+        for k in 0..m {
             let dx = dxs[k];
             let (gx, gy) = (right[k] - left[k], down[k] - up[k]);
             let mag = (gx * gx + gy * gy).sqrt() * (wy * wxs[k]);
             let o = (fast_atan2(gy, gx) - angle) * bins_per_rad;
             let o = if o < 0.0 { o + nbf } else { o };
             let obin = if o >= nbf { o - nbf } else { o };
-            // Bins are > -1, so truncation of bin + 1 is floor + 1. Whole numbers stay
-            // floats here (exact), which keeps the loop vectorised.
             let rb = (rb0 - dx * sin_t).clamp(lo, hi) + 1.0;
             let cb = (cb0 + dx * cos_t).clamp(lo, hi) + 1.0;
             let (r0, c0) = (rb.trunc(), cb.trunc());
             let o0 = obin.trunc().min(nbf - 1.0);
             let (fr, fc) = (rb - r0, cb - c0);
             fos[k] = obin - o0;
-            o0s[k] = whole_to_u32(o0);
-            cell[k] = whole_to_u32((r0 * (df + 2.0) + c0) * nbf);
+            anchor[k] = whole_to_u32((r0 * (df + 1.0) + c0) * nbf + o0);
             let v_r1 = mag * fr;
             let v_r0 = mag - v_r1;
-            v01[k] = v_r0 * fc;
-            v00[k] = v_r0 - v01[k];
-            v11[k] = v_r1 * fc;
-            v10[k] = v_r1 - v11[k];
+            let (v01, v11) = (v_r0 * fc, v_r1 * fc);
+            vrc[k] = [v_r0 - v01, v01, v_r1 - v11, v11];
         }
-        // Scatter into the 8 bins around each sample, in sample order.
+        // In sample order: each spatial share split between the lower and the upper
+        // orientation bin (even and odd lanes).
         for k in 0..n {
-            // `min`: bins are within the grid by construction; this keeps a NaN from a
+            // `min`: anchors are within the grid by construction; this keeps a NaN from a
             // broken image from indexing past it.
-            let cell = &mut hist[(cell[k] as usize).min(max_cell)..][..row_stride + 2 * nb];
-            let o0 = (o0s[k] as usize).min(nb - 1);
-            let o1 = (o0 + 1) % nb;
-            let fo = fos[k];
-            for (off, vc) in [
-                (0, v00[k]),
-                (nb, v01[k]),
-                (row_stride, v10[k]),
-                (row_stride + nb, v11[k]),
-            ] {
-                let v_o1 = vc * fo;
-                cell[off + o0] += vc - v_o1;
-                cell[off + o1] += v_o1;
+            let slot = &mut anchors[(anchor[k] as usize).min(na * na * nb - 1)];
+            let (v, fo) = (vrc[k], fos[k]);
+            let spatial = [v[0], v[0], v[1], v[1], v[2], v[2], v[3], v[3]];
+            for (j, (acc, &vc)) in slot.iter_mut().zip(&spatial).enumerate() {
+                let upper = vc * fo;
+                *acc += if j % 2 == 0 { vc - upper } else { upper };
             }
         }
     }
+    // Bin (i, j, o) of the inner 4x4 cells gathers lane [dr][dc][do] of anchor
+    // (i + 1 - dr, j + 1 - dc, o - do), orientations modulo the bin count.
     let mut v = [0f32; DESCRIPTOR_LEN];
     for i in 0..d {
         for j in 0..d {
-            let base = ((i + 1) * (d + 2) + (j + 1)) * nb;
-            v[(i * d + j) * nb..(i * d + j + 1) * nb].copy_from_slice(&hist[base..base + nb]);
+            for o in 0..nb {
+                v[(i * d + j) * nb + o] = (0..8).fold(0.0, |acc, lane| {
+                    let (dr, dc, dd) = (lane / 4, lane / 2 % 2, lane % 2);
+                    let at = ((i + 1 - dr) * na + j + 1 - dc) * nb + (o + nb - dd) % nb;
+                    acc + anchors[at][lane]
+                });
+            }
         }
     }
     let norm = v.iter().map(|x| x * x).sum::<f32>().sqrt();
@@ -1695,37 +1680,137 @@ mod tests {
     }
 
     #[test]
-    fn max_min_by_bands_of_rows_is_the_whole_pass() {
-        let (w, h) = (23, 17);
-        let src: Vec<f32> = (0..w * h).map(|i| ((i * 29 % 31) as f32) - 15.0).collect();
-        let (mut mx, mut mn) = (vec![0f32; w * h], vec![0f32; w * h]);
-        max_min_rows(&src, w, h, 0, &mut mx, &mut mn, &mut Vec::new());
-        for rows in [1, 4, 5, 16] {
-            let (mut bx, mut bn) = (vec![0f32; w * h], vec![0f32; w * h]);
-            let bands = bx.chunks_mut(rows * w).zip(bn.chunks_mut(rows * w));
-            for (i, (a, b)) in bands.enumerate() {
-                max_min_rows(&src, w, h, i * rows, a, b, &mut Vec::new());
+    fn extremum_flags_match_a_naive_27_neighbour_test() {
+        let mut scratch = ExtremaScratch::default();
+        // Small whole values make ties (which count as extrema) and plateaus common; widths
+        // around the vector lengths exercise the loops' tails.
+        for (w, h, levels) in [(17, 13, 5), (23, 12, 3), (40, 14, 7), (13, 16, 4)] {
+            let layer = |l: usize| -> Vec<f32> {
+                (0..w * h)
+                    .map(|i| ((i * 7919 + l * 104_729) % 97 % levels) as f32 - (levels / 2) as f32)
+                    .collect()
+            };
+            let layers = [layer(0), layer(1), layer(2)];
+            let refs = [&layers[0][..], &layers[1], &layers[2]];
+            let thr = 0.5;
+            let mut candidates = 0;
+            for r in IMG_BORDER..h - IMG_BORDER {
+                let flags = extremum_flags(refs, w, r, thr, &mut scratch).to_vec();
+                assert_eq!(flags.len(), w - 2 * IMG_BORDER);
+                for (k, &f) in flags.iter().enumerate() {
+                    let c = IMG_BORDER + k;
+                    let x = layers[1][r * w + c];
+                    let nb =
+                        (0..27).map(|i| layers[i / 9][(r + i / 3 % 3 - 1) * w + c + i % 3 - 1]);
+                    let is_max = x > thr && nb.clone().all(|v| x >= v);
+                    let is_min = x < -thr && nb.clone().all(|v| x <= v);
+                    assert_eq!(f != 0, is_max || is_min, "{w}x{h}, row {r}, column {c}");
+                    candidates += usize::from(f != 0);
+                }
             }
-            assert!(bx == mx && bn == mn, "bands of {rows} rows");
+            assert!(
+                candidates > 0,
+                "{w}x{h}: the case has no candidate to check"
+            );
         }
     }
 
-    #[test]
-    fn max_min_rows_matches_naive_inside() {
-        let (w, h) = (9, 7);
-        // Stale pool contents must not leak into the interior.
-        recycle(vec![f32::NAN; 200]);
-        let src: Vec<f32> = (0..w * h).map(|i| ((i * 29 % 17) as f32) - 8.0).collect();
-        let (mut mx, mut mn) = (take_buf(w * h), take_buf(w * h));
-        max_min_rows(&src, w, h, 0, &mut mx, &mut mn, &mut Vec::new());
-        for y in 1..h - 1 {
-            for x in 1..w - 1 {
-                let nb = (0..9).map(|k| src[(y + k / 3 - 1) * w + x + k % 3 - 1]);
-                let want_max = nb.clone().fold(f32::MIN, f32::max);
-                let want_min = nb.fold(f32::MAX, f32::min);
-                assert_eq!(mx[y * w + x], want_max);
-                assert_eq!(mn[y * w + x], want_min);
+    /// [`descriptor`] written the plain way: every pixel of the window, its rotated cell
+    /// coordinates tested one by one, trilinear weights added straight into a padded
+    /// histogram in f64, the exact `atan2`.
+    fn descriptor_reference(
+        img: &[f32],
+        (w, h): (usize, usize),
+        (xo, yo): (f32, f32),
+        sigma: f32,
+        angle: f32,
+    ) -> [u8; DESCRIPTOR_LEN] {
+        let (d, nb) = (DESCR_WIDTH, DESCR_BINS);
+        let df = d as f64;
+        let hw = f64::from(DESCR_SCL_FCTR * sigma);
+        let radius = (hw * std::f64::consts::SQRT_2 * (df + 1.0) * 0.5).round() as isize;
+        let (sin_t, cos_t) = f64::from(angle).sin_cos();
+        let (ci, ri) = (xo.round() as isize, yo.round() as isize);
+        let mut hist = vec![0f64; (d + 2) * (d + 2) * nb];
+        for y in (ri - radius).max(1)..=(ri + radius).min(h as isize - 2) {
+            for x in (ci - radius).max(1)..=(ci + radius).min(w as isize - 2) {
+                let (dx, dy) = (x as f64 - f64::from(xo), y as f64 - f64::from(yo));
+                let rbin = (dy * cos_t - dx * sin_t) / hw + df / 2.0 - 0.5;
+                let cbin = (dy * sin_t + dx * cos_t) / hw + df / 2.0 - 0.5;
+                if !(rbin > -1.0 && rbin < df && cbin > -1.0 && cbin < df) {
+                    continue;
+                }
+                let at = |x: isize, y: isize| f64::from(img[y as usize * w + x as usize]);
+                let (gx, gy) = (at(x + 1, y) - at(x - 1, y), at(x, y + 1) - at(x, y - 1));
+                let weight = (-(dx * dx + dy * dy) / (0.5 * df * df * hw * hw)).exp();
+                let mag = gx.hypot(gy) * weight;
+                let tau = std::f64::consts::TAU;
+                let ori = (gy.atan2(gx) - f64::from(angle)).rem_euclid(tau) * nb as f64 / tau;
+                let (r0, c0, o0) = (rbin.floor(), cbin.floor(), ori.floor());
+                let (fr, fc, fo) = (rbin - r0, cbin - c0, ori - o0);
+                for (dr, wr) in [(0, 1.0 - fr), (1, fr)] {
+                    for (dc, wc) in [(0, 1.0 - fc), (1, fc)] {
+                        for (dd, wo) in [(0, 1.0 - fo), (1, fo)] {
+                            let r = (r0 as isize + 1 + dr) as usize;
+                            let c = (c0 as isize + 1 + dc) as usize;
+                            let o = (o0 as usize + dd) % nb;
+                            hist[(r * (d + 2) + c) * nb + o] += mag * wr * wc * wo;
+                        }
+                    }
+                }
             }
+        }
+        let mut v = [0f64; DESCRIPTOR_LEN];
+        for i in 0..d {
+            for j in 0..d {
+                let base = ((i + 1) * (d + 2) + j + 1) * nb;
+                v[(i * d + j) * nb..][..nb].copy_from_slice(&hist[base..base + nb]);
+            }
+        }
+        let norm = v.iter().map(|x| x * x).sum::<f64>().sqrt();
+        let v = v.map(|x| x.min(norm * f64::from(DESCR_MAG_THR)));
+        let norm = v.iter().map(|x| x * x).sum::<f64>().sqrt();
+        v.map(|x| (x * f64::from(DESCR_INT_FCTR) / norm).round().min(255.0) as u8)
+    }
+
+    #[test]
+    fn descriptor_matches_the_plain_trilinear_histogram() {
+        let (w, h) = (72, 64);
+        let img: Vec<f32> = (0..w * h)
+            .map(|i| {
+                let (x, y) = ((i % w) as f32, (i / w) as f32);
+                0.5 + 0.2 * (0.31 * x + 0.17 * y).sin() * (0.23 * y - 0.11 * x).cos()
+                    + 0.1 * (0.07 * x * y / 8.0).sin()
+            })
+            .collect();
+        let mut scratch = GradScratch::default();
+        // Orientations on both sides of the wrap at 0 and 2π, off-grid positions, scales
+        // whose windows reach past the image edge.
+        for (xo, yo, sigma, angle) in [
+            (36.3, 31.7, 1.6, 0.0),
+            (35.0, 30.0, 2.2, 0.001),
+            (30.6, 33.2, 1.9, TAU - 0.001),
+            (40.1, 28.9, 2.7, 1.0),
+            (20.5, 25.5, 3.3, 4.0),
+            (8.2, 9.7, 2.0, 2.5),
+        ] {
+            let got = descriptor(&img, w, h, xo, yo, sigma, angle, &mut scratch);
+            let want = descriptor_reference(&img, (w, h), (xo, yo), sigma, angle);
+            let worst = got.iter().zip(&want).map(|(a, b)| a.abs_diff(*b)).max();
+            let total: u32 = got
+                .iter()
+                .zip(&want)
+                .map(|(a, b)| u32::from(a.abs_diff(*b)))
+                .sum();
+            // Equal but for float rounding (f32 against f64, the polynomial arctangent).
+            assert!(
+                worst <= Some(1) && total <= 8,
+                "{xo},{yo} σ {sigma} θ {angle}: {got:?} vs {want:?}"
+            );
+            assert!(
+                want.iter().filter(|&&v| v > 0).count() > 64,
+                "a textured window"
+            );
         }
     }
 
