@@ -27,11 +27,12 @@
 //! - Blurs are separable with precomputed kernels (radius ⌈4σ⌉-ish, like OpenCV's float
 //!   path) and reflect-101 borders; each scale is blurred incrementally from the previous
 //!   one; the next octave starts from the scale 2σ of the previous octave, decimated by 2.
-//! - Speed: blurs add four taps per pass over a row held in L1 (no bounds checks, so they
-//!   vectorise), extrema are found with branch-free 3x3x3 max/min tests, descriptor samples
-//!   are limited analytically to the rotated cell grid and computed a row at a time in one
-//!   branch-free pass (hot loops avoid saturating float-to-int casts, which block
-//!   vectorisation), the hot loops are compiled a second time
+//! - Speed: blurs keep blocks of 32 outputs in registers across all taps, extrema are found
+//!   a row at a time with branch-free 3x3x3 max/min tests (nothing written but the row's
+//!   flags), descriptor samples are limited analytically to the rotated cell grid and
+//!   computed a row at a time in one branch-free pass over whole vectors, each sample's 8
+//!   shares then added to the histogram as one block (hot loops avoid saturating
+//!   float-to-int casts, which block vectorisation), the hot loops are compiled a second time
 //!   for AVX2 and picked at run time (bit-identical results: Rust never fuses multiply-adds
 //!   on its own), and pyramid buffers come from a per-thread pool so a tracker calling
 //!   [`Sift::detect`] every frame reuses them. Restrict detection to the target's region to
@@ -188,7 +189,7 @@ thread_local! {
     static POOL: std::cell::RefCell<Vec<Vec<f32>>> = const { std::cell::RefCell::new(Vec::new()) };
 }
 
-/// Most buffers the pool keeps per thread (a pyramid uses about 23 per octave).
+/// Most buffers the pool keeps per thread (a pyramid uses about 11 per octave).
 const POOL_MAX: usize = 160;
 
 /// A buffer of `len` values from the thread's pool. Its contents are unspecified (stale
@@ -296,7 +297,7 @@ impl Sift {
     }
 
     /// Frees the image buffers this thread keeps between [`Sift::detect`] calls (about the
-    /// size of one scale-space pyramid: ~25 images of the doubled input per octave's worth).
+    /// size of one scale-space pyramid: ~16 images the size of the doubled input).
     pub fn release_thread_buffers() {
         POOL.with(|p| p.borrow_mut().clear());
     }
