@@ -145,23 +145,20 @@ fn bad_input_is_an_error() {
         let err = Tracker::new(cfg, &img, Init::frontal(r.init_ellipse())).unwrap_err();
         assert!(err.to_string().contains("colour update"), "{err}");
     }
-    // The aspect bound's slack widens the model's range: a finite factor of at least 1.
-    for k in [0.5, 0.0, -1.0, f64::NAN, f64::INFINITY] {
-        let cfg = TrackerConfig {
+    // The aspect bound's slack and the size hold are widening factors: finite, at least 1.
+    for k in [0.5, 0.9, 0.0, -1.0, -1.2, f64::NAN, f64::INFINITY] {
+        let aspect_slack = TrackerConfig {
             aspect_slack: Some(k),
             ..TrackerConfig::default()
         };
-        let err = Tracker::new(cfg, &img, Init::frontal(r.init_ellipse())).unwrap_err();
-        assert!(err.to_string().contains("aspect_slack"), "{err}");
-    }
-    // The size hold, likewise.
-    for k in [0.9, 0.0, -1.2, f64::NAN, f64::INFINITY] {
-        let cfg = TrackerConfig {
+        let size_hold = TrackerConfig {
             size_hold: Some(k),
             ..TrackerConfig::default()
         };
-        let err = Tracker::new(cfg, &img, Init::frontal(r.init_ellipse())).unwrap_err();
-        assert!(err.to_string().contains("size_hold"), "{err}");
+        for (name, cfg) in [("aspect_slack", aspect_slack), ("size_hold", size_hold)] {
+            let err = Tracker::new(cfg, &img, Init::frontal(r.init_ellipse())).unwrap_err();
+            assert!(err.to_string().contains(name), "{name} {k}: {err}");
+        }
     }
     // The inter-frame consensus: a positive threshold and at least the 3 matches of a map.
     for (threshold, min_inliers) in [(0.0, 5), (f64::NAN, 5), (-1.0, 5), (1.0, 2)] {
