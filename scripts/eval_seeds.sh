@@ -1,0 +1,153 @@
+#!/usr/bin/env bash
+# Tracking figures over many filter seeds: one track per seed, scored with `pftrack eval`,
+# then the mean and its standard error. A single seed tells little: on the real footage one
+# seed's success AUC moves by up to 0.5 when anything in the tracker changes, so compare
+# variants by their means over 16 seeds or more, and only by more than two standard errors.
+#
+#   scripts/eval_seeds.sh real  [options] [-- TRACK_ARGS...]   girl and car4, success AUC
+#   scripts/eval_seeds.sh synth [options] [-- TRACK_ARGS...]   synthetic scenarios, angle RMSE
+#
+# Options:
+#   --bin PATH         the pftrack binary (default: target/release/pftrack)
+#   --seeds "A B ..."  seeds, or a range A-B (real: filter seeds, default 0-15;
+#                      synth: scenario seeds, default 0-11)
+#   --filter-seed K    synth only: the filter seed of every run (default 0); "same" uses
+#                      each scenario's own seed
+#   --scenarios "..."  synth only (default: nod pan roll combo depth car)
+#   --sequences "..."  real only (default: girl car4)
+#   --data DIR         real footage (default: ../shared/data beside the repository)
+#   --jobs N           runs side by side (default 2), each on one rayon thread
+#   --out DIR          where tracks, reports and logs go (default: a new temporary folder);
+#                      synthetic scenarios are rendered once into DIR/synth and reused
+# Everything after `--` goes to `pftrack track` (e.g. `-- --no-fit-prior`).
+#
+# Exits non-zero, naming the runs, when any track or evaluation failed: a summary over the
+# runs that worked would look complete and is not printed.
+set -euo pipefail
+
+die() { echo "eval_seeds: $*" >&2; exit 2; }
+
+[ $# -ge 1 ] || die "usage: eval_seeds.sh real|synth [options] [-- TRACK_ARGS...]"
+mode=$1; shift
+case $mode in real|synth) ;; *) die "unknown mode '$mode' (real or synth)";; esac
+
+root=$(cd "$(dirname "$0")/.." && pwd)
+bin=$root/target/release/pftrack
+seeds=""
+filter_seed=0
+scenarios="nod pan roll combo depth car"
+sequences="girl car4"
+data=$root/../shared/data
+jobs=2
+out=""
+track_args=()
+while [ $# -gt 0 ]; do
+    case $1 in
+        --bin) bin=${2:?--bin needs a path}; shift 2;;
+        --seeds) seeds=${2:?--seeds needs a list}; shift 2;;
+        --filter-seed) filter_seed=${2:?--filter-seed needs a value}; shift 2;;
+        --scenarios) scenarios=${2:?--scenarios needs a list}; shift 2;;
+        --sequences) sequences=${2:?--sequences needs a list}; shift 2;;
+        --data) data=${2:?--data needs a folder}; shift 2;;
+        --jobs) jobs=${2:?--jobs needs a number}; shift 2;;
+        --out) out=${2:?--out needs a folder}; shift 2;;
+        --) shift; track_args=("$@"); break;;
+        *) die "unknown option '$1'";;
+    esac
+done
+[ -x "$bin" ] || die "no pftrack binary at $bin (cargo build --release, or --bin PATH)"
+[[ $jobs =~ ^[1-9][0-9]*$ ]] || die "--jobs must be a positive whole number, got '$jobs'"
+[[ $filter_seed =~ ^([0-9]+|same)$ ]] || die "--filter-seed must be a number or 'same'"
+if [ -z "$seeds" ]; then
+    if [ "$mode" = real ]; then seeds=0-15; else seeds=0-11; fi
+fi
+if [[ $seeds =~ ^([0-9]+)-([0-9]+)$ ]]; then
+    seeds=$(seq -s ' ' "${BASH_REMATCH[1]}" "${BASH_REMATCH[2]}")
+fi
+for s in $seeds; do [[ $s =~ ^[0-9]+$ ]] || die "bad seed '$s'"; done
+[ -n "${seeds// /}" ] || die "no seeds"
+out=${out:-$(mktemp -d /tmp/pftrack-seeds.XXXXXX)}
+mkdir -p "$out"
+if [ "$mode" = real ]; then
+    for q in $sequences; do
+        [ -f "$data/$q/groundtruth_rect.txt" ] || die "no ground truth at $data/$q (--data DIR)"
+    done
+fi
+
+# One line per run, "NAME SEED", run by $jobs workers; each run writes NAME-SEED.json and
+# NAME-SEED.log, or NAME-SEED.failed.
+run_one() {
+    local name=$1 seed=$2 base=$out/$1-$2 input init fseed
+    rm -f "$base.failed"
+    if [ "$mode" = real ]; then
+        input=$data/$name/img
+        init=(--init-truth "$data/$name/groundtruth_rect.txt")
+        truth=$data/$name/groundtruth_rect.txt
+        fseed=$seed
+    else
+        local sdir=$out/synth/$name-$seed
+        if [ ! -f "$sdir/truth.csv" ]; then
+            "$bin" synth "$sdir" --scenario "$name" --seed "$seed" >"$base.log" 2>&1 ||
+                { touch "$base.failed"; return 0; }
+        fi
+        input=$sdir/frames
+        init=(--init-file "$sdir/init.txt")
+        truth=$sdir/truth.csv
+        if [ "$filter_seed" = same ]; then fseed=$seed; else fseed=$filter_seed; fi
+    fi
+    if RAYON_NUM_THREADS=1 "$bin" track "$input" "${init[@]}" --backend cpu --seed "$fseed" \
+        "${track_args[@]}" --out "$base.csv" >>"$base.log" 2>&1 &&
+        "$bin" eval "$truth" "$base.csv" --json >"$base.json" 2>>"$base.log"; then
+        :
+    else
+        touch "$base.failed"
+    fi
+}
+export -f run_one
+export mode bin out data filter_seed
+names=$sequences
+[ "$mode" = synth ] && names=$scenarios
+for n in $names; do for s in $seeds; do echo "$n $s"; done; done |
+    xargs -P "$jobs" -n 2 bash -c "$(declare -p track_args); run_one \"\$0\" \"\$1\""
+
+failed=$(find "$out" -maxdepth 1 -name '*.failed' -printf '%f\n' | sed 's/\.failed$//' | sort)
+if [ -n "$failed" ]; then
+    echo "eval_seeds: these runs failed (logs in $out): $(echo "$failed" | tr '\n' ' ')" >&2
+    exit 1
+fi
+
+# A number field of a one-line JSON report ("key":value, or within "angle_rmse_deg").
+field() { grep -o "\"$2\":[-0-9.eE+]*" "$1" | head -1 | cut -d: -f2; }
+# Mean and standard error of the numbers on stdin.
+stats() { awk '{ s += $1; q += $1 * $1; n++ } END {
+    m = s / n; v = n > 1 ? (q - n * m * m) / (n - 1) : 0; if (v < 0) v = 0;
+    printf "%.3f ± %.3f", m, sqrt(v / n) }'; }
+
+echo "pftrack: $bin"
+echo "track arguments: ${track_args[*]:-(none)}; runs in $out"
+if [ "$mode" = real ]; then
+    echo "success AUC (mean ± standard error over filter seeds $seeds)"
+    for q in $sequences; do
+        per=""; for s in $seeds; do per+="$(field "$out/$q-$s.json" success_auc) "; done
+        m=$(echo "$per" | tr ' ' '\n' | grep . | stats)
+        c=$(for s in $seeds; do field "$out/$q-$s.json" mean_centre_error_px; done | stats)
+        printf '%-6s AUC %s  centre error %s px\n' "$q" "$m" "$c"
+        printf '       per seed: %s\n' "$(for v in $per; do printf '%.3f ' "$v"; done)"
+    done
+else
+    echo "angle RMSE in degrees, mean over scenario seeds $seeds (filter seed $filter_seed)"
+    printf '%-6s %7s %7s %7s %10s %5s %8s\n' scenario rx ry rz centre_px lost worst
+    total=0
+    for sc in $scenarios; do
+        row=$(for s in $seeds; do
+            f=$out/$sc-$s.json
+            echo "$(field "$f" rx) $(field "$f" ry) $(field "$f" rz) $(field "$f" mean_centre_error_px) $(field "$f" lost)"
+        done | awk -v sc="$sc" '{ x += $1; y += $2; z += $3; c += $4; l += $5; n++;
+                w = $1 + $2 + $3; if (w > worst) worst = w }
+            END { printf "%-6s %7.2f %7.2f %7.2f %10.2f %5d %8.1f %.6f\n", sc, x / n, y / n, z / n,
+                  c / n, l, worst, (x + y + z) / n }')
+        echo "${row% *}"
+        total=$(awk -v t="$total" -v r="${row##* }" 'BEGIN { printf "%.6f", t + r }')
+    done
+    printf 'sum of the per-axis means: %.1f\n' "$total"
+fi
