@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Tracking figures over many filter seeds: one track per seed, scored with `pftrack eval`,
 # then the mean and its standard error. A single seed tells little: on the real footage one
-# seed's success AUC moves by up to 0.5 when anything in the tracker changes, so compare
+# seed's success AUC moves by 0.5 or more when anything in the tracker changes, so compare
 # variants by their means over 16 seeds or more, and only by more than two standard errors.
 #
 #   scripts/eval_seeds.sh real  [options] [-- TRACK_ARGS...]   girl and car4, success AUC
