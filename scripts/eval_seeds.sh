@@ -110,9 +110,13 @@ names=$sequences
 for n in $names; do for s in $seeds; do echo "$n $s"; done; done |
     xargs -P "$jobs" -n 2 bash -c "$(declare -p track_args); run_one \"\$0\" \"\$1\""
 
-failed=$(find "$out" -maxdepth 1 -name '*.failed' -printf '%f\n' | sed 's/\.failed$//' | sort)
+# Only this invocation's runs: a reused --out may hold marks of other seeds or scenarios.
+failed=""
+for n in $names; do for s in $seeds; do
+    [ ! -e "$out/$n-$s.failed" ] || failed+="$n-$s "
+done; done
 if [ -n "$failed" ]; then
-    echo "eval_seeds: these runs failed (logs in $out): $(echo "$failed" | tr '\n' ' ')" >&2
+    echo "eval_seeds: these runs failed (logs in $out): $failed" >&2
     exit 1
 fi
 
