@@ -139,11 +139,24 @@ fn bad_input_is_an_error() {
             colour_update: Some(ColourUpdate {
                 rate,
                 min_confidence,
+                ..ColourUpdate::default()
             }),
             ..TrackerConfig::default()
         };
         let err = Tracker::new(cfg, &img, Init::frontal(r.init_ellipse())).unwrap_err();
         assert!(err.to_string().contains("colour update"), "{err}");
+    }
+    // Its gate is a similarity.
+    for max_ring_similarity in [-0.1, 1.5, f64::NAN] {
+        let cfg = TrackerConfig {
+            colour_update: Some(ColourUpdate {
+                max_ring_similarity,
+                ..ColourUpdate::default()
+            }),
+            ..TrackerConfig::default()
+        };
+        let err = Tracker::new(cfg, &img, Init::frontal(r.init_ellipse())).unwrap_err();
+        assert!(err.to_string().contains("max_ring_similarity"), "{err}");
     }
     // The aspect bound's slack and the size hold are widening factors: finite, at least 1.
     for k in [0.5, 0.9, 0.0, -1.0, -1.2, f64::NAN, f64::INFINITY] {
@@ -261,6 +274,78 @@ fn the_adaptive_colour_model_follows_a_gradual_change_of_light() {
     assert!(
         fixed < adaptive - 0.2,
         "fixed {fixed:.3} vs adaptive {adaptive:.3}"
+    );
+}
+
+#[test]
+fn the_colour_model_learns_only_while_it_tells_the_target_from_its_surroundings() {
+    // `nod` dimmed by 1.5 % a frame as above; in the second sequence the same head is on a
+    // background made of its own colours (each pixel outside the head's ellipse takes the
+    // colour of a point of the head), so its model looks like its surroundings.
+    let n = 20;
+    let r = Renderer::new(&SynthConfig::new(Scenario::Nod)).unwrap();
+    let init = r.init_ellipse();
+    let ring_like_target = |img: &image::RgbImage| {
+        let (w, h) = img.dimensions();
+        image::RgbImage::from_fn(w, h, |x, y| {
+            let (u, v) = (x as f64 - init.cx, y as f64 - init.cy);
+            let inside = (u / (1.05 * init.a)).powi(2) + (v / (1.05 * init.b)).powi(2) <= 1.0;
+            if inside {
+                *img.get_pixel(x, y)
+            } else {
+                // A point of the head: the pixel's direction from the centre, at a radius
+                // that cycles through the inner ellipse.
+                let t = v.atan2(u);
+                let k = ((u.hypot(v) / 3.0) as u32 % 9) as f64 / 10.0;
+                let px = (init.cx + k * init.a * t.cos()).round() as u32;
+                let py = (init.cy + k * init.b * t.sin()).round() as u32;
+                *img.get_pixel(px.min(w - 1), py.min(h - 1))
+            }
+        })
+    };
+    let run = |camouflage: bool, update: ColourUpdate| {
+        let scene = |k: usize| {
+            let (img, _) = r.render(k);
+            let f = 1.0 - 0.015 * k as f64;
+            let img = image::RgbImage::from_fn(img.width(), img.height(), |x, y| {
+                image::Rgb(img.get_pixel(x, y).0.map(|c| (c as f64 * f).round() as u8))
+            });
+            if camouflage {
+                ring_like_target(&img)
+            } else {
+                img
+            }
+        };
+        let first = scene(0);
+        let cfg = TrackerConfig {
+            colour_update: Some(update),
+            ..TrackerConfig::default()
+        };
+        let mut t = Tracker::new(cfg, &first, Init::frontal(init)).unwrap();
+        let start = t.colour_model().clone();
+        for k in 1..n {
+            t.step(&scene(k)).unwrap();
+        }
+        (start, t.colour_model().clone())
+    };
+    let gate = ColourUpdate::default();
+    let open = ColourUpdate {
+        max_ring_similarity: 1.0,
+        ..gate
+    };
+    // Where the head stands out, the model follows the light, with the gate or without.
+    let (start, end) = run(false, gate);
+    assert!(start.similarity(&end) < 0.99, "{}", start.similarity(&end));
+    let (_, free) = run(false, open);
+    assert_eq!(end, free);
+    // Among its own colours the model holds still; without the gate it would have moved.
+    let (start, end) = run(true, gate);
+    assert_eq!(start, end);
+    let (start, moved) = run(true, open);
+    assert!(
+        start.similarity(&moved) < 0.99,
+        "{}",
+        start.similarity(&moved)
     );
 }
 

@@ -445,6 +445,12 @@ impl Tracker {
         self.engine.name()
     }
 
+    /// The colour model the likelihood engine holds now: the first frame's, moved by
+    /// [`TrackerConfig::colour_update`] when the model adapts.
+    pub fn colour_model(&self) -> &ColourHistogram {
+        &self.colour_model
+    }
+
     /// A one-line notice from the likelihood engine since the last call, taken once: e.g. that
     /// the GPU device was lost and the run goes on on the CPU
     /// ([`crate::likelihood::FallbackEngine`]). Callers should show it to the user.
@@ -758,8 +764,25 @@ impl Tracker {
             return Ok(false);
         }
         let e = est.to_state().ellipse(self.theta0);
-        let Ok(seen) = ColourHistogram::from_ellipse(frame, &e, self.cfg.likelihood.colour_bins)
-        else {
+        let bins = self.cfg.likelihood.colour_bins;
+        // Held back while the model's colours are those of the surroundings.
+        if u.max_ring_similarity < 1.0 {
+            // The contrast term's background, else the ring around the estimate; a target
+            // with no ring in the frame has no surroundings to be mistaken for.
+            let around;
+            let ring = match &self.background {
+                Some(bg) => Some(bg),
+                None => {
+                    around =
+                        ring_histogram(frame, &e, &self.cfg.contrast.unwrap_or_default(), bins);
+                    around.as_ref()
+                }
+            };
+            if ring.is_some_and(|r| self.colour_model.similarity(r) > u.max_ring_similarity) {
+                return Ok(false);
+            }
+        }
+        let Ok(seen) = ColourHistogram::from_ellipse(frame, &e, bins) else {
             return Ok(false);
         };
         self.colour_model.blend_towards(&seen, u.rate as f32);

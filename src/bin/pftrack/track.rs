@@ -74,12 +74,19 @@ pub struct TrackArgs {
     /// `TrackerConfig::fit_pixel_sigma`).
     #[arg(long)]
     pub no_fit_prior: bool,
-    /// Adapt the colour model: after each confident frame it moves this share (0.1 is a
-    /// memory of about ten frames) towards the colours inside the estimate, for targets whose
-    /// colours change as they turn or the light changes (see `TrackerConfig::colour_update`).
-    /// 0, the default, keeps the first frame's model throughout, as the paper does.
-    #[arg(long, value_name = "R", default_value_t = 0.0)]
+    /// How the colour model adapts: after each confident frame it moves this share (0.1, the
+    /// default, is a memory of about ten frames) towards the colours inside the estimate, for
+    /// targets whose colours change as they turn or the light changes (see
+    /// `TrackerConfig::colour_update`). 0 keeps the first frame's model throughout, as the
+    /// paper does.
+    #[arg(long, value_name = "R", default_value_t = 0.1)]
     pub colour_rate: f64,
+    /// The colour model adapts only while its Bhattacharyya similarity with the colours of a
+    /// ring around the target is at most this (default 0.7; 1 adapts whatever the
+    /// surroundings look like): where they look like the target, a drift onto them would
+    /// pass unnoticed and be learnt (see `ColourUpdate::max_ring_similarity`).
+    #[arg(long, value_name = "RHO", default_value_t = 0.7)]
+    pub colour_max_ring: f64,
     /// Widen the range of shapes the ellipse may take by this factor: by default its aspect
     /// stays within what the object model's outlines can show (the first ellipse, as deep as
     /// `--depth-ratio` says; see `TrackerConfig::aspect_slack`).
@@ -308,11 +315,15 @@ pub fn run(a: TrackArgs) -> anyhow::Result<()> {
             ..Default::default()
         })
     };
+    if !(0.0..=1.0).contains(&a.colour_max_ring) {
+        anyhow::bail!("--colour-max-ring {} is not in [0, 1]", a.colour_max_ring);
+    }
     cfg.colour_update = if a.colour_rate == 0.0 {
         None
     } else {
         Some(ColourUpdate {
             rate: a.colour_rate,
+            max_ring_similarity: a.colour_max_ring,
             ..Default::default()
         })
     };

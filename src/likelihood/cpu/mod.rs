@@ -128,6 +128,16 @@ impl ColourHistogram {
             *q = (1.0 - r) * *q + r * p;
         }
     }
+
+    /// The Bhattacharyya coefficient `Σ sqrt(p_k q_k)` of two normalised histograms under the
+    /// same binning: 1 for equal ones, 0 for ones with no bin in common.
+    pub fn similarity(&self, other: &ColourHistogram) -> f64 {
+        self.0
+            .iter()
+            .zip(&other.0)
+            .map(|(&p, &q)| (f64::from(p.max(0.0)) * f64::from(q.max(0.0))).sqrt())
+            .sum()
+    }
 }
 
 /// How an engine runs its parallel loops.
@@ -403,5 +413,17 @@ mod tests {
         assert_eq!(q, before);
         q.blend_towards(&other, 2.0);
         assert_eq!(q, other);
+    }
+
+    #[test]
+    fn similarity_is_the_bhattacharyya_coefficient() {
+        let a = hist(&[(0, 0.25), (1, 0.75)]);
+        let b = hist(&[(1, 0.25), (2, 0.75)]);
+        let c = hist(&[(5, 1.0)]);
+        assert!((a.similarity(&a) - 1.0).abs() < 1e-6);
+        // Only bin 1 is shared: sqrt(0.75 * 0.25).
+        assert!((a.similarity(&b) - (0.75f64 * 0.25).sqrt()).abs() < 1e-6);
+        assert_eq!(a.similarity(&b), b.similarity(&a));
+        assert_eq!(a.similarity(&c), 0.0);
     }
 }
