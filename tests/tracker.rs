@@ -3,7 +3,7 @@
 
 use pftrack::geometry::{Ellipse, angle_between, rot_x};
 use pftrack::synth::{Renderer, Scenario, SynthConfig};
-use pftrack::tracker::{ColourUpdate, Contrast, Init, Tracker, TrackerConfig};
+use pftrack::tracker::{AnchorRefit, ColourUpdate, Contrast, Init, Tracker, TrackerConfig};
 
 type Track = (
     Vec<pftrack::tracker::Estimate>,
@@ -146,7 +146,19 @@ fn bad_input_is_an_error() {
         let err = Tracker::new(cfg, &img, Init::frontal(r.init_ellipse())).unwrap_err();
         assert!(err.to_string().contains("colour update"), "{err}");
     }
-    // Its gate is a similarity.
+    // The anchor refit needs a positive residual and enough inliers for its 6 parameters.
+    for (max_residual, min_inliers) in [(0.0, 14), (f64::NAN, 14), (-1.0, 14), (0.5, 5)] {
+        let cfg = TrackerConfig {
+            anchor_refit: Some(AnchorRefit {
+                max_residual,
+                min_inliers,
+            }),
+            ..TrackerConfig::default()
+        };
+        let err = Tracker::new(cfg, &img, Init::frontal(r.init_ellipse())).unwrap_err();
+        assert!(err.to_string().contains("anchor refit"), "{err}");
+    }
+    // The colour update's gate is a similarity.
     for max_ring_similarity in [-0.1, 1.5, f64::NAN] {
         let cfg = TrackerConfig {
             colour_update: Some(ColourUpdate {

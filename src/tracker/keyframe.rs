@@ -18,6 +18,7 @@ use crate::likelihood::FeaturePair;
 use crate::pose::prior::{
     Ellipsoid, FitStart, Pinhole, PriorFit, RotationPrior, fit_with_depth_prior,
 };
+use crate::tracker::AnchorRefit;
 
 /// One reference view.
 #[derive(Debug, Clone)]
@@ -52,6 +53,8 @@ pub(crate) struct FitContext<'a> {
     /// The rotation prior's σ per axis (radians) and the matches' σ (pixels); `None` for
     /// no prior.
     pub prior: Option<([f64; 3], f64)>,
+    /// The free fit against the anchor that may replace the best one; `None` for none.
+    pub anchor_refit: Option<AnchorRefit>,
 }
 
 /// An accepted fit against one keyframe.
@@ -152,7 +155,9 @@ impl KeyframePool {
 
     /// Fits the current features against the keyframes nearest the previous estimate (at most
     /// `tries` of them, all within `reach` radians) and returns the accepted fit with the most
-    /// inliers (fewer residual pixels on a tie).
+    /// inliers (fewer residual pixels on a tie). With `ctx.anchor_refit`, a free fit against
+    /// the anchor (no prior, no bound on the step) that passes its thresholds is returned
+    /// instead.
     pub fn best_fit(
         &self,
         cur: &Features,
@@ -169,8 +174,16 @@ impl KeyframePool {
             .collect();
         order.sort_by(|a, b| a.0.total_cmp(&b.0));
         let mut best: Option<KeyFit> = None;
+        let mut anchor_pairs = None;
         for &(_, i) in order.iter().take(tries) {
-            let Some(f) = self.fit_one(i, cur, ctx) else {
+            let Some(pairs) = self.pairs(i, cur, ctx) else {
+                continue;
+            };
+            let f = self.fit_pairs(i, &pairs, ctx);
+            if i == 0 {
+                anchor_pairs = Some(pairs);
+            }
+            let Some(f) = f else {
                 continue;
             };
             let better = match &best {
@@ -184,28 +197,57 @@ impl KeyframePool {
                 best = Some(f);
             }
         }
+        if let Some(r) = ctx.anchor_refit
+            && !self.frames.is_empty()
+        {
+            // The anchor's pose carries no drift: fitted without the prior, which is centred
+            // on the (drifting) previous estimate, and without the step bound.
+            let free = FitContext {
+                prior: None,
+                max_step: std::f64::consts::PI,
+                max_residual: r.max_residual,
+                min_inliers: r.min_inliers,
+                ..*ctx
+            };
+            let pairs = anchor_pairs.or_else(|| self.pairs(0, cur, &free));
+            if let Some(f) = pairs.and_then(|p| self.fit_pairs(0, &p, &free)) {
+                return Some(f);
+            }
+        }
         best
     }
 
-    fn fit_one(&self, i: usize, cur: &Features, ctx: &FitContext<'_>) -> Option<KeyFit> {
+    /// The matches of keyframe `i` with the current features, keyframe → current frame;
+    /// `None` when there are fewer than `ctx.min_inliers`.
+    fn pairs(&self, i: usize, cur: &Features, ctx: &FitContext<'_>) -> Option<Vec<FeaturePair>> {
         let key = &self.frames[i];
         let matches = match_features(&key.features, cur, ctx.matching);
         if matches.len() < ctx.min_inliers {
             return None;
         }
-        let pairs: Vec<FeaturePair> = matches
-            .iter()
-            .map(|m| {
-                let (a, b) = (&key.features.keypoints[m.query], &cur.keypoints[m.train]);
-                FeaturePair {
-                    p: [a.x, a.y],
-                    q: [b.x, b.y],
-                }
-            })
-            .collect();
+        Some(
+            matches
+                .iter()
+                .map(|m| {
+                    let (a, b) = (&key.features.keypoints[m.query], &cur.keypoints[m.train]);
+                    FeaturePair {
+                        p: [a.x, a.y],
+                        q: [b.x, b.y],
+                    }
+                })
+                .collect(),
+        )
+    }
+
+    /// The accepted fit of keyframe `i` to its matches `pairs`, from the previous estimate.
+    fn fit_pairs(&self, i: usize, pairs: &[FeaturePair], ctx: &FitContext<'_>) -> Option<KeyFit> {
+        if pairs.len() < ctx.min_inliers {
+            return None;
+        }
+        let key = &self.frames[i];
         let rot0: Matrix3<f64> = ctx.prev.rot * key.hyp.rot.transpose();
         let s0 = ((ctx.prev.a * ctx.prev.b) / (key.hyp.a * key.hyp.b)).sqrt();
-        let (fit, pairs) = accepted_fit(&pairs, &key.model, ctx, &rot0, s0)?;
+        let (fit, pairs) = accepted_fit(pairs, &key.model, ctx, &rot0, s0)?;
         Some(KeyFit {
             key: key.hyp,
             fit,
@@ -385,5 +427,83 @@ mod tests {
         // The floor: never fewer than `min_inliers`, whatever the share.
         assert!(!pool.record(Some(&fit(9)), 5, 10));
         assert!(pool.record(Some(&fit(4)), 5, 10));
+    }
+
+    /// The anchor's features on a 6 x 5 grid inside its ellipse, and the same features seen
+    /// after the object (the anchor's ellipsoid) turned by `turn`, in place.
+    fn anchor_and_turned(turn: &Matrix3<f64>) -> (Features, Features) {
+        let m = model();
+        let p: Vec<[f64; 2]> = (0..30)
+            .map(|i| {
+                let (u, v) = ((i % 6) as f64 / 5.0 - 0.5, (i / 6) as f64 / 4.0 - 0.5);
+                [50.0 + 12.0 * u, 40.0 + 14.0 * v]
+            })
+            .collect();
+        let q: Vec<[f64; 2]> = crate::pose::prior::lift(&p, &m, None)
+            .iter()
+            .map(|x| {
+                let y = turn * x;
+                [m.centre.x + y.x, m.centre.y + y.y]
+            })
+            .collect();
+        let feats = |pts: &[[f64; 2]]| Features {
+            keypoints: pts
+                .iter()
+                .map(|p| Keypoint {
+                    x: p[0] as f32,
+                    y: p[1] as f32,
+                    ..Keypoint::default()
+                })
+                .collect(),
+            descriptors: (0..pts.len()).map(|i| [(8 * i) as u8; 128]).collect(),
+        };
+        (feats(&p), feats(&q))
+    }
+
+    #[test]
+    fn a_tight_free_fit_to_the_anchor_overrides_the_prior_and_the_step_bound() {
+        // The object turned 25 degrees from the anchor's frontal view while the previous
+        // estimate stayed frontal: the prior (centred on that estimate) and the 20-degree
+        // step bound keep the truth out of reach; the free anchor fit finds it.
+        let turn = Euler::from_degrees(5.0, 25.0, -3.0).matrix();
+        let (anchor, now) = anchor_and_turned(&turn);
+        let e = Ellipse::new(50.0, 40.0, 10.0, 12.0);
+        let mut pool = KeyframePool::new(4);
+        pool.reset(&anchor, &e, hyp(Euler::default()), model());
+        let prev = hyp(Euler::default());
+        let matching = MatchParams::default();
+        let ctx = |anchor_refit| FitContext {
+            prev: &prev,
+            shift: Vector2::zeros(),
+            camera: None,
+            matching: &matching,
+            min_inliers: 10,
+            max_residual: 3.0,
+            max_step: 20f64.to_radians(),
+            prior: Some(([0.05; 3], 1.0)),
+            anchor_refit,
+        };
+        // Held by the prior, the fit stays near the previous estimate, the turn taken up by
+        // translation and scale within a pixel of residual.
+        let held = pool.best_fit(&now, &ctx(None), 3, 1.0).map_or(180.0, |f| {
+            angle_between(&f.placed().rot, &turn).to_degrees()
+        });
+        assert!(held > 15.0, "{held}");
+        let fit = pool
+            .best_fit(&now, &ctx(Some(AnchorRefit::default())), 3, 1.0)
+            .expect("the anchor fits");
+        assert!(angle_between(&fit.placed().rot, &turn).to_degrees() < 0.01);
+        assert_eq!(fit.pairs.len(), 30);
+        // Too few inliers for its threshold: no override, the held fit stands.
+        let strict = AnchorRefit {
+            min_inliers: 31,
+            ..AnchorRefit::default()
+        };
+        let kept = pool
+            .best_fit(&now, &ctx(Some(strict)), 3, 1.0)
+            .map_or(180.0, |f| {
+                angle_between(&f.placed().rot, &turn).to_degrees()
+            });
+        assert_eq!(kept, held);
     }
 }

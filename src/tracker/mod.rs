@@ -32,7 +32,7 @@
 mod config;
 mod keyframe;
 
-pub use config::{ColourUpdate, Contrast, Init, Mode, TrackerConfig};
+pub use config::{AnchorRefit, ColourUpdate, Contrast, Init, Mode, TrackerConfig};
 
 use nalgebra::Matrix3;
 
@@ -212,6 +212,13 @@ fn check_config(cfg: &TrackerConfig) -> Result<(), TrackError> {
                 "fit_pixel_sigma {px} with the filter's rotation walk {:?}: {e}; set \
                  fit_pixel_sigma to None to fit without the prior",
                 cfg.filter.dynamics.rotation
+            ))
+        })?;
+    }
+    if let Some(r) = &cfg.anchor_refit {
+        r.check().map_err(|e| {
+            TrackError::BadConfig(format!(
+                "{e}; set anchor_refit to None to measure against the nearest views alone"
             ))
         })?;
     }
@@ -811,6 +818,7 @@ impl Tracker {
                 .cfg
                 .fit_pixel_sigma
                 .map(|px| (self.cfg.filter.dynamics.rotation, px)),
+            anchor_refit: self.cfg.anchor_refit,
         }
     }
 

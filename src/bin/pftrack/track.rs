@@ -74,6 +74,11 @@ pub struct TrackArgs {
     /// `TrackerConfig::fit_pixel_sigma`).
     #[arg(long)]
     pub no_fit_prior: bool,
+    /// Measure each frame only against the keyframes nearest the previous estimate, without
+    /// the free fit against the first view that resets the chain's drift when it fits tightly
+    /// (see `TrackerConfig::anchor_refit`).
+    #[arg(long)]
+    pub no_anchor_refit: bool,
     /// How the colour model adapts: after each confident frame it moves this share (0.1, the
     /// default, is a memory of about ten frames) towards the colours inside the estimate, for
     /// targets whose colours change as they turn or the light changes (see
@@ -300,6 +305,9 @@ pub fn run(a: TrackArgs) -> anyhow::Result<()> {
     apply_edge_threshold(&mut cfg, a.edge_threshold)?;
     if a.no_fit_prior {
         cfg.fit_pixel_sigma = None;
+    }
+    if a.no_anchor_refit {
+        cfg.anchor_refit = None;
     }
     cfg.aspect_slack = (!a.no_aspect_bound).then_some(a.aspect_slack);
     cfg.size_hold = (!a.no_size_hold).then_some(a.size_hold);
