@@ -174,12 +174,11 @@ impl KeyframePool {
             .collect();
         order.sort_by(|a, b| a.0.total_cmp(&b.0));
         let mut best: Option<KeyFit> = None;
+        // The anchor's matches when it was among the views tried (`Some(None)`: too few).
         let mut anchor_pairs = None;
         for &(_, i) in order.iter().take(tries) {
-            let Some(pairs) = self.pairs(i, cur, ctx) else {
-                continue;
-            };
-            let f = self.fit_pairs(i, &pairs, ctx);
+            let pairs = self.pairs(i, cur, ctx);
+            let f = pairs.as_ref().and_then(|p| self.fit_pairs(i, p, ctx));
             if i == 0 {
                 anchor_pairs = Some(pairs);
             }
@@ -209,7 +208,7 @@ impl KeyframePool {
                 min_inliers: r.min_inliers,
                 ..*ctx
             };
-            let pairs = anchor_pairs.or_else(|| self.pairs(0, cur, &free));
+            let pairs = anchor_pairs.unwrap_or_else(|| self.pairs(0, cur, &free));
             if let Some(f) = pairs.and_then(|p| self.fit_pairs(0, &p, &free)) {
                 return Some(f);
             }
