@@ -79,18 +79,17 @@ pub struct TrackArgs {
     /// (see `TrackerConfig::anchor_refit`).
     #[arg(long)]
     pub no_anchor_refit: bool,
-    /// How the colour model adapts: after each confident frame it moves this share (0.1, the
-    /// default, is a memory of about ten frames) towards the colours inside the estimate, for
-    /// targets whose colours change as they turn or the light changes (see
-    /// `TrackerConfig::colour_update`). 0 keeps the first frame's model throughout, as the
-    /// paper does.
-    #[arg(long, value_name = "R", default_value_t = 0.1)]
+    /// How the colour model adapts: after each confident frame it moves this share (0.1 is a
+    /// memory of about ten frames) towards the colours inside the estimate, for targets whose
+    /// colours change as they turn or the light changes (see `TrackerConfig::colour_update`).
+    /// 0 keeps the first frame's model throughout, as the paper does.
+    #[arg(long, value_name = "R", default_value_t = ColourUpdate::default().rate)]
     pub colour_rate: f64,
     /// The colour model adapts only while its Bhattacharyya similarity with the colours of a
-    /// ring around the target is at most this (default 0.7; 1 adapts whatever the
-    /// surroundings look like): where they look like the target, a drift onto them would
-    /// pass unnoticed and be learnt (see `ColourUpdate::max_ring_similarity`).
-    #[arg(long, value_name = "RHO", default_value_t = 0.7)]
+    /// ring around the target is at most this (1 adapts whatever the surroundings look
+    /// like): where they look like the target, a drift onto them would pass unnoticed and be
+    /// learnt (see `ColourUpdate::max_ring_similarity`).
+    #[arg(long, value_name = "RHO", default_value_t = ColourUpdate::default().max_ring_similarity)]
     pub colour_max_ring: f64,
     /// Widen the range of shapes the ellipse may take by this factor: by default its aspect
     /// stays within what the object model's outlines can show (the first ellipse, as deep as
