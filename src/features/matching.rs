@@ -34,22 +34,13 @@ pub struct Match {
     pub distance: f32,
 }
 
-/// Descriptors as `f32`, flattened. Distances of `u8` descriptors computed in `f32` are
-/// exact: every partial sum is an integer below 128 · 255² < 2²⁴.
-fn to_f32(f: &Features) -> Vec<f32> {
-    f.descriptors
-        .iter()
-        .flat_map(|d| d.iter().map(|&v| f32::from(v)))
-        .collect()
-}
-
-/// Squared Euclidean distance of two 128-vectors (8 independent accumulators, vectorised).
+/// Squared Euclidean distance of two `u8` descriptors, exact (at most 128 · 255² < 2²³).
 #[inline]
-fn dist2(a: &[f32], b: &[f32]) -> f32 {
-    let mut acc = [0f32; 8];
-    for (ca, cb) in a.chunks_exact(8).zip(b.chunks_exact(8)) {
-        for k in 0..8 {
-            let d = ca[k] - cb[k];
+fn dist2(a: &[u8; DESCRIPTOR_LEN], b: &[u8; DESCRIPTOR_LEN]) -> u32 {
+    let mut acc = [0u32; 16];
+    for (ca, cb) in a.chunks_exact(16).zip(b.chunks_exact(16)) {
+        for k in 0..16 {
+            let d = ca[k].abs_diff(cb[k]) as u32;
             acc[k] += d * d;
         }
     }
@@ -65,10 +56,8 @@ pub fn match_features(a: &Features, b: &Features, p: &MatchParams) -> Vec<Match>
     if a.descriptors.is_empty() || b.descriptors.is_empty() {
         return Vec::new();
     }
-    let da = to_f32(a);
-    let db = to_f32(b);
     let ratio2 = p.ratio * p.ratio;
-    let (row_best, col_best) = nearest(&da, &db);
+    let (row_best, col_best) = nearest(&a.descriptors, &b.descriptors);
     let mut out = Vec::new();
     for (i, &(d1, j1, d2)) in row_best.iter().enumerate() {
         if j1 == usize::MAX {
@@ -88,43 +77,54 @@ pub fn match_features(a: &Features, b: &Features, p: &MatchParams) -> Vec<Match>
 }
 
 /// Per query `(d1, j1, d2)`: the nearest and second nearest squared distances and the nearest
-/// train index; per train descriptor `(d, i)`: the nearest query.
+/// train index; per train descriptor `(d, i)`: the nearest query. Squared distances are
+/// whole numbers below 2²³, exact as `f32`.
 type Nearest = (Vec<(f32, usize, f32)>, Vec<(f32, usize)>);
 
 /// Each query's nearest and second nearest train distances `(d1, j1, d2)`, and each train
-/// descriptor's nearest query `(d, i)`, over flattened `f32` descriptors.
-fn nearest(da: &[f32], db: &[f32]) -> Nearest {
+/// descriptor's nearest query `(d, i)`.
+fn nearest(da: &[[u8; DESCRIPTOR_LEN]], db: &[[u8; DESCRIPTOR_LEN]]) -> Nearest {
+    let mut dists = vec![0u32; db.len()];
     #[cfg(target_arch = "x86_64")]
     if std::arch::is_x86_feature_detected!("avx2") {
-        // SAFETY: the CPU supports AVX2 (checked just above), the only requirement of calling
-        // a function compiled with that target feature.
-        return unsafe { nearest_avx2(da, db) };
+        return nearest_with(
+            da,
+            db,
+            |qa, out| {
+                // SAFETY: the CPU supports AVX2 (checked just above), the only requirement of
+                // calling a function compiled with that target feature.
+                unsafe { avx2::distances(qa, db, out) }
+            },
+            &mut dists,
+        );
     }
-    nearest_impl(da, db)
+    nearest_with(
+        da,
+        db,
+        |qa, out| {
+            for (d, tb) in out.iter_mut().zip(db) {
+                *d = dist2(qa, tb);
+            }
+        },
+        &mut dists,
+    )
 }
 
-/// [`nearest_impl`] compiled for AVX2 (one 8-wide register per accumulator set). Distances are
-/// sums of integers below 2²⁴ either way, so the results are identical to the baseline build.
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
-fn nearest_avx2(da: &[f32], db: &[f32]) -> Nearest {
-    nearest_impl(da, db)
-}
-
-/// See [`nearest`]: one query's distances to every train descriptor first (a loop without
-/// branches, which vectorises), then the bookkeeping of the nearest ones.
-#[inline(always)]
-fn nearest_impl(da: &[f32], db: &[f32]) -> Nearest {
-    let nb = db.len() / DESCRIPTOR_LEN;
-    let mut col_best = vec![(f32::INFINITY, usize::MAX); nb];
-    let mut row_best = Vec::with_capacity(da.len() / DESCRIPTOR_LEN);
-    let mut dists = vec![0f32; nb];
-    for (i, qa) in da.chunks_exact(DESCRIPTOR_LEN).enumerate() {
-        for (d, tb) in dists.iter_mut().zip(db.chunks_exact(DESCRIPTOR_LEN)) {
-            *d = dist2(qa, tb);
-        }
+/// [`nearest`] with `distances(query, out)` writing one query's squared distances to every
+/// train descriptor into `out`.
+fn nearest_with(
+    da: &[[u8; DESCRIPTOR_LEN]],
+    db: &[[u8; DESCRIPTOR_LEN]],
+    mut distances: impl FnMut(&[u8; DESCRIPTOR_LEN], &mut [u32]),
+    dists: &mut [u32],
+) -> Nearest {
+    let mut col_best = vec![(f32::INFINITY, usize::MAX); db.len()];
+    let mut row_best = Vec::with_capacity(da.len());
+    for (i, qa) in da.iter().enumerate() {
+        distances(qa, dists);
         let (mut d1, mut j1, mut d2) = (f32::INFINITY, usize::MAX, f32::INFINITY);
         for (j, (&d, cb)) in dists.iter().zip(col_best.iter_mut()).enumerate() {
+            let d = d as f32;
             if d < d1 {
                 d2 = d1;
                 d1 = d;
@@ -139,6 +139,66 @@ fn nearest_impl(da: &[f32], db: &[f32]) -> Nearest {
         row_best.push((d1, j1, d2));
     }
     (row_best, col_best)
+}
+
+/// The AVX2 distance kernel: descriptors widened to 16-bit lanes, differences squared and
+/// summed in pairs by `vpmaddwd` into 32-bit lanes. Integer arithmetic throughout, so the
+/// distances are those of [`dist2`] exactly.
+#[cfg(target_arch = "x86_64")]
+mod avx2 {
+    use super::DESCRIPTOR_LEN;
+    use std::arch::x86_64::*;
+
+    /// Squared distances of `q` to every descriptor of `train`, into `out` (same length).
+    ///
+    /// # Safety
+    /// The CPU must support AVX2.
+    #[target_feature(enable = "avx2")]
+    pub(super) unsafe fn distances(
+        q: &[u8; DESCRIPTOR_LEN],
+        train: &[[u8; DESCRIPTOR_LEN]],
+        out: &mut [u32],
+    ) {
+        // The query, widened once: 8 registers of 16 lanes.
+        let mut qw = [_mm256_setzero_si256(); 8];
+        for (c, r) in qw.iter_mut().enumerate() {
+            // SAFETY: bytes 16c..16c + 16 lie inside the 128-byte descriptor.
+            *r = _mm256_cvtepu8_epi16(unsafe { _mm_loadu_si128(q.as_ptr().add(16 * c).cast()) });
+        }
+        let mut pairs = train.chunks_exact(2);
+        let mut outs = out.chunks_exact_mut(2);
+        for (t, o) in pairs.by_ref().zip(outs.by_ref()) {
+            let (mut a0, mut a1) = (_mm256_setzero_si256(), _mm256_setzero_si256());
+            for (c, &qc) in qw.iter().enumerate() {
+                // SAFETY: as above, for each of the two train descriptors.
+                let (t0, t1) = unsafe {
+                    (
+                        _mm_loadu_si128(t[0].as_ptr().add(16 * c).cast()),
+                        _mm_loadu_si128(t[1].as_ptr().add(16 * c).cast()),
+                    )
+                };
+                let d0 = _mm256_sub_epi16(qc, _mm256_cvtepu8_epi16(t0));
+                let d1 = _mm256_sub_epi16(qc, _mm256_cvtepu8_epi16(t1));
+                a0 = _mm256_add_epi32(a0, _mm256_madd_epi16(d0, d0));
+                a1 = _mm256_add_epi32(a1, _mm256_madd_epi16(d1, d1));
+            }
+            o[0] = hsum(a0);
+            o[1] = hsum(a1);
+        }
+        for (t, o) in pairs.remainder().iter().zip(outs.into_remainder()) {
+            *o = super::dist2(q, t);
+        }
+    }
+
+    /// Sum of the eight 32-bit lanes.
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    fn hsum(v: __m256i) -> u32 {
+        let s = _mm_add_epi32(_mm256_castsi256_si128(v), _mm256_extracti128_si256::<1>(v));
+        let s = _mm_add_epi32(s, _mm_shuffle_epi32::<0b01_00_11_10>(s));
+        let s = _mm_add_epi32(s, _mm_shuffle_epi32::<0b10_11_00_01>(s));
+        _mm_cvtsi128_si32(s) as u32
+    }
 }
 
 /// Median length below which displacements count as "no motion" (see
@@ -294,13 +354,31 @@ mod tests {
 
     #[test]
     fn dist2_is_exact() {
-        let a: Vec<f32> = (0..128)
-            .map(|i| if i % 2 == 0 { 255.0 } else { 0.0 })
-            .collect();
-        let b: Vec<f32> = (0..128)
-            .map(|i| if i % 2 == 0 { 0.0 } else { 255.0 })
-            .collect();
-        assert_eq!(dist2(&a, &b), 128.0 * 255.0 * 255.0);
+        let a: [u8; 128] = std::array::from_fn(|i| if i % 2 == 0 { 255 } else { 0 });
+        let b: [u8; 128] = std::array::from_fn(|i| if i % 2 == 0 { 0 } else { 255 });
+        assert_eq!(dist2(&a, &b), 128 * 255 * 255);
+    }
+
+    #[test]
+    fn the_avx2_distances_are_the_exact_ones() {
+        #[cfg(target_arch = "x86_64")]
+        if std::arch::is_x86_feature_detected!("avx2") {
+            use rand::{Rng, SeedableRng, rngs::StdRng};
+            let mut rng = StdRng::seed_from_u64(7);
+            // Extremes (0 against 255 in every lane) and random descriptors; an odd train
+            // count exercises the unpaired last descriptor.
+            let mut descs: Vec<[u8; DESCRIPTOR_LEN]> =
+                vec![[0; DESCRIPTOR_LEN], [255; DESCRIPTOR_LEN]];
+            descs.extend((0..9).map(|_| std::array::from_fn(|_| rng.random())));
+            for q in &descs {
+                let mut out = vec![0u32; descs.len()];
+                // SAFETY: AVX2 is available (checked above).
+                unsafe { avx2::distances(q, &descs, &mut out) };
+                let want: Vec<u32> = descs.iter().map(|t| dist2(q, t)).collect();
+                assert_eq!(out, want);
+            }
+            assert_eq!(dist2(&descs[0], &descs[1]), 128 * 255 * 255);
+        }
     }
 
     #[test]
