@@ -585,6 +585,7 @@ impl Sift {
                 oh = nh;
             }
             let mut gauss = Vec::with_capacity(n + 3);
+            let mut dog = Vec::with_capacity(n + 2);
             gauss.push(std::mem::take(&mut base));
             for i in 1..n + 3 {
                 let mut next = take_buf(ow * oh);
@@ -596,15 +597,14 @@ impl Sift {
                     &self.layer_kernels[i],
                     scratch,
                 );
-                gauss.push(next);
-            }
-            let mut dog = Vec::with_capacity(n + 2);
-            for p in gauss.windows(2) {
+                // Each difference right after its blur, while both scales are still in cache
+                // (the first octave's eleven images do not fit in L2).
                 let mut d = take_buf(ow * oh);
-                for ((d, b), a) in d.iter_mut().zip(&p[1]).zip(&p[0]) {
+                for ((d, b), a) in d.iter_mut().zip(&next).zip(&gauss[i - 1]) {
                     *d = b - a;
                 }
                 dog.push(d);
+                gauss.push(next);
             }
             octaves.push(Octave {
                 w: ow,
@@ -1141,7 +1141,8 @@ fn blur_rows_h(
 
 /// The vertical pass of [`blur`] for the rows `y0..` that `out` holds, from the whole
 /// horizontally blurred image `tmp` (`h` rows): rows above and below each output row,
-/// reflected at the edges.
+/// reflected at the edges. Rows are done two at a time, each loaded row serving both
+/// (see [`conv2_block`]); the sums are those of [`conv_row`] either way.
 #[allow(clippy::too_many_arguments)]
 #[inline(always)]
 fn blur_rows_v(
@@ -1154,16 +1155,41 @@ fn blur_rows_v(
     r: usize,
     offs: &mut Vec<(usize, usize)>,
 ) {
-    for (j, out) in out.chunks_exact_mut(w).enumerate() {
-        let y = y0 + j;
-        // Offsets of the rows at -i and +i (index 0 unused), reflected once per row.
+    // Offsets of the rows at -i and +i of row `y` (index 0: the row itself), reflected once
+    // per row; one more than the kernel's radius for the two-row blocks.
+    let fill_offs = |offs: &mut Vec<(usize, usize)>, y: usize| {
         offs.clear();
-        offs.extend((0..=r).map(|i| {
+        offs.extend((0..=r + 1).map(|i| {
             (
                 reflect101(y as isize - i as isize, h) * w,
                 reflect101((y + i) as isize, h) * w,
             )
         }));
+    };
+    let rows = out.len() / w;
+    let mut j = 0;
+    while j + 2 <= rows {
+        fill_offs(offs, y0 + j);
+        let (o0, o1) = out[j * w..(j + 2) * w].split_at_mut(w);
+        let offs = &offs[..];
+        let mut x = 0;
+        while x + 16 <= w {
+            conv2_block::<16>(kh, tmp, offs, o0, o1, x);
+            x += 16;
+        }
+        while x + 8 <= w {
+            conv2_block::<8>(kh, tmp, offs, o0, o1, x);
+            x += 8;
+        }
+        while x < w {
+            conv2_block::<1>(kh, tmp, offs, o0, o1, x);
+            x += 1;
+        }
+        j += 2;
+    }
+    if j < rows {
+        let y = y0 + j;
+        fill_offs(offs, y);
         let offs = &offs[..];
         conv_row(
             kh,
@@ -1172,9 +1198,50 @@ fn blur_rows_v(
                 let (a, b) = offs[i];
                 (&tmp[a..a + w], &tmp[b..b + w])
             },
-            out,
+            &mut out[j * w..(j + 1) * w],
         );
     }
+}
+
+/// Columns `x..x + L` of two consecutive output rows `y` and `y + 1` of the vertical pass:
+/// `offs[i]` holds the offsets of rows `y - i` and `y + i` (reflected), `i = 0..=r + 1`.
+/// Row `y + 1 - i` is row `y - (i - 1)` and row `y + 1 + i` is row `y + (i + 1)`, so each
+/// tap loads two rows for the two outputs instead of four. Per pixel the sum is
+/// `k0·c + k1·(a1 + b1) + …` in tap order, as in [`conv_block`].
+#[inline(always)]
+fn conv2_block<const L: usize>(
+    k: &[f32],
+    tmp: &[f32],
+    offs: &[(usize, usize)],
+    out0: &mut [f32],
+    out1: &mut [f32],
+    x: usize,
+) {
+    let row = |o: usize| -> [f32; L] {
+        let mut v = [0f32; L];
+        v.copy_from_slice(&tmp[o + x..o + x + L]);
+        v
+    };
+    let mut prev_lo = row(offs[0].1);
+    let mut prev_hi = row(offs[1].1);
+    let mut acc0 = [0f32; L];
+    let mut acc1 = [0f32; L];
+    for j in 0..L {
+        acc0[j] = k[0] * prev_lo[j];
+        acc1[j] = k[0] * prev_hi[j];
+    }
+    for (i, &kt) in k.iter().enumerate().skip(1) {
+        let lo = row(offs[i].0);
+        let hi_next = row(offs[i + 1].1);
+        for j in 0..L {
+            acc0[j] += kt * (lo[j] + prev_hi[j]);
+            acc1[j] += kt * (prev_lo[j] + hi_next[j]);
+        }
+        prev_lo = lo;
+        prev_hi = hi_next;
+    }
+    out0[x..x + L].copy_from_slice(&acc0);
+    out1[x..x + L].copy_from_slice(&acc1);
 }
 
 /// Doubles an image: even pixels are the input's, odd ones the average of their two (or
@@ -1466,7 +1533,7 @@ fn descriptor(
     let nbf = nb as f32;
     // The histogram by anchors: a sample whose lower bins are (r, c, o), in the grid padded
     // by one cell on each side, adds its whole 2x2x2 block of trilinear shares, lanes
-    // [dr][dc][do], to anchor (r, c, o) with one 8-lane add instead of eight scattered ones;
+    // [do][dr][dc], to anchor (r, c, o) with one 8-lane add instead of eight scattered ones;
     // the anchors are folded into the bins at the end. Lower spatial bins run 0..=d.
     let na = d + 1;
     let mut anchors = [[0f32; 8]; (DESCR_WIDTH + 1) * (DESCR_WIDTH + 1) * DESCR_BINS];
@@ -1525,29 +1592,33 @@ fn descriptor(
             vrc[k] = [v_r0 - v01, v01, v_r1 - v11, v11];
         }
         // In sample order: each spatial share split between the lower and the upper
-        // orientation bin (even and odd lanes).
+        // orientation bin (the first and the last four lanes).
         for k in 0..n {
             // `min`: anchors are within the grid by construction; this keeps a NaN from a
             // broken image from indexing past it.
             let slot = &mut anchors[(anchor[k] as usize).min(na * na * nb - 1)];
             let (v, fo) = (vrc[k], fos[k]);
-            let spatial = [v[0], v[0], v[1], v[1], v[2], v[2], v[3], v[3]];
-            for (j, (acc, &vc)) in slot.iter_mut().zip(&spatial).enumerate() {
-                let upper = vc * fo;
-                *acc += if j % 2 == 0 { vc - upper } else { upper };
+            let upper = v.map(|vc| vc * fo);
+            let (lower_o, upper_o) = slot.split_at_mut(4);
+            for ((acc, &vc), &u) in lower_o.iter_mut().zip(&v).zip(&upper) {
+                *acc += vc - u;
+            }
+            for (acc, &u) in upper_o.iter_mut().zip(&upper) {
+                *acc += u;
             }
         }
     }
-    // Bin (i, j, o) of the inner 4x4 cells gathers lane [dr][dc][do] of anchor
+    // Bin (i, j, o) of the inner 4x4 cells gathers lane [do][dr][dc] of anchor
     // (i + 1 - dr, j + 1 - dc, o - do), orientations modulo the bin count.
     let mut v = [0f32; DESCRIPTOR_LEN];
     for i in 0..d {
         for j in 0..d {
             for o in 0..nb {
-                v[(i * d + j) * nb + o] = (0..8).fold(0.0, |acc, lane| {
-                    let (dr, dc, dd) = (lane / 4, lane / 2 % 2, lane % 2);
+                // Summed in [dr][dc][do] order.
+                v[(i * d + j) * nb + o] = (0..8).fold(0.0, |acc, t| {
+                    let (dr, dc, dd) = (t / 4, t / 2 % 2, t % 2);
                     let at = ((i + 1 - dr) * na + j + 1 - dc) * nb + (o + nb - dd) % nb;
-                    acc + anchors[at][lane]
+                    acc + anchors[at][dd * 4 + dr * 2 + dc]
                 });
             }
         }
@@ -1655,6 +1726,41 @@ mod tests {
             .build()
             .unwrap()
             .install(f)
+    }
+
+    #[test]
+    fn the_two_row_vertical_pass_is_the_one_row_pass_bit_for_bit() {
+        // Widths with 16-, 8- and 1-wide column blocks, odd and even row counts, kernels as
+        // wide as the image is tall; bands starting at odd rows.
+        for (w, h, sigma) in [(37, 11, 0.8), (40, 23, 1.6), (53, 30, 3.1)] {
+            let tmp: Vec<f32> = (0..w * h)
+                .map(|i| ((i * 53 % 97) as f32) / 97.0 - 0.3)
+                .collect();
+            let k = Kernel::gaussian(sigma);
+            let r = k.radius();
+            assert!(r < h);
+            let mut want = vec![0f32; w * h];
+            for (y, out) in want.chunks_exact_mut(w).enumerate() {
+                let row = |i: isize| {
+                    let o = reflect101(y as isize + i, h) * w;
+                    &tmp[o..o + w]
+                };
+                conv_row(
+                    &k.half,
+                    row(0),
+                    |i| (row(-(i as isize)), row(i as isize)),
+                    out,
+                );
+            }
+            for y0 in [0, 1, 4] {
+                let mut got = vec![0f32; (h - y0) * w];
+                blur_rows_v(&tmp, &mut got, w, h, y0, &k.half, r, &mut Vec::new());
+                assert!(
+                    got == want[y0 * w..],
+                    "{w}x{h}, sigma {sigma}, from row {y0}"
+                );
+            }
+        }
     }
 
     #[test]
