@@ -84,30 +84,19 @@ type Nearest = (Vec<(f32, usize, f32)>, Vec<(f32, usize)>);
 /// Each query's nearest and second nearest train distances `(d1, j1, d2)`, and each train
 /// descriptor's nearest query `(d, i)`.
 fn nearest(da: &[[u8; DESCRIPTOR_LEN]], db: &[[u8; DESCRIPTOR_LEN]]) -> Nearest {
-    let mut dists = vec![0u32; db.len()];
     #[cfg(target_arch = "x86_64")]
     if std::arch::is_x86_feature_detected!("avx2") {
-        return nearest_with(
-            da,
-            db,
-            |qa, out| {
-                // SAFETY: the CPU supports AVX2 (checked just above), the only requirement of
-                // calling a function compiled with that target feature.
-                unsafe { avx2::distances(qa, db, out) }
-            },
-            &mut dists,
-        );
+        return nearest_with(da, db, |qa, out| {
+            // SAFETY: the CPU supports AVX2 (checked just above), the only requirement of
+            // calling a function compiled with that target feature.
+            unsafe { avx2::distances(qa, db, out) }
+        });
     }
-    nearest_with(
-        da,
-        db,
-        |qa, out| {
-            for (d, tb) in out.iter_mut().zip(db) {
-                *d = dist2(qa, tb);
-            }
-        },
-        &mut dists,
-    )
+    nearest_with(da, db, |qa, out| {
+        for (d, tb) in out.iter_mut().zip(db) {
+            *d = dist2(qa, tb);
+        }
+    })
 }
 
 /// [`nearest`] with `distances(query, out)` writing one query's squared distances to every
@@ -116,12 +105,12 @@ fn nearest_with(
     da: &[[u8; DESCRIPTOR_LEN]],
     db: &[[u8; DESCRIPTOR_LEN]],
     mut distances: impl FnMut(&[u8; DESCRIPTOR_LEN], &mut [u32]),
-    dists: &mut [u32],
 ) -> Nearest {
+    let mut dists = vec![0u32; db.len()];
     let mut col_best = vec![(f32::INFINITY, usize::MAX); db.len()];
     let mut row_best = Vec::with_capacity(da.len());
     for (i, qa) in da.iter().enumerate() {
-        distances(qa, dists);
+        distances(qa, &mut dists);
         let (mut d1, mut j1, mut d2) = (f32::INFINITY, usize::MAX, f32::INFINITY);
         for (j, (&d, cb)) in dists.iter().zip(col_best.iter_mut()).enumerate() {
             let d = d as f32;

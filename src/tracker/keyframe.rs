@@ -174,11 +174,11 @@ impl KeyframePool {
             .collect();
         order.sort_by(|a, b| a.0.total_cmp(&b.0));
         let mut best: Option<KeyFit> = None;
-        // The anchor's matches when it was among the views tried (`Some(None)`: too few).
+        // The anchor's matches when it was among the views tried.
         let mut anchor_pairs = None;
         for &(_, i) in order.iter().take(tries) {
             let pairs = self.pairs(i, cur, ctx);
-            let f = pairs.as_ref().and_then(|p| self.fit_pairs(i, p, ctx));
+            let f = self.fit_pairs(i, &pairs, ctx);
             if i == 0 {
                 anchor_pairs = Some(pairs);
             }
@@ -209,36 +209,30 @@ impl KeyframePool {
                 ..*ctx
             };
             let pairs = anchor_pairs.unwrap_or_else(|| self.pairs(0, cur, &free));
-            if let Some(f) = pairs.and_then(|p| self.fit_pairs(0, &p, &free)) {
+            if let Some(f) = self.fit_pairs(0, &pairs, &free) {
                 return Some(f);
             }
         }
         best
     }
 
-    /// The matches of keyframe `i` with the current features, keyframe → current frame;
-    /// `None` when there are fewer than `ctx.min_inliers`.
-    fn pairs(&self, i: usize, cur: &Features, ctx: &FitContext<'_>) -> Option<Vec<FeaturePair>> {
+    /// The matches of keyframe `i` with the current features, keyframe → current frame.
+    fn pairs(&self, i: usize, cur: &Features, ctx: &FitContext<'_>) -> Vec<FeaturePair> {
         let key = &self.frames[i];
-        let matches = match_features(&key.features, cur, ctx.matching);
-        if matches.len() < ctx.min_inliers {
-            return None;
-        }
-        Some(
-            matches
-                .iter()
-                .map(|m| {
-                    let (a, b) = (&key.features.keypoints[m.query], &cur.keypoints[m.train]);
-                    FeaturePair {
-                        p: [a.x, a.y],
-                        q: [b.x, b.y],
-                    }
-                })
-                .collect(),
-        )
+        match_features(&key.features, cur, ctx.matching)
+            .iter()
+            .map(|m| {
+                let (a, b) = (&key.features.keypoints[m.query], &cur.keypoints[m.train]);
+                FeaturePair {
+                    p: [a.x, a.y],
+                    q: [b.x, b.y],
+                }
+            })
+            .collect()
     }
 
-    /// The accepted fit of keyframe `i` to its matches `pairs`, from the previous estimate.
+    /// The accepted fit of keyframe `i` to its matches `pairs`, from the previous estimate;
+    /// `None` with fewer than `ctx.min_inliers` matches.
     fn fit_pairs(&self, i: usize, pairs: &[FeaturePair], ctx: &FitContext<'_>) -> Option<KeyFit> {
         if pairs.len() < ctx.min_inliers {
             return None;

@@ -323,7 +323,7 @@ pub fn run(a: TrackArgs) -> anyhow::Result<()> {
         })
     };
     if !(0.0..=1.0).contains(&a.colour_max_ring) {
-        anyhow::bail!("--colour-max-ring {} is not in [0, 1]", a.colour_max_ring);
+        bail!("--colour-max-ring {} is not in [0, 1]", a.colour_max_ring);
     }
     cfg.colour_update = if a.colour_rate == 0.0 {
         None
