@@ -227,6 +227,14 @@ fn bad_input_is_an_error() {
         let err = Tracker::new(cfg, &img, Init::frontal(r.init_ellipse())).unwrap_err();
         assert!(err.to_string().contains("contrast"), "{c:?}: {err}");
     }
+    for w in [-1.0, f64::NAN, f64::INFINITY] {
+        let cfg = TrackerConfig {
+            feature_weight: w,
+            ..TrackerConfig::default()
+        };
+        let err = Tracker::new(cfg, &img, Init::frontal(r.init_ellipse())).unwrap_err();
+        assert!(err.to_string().contains("feature_weight"), "{w}: {err}");
+    }
     let mut cfg = TrackerConfig::default();
     cfg.filter.dynamics.rotation[1] = 0.0;
     assert!(Tracker::new(cfg.clone(), &img, Init::frontal(r.init_ellipse())).is_err());

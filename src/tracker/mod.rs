@@ -201,6 +201,13 @@ fn check_init(init: &Init, w: u32, h: u32) -> Result<(), TrackError> {
 /// theirs): the keyframe fits' rotation prior, by the rule of the fit itself
 /// ([`crate::pose::prior::RotationPrior::check`]).
 fn check_config(cfg: &TrackerConfig) -> Result<(), TrackError> {
+    if !(cfg.feature_weight.is_finite() && cfg.feature_weight >= 0.0) {
+        return Err(TrackError::BadConfig(format!(
+            "feature_weight {} must be finite and at least 0 (0 leaves the rotation to the \
+             motion alone)",
+            cfg.feature_weight
+        )));
+    }
     if let Some(px) = cfg.fit_pixel_sigma {
         let prior = crate::pose::prior::RotationPrior {
             mean: Matrix3::identity(),

@@ -133,6 +133,12 @@ pub struct TrackArgs {
     /// paper's three terms alone.
     #[arg(long, value_name = "W", default_value_t = pftrack::tracker::Contrast::default().weight)]
     pub contrast_weight: f64,
+    /// Weight of the feature term in the particle weights. Higher follows the rotation more
+    /// closely on sharp, well-textured footage and loses blurred real footage sooner; 0
+    /// weighs the particles by colour and contour alone (see
+    /// `TrackerConfig::feature_weight` for the measurements).
+    #[arg(long, value_name = "W", default_value_t = TrackerConfig::default().feature_weight)]
+    pub feature_weight: f64,
     /// Resize every frame to WxH first.
     #[arg(long, value_name = "WxH")]
     pub resize: Option<String>,
@@ -252,6 +258,15 @@ pub fn apply_depth_ratio(cfg: &mut TrackerConfig, r: f64) -> anyhow::Result<()> 
     Ok(())
 }
 
+/// Checks and applies `--feature-weight`.
+pub fn apply_feature_weight(cfg: &mut TrackerConfig, w: f64) -> anyhow::Result<()> {
+    if !(w.is_finite() && w >= 0.0) {
+        bail!("--feature-weight must be finite and at least 0, got {w}");
+    }
+    cfg.feature_weight = w;
+    Ok(())
+}
+
 /// Checks and applies `--edge-threshold` (none: the default stays).
 pub fn apply_edge_threshold(cfg: &mut TrackerConfig, t: Option<f64>) -> anyhow::Result<()> {
     if let Some(t) = t {
@@ -322,6 +337,7 @@ pub fn run(a: TrackArgs) -> anyhow::Result<()> {
             ..Default::default()
         })
     };
+    apply_feature_weight(&mut cfg, a.feature_weight)?;
     if !(0.0..=1.0).contains(&a.colour_max_ring) {
         bail!("--colour-max-ring {} is not in [0, 1]", a.colour_max_ring);
     }
@@ -453,6 +469,20 @@ mod tests {
             assert!(e.starts_with("--edge-threshold must lie"), "{e}");
         }
         assert_eq!(cfg.likelihood.edge_threshold, 0.05);
+    }
+
+    #[test]
+    fn feature_weight_is_checked_and_applied() {
+        let mut cfg = TrackerConfig::default();
+        apply_feature_weight(&mut cfg, 20.0).unwrap();
+        assert_eq!(cfg.feature_weight, 20.0);
+        apply_feature_weight(&mut cfg, 0.0).unwrap();
+        assert_eq!(cfg.feature_weight, 0.0);
+        for bad in [-1.0, f64::NAN, f64::INFINITY] {
+            let e = apply_feature_weight(&mut cfg, bad).unwrap_err().to_string();
+            assert!(e.starts_with("--feature-weight must be"), "{e}");
+        }
+        assert_eq!(cfg.feature_weight, 0.0);
     }
 
     #[test]
