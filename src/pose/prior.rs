@@ -12,6 +12,36 @@
 //! centre). This module fits `(R, s, t)` to the matches by robust Gauss-Newton from a starting
 //! pose (the previous estimate), so the fit stays on the branch of the Necker pair the track is
 //! on. The feature likelihood of [`crate::likelihood`] uses the facing, weak-perspective form.
+//!
+//! # Measured bias
+//!
+//! `examples/fit_bias.rs` isolates the model from the tracker: a keyframe at the true pose of
+//! a synthetic sequence, its SIFT matches 8 frames on, fitted without a prior from the true
+//! rotation. Over 12 seeds per scenario (weak perspective, depth ratio 1), the gain (fitted
+//! over true rotation, per camera axis, `Σ ω_fit·ω_true / Σ ω_true²`) is:
+//!
+//! | scenario | axis | gain |
+//! |---|---|---|
+//! | nod | x | 1.13 ± 0.03 |
+//! | pan | y | 1.09 ± 0.04 |
+//! | roll | z | 0.956 ± 0.007 |
+//! | car | y | 0.87 ± 0.05 |
+//! | car | z | 1.34 ± 0.09 |
+//!
+//! - The heads turn about 10 % too far, though the synthetic head is as deep as the model
+//!   assumes (0.085 m against `sqrt(0.075 · 0.1)` = 0.087 m). The true camera (`--hfov 50`)
+//!   leaves nod at 1.08 and pan at 1.09; a depth ratio of 1.12 brings the tracked nod to
+//!   gain 1 but costs pan, whose tracked turn already lags (see
+//!   [`crate::tracker::TrackerConfig::feature_weight`]).
+//! - Roll's deficit comes from features that straddle the outline, half on the still
+//!   background: keeping only those inside 0.7 of the ellipse gives 1.005 ± 0.035, at the
+//!   cost of fewer matches and a larger error on the other scenarios.
+//! - The car is a box, and no ellipsoid fits it. The side of a turned box is a slanted plane:
+//!   its turn shows as a horizontal stretch, which the fit's isotropic scale absorbs in part.
+//!   No depth ratio is unbiased on every axis: 0.5 gives 0.93 about y but 1.82 about z, and
+//!   1.5 gives 0.72 and 1.26. The true camera gives 0.56 about y. This is the tracker's
+//!   under-rotation of the car's 57° turn: a model of the object's shape, not the filter,
+//!   is what would remove it.
 
 use nalgebra::{Matrix3, SMatrix, SVector, Vector2, Vector3};
 
