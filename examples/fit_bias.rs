@@ -98,14 +98,14 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             sift.detect(&frame(k)?, None)?,
             sift.detect(&frame(j)?, None)?,
         );
+        let shrunk = Ellipse {
+            a: ek.a * inner,
+            b: ek.b * inner,
+            ..ek
+        };
         let (mut p, mut q) = (Vec::new(), Vec::new());
         for m in match_features(&fk, &fj, &matching) {
             let (a, b) = (&fk.keypoints[m.query], &fj.keypoints[m.train]);
-            let shrunk = Ellipse {
-                a: ek.a * inner,
-                b: ek.b * inner,
-                ..ek
-            };
             if shrunk.contains(f64::from(a.x), f64::from(a.y)) {
                 p.push([f64::from(a.x), f64::from(a.y)]);
                 q.push([f64::from(b.x), f64::from(b.y)]);

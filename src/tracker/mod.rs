@@ -198,8 +198,10 @@ fn check_init(init: &Init, w: u32, h: u32) -> Result<(), TrackError> {
 }
 
 /// Checks the settings the tracker itself uses (the filter, SIFT and the likelihood check
-/// theirs): the keyframe fits' rotation prior, by the rule of the fit itself
-/// ([`crate::pose::prior::RotationPrior::check`]).
+/// theirs): the feature weight, the keyframe fits' rotation prior by the rule of the fit
+/// itself ([`crate::pose::prior::RotationPrior::check`]), and each optional part's own
+/// `check` (anchor refit, colour update, contrast, inter-frame consensus) and widening
+/// factors (size hold, aspect slack).
 fn check_config(cfg: &TrackerConfig) -> Result<(), TrackError> {
     if !(cfg.feature_weight.is_finite() && cfg.feature_weight >= 0.0) {
         return Err(TrackError::BadConfig(format!(
