@@ -7,7 +7,9 @@
 //! - `tracker step WxH, N particles`: [`Tracker::step`] on the synthetic `nod` head (SIFT,
 //!   matching, Sylvester, keyframe fit, block matching, filter, CPU likelihoods on all
 //!   threads) at 128x96, 160x120 and 320x240 with 200 particles, and at 160x120 with 1000 and
-//!   10000. Run it under `taskset -c 0` (and `RAYON_NUM_THREADS=1`) for one core.
+//!   10000; and at 160x120 with 200 particles without the appearance template (`, no
+//!   template`), to show the term's cost. Run it under `taskset -c 0` (and
+//!   `RAYON_NUM_THREADS=1`) for one core.
 
 use std::hint::black_box;
 
@@ -42,8 +44,7 @@ fn bench_filter(c: &mut Criterion) {
         let mut rng = StdRng::seed_from_u64(2);
         let lik: Vec<f32> = (0..n).map(|_| rng.random_range(-40.0f32..0.0)).collect();
         let motion = Motion {
-            dx: 0.5,
-            dy: -0.3,
+            translations: vec![(1.0, [0.5, -0.3])],
             scale: 1.0,
             rotations: vec![
                 (0.5, Euler::from_degrees(1.0, 0.0, 0.0).matrix()),
@@ -75,12 +76,14 @@ fn bench_filter(c: &mut Criterion) {
 fn bench_tracker(c: &mut Criterion) {
     let mut g = c.benchmark_group("tracker step");
     g.sample_size(20);
-    for (w, h, n) in [
-        (128u32, 96u32, 200usize),
-        (160, 120, 200),
-        (320, 240, 200),
-        (160, 120, 1000),
-        (160, 120, 10000),
+    // The last flag turns the appearance template off, to show what the term costs.
+    for (w, h, n, template) in [
+        (128u32, 96u32, 200usize, true),
+        (160, 120, 200, true),
+        (160, 120, 200, false),
+        (320, 240, 200, true),
+        (160, 120, 1000, true),
+        (160, 120, 10000, true),
     ] {
         let cfg = SynthConfig {
             width: w,
@@ -94,12 +97,20 @@ fn bench_tracker(c: &mut Criterion) {
         let frames: Vec<image::RgbImage> = (0..cfg.frames).map(|k| r.render(k).0).collect();
         let mut tc = TrackerConfig::default();
         tc.filter.particles = n;
+        if !template {
+            tc.template = None;
+        }
         let init = Init::frontal(r.init_ellipse());
         let Ok(mut t) = Tracker::new(tc, &frames[0], init) else {
             continue;
         };
         let mut k = 1;
-        g.bench_function(format!("{w}x{h}, {n} particles"), |b| {
+        let name = if template {
+            format!("{w}x{h}, {n} particles")
+        } else {
+            format!("{w}x{h}, {n} particles, no template")
+        };
+        g.bench_function(name, |b| {
             b.iter(|| {
                 if k == frames.len() {
                     // Start over on the first frame so every step sees a real motion.

@@ -235,6 +235,35 @@ fn bad_input_is_an_error() {
         let err = Tracker::new(cfg, &img, Init::frontal(r.init_ellipse())).unwrap_err();
         assert!(err.to_string().contains("feature_weight"), "{w}: {err}");
     }
+    let bad_templates = [
+        (-1.0, 16, 0.05, 0.5),
+        (f64::NAN, 16, 0.05, 0.5),
+        (20.0, 1, 0.05, 0.5),
+        (20.0, 65, 0.05, 0.5),
+        (20.0, 16, 1.5, 0.5),
+        (20.0, 16, 0.05, f64::NAN),
+    ];
+    for (weight, grid, rate, min_confidence) in bad_templates {
+        let cfg = TrackerConfig {
+            template: Some(pftrack::tracker::TemplateTerm {
+                weight,
+                grid,
+                rate,
+                min_confidence,
+            }),
+            ..TrackerConfig::default()
+        };
+        let err = Tracker::new(cfg, &img, Init::frontal(r.init_ellipse())).unwrap_err();
+        assert!(err.to_string().contains("template"), "{err}");
+    }
+    for stay in [-0.1, 1.0, f64::NAN] {
+        let cfg = TrackerConfig {
+            stay_share: stay,
+            ..TrackerConfig::default()
+        };
+        let err = Tracker::new(cfg, &img, Init::frontal(r.init_ellipse())).unwrap_err();
+        assert!(err.to_string().contains("stay_share"), "{stay}: {err}");
+    }
     let mut cfg = TrackerConfig::default();
     cfg.filter.dynamics.rotation[1] = 0.0;
     assert!(Tracker::new(cfg.clone(), &img, Init::frontal(r.init_ellipse())).is_err());

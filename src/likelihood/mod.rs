@@ -3,12 +3,15 @@
 //! reference ([`cpu`]) and the WGSL compute engine ([`gpu`]). A fourth, optional term,
 //! `p_contrast` ([`TERM_CONTRAST`], [`ContrastTable`]), is the project's addition: the
 //! target's colours against its surroundings, read from the same per-particle histogram.
+//! A fifth, the appearance template ([`template`]), is evaluated on the CPU for either engine
+//! from the frame's grey image and added by the tracker.
 //!
 //! The data crossing this interface is flat and `Pod` so the GPU engine uploads it as is.
 
 pub mod cpu;
 mod fallback;
 pub mod gpu;
+pub mod template;
 
 pub use fallback::FallbackEngine;
 

@@ -25,14 +25,14 @@
 //! inter-frame rotation from Sylvester's equation (both members of its Necker pair),
 //! adaptive block matching for the translation, then the particle filter: proposal
 //! around `x + Δx`, all particles' likelihoods in one call of the likelihood engine (CPU or
-//! GPU), weights, estimate, resampling. A confidence in `[0, 1]` and a lost flag come with
+//! GPU) plus the appearance template's correlation (CPU), weights, estimate, resampling. A confidence in `[0, 1]` and a lost flag come with
 //! every estimate; a lost target is searched for over the whole frame by colour and taken back
 //! where its features fit a keyframe.
 
 mod config;
 mod keyframe;
 
-pub use config::{AnchorRefit, ColourUpdate, Contrast, Init, Mode, TrackerConfig};
+pub use config::{AnchorRefit, ColourUpdate, Contrast, Init, Mode, TemplateTerm, TrackerConfig};
 
 use nalgebra::Matrix3;
 
@@ -155,6 +155,10 @@ pub struct Tracker {
     /// The contrast term's background histogram (a ring around the target), when the term is
     /// on and the ring held pixels on the initial frame ([`TrackerConfig::contrast`]).
     background: Option<ColourHistogram>,
+    /// The appearance template, when the term is on ([`TrackerConfig::template`]).
+    template: Option<crate::likelihood::template::Template>,
+    /// The particles' correlations with the template this frame.
+    correlations: Vec<f32>,
 }
 
 impl std::fmt::Debug for Tracker {
@@ -200,8 +204,8 @@ fn check_init(init: &Init, w: u32, h: u32) -> Result<(), TrackError> {
 /// Checks the settings the tracker itself uses (the filter, SIFT and the likelihood check
 /// theirs): the feature weight, the keyframe fits' rotation prior by the rule of the fit
 /// itself ([`crate::pose::prior::RotationPrior::check`]), and each optional part's own
-/// `check` (anchor refit, colour update, contrast, inter-frame consensus) and widening
-/// factors (size hold, aspect slack).
+/// `check` (anchor refit, colour update, contrast, inter-frame consensus, template), the
+/// stay share, and the widening factors (size hold, aspect slack).
 fn check_config(cfg: &TrackerConfig) -> Result<(), TrackError> {
     if !(cfg.feature_weight.is_finite() && cfg.feature_weight >= 0.0) {
         return Err(TrackError::BadConfig(format!(
@@ -251,6 +255,19 @@ fn check_config(cfg: &TrackerConfig) -> Result<(), TrackError> {
                 "{e}; set interframe_consensus to None to estimate the rotation from any 3 matches"
             ))
         })?;
+    }
+    if let Some(t) = &cfg.template {
+        t.check().map_err(|e| {
+            TrackError::BadConfig(format!(
+                "{e}; set template to None to weigh the particles without a template"
+            ))
+        })?;
+    }
+    if !(0.0..1.0).contains(&cfg.stay_share) {
+        return Err(TrackError::BadConfig(format!(
+            "stay_share {} is not in [0, 1); 0 moves every proposal as the motion measured",
+            cfg.stay_share
+        )));
     }
     check_factor(
         "size_hold",
@@ -376,6 +393,8 @@ impl Tracker {
             terms: Vec::new(),
             colour_model: ColourHistogram(Vec::new()),
             background: None,
+            template: None,
+            correlations: Vec::new(),
             first: Estimate {
                 frame: 0,
                 state: PoseState::default(),
@@ -420,6 +439,14 @@ impl Tracker {
         self.prev = hyp;
         self.prev_euler = init.pose;
         self.prev_gray = GrayF32::from_rgb(frame);
+        self.template = self.cfg.template.map(|t| {
+            crate::likelihood::template::Template::new(
+                &self.prev_gray,
+                &hyp.to_particle(),
+                self.theta0 as f32,
+                t.grid,
+            )
+        });
         let region = search_region(&init.ellipse, w, h);
         self.prev_features = self.sift.detect(&self.prev_gray, Some(region))?;
         self.reference = init.ellipse;
@@ -591,9 +618,14 @@ impl Tracker {
             (None, Some(i), _) => (dx, dy, scale, vec![(0.5, i.pair.a), (0.5, i.pair.b)]),
             (None, None, _) => (dx, dy, scale, vec![(1.0, Matrix3::identity())]),
         };
+        let stay = self.cfg.stay_share;
+        let translations = if stay > 0.0 && self.cfg.mode != Mode::Tpe {
+            vec![(1.0 - stay, [dx, dy]), (stay, [0.0, 0.0])]
+        } else {
+            vec![(1.0, [dx, dy])]
+        };
         let motion = Motion {
-            dx,
-            dy,
+            translations,
             scale: if self.cfg.motion_scale { scale } else { 1.0 },
             rotations,
         };
@@ -622,7 +654,8 @@ impl Tracker {
         };
         self.engine
             .evaluate(&input, &lp, &self.particles, &mut self.terms)?;
-        let totals = self.weighted_totals(&lp);
+        let mut totals = self.weighted_totals(&lp);
+        self.add_template(&gray, &mut totals);
         let info = self.filter.update(&totals);
         let mut est = self.filter.estimate();
 
@@ -660,6 +693,7 @@ impl Tracker {
         }
 
         if !self.lost {
+            self.adapt_template(&gray, &est, confidence);
             let model_moved = self.adapt_colour(frame, &est, confidence)?;
             let ring_moved = self.adapt_background(frame, &est, confidence);
             if model_moved || ring_moved {
@@ -708,6 +742,38 @@ impl Tracker {
             matches: pairs.len(),
             ess: info.ess,
         })
+    }
+
+    /// Adds the template term, `weight · NCC`, to each particle's log-likelihood in `totals`
+    /// (degenerate particles keep theirs).
+    fn add_template(&mut self, gray: &GrayF32, totals: &mut [f32]) {
+        let (Some(cfg), Some(t)) = (self.cfg.template, self.template.as_ref()) else {
+            return;
+        };
+        let w = cfg.weight as f32;
+        t.correlate(
+            gray,
+            &self.particles,
+            self.theta0 as f32,
+            &mut self.correlations,
+        );
+        for (total, c) in totals.iter_mut().zip(&self.correlations) {
+            if *total > crate::likelihood::DEGENERATE {
+                *total += w * c;
+            }
+        }
+    }
+
+    /// After a frame with at least [`TemplateTerm::min_confidence`], moves the template
+    /// towards the estimate's view.
+    fn adapt_template(&mut self, gray: &GrayF32, est: &Hypothesis, confidence: f64) {
+        let (Some(cfg), Some(t)) = (self.cfg.template, self.template.as_mut()) else {
+            return;
+        };
+        let rate = cfg.rate;
+        if confidence >= cfg.min_confidence && rate > 0.0 {
+            t.blend_towards(gray, &est.to_particle(), self.theta0 as f32, rate as f32);
+        }
     }
 
     /// Whether the tracker is unsure of the target: lost, or its confidence below

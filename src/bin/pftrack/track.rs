@@ -139,6 +139,15 @@ pub struct TrackArgs {
     /// `TrackerConfig::feature_weight` for the measurements).
     #[arg(long, value_name = "W", default_value_t = TrackerConfig::default().feature_weight)]
     pub feature_weight: f64,
+    /// Weight of the appearance-template term: the normalised cross-correlation of the grey
+    /// levels inside each particle's ellipse with a template of the target (see
+    /// `likelihood::template`). 0 leaves the histogram, contour and feature terms alone.
+    #[arg(long, value_name = "W", default_value_t = pftrack::tracker::TemplateTerm::default().weight)]
+    pub template_weight: f64,
+    /// Share per confident frame by which the template follows the target's view; 0 keeps
+    /// the first frame's.
+    #[arg(long, value_name = "R", default_value_t = pftrack::tracker::TemplateTerm::default().rate)]
+    pub template_rate: f64,
     /// Resize every frame to WxH first.
     #[arg(long, value_name = "WxH")]
     pub resize: Option<String>,
@@ -267,6 +276,22 @@ pub fn apply_feature_weight(cfg: &mut TrackerConfig, w: f64) -> anyhow::Result<(
     Ok(())
 }
 
+/// Checks and applies `--template-weight` and `--template-rate` (weight 0: the term off).
+pub fn apply_template(cfg: &mut TrackerConfig, weight: f64, rate: f64) -> anyhow::Result<()> {
+    if !(weight.is_finite() && weight >= 0.0) {
+        bail!("--template-weight must be finite and at least 0, got {weight}");
+    }
+    if !(0.0..=1.0).contains(&rate) {
+        bail!("--template-rate must lie between 0 and 1, got {rate}");
+    }
+    cfg.template = (weight > 0.0).then(|| pftrack::tracker::TemplateTerm {
+        weight,
+        rate,
+        ..cfg.template.unwrap_or_default()
+    });
+    Ok(())
+}
+
 /// Checks and applies `--edge-threshold` (none: the default stays).
 pub fn apply_edge_threshold(cfg: &mut TrackerConfig, t: Option<f64>) -> anyhow::Result<()> {
     if let Some(t) = t {
@@ -338,6 +363,7 @@ pub fn run(a: TrackArgs) -> anyhow::Result<()> {
         })
     };
     apply_feature_weight(&mut cfg, a.feature_weight)?;
+    apply_template(&mut cfg, a.template_weight, a.template_rate)?;
     if !(0.0..=1.0).contains(&a.colour_max_ring) {
         bail!("--colour-max-ring {} is not in [0, 1]", a.colour_max_ring);
     }
@@ -469,6 +495,29 @@ mod tests {
             assert!(e.starts_with("--edge-threshold must lie"), "{e}");
         }
         assert_eq!(cfg.likelihood.edge_threshold, 0.05);
+    }
+
+    #[test]
+    fn template_settings_are_checked_and_applied() {
+        let mut cfg = TrackerConfig::default();
+        apply_template(&mut cfg, 35.0, 0.1).unwrap();
+        let t = cfg.template.unwrap();
+        assert_eq!((t.weight, t.rate), (35.0, 0.1));
+        apply_template(&mut cfg, 0.0, 0.1).unwrap();
+        assert!(cfg.template.is_none());
+        apply_template(&mut cfg, 10.0, 0.0).unwrap();
+        assert_eq!(cfg.template.map(|t| (t.weight, t.rate)), Some((10.0, 0.0)));
+        for (w, r, flag) in [
+            (-1.0, 0.1, "--template-weight"),
+            (f64::NAN, 0.1, "--template-weight"),
+            (f64::INFINITY, 0.1, "--template-weight"),
+            (20.0, -0.1, "--template-rate"),
+            (20.0, 1.5, "--template-rate"),
+            (20.0, f64::NAN, "--template-rate"),
+        ] {
+            let e = apply_template(&mut cfg, w, r).unwrap_err().to_string();
+            assert!(e.starts_with(flag), "{e}");
+        }
     }
 
     #[test]
