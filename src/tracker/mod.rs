@@ -25,9 +25,9 @@
 //! inter-frame rotation from Sylvester's equation (both members of its Necker pair),
 //! adaptive block matching for the translation, then the particle filter: proposal
 //! around `x + Δx`, all particles' likelihoods in one call of the likelihood engine (CPU or
-//! GPU) plus the appearance template's correlation (CPU), weights, estimate, resampling. A confidence in `[0, 1]` and a lost flag come with
-//! every estimate; a lost target is searched for over the whole frame by colour and taken back
-//! where its features fit a keyframe.
+//! GPU) plus the appearance template's correlation (CPU), weights, estimate, resampling. A
+//! confidence in `[0, 1]` and a lost flag come with every estimate; a lost target is searched
+//! for over the whole frame by colour and taken back where its features fit a keyframe.
 
 mod config;
 mod keyframe;
@@ -654,8 +654,8 @@ impl Tracker {
         };
         self.engine
             .evaluate(&input, &lp, &self.particles, &mut self.terms)?;
-        let mut totals = self.weighted_totals(&lp);
-        self.add_template(&gray, &mut totals);
+        self.correlate_template(&gray);
+        let totals = self.weighted_totals(&lp);
         let info = self.filter.update(&totals);
         let mut est = self.filter.estimate();
 
@@ -744,23 +744,16 @@ impl Tracker {
         })
     }
 
-    /// Adds the template term, `weight · NCC`, to each particle's log-likelihood in `totals`
-    /// (degenerate particles keep theirs).
-    fn add_template(&mut self, gray: &GrayF32, totals: &mut [f32]) {
-        let (Some(cfg), Some(t)) = (self.cfg.template, self.template.as_ref()) else {
-            return;
-        };
-        let w = cfg.weight as f32;
-        t.correlate(
-            gray,
-            &self.particles,
-            self.theta0 as f32,
-            &mut self.correlations,
-        );
-        for (total, c) in totals.iter_mut().zip(&self.correlations) {
-            if *total > crate::likelihood::DEGENERATE {
-                *total += w * c;
-            }
+    /// The particles' correlations with the template into `self.correlations`, for
+    /// [`Self::weighted_totals`]; left empty when the term is off.
+    fn correlate_template(&mut self, gray: &GrayF32) {
+        if let Some(t) = &self.template {
+            t.correlate(
+                gray,
+                &self.particles,
+                self.theta0 as f32,
+                &mut self.correlations,
+            );
         }
     }
 
@@ -916,12 +909,15 @@ impl Tracker {
     }
 
     /// Each particle's log-likelihood: the enabled terms of the last evaluation, the feature
-    /// term weighted by [`TrackerConfig::feature_weight`].
+    /// term weighted by [`TrackerConfig::feature_weight`], plus the template term
+    /// ([`TemplateTerm::weight`] times the particle's correlation, when the term is on).
     fn weighted_totals(&self, lp: &LikelihoodParams) -> Vec<f32> {
         let wf = self.cfg.feature_weight as f32;
+        let wt = self.cfg.template.map_or(0.0, |t| t.weight as f32);
         self.terms
             .iter()
-            .map(|t| {
+            .enumerate()
+            .map(|(i, t)| {
                 if t.total <= crate::likelihood::DEGENERATE {
                     return t.total;
                 }
@@ -937,6 +933,9 @@ impl Tracker {
                 }
                 if lp.terms & TERM_CONTRAST != 0 {
                     s += t.contrast;
+                }
+                if let Some(c) = self.correlations.get(i) {
+                    s += wt * c;
                 }
                 s
             })
