@@ -44,7 +44,8 @@ fn bench_filter(c: &mut Criterion) {
         let mut rng = StdRng::seed_from_u64(2);
         let lik: Vec<f32> = (0..n).map(|_| rng.random_range(-40.0f32..0.0)).collect();
         let motion = Motion {
-            translations: vec![(1.0, [0.5, -0.3])],
+            dx: 0.5,
+            dy: -0.3,
             scale: 1.0,
             rotations: vec![
                 (0.5, Euler::from_degrees(1.0, 0.0, 0.0).matrix()),

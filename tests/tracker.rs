@@ -256,14 +256,6 @@ fn bad_input_is_an_error() {
         let err = Tracker::new(cfg, &img, Init::frontal(r.init_ellipse())).unwrap_err();
         assert!(err.to_string().contains("template"), "{err}");
     }
-    for stay in [-0.1, 1.0, f64::NAN] {
-        let cfg = TrackerConfig {
-            stay_share: stay,
-            ..TrackerConfig::default()
-        };
-        let err = Tracker::new(cfg, &img, Init::frontal(r.init_ellipse())).unwrap_err();
-        assert!(err.to_string().contains("stay_share"), "{stay}: {err}");
-    }
     let mut cfg = TrackerConfig::default();
     cfg.filter.dynamics.rotation[1] = 0.0;
     assert!(Tracker::new(cfg.clone(), &img, Init::frontal(r.init_ellipse())).is_err());

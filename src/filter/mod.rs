@@ -155,11 +155,10 @@ impl Default for FilterParams {
 /// The deterministic part of the motion between two frames, `Δx`.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Motion {
-    /// Candidate translations of the centre `(dx, dy)` (pixels) with their probabilities
-    /// (normalised when drawn): one when the motion measurement is trusted, more when the
-    /// proposal should hedge between measurements (the tracker's "stay" candidate,
-    /// [`crate::tracker::TrackerConfig::stay_share`]). Empty means no translation.
-    pub translations: Vec<(f64, [f64; 2])>,
+    /// Translation of the centre (pixels).
+    pub dx: f64,
+    /// Translation of the centre (pixels).
+    pub dy: f64,
     /// Scale factor of the semi-axes.
     pub scale: f64,
     /// Candidate inter-frame rotations `ΔR` with their probabilities (summing to 1): one
@@ -170,43 +169,13 @@ pub struct Motion {
 impl Motion {
     /// No motion: zero translation, scale 1, identity rotation.
     pub fn still() -> Self {
-        Self::shift(0.0, 0.0)
-    }
-
-    /// A translation by `(dx, dy)` alone: scale 1, identity rotation.
-    pub fn shift(dx: f64, dy: f64) -> Self {
         Self {
-            translations: vec![(1.0, [dx, dy])],
+            dx: 0.0,
+            dy: 0.0,
             scale: 1.0,
             rotations: vec![(1.0, Matrix3::identity())],
         }
     }
-}
-
-/// Candidates with non-negative probabilities normalised to sum to 1; `fallback` alone when
-/// there are none or their probabilities do not add up to anything positive.
-fn normalised<T: Copy>(cands: &[(f64, T)], fallback: T) -> Vec<(f64, T)> {
-    let total: f64 = cands.iter().map(|(p, _)| p.max(0.0)).sum();
-    if cands.is_empty() || !(total > 0.0 && total.is_finite()) {
-        return vec![(1.0, fallback)];
-    }
-    cands
-        .iter()
-        .filter(|(p, _)| *p > 0.0)
-        .map(|(p, c)| (p / total, *c))
-        .collect()
-}
-
-/// The index of the candidate a uniform draw `u` in `[0, 1)` falls on.
-fn pick<T>(cands: &[(f64, T)], u: f64) -> usize {
-    let mut acc = 0.0;
-    for (k, (p, _)) in cands.iter().enumerate() {
-        acc += p;
-        if u < acc {
-            return k;
-        }
-    }
-    cands.len() - 1
 }
 
 /// What one update did.
@@ -435,8 +404,16 @@ impl ParticleFilter {
     pub fn propose(&mut self, motion: &Motion, spread: f64) {
         let sg = self.params.proposal.scaled(spread.max(1e-6));
         let sp = self.params.dynamics;
-        let cands = normalised(&motion.rotations, Matrix3::identity());
-        let shifts = normalised(&motion.translations, [0.0, 0.0]);
+        let total_p: f64 = motion.rotations.iter().map(|(p, _)| p.max(0.0)).sum();
+        let cands: Vec<(f64, Matrix3<f64>)> = if motion.rotations.is_empty() || total_p <= 0.0 {
+            vec![(1.0, Matrix3::identity())]
+        } else {
+            motion
+                .rotations
+                .iter()
+                .map(|(p, r)| (p.max(0.0) / total_p, *r))
+                .collect()
+        };
         let min_axis = self.params.min_axis;
         let (min_c, max_cx, max_cy, max_axis) = match self.frame {
             Some((w, h)) => (0.0, (w - 1.0).max(0.0), (h - 1.0).max(0.0), w.max(h)),
@@ -456,16 +433,19 @@ impl ParticleFilter {
         std::mem::swap(&mut self.parents, &mut self.particles);
         for i in 0..self.parents.len() {
             let parent = self.parents[i];
-            // Pick a rotation candidate, then (only when there is a choice, so that a single
-            // translation draws the same numbers as before there were several) a translation.
-            let c = pick(&cands, self.rng.random());
-            let t = if shifts.len() > 1 {
-                pick(&shifts, self.rng.random())
-            } else {
-                0
-            };
-            let mean_cx = parent.cx + shifts[t].1[0];
-            let mean_cy = parent.cy + shifts[t].1[1];
+            // pick a rotation candidate
+            let u: f64 = self.rng.random();
+            let mut acc = 0.0;
+            let mut c = cands.len() - 1;
+            for (k, (p, _)) in cands.iter().enumerate() {
+                acc += p;
+                if u < acc {
+                    c = k;
+                    break;
+                }
+            }
+            let mean_cx = parent.cx + motion.dx;
+            let mean_cy = parent.cy + motion.dy;
             let mean_a = parent.a * scale;
             let mean_b = parent.b * scale;
             let noise = [self.normal(), self.normal(), self.normal(), self.normal()];
@@ -491,20 +471,15 @@ impl ParticleFilter {
                 x.a = x.a.clamp(min_axis, max_axis);
                 x.b = x.b.clamp(min_axis, max_axis);
             }
-            // ln q: the mixture over the translation and rotation candidates given this parent.
-            let mut terms = Vec::with_capacity(shifts.len() * cands.len());
-            for (pt, [tx, ty]) in &shifts {
-                let d = [
-                    x.cx - (parent.cx + tx),
-                    x.cy - (parent.cy + ty),
-                    x.a - mean_a,
-                    x.b - mean_b,
-                ];
-                for (p, r) in &cands {
+            // ln q: the mixture over the rotation candidates given this parent.
+            let d = [x.cx - mean_cx, x.cy - mean_cy, x.a - mean_a, x.b - mean_b];
+            let terms: Vec<f64> = cands
+                .iter()
+                .map(|(p, r)| {
                     let w = log_so3(&(x.rot * (r * parent.rot).transpose()));
-                    terms.push(pt.ln() + p.ln() + ln_density(&d, &w, &sg));
-                }
-            }
+                    p.ln() + ln_density(&d, &w, &sg)
+                })
+                .collect();
             let ln_q = log_sum_exp(&terms);
             // ln p(x_k | x_{k-1}): random walk around the parent.
             let dp = [
@@ -654,7 +629,8 @@ mod tests {
         // A runaway motion (far off the frame, 50 times larger) must not carry particles off
         // the frame or beyond its size; without a frame they go where the motion says.
         let m = Motion {
-            translations: vec![(1.0, [500.0, -300.0])],
+            dx: 500.0,
+            dy: -300.0,
             scale: 50.0,
             rotations: vec![(1.0, Matrix3::identity())],
         };
@@ -822,7 +798,8 @@ mod tests {
             t.cy -= 1.0;
             t.rot = step * t.rot;
             let m = Motion {
-                translations: vec![(1.0, [2.0, -1.0])],
+                dx: 2.0,
+                dy: -1.0,
                 scale: 1.0,
                 rotations: vec![(1.0, step)],
             };
@@ -839,80 +816,6 @@ mod tests {
     }
 
     #[test]
-    fn a_translation_mixture_proposes_both_shifts_and_weighs_them_by_the_mixture() {
-        // Two equally likely shifts 20 px apart: about half the proposals around each, and
-        // a proposal's ln q is the mixture's, so two particles at the same distance from
-        // their own shift carry the same proposal density.
-        let m = Motion {
-            translations: vec![(0.5, [10.0, 0.0]), (0.5, [-10.0, 0.0])],
-            scale: 1.0,
-            rotations: vec![(1.0, Matrix3::identity())],
-        };
-        let params = FilterParams {
-            particles: 2000,
-            ..FilterParams::default()
-        };
-        let start = init();
-        let mut f = ParticleFilter::new(params, 7, &start);
-        f.propose(&m, 1.0);
-        let right = f.particles().iter().filter(|p| p.cx > start.cx).count();
-        assert!(
-            (900..=1100).contains(&right),
-            "{right} of 2000 to the right"
-        );
-        for p in f.particles() {
-            let d = (p.cx - start.cx).abs();
-            assert!((d - 10.0).abs() < 8.0, "a proposal {d} px from the parent");
-        }
-        // ln p − ln q against the closed form: p the random walk around the parent, q the
-        // mixture of the two shifted Gaussians (same axes and rotation terms in both).
-        let (sg, sp) = (params.proposal, params.dynamics);
-        for (x, lr) in f.particles().iter().zip(&f.log_ratio).take(50) {
-            let g = |d: f64, s: f64| ln_gauss(d, s);
-            let dy = x.cy - start.cy;
-            let q = 0.5 * (g(x.cx - start.cx - 10.0, sg.centre) + g(dy, sg.centre)).exp()
-                + 0.5 * (g(x.cx - start.cx + 10.0, sg.centre) + g(dy, sg.centre)).exp();
-            let p = g(x.cx - start.cx, sp.centre) + g(dy, sp.centre);
-            let w = log_so3(&(x.rot * start.rot.transpose()));
-            let d = [x.a - start.a, x.b - start.b];
-            let rest_p = g(d[0], sp.axes)
-                + g(d[1], sp.axes)
-                + g(w.x, sp.rotation[0])
-                + g(w.y, sp.rotation[1])
-                + g(w.z, sp.rotation[2]);
-            let rest_q = g(d[0], sg.axes)
-                + g(d[1], sg.axes)
-                + g(w.x, sg.rotation[0])
-                + g(w.y, sg.rotation[1])
-                + g(w.z, sg.rotation[2]);
-            let want = p + rest_p - (q.ln() + rest_q);
-            assert!(
-                (lr - want).abs() < 1e-6 * want.abs().max(1.0),
-                "{lr} vs {want}"
-            );
-        }
-    }
-
-    #[test]
-    fn one_translation_candidate_draws_as_a_single_shift() {
-        // A lone candidate with any positive probability is the shift itself, and an empty
-        // list no shift at all.
-        let mut a = ParticleFilter::new(FilterParams::default(), 5, &init());
-        let mut b = ParticleFilter::new(FilterParams::default(), 5, &init());
-        let mut m = Motion::shift(3.0, -2.0);
-        a.propose(&m, 1.0);
-        m.translations[0].0 = 0.25;
-        b.propose(&m, 1.0);
-        assert_eq!(a.particles(), b.particles());
-        let mut c = ParticleFilter::new(FilterParams::default(), 5, &init());
-        let mut d = ParticleFilter::new(FilterParams::default(), 5, &init());
-        c.propose(&Motion::still(), 1.0);
-        m.translations.clear();
-        d.propose(&m, 1.0);
-        assert_eq!(c.particles(), d.particles());
-    }
-
-    #[test]
     fn the_likelihood_picks_the_right_member_of_a_necker_pair() {
         let mut f = ParticleFilter::new(FilterParams::default(), 3, &init());
         let mut t = init();
@@ -921,7 +824,8 @@ mod tests {
         for _ in 0..10 {
             t.rot = good * t.rot;
             let m = Motion {
-                translations: vec![(1.0, [0.0, 0.0])],
+                dx: 0.0,
+                dy: 0.0,
                 scale: 1.0,
                 rotations: vec![(0.5, mirror), (0.5, good)],
             };

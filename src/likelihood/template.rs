@@ -102,11 +102,6 @@ impl Template {
         self.usable
     }
 
-    /// The grid points in the ellipse's unit disk.
-    pub fn points(&self) -> &[[f32; 2]] {
-        &self.pts
-    }
-
     /// Moves the template a share `rate` (in `[0, 1]`) of the way towards what particle `p`
     /// shows in `gray`: `T ← (1 − rate) T + rate S`.
     pub fn blend_towards(&mut self, gray: &GrayF32, p: &Particle, theta0: f32, rate: f32) {

@@ -279,19 +279,6 @@ pub struct TrackerConfig {
     /// on seeds 6-11 (`depth` 7.0 to 9.3, from two seeds of six), and the `car` scenario's
     /// mean centre error fell from 3.8 to 1.6 px and from 3.5 to 1.7 px.
     pub motion_scale: bool,
-    /// The share of proposals that keep their parent's centre instead of moving as the
-    /// frame's motion measurement (block matching or a keyframe fit) says: the proposal is
-    /// then a mixture of the two, weighed as one (paper eq. 27 with the mixture's density),
-    /// so the likelihood chooses between "the target moved as measured" and "it stayed".
-    /// 0 (the default) turns it off: the paper's single proposal. In `[0, 1)`.
-    ///
-    /// Measured and left off (2026-12-01, `scripts/eval_seeds.sh real`, filter seeds 0-15,
-    /// before the template term): at 0.2 girl fell from 0.536 to 0.500 (two seeds lost her)
-    /// and car4 from 0.578 to 0.521. Where car4 is lost for good (frames 444-480, the camera
-    /// panning, the background streaming past the car) it was the histogram and feature terms
-    /// that preferred the background, not the proposal that kept the particles from the car:
-    /// the template term ([`TrackerConfig::template`]) is what mended it.
-    pub stay_share: f64,
     /// The appearance-template term ([`crate::likelihood::template`]); `None` for the
     /// histogram, contour and feature terms alone.
     ///
@@ -312,6 +299,12 @@ pub struct TrackerConfig {
     /// A template that learns faster learns the background as the estimate slides (rate
     /// 0.15 lost car4 in four seeds); one that learns more slowly is as good on these two
     /// sequences, and 0.05 (a memory of about 20 frames) is kept for targets that turn.
+    ///
+    /// Tried first and not kept: hedging the proposal instead, a fifth of the proposals kept
+    /// at their parent's centre (a mixture proposal weighed by its density), without the
+    /// template. girl fell to 0.500 ± 0.027 (two seeds lost her) and car4 to 0.521 ± 0.035:
+    /// at car4's pan it was the likelihood that preferred the background, not the proposal
+    /// that kept the particles from the car.
     pub template: Option<TemplateTerm>,
 }
 
@@ -589,7 +582,6 @@ impl Default for TrackerConfig {
             size_hold: Some(1.2),
             contrast: Some(Contrast::default()),
             motion_scale: false,
-            stay_share: 0.0,
             template: Some(TemplateTerm::default()),
         }
     }

@@ -204,8 +204,8 @@ fn check_init(init: &Init, w: u32, h: u32) -> Result<(), TrackError> {
 /// Checks the settings the tracker itself uses (the filter, SIFT and the likelihood check
 /// theirs): the feature weight, the keyframe fits' rotation prior by the rule of the fit
 /// itself ([`crate::pose::prior::RotationPrior::check`]), and each optional part's own
-/// `check` (anchor refit, colour update, contrast, inter-frame consensus, template), the
-/// stay share, and the widening factors (size hold, aspect slack).
+/// `check` (anchor refit, colour update, contrast, inter-frame consensus, template) and
+/// widening factors (size hold, aspect slack).
 fn check_config(cfg: &TrackerConfig) -> Result<(), TrackError> {
     if !(cfg.feature_weight.is_finite() && cfg.feature_weight >= 0.0) {
         return Err(TrackError::BadConfig(format!(
@@ -262,12 +262,6 @@ fn check_config(cfg: &TrackerConfig) -> Result<(), TrackError> {
                 "{e}; set template to None to weigh the particles without a template"
             ))
         })?;
-    }
-    if !(0.0..1.0).contains(&cfg.stay_share) {
-        return Err(TrackError::BadConfig(format!(
-            "stay_share {} is not in [0, 1); 0 moves every proposal as the motion measured",
-            cfg.stay_share
-        )));
     }
     check_factor(
         "size_hold",
@@ -618,14 +612,9 @@ impl Tracker {
             (None, Some(i), _) => (dx, dy, scale, vec![(0.5, i.pair.a), (0.5, i.pair.b)]),
             (None, None, _) => (dx, dy, scale, vec![(1.0, Matrix3::identity())]),
         };
-        let stay = self.cfg.stay_share;
-        let translations = if stay > 0.0 && self.cfg.mode != Mode::Tpe {
-            vec![(1.0 - stay, [dx, dy]), (stay, [0.0, 0.0])]
-        } else {
-            vec![(1.0, [dx, dy])]
-        };
         let motion = Motion {
-            translations,
+            dx,
+            dy,
             scale: if self.cfg.motion_scale { scale } else { 1.0 },
             rotations,
         };
