@@ -11,7 +11,17 @@
 //! the bias of weak perspective on near objects (their front is magnified more than their
 //! centre). This module fits `(R, s, t)` to the matches by robust Gauss-Newton from a starting
 //! pose (the previous estimate), so the fit stays on the branch of the Necker pair the track is
-//! on. The feature likelihood of [`crate::likelihood`] uses the facing, weak-perspective form.
+//! on. The feature likelihood of [`crate::likelihood`] uses the facing, weak-perspective form:
+//! it lifts the previous view's features onto an ellipsoid facing the camera whose outline is
+//! that view's ellipse, not onto the object's own ellipsoid turned to the view's pose. At a
+//! turned pose the two differ in depth (on the synthetic head panned 60°, the facing one is
+//! about 17 % too deep, and tilted 35° about 6 % too shallow), the direction of the tracked
+//! pan's lag and nod's overshoot. Lifting with this module's posed model instead, on the CPU
+//! in a throwaway build (2026-12-01, scenario seeds 0-11, feature weight 10), moved the
+//! per-axis RMSE summed over the six scenarios from 58.7 to 59.7 with filter seed 0 and from
+//! 61.8 to 65.5 with seed 1 (at weight 14: 57.0 to 57.1 and 55.4 to 56.0): pan's slope came
+//! closer to 1 on four seeds looked at (at weight 8: 0.87-0.93 to 0.91-0.97), nod's did not,
+//! and `combo` and `car` lost more than pan gained. So the facing form stays.
 //!
 //! # Measured bias
 //!
