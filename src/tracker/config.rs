@@ -165,6 +165,19 @@ pub struct TrackerConfig {
     pub interframe_consensus: Option<Consensus>,
     /// Largest rotation between two frames a keyframe fit may imply (radians); a fit beyond it
     /// is taken for a mismatch and ignored for that frame.
+    ///
+    /// The rotation between successive frames (Sylvester's, from the matches with the previous
+    /// frame) is not bounded by it. On `combo` seed 9 five matches gave 25° in one frame where
+    /// the head turned 2°, every particle followed, and the keyframe taken next inherited the
+    /// jump until the anchor refit closed the loop 70 frames later. Bounding that rotation
+    /// by this step as well (tried 2026-12-01 in a throwaway build, feature weight 10) changed
+    /// only that seed among the synthetic ones (its RMSE summed over axes 22.8 → 19.6; the
+    /// six scenarios' sum 58.7 → 58.4 and 61.8 → 60.9 with filter seeds 0 and 1), and cost
+    /// the real footage a little (car4 0.797 → 0.796 over filter seeds 0-15 and 0.801 → 0.791
+    /// over 16-31; girl 0.525 → 0.526 and 0.523 → 0.518), so it was not kept. With that
+    /// bound on, taking a new keyframe only after two, three or five frames in a row without
+    /// an accepted fit, instead of after one, gave `combo` (RMSE summed over its axes, filter
+    /// seed 0) 13.6, 16.0 and 17.8 against 15.0: no trend beyond seed noise.
     pub max_rotation_step: f64,
     /// Largest RMS reprojection error (pixels) of an accepted depth-prior fit (the ellipsoid
     /// is only a prior, so the residual grows with the angle).
