@@ -267,6 +267,14 @@ pub struct TrackerConfig {
     /// Weighing a held proposal by the proposal density where it was drawn (girl 0.31 and
     /// 0.32, synthetic 77.5 and 88.0) or giving proposals outside the range no weight (girl
     /// 0.35, synthetic 97.6 on seeds 0-5) did worse than the filter's way.
+    ///
+    /// On girl the estimate sits at the range's top (b/a about 1.42 against the first box's
+    /// 1.45, where the truth boxes are 1.2-1.3 after the first frames): it takes in the hair
+    /// below the chin, about 10 px too low and a third too tall. Holding each proposal's
+    /// aspect instead within a factor of 1.1 or 1.25 of the outline its own rotation gives the
+    /// first frame's ellipsoid (2026-12-01, throwaway build, feature weight 10) left girl where
+    /// it was (0.521 and 0.519 against 0.525, filter seeds 0-15; the ellipse stayed as tall)
+    /// and at 1.1 lost a car4 seed (0.761 ± 0.037 against 0.797).
     pub aspect_slack: Option<f64>,
     /// While the tracker is unsure of the target (its confidence below
     /// [`TrackerConfig::lost_below`], lost or not yet), the ellipse's semi-axes stay within
