@@ -150,6 +150,13 @@ pub struct TrackerConfig {
     /// no turn in the scene), and a heavier term drags the ellipse after them. Girl loses
     /// steadily above 8; car4's spread over seeds is too wide to rank 4, 8 and 12.
     ///
+    /// With the template term (2026-12-01, throwaway build, particles weighted at 10), the
+    /// estimate's rotation taken from the particles reweighted with the feature term at 20
+    /// gave a synthetic sum of 56.5 and 57.7 (filter seeds 0 and 1, against 58.7 and 61.8),
+    /// car4 0.797 and 0.787 ± 0.012 and girl 0.520 and 0.524 (filter seeds 0-15 and 16-31,
+    /// against 0.797, 0.801, 0.525, 0.523); at 15, 60.2 and 62.5, and car4 lost a seed over
+    /// 0-15 (0.757 ± 0.040). No trend beyond the seeds' chaos, so it was not kept.
+    ///
     /// Tried and not kept (before the template term):
     /// - the weight in proportion to the frame's matches (1.25 per match, from 8 to 24):
     ///   synthetic 52.1, girl 0.513, car4 0.421;
