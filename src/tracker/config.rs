@@ -366,6 +366,18 @@ pub struct TrackerConfig {
     /// template. girl fell to 0.500 ± 0.027 (two seeds lost her) and car4 to 0.521 ± 0.035:
     /// at car4's pan it was the likelihood that preferred the background, not the proposal
     /// that kept the particles from the car.
+    ///
+    /// Also tried (2026-12-01, throwaway build, feature weight 10): the first frame's template
+    /// kept beside the learning one, as a second term. On girl its correlation at the truth
+    /// box is 0.4-0.7 on frontal frames after frame 280, where at the estimate (too tall and
+    /// too low, over the hair below the chin) it is about 0. Weighted by `w · NCC` it lifted
+    /// girl to 0.549 and 0.544 at w = 40 (filter seeds 0-15 and 16-31, against 0.525 and
+    /// 0.523) but lost car4 seeds (0.778 ± 0.039 and 0.707 ± 0.061). Counted only above
+    /// recognition, `w · max(0, NCC − 0.5)` with w = 100, it gave girl 0.537 and 0.541 and
+    /// car4 0.808 and 0.790, but the synthetic heads lost more: the RMSE summed over
+    /// scenarios and axes rose from 58.7 to 65.5 and from 61.8 to 66.9 (filter seeds 0 and 1)
+    /// and nod's centre error from 0.40 to 0.65 px, because on a turning head the frontal
+    /// template is matched where the texture went, not where the head is. Not kept.
     pub template: Option<TemplateTerm>,
 }
 
