@@ -236,20 +236,26 @@ fn bad_input_is_an_error() {
         assert!(err.to_string().contains("feature_weight"), "{w}: {err}");
     }
     let bad_templates = [
-        (-1.0, 16, 0.05, 0.5),
-        (f64::NAN, 16, 0.05, 0.5),
-        (20.0, 1, 0.05, 0.5),
-        (20.0, 65, 0.05, 0.5),
-        (20.0, 16, 1.5, 0.5),
-        (20.0, 16, 0.05, f64::NAN),
+        (-1.0, 16, 0.05, 0.5, 40.0, 0.5),
+        (f64::NAN, 16, 0.05, 0.5, 40.0, 0.5),
+        (20.0, 1, 0.05, 0.5, 40.0, 0.5),
+        (20.0, 65, 0.05, 0.5, 40.0, 0.5),
+        (20.0, 16, 1.5, 0.5, 40.0, 0.5),
+        (20.0, 16, 0.05, f64::NAN, 40.0, 0.5),
+        (20.0, 16, 0.05, 0.5, -1.0, 0.5),
+        (20.0, 16, 0.05, 0.5, f64::INFINITY, 0.5),
+        (20.0, 16, 0.05, 0.5, 40.0, 1.0),
+        (20.0, 16, 0.05, 0.5, 40.0, f64::NAN),
     ];
-    for (weight, grid, rate, min_confidence) in bad_templates {
+    for (weight, grid, rate, min_confidence, anchor_weight, anchor_threshold) in bad_templates {
         let cfg = TrackerConfig {
             template: Some(pftrack::tracker::TemplateTerm {
                 weight,
                 grid,
                 rate,
                 min_confidence,
+                anchor_weight,
+                anchor_threshold,
             }),
             ..TrackerConfig::default()
         };

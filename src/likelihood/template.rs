@@ -17,6 +17,13 @@
 //! `u² + v² <= 1` kept, mapped to the image by the ellipse, `centre + Rθ (a u, b v)` with
 //! `θ = theta0 + rz` (the orientation the ellipse is drawn with): the template turns and
 //! scales with the ellipse.
+//!
+//! The same template can also be turned out of the image plane
+//! ([`Template::correlate_turned`]): its grid points lifted onto the feature term's ellipsoid
+//! prior and moved with each particle's 3D rotation from the view it was taken in. The
+//! tracker keeps the first view so and compares every particle with it, a cue that sees
+//! tilt and pan where the plain correlation sees only the ellipse
+//! ([`crate::tracker::TemplateTerm::anchor_weight`]).
 
 use crate::frames::GrayF32;
 use crate::likelihood::Particle;
@@ -64,6 +71,13 @@ pub fn normalise(values: &mut [f32]) -> bool {
         .iter_mut()
         .for_each(|v| *v = ((*v as f64 - mean) * k) as f32);
     true
+}
+
+/// The correlation of two normalised sample sets ([`normalise`]): their dot product, in
+/// `[-1, 1]`.
+fn unit_dot(a: &[f32], b: &[f32]) -> f32 {
+    let d: f64 = a.iter().zip(b).map(|(&x, &y)| x as f64 * y as f64).sum();
+    d.clamp(-1.0, 1.0) as f32
 }
 
 /// The target's template: the mean grey levels at the grid points over the frames it has
@@ -140,12 +154,82 @@ impl Template {
                     if !normalise(buf) {
                         return 0.0;
                     }
-                    let d: f64 = buf
-                        .iter()
-                        .zip(&self.unit)
-                        .map(|(&a, &b)| a as f64 * b as f64)
-                        .sum();
-                    d.clamp(-1.0, 1.0) as f32
+                    unit_dot(buf, &self.unit)
+                },
+            )
+            .collect_into_vec(out);
+    }
+}
+
+impl Template {
+    /// The NCC in `[-1, 1]` of each particle's view with this template turned by the
+    /// particle's rotation from `first`, the particle the template was taken from; into `out`
+    /// (one per particle, in order).
+    ///
+    /// Each grid point of `first`'s ellipse is lifted onto the ellipsoid prior of the feature
+    /// term (`z = −depth_ratio · sqrt(a b) · sqrt(1 − u² − v²)`, towards the camera), turned
+    /// by `R_p R_firstᵀ`, scaled by `sqrt(a_p b_p / (a_first b_first))` and moved to the
+    /// particle's centre (weak perspective), and the frame is sampled there. Points turned
+    /// away from the camera (depth beyond the centre's) are left out, and the correlation is
+    /// over the rest, each side normalised over them; 0 when fewer than half remain, for a
+    /// flat patch, or for an unusable template. A particle equal to `first` gives
+    /// [`Template::correlate`]'s value.
+    pub fn correlate_turned(
+        &self,
+        gray: &GrayF32,
+        particles: &[Particle],
+        theta0: f32,
+        first: &Particle,
+        depth_ratio: f32,
+        out: &mut Vec<f32>,
+    ) {
+        use crate::likelihood::cpu::feature::{mat_mul, rotation, transpose};
+        use rayon::prelude::*;
+        out.clear();
+        if !self.usable {
+            out.resize(particles.len(), 0.0);
+            return;
+        }
+        let (s0, c0) = (theta0 + first.rz).sin_cos();
+        let zs = -depth_ratio * (first.a * first.b).sqrt();
+        let lifted: Vec<[f32; 3]> = self
+            .pts
+            .iter()
+            .map(|&[u, v]| {
+                let (x, y) = (first.a * u, first.b * v);
+                [
+                    c0 * x - s0 * y,
+                    s0 * x + c0 * y,
+                    zs * (1.0 - u * u - v * v).max(0.0).sqrt(),
+                ]
+            })
+            .collect();
+        let r0t = transpose(&rotation(first.rx, first.ry, first.rz));
+        let ab0 = first.a * first.b;
+        let n = self.pts.len();
+        particles
+            .par_iter()
+            .map_init(
+                || (Vec::with_capacity(n), Vec::with_capacity(n)),
+                |(buf, tpl), p| {
+                    let dr = mat_mul(&rotation(p.rx, p.ry, p.rz), &r0t);
+                    let k = ((p.a * p.b) / ab0).sqrt();
+                    buf.clear();
+                    tpl.clear();
+                    for (x, &t) in lifted.iter().zip(&self.raw) {
+                        let z = dr[2][0] * x[0] + dr[2][1] * x[1] + dr[2][2] * x[2];
+                        if z > 0.0 {
+                            continue;
+                        }
+                        let px = dr[0][0] * x[0] + dr[0][1] * x[1] + dr[0][2] * x[2];
+                        let py = dr[1][0] * x[0] + dr[1][1] * x[1] + dr[1][2] * x[2];
+                        buf.push(gray.sample(p.cx + k * px, p.cy + k * py));
+                        tpl.push(t);
+                    }
+                    if buf.len() * 2 < n || !normalise(buf) || !normalise(tpl) {
+                        return 0.0;
+                    }
+                    unit_dot(buf, tpl)
                 },
             )
             .collect_into_vec(out);
@@ -184,6 +268,105 @@ mod tests {
             }
         }
         g
+    }
+
+    /// A textured sphere of radius `r` centred at `(cx, cy)`, turned by `rot` (rows), on a flat
+    /// background: each pixel inside the outline shows the texture at the object point its
+    /// ray meets first (weak perspective, depth towards the camera negative).
+    fn sphere(w: u32, h: u32, cx: f32, cy: f32, r: f32, rot: &[[f32; 3]; 3]) -> GrayF32 {
+        let texture = |x: f32, y: f32, z: f32| {
+            0.5 + 0.2 * (0.45 * x).sin() * (0.35 * y).cos()
+                + 0.15 * (0.3 * y + 0.25 * z).sin()
+                + 0.1 * (0.2 * x - 0.4 * z).cos()
+        };
+        let mut g = GrayF32::new(w, h);
+        for y in 0..h {
+            for x in 0..w {
+                let (dx, dy) = (x as f32 - cx, y as f32 - cy);
+                let d2 = r * r - dx * dx - dy * dy;
+                g.data[(y * w + x) as usize] = if d2 >= 0.0 {
+                    // The camera-frame point, back to the object frame: X = Rᵀ X'.
+                    let p = [dx, dy, -d2.sqrt()];
+                    let o: Vec<f32> = (0..3)
+                        .map(|j| rot[0][j] * p[0] + rot[1][j] * p[1] + rot[2][j] * p[2])
+                        .collect();
+                    texture(o[0], o[1], o[2])
+                } else {
+                    0.3
+                };
+            }
+        }
+        g
+    }
+
+    #[test]
+    fn a_turned_sphere_is_recognised_at_its_turn() {
+        use crate::likelihood::cpu::feature::rotation;
+        let (cx, cy, r) = (60.0, 50.0, 30.0);
+        let first = particle(cx, cy, r, r, 0.0);
+        let t = Template::new(
+            &sphere(120, 100, cx, cy, r, &rotation(0.0, 0.0, 0.0)),
+            &first,
+            0.0,
+            16,
+        );
+        let at = |rx: f32, ry: f32| Particle { rx, ry, ..first };
+        let mut out = Vec::new();
+        for (rx, ry) in [(0.3f32, 0.0f32), (0.0, -0.35), (0.2, 0.25)] {
+            let g = sphere(120, 100, cx, cy, r, &rotation(rx, ry, 0.0));
+            let cands = [
+                at(rx, ry),
+                at(0.0, 0.0),
+                at(-rx, -ry),
+                at(0.5 * rx, 0.5 * ry),
+            ];
+            t.correlate_turned(&g, &cands, 0.0, &first, 1.0, &mut out);
+            // Recognised at the turn it was shown with, and clearly better there than at no
+            // turn, the opposite one or half of it.
+            assert!(out[0] > 0.95, "{rx} {ry}: {out:?}");
+            assert!(
+                out[1..].iter().all(|&c| c < out[0] - 0.05),
+                "{rx} {ry}: {out:?}"
+            );
+            // The plain correlation cannot tell the turn: it sees the same at every rotation.
+            let mut plain = Vec::new();
+            t.correlate(&g, &cands, 0.0, &mut plain);
+            assert!(
+                plain.windows(2).all(|w| (w[0] - w[1]).abs() < 1e-6),
+                "{plain:?}"
+            );
+        }
+    }
+
+    #[test]
+    fn an_unturned_particle_of_the_first_shape_gives_the_plain_correlation() {
+        let g = scene(120, 90);
+        let first = particle(60.0, 45.0, 14.0, 11.0, 0.2);
+        let t = Template::new(&g, &first, 0.1, 16);
+        // Same aspect as the first ellipse, any place, size and roll.
+        let cands = [
+            first,
+            particle(63.0, 41.0, 14.0, 11.0, 0.2),
+            particle(58.0, 47.0, 16.8, 13.2, -0.3),
+        ];
+        let (mut turned, mut plain) = (Vec::new(), Vec::new());
+        t.correlate_turned(&g, &cands, 0.1, &first, 1.0, &mut turned);
+        t.correlate(&g, &cands, 0.1, &mut plain);
+        assert!((turned[0] - 1.0).abs() < 1e-5, "{turned:?}");
+        for (a, b) in turned.iter().zip(&plain) {
+            assert!((a - b).abs() < 1e-4, "{turned:?} {plain:?}");
+        }
+    }
+
+    #[test]
+    fn a_view_turned_mostly_away_scores_zero() {
+        let g = scene(120, 90);
+        let first = particle(60.0, 45.0, 14.0, 11.0, 0.0);
+        let t = Template::new(&g, &first, 0.0, 16);
+        let away = Particle { ry: 2.6, ..first };
+        let mut out = Vec::new();
+        t.correlate_turned(&g, &[away], 0.0, &first, 1.0, &mut out);
+        assert_eq!(out, vec![0.0]);
     }
 
     #[test]

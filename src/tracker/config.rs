@@ -377,7 +377,8 @@ pub struct TrackerConfig {
     /// car4 0.808 and 0.790, but the synthetic heads lost more: the RMSE summed over
     /// scenarios and axes rose from 58.7 to 65.5 and from 61.8 to 66.9 (filter seeds 0 and 1)
     /// and nod's centre error from 0.40 to 0.65 px, because on a turning head the frontal
-    /// template is matched where the texture went, not where the head is. Not kept.
+    /// template is matched where the texture went, not where the head is. Not kept; the
+    /// first view turned with each particle's rotation is ([`TemplateTerm::anchor_weight`]).
     pub template: Option<TemplateTerm>,
 }
 
@@ -397,6 +398,39 @@ pub struct TemplateTerm {
     /// The template learns only on frames with at least this confidence, in `[0, 1]`; 0.5 by
     /// default, as the colour model's.
     pub min_confidence: f64,
+    /// Weight of the first view's template turned with each particle
+    /// ([`crate::likelihood::template::Template::correlate_turned`]): the first frame's grey
+    /// levels lifted onto the object model, turned by the particle's rotation from the
+    /// first pose and compared with what the particle's view shows there. It never learns,
+    /// so it does not drift, and it sees the rotation, which the learning template does not.
+    /// The particle gains `anchor_weight · max(0, NCC − anchor_threshold)`: the first view
+    /// counts only where it is recognised. 40 by default; 0 turns it off.
+    ///
+    /// Measured 2026-12-01 (feature weight 10, `scripts/eval_seeds.sh`), without and with it
+    /// at 40 and threshold 0.5:
+    ///
+    /// | footage | without | with |
+    /// |---|---|---|
+    /// | synthetic, summed RMSE, scenario seeds 0-11, filter seed 0 | 58.7 | 50.6 |
+    /// | the same, filter seed 1 | 61.8 | 50.7 |
+    /// | the same, scenario seeds 12-23, filter seed 0 | 64.6 | 53.1 |
+    /// | girl, filter seeds 0-15 / 16-31 | 0.525 / 0.523 | 0.537 / 0.529 |
+    /// | car4, filter seeds 0-15 / 16-31 | 0.797 / 0.801 | 0.798 / 0.763 ± 0.037 |
+    ///
+    /// Pan comes within 3° on every axis in all three synthetic runs, and `combo`'s pan from
+    /// 7.3 to 3.6 degrees (filter seed 0); nod's tilt does not improve (3.5). On car4 seed
+    /// 28 of the held-out block slid off the car around frame 250 and was never found again,
+    /// the fragility the feature weight's documentation describes
+    /// ([`TrackerConfig::feature_weight`]). Without the threshold (`40 · NCC`) the synthetic
+    /// sum was 49.0 but car4 lost seeds (0.730 ± 0.049 over 0-15): there the first view,
+    /// twice the size and in other light, correlates 0.25-0.5 wherever the car is, and
+    /// an unthresholded pull follows that noise. The first view unturned (the learning
+    /// template's own sampling, kept fixed) helped girl as well but cost the synthetic heads
+    /// (see the notes on [`TrackerConfig::template`]): unturned, it is matched where the
+    /// texture went rather than where the head is.
+    pub anchor_weight: f64,
+    /// See `anchor_weight`; 0.5 by default, in `[-1, 1)`.
+    pub anchor_threshold: f64,
 }
 
 impl Default for TemplateTerm {
@@ -406,13 +440,15 @@ impl Default for TemplateTerm {
             grid: 16,
             rate: 0.05,
             min_confidence: 0.5,
+            anchor_weight: 40.0,
+            anchor_threshold: 0.5,
         }
     }
 }
 
 impl TemplateTerm {
-    /// Checks the settings: a finite weight of at least 0, a grid of 2 to 64, a rate in
-    /// `[0, 1]` and a confidence in `[0, 1]`.
+    /// Checks the settings: finite weights of at least 0, a grid of 2 to 64, a rate and a
+    /// confidence in `[0, 1]`, and an anchor threshold in `[-1, 1)`.
     pub fn check(&self) -> Result<(), String> {
         if !(self.weight.is_finite() && self.weight >= 0.0) {
             return Err(format!(
@@ -430,6 +466,18 @@ impl TemplateTerm {
             return Err(format!(
                 "template min_confidence {} is not in [0, 1]",
                 self.min_confidence
+            ));
+        }
+        if !(self.anchor_weight.is_finite() && self.anchor_weight >= 0.0) {
+            return Err(format!(
+                "template anchor_weight {} is not finite and at least 0",
+                self.anchor_weight
+            ));
+        }
+        if !(-1.0..1.0).contains(&self.anchor_threshold) {
+            return Err(format!(
+                "template anchor_threshold {} is not in [-1, 1)",
+                self.anchor_threshold
             ));
         }
         Ok(())

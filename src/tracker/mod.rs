@@ -159,6 +159,11 @@ pub struct Tracker {
     template: Option<crate::likelihood::template::Template>,
     /// The particles' correlations with the template this frame.
     correlations: Vec<f32>,
+    /// The first view's template and the first frame's estimate, when the anchor is on
+    /// ([`TemplateTerm::anchor_weight`]).
+    anchor: Option<(crate::likelihood::template::Template, Particle)>,
+    /// The particles' correlations with the turned first view this frame.
+    anchor_correlations: Vec<f32>,
 }
 
 impl std::fmt::Debug for Tracker {
@@ -389,6 +394,8 @@ impl Tracker {
             background: None,
             template: None,
             correlations: Vec::new(),
+            anchor: None,
+            anchor_correlations: Vec::new(),
             first: Estimate {
                 frame: 0,
                 state: PoseState::default(),
@@ -441,6 +448,11 @@ impl Tracker {
                 t.grid,
             )
         });
+        self.anchor = match (&self.template, self.cfg.template) {
+            (Some(t), Some(c)) if c.anchor_weight > 0.0 => Some((t.clone(), hyp.to_particle())),
+            _ => None,
+        };
+        self.anchor_correlations.clear();
         let region = search_region(&init.ellipse, w, h);
         self.prev_features = self.sift.detect(&self.prev_gray, Some(region))?;
         self.reference = init.ellipse;
@@ -744,6 +756,16 @@ impl Tracker {
                 &mut self.correlations,
             );
         }
+        if let Some((t, first)) = &self.anchor {
+            t.correlate_turned(
+                gray,
+                &self.particles,
+                self.theta0 as f32,
+                first,
+                self.cfg.likelihood.depth_ratio,
+                &mut self.anchor_correlations,
+            );
+        }
     }
 
     /// After a frame with at least [`TemplateTerm::min_confidence`], moves the template
@@ -899,10 +921,14 @@ impl Tracker {
 
     /// Each particle's log-likelihood: the enabled terms of the last evaluation, the feature
     /// term weighted by [`TrackerConfig::feature_weight`], plus the template term
-    /// ([`TemplateTerm::weight`] times the particle's correlation, when the term is on).
+    /// ([`TemplateTerm::weight`] times the particle's correlation, when the term is on) and
+    /// the turned first view's ([`TemplateTerm::anchor_weight`]).
     fn weighted_totals(&self, lp: &LikelihoodParams) -> Vec<f32> {
         let wf = self.cfg.feature_weight as f32;
         let wt = self.cfg.template.map_or(0.0, |t| t.weight as f32);
+        let (wa, ta) = self.cfg.template.map_or((0.0, 0.0), |t| {
+            (t.anchor_weight as f32, t.anchor_threshold as f32)
+        });
         self.terms
             .iter()
             .enumerate()
@@ -925,6 +951,9 @@ impl Tracker {
                 }
                 if let Some(c) = self.correlations.get(i) {
                     s += wt * c;
+                }
+                if let Some(c) = self.anchor_correlations.get(i) {
+                    s += wa * (c - ta).max(0.0);
                 }
                 s
             })

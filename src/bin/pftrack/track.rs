@@ -148,6 +148,12 @@ pub struct TrackArgs {
     /// the first frame's.
     #[arg(long, value_name = "R", default_value_t = pftrack::tracker::TemplateTerm::default().rate)]
     pub template_rate: f64,
+    /// Weight of the first view turned with each particle's rotation and compared with the
+    /// frame (`TemplateTerm::anchor_weight`): it counts where the first view is recognised
+    /// (correlation above 0.5), and sees the rotation. 0 leaves it out; it needs the template
+    /// term on.
+    #[arg(long, value_name = "W", default_value_t = pftrack::tracker::TemplateTerm::default().anchor_weight)]
+    pub anchor_weight: f64,
     /// Resize every frame to WxH first.
     #[arg(long, value_name = "WxH")]
     pub resize: Option<String>,
@@ -276,17 +282,27 @@ pub fn apply_feature_weight(cfg: &mut TrackerConfig, w: f64) -> anyhow::Result<(
     Ok(())
 }
 
-/// Checks and applies `--template-weight` and `--template-rate` (weight 0: the term off).
-pub fn apply_template(cfg: &mut TrackerConfig, weight: f64, rate: f64) -> anyhow::Result<()> {
+/// Checks and applies `--template-weight`, `--template-rate` and `--anchor-weight` (template
+/// weight 0: the term off, and the anchor with it).
+pub fn apply_template(
+    cfg: &mut TrackerConfig,
+    weight: f64,
+    rate: f64,
+    anchor_weight: f64,
+) -> anyhow::Result<()> {
     if !(weight.is_finite() && weight >= 0.0) {
         bail!("--template-weight must be finite and at least 0, got {weight}");
     }
     if !(0.0..=1.0).contains(&rate) {
         bail!("--template-rate must lie between 0 and 1, got {rate}");
     }
+    if !(anchor_weight.is_finite() && anchor_weight >= 0.0) {
+        bail!("--anchor-weight must be finite and at least 0, got {anchor_weight}");
+    }
     cfg.template = (weight > 0.0).then(|| pftrack::tracker::TemplateTerm {
         weight,
         rate,
+        anchor_weight,
         ..cfg.template.unwrap_or_default()
     });
     Ok(())
@@ -363,7 +379,12 @@ pub fn run(a: TrackArgs) -> anyhow::Result<()> {
         })
     };
     apply_feature_weight(&mut cfg, a.feature_weight)?;
-    apply_template(&mut cfg, a.template_weight, a.template_rate)?;
+    apply_template(
+        &mut cfg,
+        a.template_weight,
+        a.template_rate,
+        a.anchor_weight,
+    )?;
     if !(0.0..=1.0).contains(&a.colour_max_ring) {
         bail!("--colour-max-ring {} is not in [0, 1]", a.colour_max_ring);
     }
@@ -500,22 +521,27 @@ mod tests {
     #[test]
     fn template_settings_are_checked_and_applied() {
         let mut cfg = TrackerConfig::default();
-        apply_template(&mut cfg, 35.0, 0.1).unwrap();
+        apply_template(&mut cfg, 35.0, 0.1, 25.0).unwrap();
         let t = cfg.template.unwrap();
-        assert_eq!((t.weight, t.rate), (35.0, 0.1));
-        apply_template(&mut cfg, 0.0, 0.1).unwrap();
+        assert_eq!((t.weight, t.rate, t.anchor_weight), (35.0, 0.1, 25.0));
+        apply_template(&mut cfg, 0.0, 0.1, 25.0).unwrap();
         assert!(cfg.template.is_none());
-        apply_template(&mut cfg, 10.0, 0.0).unwrap();
-        assert_eq!(cfg.template.map(|t| (t.weight, t.rate)), Some((10.0, 0.0)));
-        for (w, r, flag) in [
-            (-1.0, 0.1, "--template-weight"),
-            (f64::NAN, 0.1, "--template-weight"),
-            (f64::INFINITY, 0.1, "--template-weight"),
-            (20.0, -0.1, "--template-rate"),
-            (20.0, 1.5, "--template-rate"),
-            (20.0, f64::NAN, "--template-rate"),
+        apply_template(&mut cfg, 10.0, 0.0, 0.0).unwrap();
+        assert_eq!(
+            cfg.template.map(|t| (t.weight, t.rate, t.anchor_weight)),
+            Some((10.0, 0.0, 0.0))
+        );
+        for (w, r, a, flag) in [
+            (-1.0, 0.1, 40.0, "--template-weight"),
+            (f64::NAN, 0.1, 40.0, "--template-weight"),
+            (f64::INFINITY, 0.1, 40.0, "--template-weight"),
+            (20.0, -0.1, 40.0, "--template-rate"),
+            (20.0, 1.5, 40.0, "--template-rate"),
+            (20.0, f64::NAN, 40.0, "--template-rate"),
+            (20.0, 0.1, -1.0, "--anchor-weight"),
+            (20.0, 0.1, f64::NAN, "--anchor-weight"),
         ] {
-            let e = apply_template(&mut cfg, w, r).unwrap_err().to_string();
+            let e = apply_template(&mut cfg, w, r, a).unwrap_err().to_string();
             assert!(e.starts_with(flag), "{e}");
         }
     }
