@@ -77,14 +77,22 @@ fn bench_filter(c: &mut Criterion) {
 fn bench_tracker(c: &mut Criterion) {
     let mut g = c.benchmark_group("tracker step");
     g.sample_size(20);
-    // The last flag turns the appearance template off, to show what the term costs.
+    // The last field is what of the appearance template is on (`Full`, `NoAnchor`: without
+    // the turned first view, `Off`), to show what each part costs.
+    #[derive(PartialEq)]
+    enum Tpl {
+        Full,
+        NoAnchor,
+        Off,
+    }
     for (w, h, n, template) in [
-        (128u32, 96u32, 200usize, true),
-        (160, 120, 200, true),
-        (160, 120, 200, false),
-        (320, 240, 200, true),
-        (160, 120, 1000, true),
-        (160, 120, 10000, true),
+        (128u32, 96u32, 200usize, Tpl::Full),
+        (160, 120, 200, Tpl::Full),
+        (160, 120, 200, Tpl::NoAnchor),
+        (160, 120, 200, Tpl::Off),
+        (320, 240, 200, Tpl::Full),
+        (160, 120, 1000, Tpl::Full),
+        (160, 120, 10000, Tpl::Full),
     ] {
         let cfg = SynthConfig {
             width: w,
@@ -98,18 +106,24 @@ fn bench_tracker(c: &mut Criterion) {
         let frames: Vec<image::RgbImage> = (0..cfg.frames).map(|k| r.render(k).0).collect();
         let mut tc = TrackerConfig::default();
         tc.filter.particles = n;
-        if !template {
-            tc.template = None;
+        match template {
+            Tpl::Full => {}
+            Tpl::NoAnchor => {
+                if let Some(t) = tc.template.as_mut() {
+                    t.anchor_weight = 0.0;
+                }
+            }
+            Tpl::Off => tc.template = None,
         }
         let init = Init::frontal(r.init_ellipse());
         let Ok(mut t) = Tracker::new(tc, &frames[0], init) else {
             continue;
         };
         let mut k = 1;
-        let name = if template {
-            format!("{w}x{h}, {n} particles")
-        } else {
-            format!("{w}x{h}, {n} particles, no template")
+        let name = match template {
+            Tpl::Full => format!("{w}x{h}, {n} particles"),
+            Tpl::NoAnchor => format!("{w}x{h}, {n} particles, no turned first view"),
+            Tpl::Off => format!("{w}x{h}, {n} particles, no template"),
         };
         g.bench_function(name, |b| {
             b.iter(|| {

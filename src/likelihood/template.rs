@@ -209,29 +209,41 @@ impl Template {
         let n = self.pts.len();
         particles
             .par_iter()
-            .map_init(
-                || (Vec::with_capacity(n), Vec::with_capacity(n)),
-                |(buf, tpl), p| {
-                    let dr = mat_mul(&rotation(p.rx, p.ry, p.rz), &r0t);
-                    let k = ((p.a * p.b) / ab0).sqrt();
-                    buf.clear();
-                    tpl.clear();
-                    for (x, &t) in lifted.iter().zip(&self.raw) {
-                        let z = dr[2][0] * x[0] + dr[2][1] * x[1] + dr[2][2] * x[2];
-                        if z > 0.0 {
-                            continue;
-                        }
-                        let px = dr[0][0] * x[0] + dr[0][1] * x[1] + dr[0][2] * x[2];
-                        let py = dr[1][0] * x[0] + dr[1][1] * x[1] + dr[1][2] * x[2];
-                        buf.push(gray.sample(p.cx + k * px, p.cy + k * py));
-                        tpl.push(t);
+            .map(|p| {
+                let dr = mat_mul(&rotation(p.rx, p.ry, p.rz), &r0t);
+                let k = ((p.a * p.b) / ab0).sqrt();
+                // One pass: the sums the correlation over the visible points needs.
+                let (mut m, mut sb, mut sbb, mut st, mut stt, mut sbt) =
+                    (0usize, 0.0f64, 0.0f64, 0.0f64, 0.0f64, 0.0f64);
+                for (x, &t) in lifted.iter().zip(&self.raw) {
+                    let z = dr[2][0] * x[0] + dr[2][1] * x[1] + dr[2][2] * x[2];
+                    if z > 0.0 {
+                        continue;
                     }
-                    if buf.len() * 2 < n || !normalise(buf) || !normalise(tpl) {
-                        return 0.0;
-                    }
-                    unit_dot(buf, tpl)
-                },
-            )
+                    let px = dr[0][0] * x[0] + dr[0][1] * x[1] + dr[0][2] * x[2];
+                    let py = dr[1][0] * x[0] + dr[1][1] * x[1] + dr[1][2] * x[2];
+                    let b = gray.sample(p.cx + k * px, p.cy + k * py) as f64;
+                    let t = t as f64;
+                    m += 1;
+                    sb += b;
+                    sbb += b * b;
+                    st += t;
+                    stt += t * t;
+                    sbt += b * t;
+                }
+                if m * 2 < n {
+                    return 0.0;
+                }
+                let mf = m as f64;
+                let vb = (sbb - sb * sb / mf).max(0.0);
+                let vt = (stt - st * st / mf).max(0.0);
+                // Flat by the same rule as `normalise`.
+                let flat = 1e-6 * mf.sqrt();
+                if vb.sqrt() < flat || vt.sqrt() < flat {
+                    return 0.0;
+                }
+                ((sbt - sb * st / mf) / (vb * vt).sqrt()).clamp(-1.0, 1.0) as f32
+            })
             .collect_into_vec(out);
     }
 }
