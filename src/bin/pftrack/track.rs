@@ -150,7 +150,7 @@ pub struct TrackArgs {
     pub template_rate: f64,
     /// Weight of the first view turned with each particle's rotation and compared with the
     /// frame (`TemplateTerm::anchor_weight`): it counts where the first view is recognised
-    /// (correlation above 0.5), and sees the rotation. 0 leaves it out; it needs the template
+    /// (correlation above 0.65), and sees the rotation. 0 leaves it out; it needs the template
     /// term on.
     #[arg(long, value_name = "W", default_value_t = pftrack::tracker::TemplateTerm::default().anchor_weight)]
     pub anchor_weight: f64,
