@@ -79,7 +79,6 @@ fn bench_tracker(c: &mut Criterion) {
     g.sample_size(20);
     // The last field is what of the appearance template is on (`Full`, `NoAnchor`: without
     // the turned first view, `Off`), to show what each part costs.
-    #[derive(PartialEq)]
     enum Tpl {
         Full,
         NoAnchor,

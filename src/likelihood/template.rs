@@ -183,7 +183,7 @@ impl Template {
         depth_ratio: f32,
         out: &mut Vec<f32>,
     ) {
-        use crate::likelihood::cpu::feature::{mat_mul, rotation, transpose};
+        use crate::likelihood::cpu::feature::{mat_mul, prior_depth, rotation, transpose};
         use rayon::prelude::*;
         out.clear();
         if !self.usable {
@@ -191,7 +191,6 @@ impl Template {
             return;
         }
         let (s0, c0) = (theta0 + first.rz).sin_cos();
-        let zs = -depth_ratio * (first.a * first.b).sqrt();
         let lifted: Vec<[f32; 3]> = self
             .pts
             .iter()
@@ -200,7 +199,7 @@ impl Template {
                 [
                     c0 * x - s0 * y,
                     s0 * x + c0 * y,
-                    zs * (1.0 - u * u - v * v).max(0.0).sqrt(),
+                    prior_depth(u, v, first.a, first.b, depth_ratio),
                 ]
             })
             .collect();

@@ -76,9 +76,15 @@ pub fn lift(p: [f32; 2], prev: &Particle, theta0: f32, depth_ratio: f32) -> [f32
     let dy = p[1] - prev.cy;
     let u = (c * dx + s * dy) / prev.a;
     let v = (-s * dx + c * dy) / prev.b;
+    [dx, dy, prior_depth(u, v, prev.a, prev.b, depth_ratio)]
+}
+
+/// The depth of the ellipsoid prior at normalised ellipse position `(u, v)` of an ellipse
+/// with semi-axes `a`, `b`: `z = (−depth_ratio · sqrt(a b)) · sqrt(max(0, 1 − u² − v²))`,
+/// towards the camera; 0 on and outside the rim.
+pub fn prior_depth(u: f32, v: f32, a: f32, b: f32, depth_ratio: f32) -> f32 {
     let r2 = (1.0 - u * u - v * v).max(0.0);
-    let z = -depth_ratio * (prev.a * prev.b).sqrt() * r2.sqrt();
-    [dx, dy, z]
+    -depth_ratio * (a * b).sqrt() * r2.sqrt()
 }
 
 impl FeatureFrame {
