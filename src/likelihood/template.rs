@@ -27,6 +27,7 @@
 
 use crate::frames::GrayF32;
 use crate::likelihood::Particle;
+use crate::pose::prior::Pinhole;
 
 /// The sample grid in the ellipse's unit disk: `grid x grid` cell centres on `[-1, 1]²` that
 /// lie inside the unit circle, in row-major order.
@@ -169,7 +170,11 @@ impl Template {
     /// Each grid point of `first`'s ellipse is lifted onto the ellipsoid prior of the feature
     /// term (`z = −depth_ratio · sqrt(a b) · sqrt(1 − u² − v²)`, towards the camera), turned
     /// by `R_p R_firstᵀ`, scaled by `sqrt(a_p b_p / (a_first b_first))` and moved to the
-    /// particle's centre (weak perspective), and the frame is sampled there. Points turned
+    /// particle's centre (weak perspective), and the frame is sampled there. With a
+    /// `camera`, the grid points are lifted along their viewing rays instead and the turned
+    /// points projected through it ([`CameraF32::project`]): on a near object the near side
+    /// moves faster in the image than the centre, which weak perspective matches with a
+    /// larger turn. Points turned
     /// away from the camera (depth beyond the centre's) are left out, and the correlation is
     /// over the rest, each side normalised over them; 0 when fewer than half remain, for a
     /// flat patch, or for an unusable template. A particle equal to `first` gives
@@ -179,10 +184,10 @@ impl Template {
         gray: &GrayF32,
         particles: &[Particle],
         theta0: f32,
-        first: &Particle,
-        depth_ratio: f32,
+        view: &FirstView,
         out: &mut Vec<f32>,
     ) {
+        let (first, depth_ratio) = (&view.particle, view.depth_ratio);
         use crate::likelihood::cpu::feature::{mat_mul, prior_depth, rotation, transpose};
         use rayon::prelude::*;
         out.clear();
@@ -191,16 +196,22 @@ impl Template {
             return;
         }
         let (s0, c0) = (theta0 + first.rz).sin_cos();
+        let camera = view.camera.as_ref().map(CameraF32::from);
         let lifted: Vec<[f32; 3]> = self
             .pts
             .iter()
             .map(|&[u, v]| {
                 let (x, y) = (first.a * u, first.b * v);
-                [
-                    c0 * x - s0 * y,
-                    s0 * x + c0 * y,
-                    prior_depth(u, v, first.a, first.b, depth_ratio),
-                ]
+                let (dx, dy) = (c0 * x - s0 * y, s0 * x + c0 * y);
+                let weak = [dx, dy, prior_depth(u, v, first.a, first.b, depth_ratio)];
+                match &camera {
+                    None => weak,
+                    Some(cam) => cam.lift(weak, [first.cx + dx, first.cy + dy], |dx, dy| {
+                        let u = (c0 * dx + s0 * dy) / first.a;
+                        let v = (-s0 * dx + c0 * dy) / first.b;
+                        prior_depth(u, v, first.a, first.b, depth_ratio)
+                    }),
+                }
             })
             .collect();
         let r0t = transpose(&rotation(first.rx, first.ry, first.rz));
@@ -221,7 +232,13 @@ impl Template {
                     }
                     let px = dr[0][0] * x[0] + dr[0][1] * x[1] + dr[0][2] * x[2];
                     let py = dr[1][0] * x[0] + dr[1][1] * x[1] + dr[1][2] * x[2];
-                    let b = gray.sample(p.cx + k * px, p.cy + k * py) as f64;
+                    let b = match &camera {
+                        None => gray.sample(p.cx + k * px, p.cy + k * py),
+                        Some(cam) => {
+                            let [qx, qy] = cam.project([p.cx, p.cy], [k * px, k * py, k * z]);
+                            gray.sample(qx, qy)
+                        }
+                    } as f64;
                     let t = t as f64;
                     m += 1;
                     sb += b;
@@ -244,6 +261,81 @@ impl Template {
                 ((sbt - sb * st / mf) / (vb * vt).sqrt()).clamp(-1.0, 1.0) as f32
             })
             .collect_into_vec(out);
+    }
+}
+
+/// The first view as [`Template::correlate_turned`] turns it: the particle it was taken
+/// from, the depth of the object model (the feature term's `depth_ratio`) and the camera
+/// (`None` for weak perspective).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FirstView {
+    /// The particle the template was taken from.
+    pub particle: Particle,
+    /// Depth of the ellipsoid prior relative to `sqrt(a b)`.
+    pub depth_ratio: f32,
+    /// The camera the view is projected through; `None` for weak perspective.
+    pub camera: Option<Pinhole>,
+}
+
+impl FirstView {
+    /// The first view of `particle` with a depth ratio of 1 under weak perspective.
+    pub fn weak(particle: Particle) -> Self {
+        Self {
+            particle,
+            depth_ratio: 1.0,
+            camera: None,
+        }
+    }
+}
+
+/// [`Pinhole`] in `f32`, for the turned first view's projection.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct CameraF32 {
+    focal: f32,
+    principal: [f32; 2],
+}
+
+/// Fixed-point steps of [`CameraF32::lift`]: at a depth of a tenth of the focal length each
+/// step shrinks the error about tenfold.
+const LIFT_STEPS: usize = 3;
+
+/// The smallest `1 + z / focal` a projection divides by.
+const MIN_DEPTH_FACTOR: f32 = 0.05;
+
+impl From<&Pinhole> for CameraF32 {
+    fn from(c: &Pinhole) -> Self {
+        Self {
+            focal: c.focal as f32,
+            principal: [c.principal.x as f32, c.principal.y as f32],
+        }
+    }
+}
+
+impl CameraF32 {
+    /// The image of `y`, a point relative to an object whose centre projects to `c`, in
+    /// pixels at the centre's depth (`z` away from the camera): `pp + ((c − pp) + y_xy) / g`,
+    /// `g = max(1 + y_z / focal, MIN_DEPTH_FACTOR)`.
+    fn project(&self, c: [f32; 2], y: [f32; 3]) -> [f32; 2] {
+        let g = (1.0 + y[2] / self.focal).max(MIN_DEPTH_FACTOR);
+        let [px, py] = self.principal;
+        [px + ((c[0] - px) + y[0]) / g, py + ((c[1] - py) + y[1]) / g]
+    }
+
+    /// The point of a surface whose depth at offset `(dx, dy)` from the object's centre
+    /// is `depth(dx, dy)` that this camera sees at `seen`, from its weak-perspective lift
+    /// `weak` by [`LIFT_STEPS`] fixed-point steps along the viewing ray: the inverse of
+    /// [`CameraF32::project`] at the centre `seen − weak_xy`.
+    fn lift(&self, weak: [f32; 3], seen: [f32; 2], depth: impl Fn(f32, f32) -> f32) -> [f32; 3] {
+        let cam = self;
+        let (dx, dy) = (weak[0], weak[1]);
+        let (rx, ry) = (seen[0] - cam.principal[0], seen[1] - cam.principal[1]);
+        let mut x = weak;
+        for _ in 0..LIFT_STEPS {
+            let g = x[2] / cam.focal;
+            let (xx, yy) = (dx + rx * g, dy + ry * g);
+            x = [xx, yy, depth(xx, yy)];
+        }
+        x
     }
 }
 
@@ -281,15 +373,22 @@ mod tests {
         g
     }
 
+    /// The texture of the test spheres at the camera-frame point `p` of an object turned by
+    /// `rot` (rows): the object point `X = Rᵀ p`.
+    fn shade(p: [f32; 3], rot: &[[f32; 3]; 3]) -> f32 {
+        let o: Vec<f32> = (0..3)
+            .map(|j| rot[0][j] * p[0] + rot[1][j] * p[1] + rot[2][j] * p[2])
+            .collect();
+        let (x, y, z) = (o[0], o[1], o[2]);
+        0.5 + 0.2 * (0.45 * x).sin() * (0.35 * y).cos()
+            + 0.15 * (0.3 * y + 0.25 * z).sin()
+            + 0.1 * (0.2 * x - 0.4 * z).cos()
+    }
+
     /// A textured sphere of radius `r` centred at `(cx, cy)`, turned by `rot` (rows), on a flat
     /// background: each pixel inside the outline shows the texture at the object point its
     /// ray meets first (weak perspective, depth towards the camera negative).
     fn sphere(w: u32, h: u32, cx: f32, cy: f32, r: f32, rot: &[[f32; 3]; 3]) -> GrayF32 {
-        let texture = |x: f32, y: f32, z: f32| {
-            0.5 + 0.2 * (0.45 * x).sin() * (0.35 * y).cos()
-                + 0.15 * (0.3 * y + 0.25 * z).sin()
-                + 0.1 * (0.2 * x - 0.4 * z).cos()
-        };
         let mut g = GrayF32::new(w, h);
         for y in 0..h {
             for x in 0..w {
@@ -298,10 +397,7 @@ mod tests {
                 g.data[(y * w + x) as usize] = if d2 >= 0.0 {
                     // The camera-frame point, back to the object frame: X = Rᵀ X'.
                     let p = [dx, dy, -d2.sqrt()];
-                    let o: Vec<f32> = (0..3)
-                        .map(|j| rot[0][j] * p[0] + rot[1][j] * p[1] + rot[2][j] * p[2])
-                        .collect();
-                    texture(o[0], o[1], o[2])
+                    shade(p, rot)
                 } else {
                     0.3
                 };
@@ -331,7 +427,7 @@ mod tests {
                 at(-rx, -ry),
                 at(0.5 * rx, 0.5 * ry),
             ];
-            t.correlate_turned(&g, &cands, 0.0, &first, 1.0, &mut out);
+            t.correlate_turned(&g, &cands, 0.0, &FirstView::weak(first), &mut out);
             // Recognised at the turn it was shown with, and clearly better there than at no
             // turn, the opposite one or half of it.
             assert!(out[0] > 0.95, "{rx} {ry}: {out:?}");
@@ -349,6 +445,91 @@ mod tests {
         }
     }
 
+    /// The sphere of [`sphere`] seen by a pinhole camera of focal length `f` whose principal
+    /// point is `pp`: each pixel's ray from the camera centre meets the sphere, centred on the
+    /// ray through `(cx, cy)` at depth `f` (pixels at that depth).
+    #[allow(clippy::too_many_arguments)]
+    fn near_sphere(
+        w: u32,
+        h: u32,
+        (cx, cy, r): (f32, f32, f32),
+        f: f32,
+        pp: [f32; 2],
+        rot: &[[f32; 3]; 3],
+    ) -> GrayF32 {
+        let c = [cx - pp[0], cy - pp[1], f];
+        let mut g = GrayF32::new(w, h);
+        for y in 0..h {
+            for x in 0..w {
+                let d = [x as f32 - pp[0], y as f32 - pp[1], f];
+                let (dd, dc) = (
+                    d[0] * d[0] + d[1] * d[1] + d[2] * d[2],
+                    d[0] * c[0] + d[1] * c[1] + d[2] * c[2],
+                );
+                let cc = c[0] * c[0] + c[1] * c[1] + c[2] * c[2];
+                let disc = dc * dc - dd * (cc - r * r);
+                g.data[(y * w + x) as usize] = if disc >= 0.0 {
+                    let t = (dc - disc.sqrt()) / dd;
+                    let p = [t * d[0] - c[0], t * d[1] - c[1], t * d[2] - c[2]];
+                    shade(p, rot)
+                } else {
+                    0.3
+                };
+            }
+        }
+        g
+    }
+
+    #[test]
+    fn with_its_camera_a_near_sphere_is_recognised_at_its_true_turn_and_without_further() {
+        use crate::likelihood::cpu::feature::rotation;
+        // A sphere 8 radii from the camera, as the synthetic heads are.
+        let (w, h, r, f) = (120u32, 100u32, 30.0f32, 240.0f32);
+        let pp = [59.5f32, 49.5];
+        let cam = Pinhole {
+            focal: f as f64,
+            principal: nalgebra::Vector2::new(pp[0] as f64, pp[1] as f64),
+        };
+        let (cx, cy) = (62.0, 48.0);
+        let first_view = near_sphere(w, h, (cx, cy, r), f, pp, &rotation(0.0, 0.0, 0.0));
+        // The outline of the near sphere: the ellipse the tracker would start from.
+        let ro = f
+            * (r / (f * f + (cx - pp[0]).powi(2) + (cy - pp[1]).powi(2)).sqrt())
+                .asin()
+                .tan();
+        let first = particle(cx, cy, ro, ro, 0.0);
+        let t = Template::new(&first_view, &first, 0.0, 16);
+        let gains = [0.8f32, 0.9, 1.0, 1.1, 1.2, 1.3, 1.4];
+        let best = |g: &GrayF32, rx: f32, ry: f32, camera: Option<&Pinhole>| {
+            let cands: Vec<Particle> = gains
+                .iter()
+                .map(|k| Particle {
+                    rx: k * rx,
+                    ry: k * ry,
+                    ..first
+                })
+                .collect();
+            let mut out = Vec::new();
+            let view = FirstView {
+                camera: camera.copied(),
+                ..FirstView::weak(first)
+            };
+            t.correlate_turned(g, &cands, 0.0, &view, &mut out);
+            let i = (0..out.len())
+                .max_by(|&a, &b| out[a].total_cmp(&out[b]))
+                .unwrap_or(0);
+            (gains[i], out[i])
+        };
+        for (rx, ry) in [(0.4f32, 0.0f32), (0.0, -0.4)] {
+            let g = near_sphere(w, h, (cx, cy, r), f, pp, &rotation(rx, ry, 0.0));
+            let (with, c) = best(&g, rx, ry, Some(&cam));
+            assert_eq!(with, 1.0, "{rx} {ry}: best at {with} of the turn ({c})");
+            assert!(c > 0.9, "{rx} {ry}: {c}");
+            let (weak, _) = best(&g, rx, ry, None);
+            assert!(weak > 1.0, "{rx} {ry}: weak perspective best at {weak}");
+        }
+    }
+
     #[test]
     fn an_unturned_particle_of_the_first_shape_gives_the_plain_correlation() {
         let g = scene(120, 90);
@@ -361,7 +542,7 @@ mod tests {
             particle(58.0, 47.0, 16.8, 13.2, -0.3),
         ];
         let (mut turned, mut plain) = (Vec::new(), Vec::new());
-        t.correlate_turned(&g, &cands, 0.1, &first, 1.0, &mut turned);
+        t.correlate_turned(&g, &cands, 0.1, &FirstView::weak(first), &mut turned);
         t.correlate(&g, &cands, 0.1, &mut plain);
         assert!((turned[0] - 1.0).abs() < 1e-5, "{turned:?}");
         for (a, b) in turned.iter().zip(&plain) {
@@ -376,7 +557,7 @@ mod tests {
         let t = Template::new(&g, &first, 0.0, 16);
         let away = Particle { ry: 2.6, ..first };
         let mut out = Vec::new();
-        t.correlate_turned(&g, &[away], 0.0, &first, 1.0, &mut out);
+        t.correlate_turned(&g, &[away], 0.0, &FirstView::weak(first), &mut out);
         assert_eq!(out, vec![0.0]);
     }
 

@@ -161,7 +161,10 @@ pub struct Tracker {
     correlations: Vec<f32>,
     /// The first view's template and the first frame's estimate, when the anchor is on
     /// ([`TemplateTerm::anchor_weight`]).
-    anchor: Option<(crate::likelihood::template::Template, Particle)>,
+    anchor: Option<(
+        crate::likelihood::template::Template,
+        crate::likelihood::template::FirstView,
+    )>,
     /// The particles' correlations with the turned first view this frame.
     anchor_correlations: Vec<f32>,
 }
@@ -449,7 +452,14 @@ impl Tracker {
             )
         });
         self.anchor = match (&self.template, self.cfg.template) {
-            (Some(t), Some(c)) if c.anchor_weight > 0.0 => Some((t.clone(), hyp.to_particle())),
+            (Some(t), Some(c)) if c.anchor_weight > 0.0 => Some((
+                t.clone(),
+                crate::likelihood::template::FirstView {
+                    particle: hyp.to_particle(),
+                    depth_ratio: self.cfg.likelihood.depth_ratio,
+                    camera: self.camera(),
+                },
+            )),
             _ => None,
         };
         self.anchor_correlations.clear();
@@ -762,7 +772,6 @@ impl Tracker {
                 &self.particles,
                 self.theta0 as f32,
                 first,
-                self.cfg.likelihood.depth_ratio,
                 &mut self.anchor_correlations,
             );
         }

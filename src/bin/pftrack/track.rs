@@ -54,7 +54,9 @@ pub struct TrackArgs {
     #[arg(long, default_value = "auto")]
     pub backend: String,
     /// The camera's horizontal field of view in degrees, for the perspective form of the
-    /// keyframe depth prior; weak perspective (the paper's model) when absent.
+    /// keyframe depth prior and of the turned first view; weak perspective (the paper's
+    /// model) when absent. Weak perspective over-reads the tilt of a near head by about a
+    /// tenth (see `TrackerConfig::camera_hfov_deg`).
     #[arg(long, value_name = "DEG")]
     pub hfov: Option<f64>,
     /// Depth relief of the target's visible surface relative to its size, for the feature
