@@ -167,18 +167,18 @@ impl Template {
     /// particle's rotation from `first`, the particle the template was taken from; into `out`
     /// (one per particle, in order).
     ///
-    /// Each grid point of `first`'s ellipse is lifted onto the ellipsoid prior of the feature
-    /// term (`z = −depth_ratio · sqrt(a b) · sqrt(1 − u² − v²)`, towards the camera), turned
-    /// by `R_p R_firstᵀ`, scaled by `sqrt(a_p b_p / (a_first b_first))` and moved to the
-    /// particle's centre (weak perspective), and the frame is sampled there. With a
-    /// `camera`, the grid points are lifted along their viewing rays instead and the turned
-    /// points projected through it ([`CameraF32::project`]): on a near object the near side
-    /// moves faster in the image than the centre, which weak perspective matches with a
-    /// larger turn. Points turned
-    /// away from the camera (depth beyond the centre's) are left out, and the correlation is
-    /// over the rest, each side normalised over them; 0 when fewer than half remain, for a
-    /// flat patch, or for an unusable template. A particle equal to `first` gives
-    /// [`Template::correlate`]'s value.
+    /// Each grid point of the first view's ellipse (`view.particle`) is lifted onto the
+    /// ellipsoid prior of the feature term (`z = −depth_ratio · sqrt(a b) · sqrt(1 − u² −
+    /// v²)`, towards the camera), turned by `R_p R_firstᵀ`, scaled by
+    /// `sqrt(a_p b_p / (a_first b_first))` and moved to the particle's centre (weak
+    /// perspective), and the frame is sampled there. With a camera (`view.camera`) the grid
+    /// points are lifted along their viewing rays instead and the turned points projected
+    /// through it, as the keyframe fits do ([`crate::pose::prior`]): on a near object the
+    /// near side moves faster in the image than the centre, which weak perspective matches
+    /// with a larger turn. Points turned away from the camera (depth beyond the centre's)
+    /// are left out, and the correlation is over the rest, each side normalised over them;
+    /// 0 when fewer than half remain, for a flat patch, or for an unusable template. A
+    /// particle equal to the first gives [`Template::correlate`]'s value.
     pub fn correlate_turned(
         &self,
         gray: &GrayF32,
