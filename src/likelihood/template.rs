@@ -196,24 +196,38 @@ impl Template {
             return;
         }
         let (s0, c0) = (theta0 + first.rz).sin_cos();
-        let camera = view.camera.as_ref().map(CameraF32::from);
-        let lifted: Vec<[f32; 3]> = self
+        let mut lifted: Vec<[f32; 3]> = self
             .pts
             .iter()
             .map(|&[u, v]| {
                 let (x, y) = (first.a * u, first.b * v);
-                let (dx, dy) = (c0 * x - s0 * y, s0 * x + c0 * y);
-                let weak = [dx, dy, prior_depth(u, v, first.a, first.b, depth_ratio)];
-                match &camera {
-                    None => weak,
-                    Some(cam) => cam.lift(weak, [first.cx + dx, first.cy + dy], |dx, dy| {
-                        let u = (c0 * dx + s0 * dy) / first.a;
-                        let v = (-s0 * dx + c0 * dy) / first.b;
-                        prior_depth(u, v, first.a, first.b, depth_ratio)
-                    }),
-                }
+                [
+                    c0 * x - s0 * y,
+                    s0 * x + c0 * y,
+                    prior_depth(u, v, first.a, first.b, depth_ratio),
+                ]
             })
             .collect();
+        if let Some(cam) = &view.camera {
+            // Along the viewing rays onto the same ellipsoid, as the keyframe fits lift.
+            let e = crate::geometry::Ellipse {
+                cx: first.cx as f64,
+                cy: first.cy as f64,
+                a: first.a as f64,
+                b: first.b as f64,
+                theta: (theta0 + first.rz) as f64,
+            };
+            let seen: Vec<[f64; 2]> = lifted
+                .iter()
+                .map(|x| [e.cx + x[0] as f64, e.cy + x[1] as f64])
+                .collect();
+            let model = crate::pose::prior::Ellipsoid::facing(&e, depth_ratio as f64);
+            lifted = crate::pose::prior::lift(&seen, &model, Some(cam))
+                .iter()
+                .map(|x| [x.x as f32, x.y as f32, x.z as f32])
+                .collect();
+        }
+        let camera = view.camera.as_ref().map(CameraF32::from);
         let r0t = transpose(&rotation(first.rx, first.ry, first.rz));
         let ab0 = first.a * first.b;
         let n = self.pts.len();
@@ -295,10 +309,6 @@ struct CameraF32 {
     principal: [f32; 2],
 }
 
-/// Fixed-point steps of [`CameraF32::lift`]: at a depth of a tenth of the focal length each
-/// step shrinks the error about tenfold.
-const LIFT_STEPS: usize = 3;
-
 /// The smallest `1 + z / focal` a projection divides by.
 const MIN_DEPTH_FACTOR: f32 = 0.05;
 
@@ -319,23 +329,6 @@ impl CameraF32 {
         let g = (1.0 + y[2] / self.focal).max(MIN_DEPTH_FACTOR);
         let [px, py] = self.principal;
         [px + ((c[0] - px) + y[0]) / g, py + ((c[1] - py) + y[1]) / g]
-    }
-
-    /// The point of a surface whose depth at offset `(dx, dy)` from the object's centre
-    /// is `depth(dx, dy)` that this camera sees at `seen`, from its weak-perspective lift
-    /// `weak` by [`LIFT_STEPS`] fixed-point steps along the viewing ray: the inverse of
-    /// [`CameraF32::project`] at the centre `seen − weak_xy`.
-    fn lift(&self, weak: [f32; 3], seen: [f32; 2], depth: impl Fn(f32, f32) -> f32) -> [f32; 3] {
-        let cam = self;
-        let (dx, dy) = (weak[0], weak[1]);
-        let (rx, ry) = (seen[0] - cam.principal[0], seen[1] - cam.principal[1]);
-        let mut x = weak;
-        for _ in 0..LIFT_STEPS {
-            let g = x[2] / cam.focal;
-            let (xx, yy) = (dx + rx * g, dy + ry * g);
-            x = [xx, yy, depth(xx, yy)];
-        }
-        x
     }
 }
 

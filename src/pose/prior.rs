@@ -46,7 +46,7 @@
 //!   the keyframe fits alone left the tracked nod as it was (3.57° about x, gain 1.12):
 //!   the turned first view and the feature term still projected with weak perspective,
 //!   and the filter weighs them above the fits' proposal. With the camera in the first view
-//!   too the nod's gain is 1.00 and its RMSE 1.6° ([`crate::tracker::TrackerConfig::camera_hfov_deg`]).
+//!   too the nod's gain is 1.00 and its RMSE 1.6-1.7° ([`crate::tracker::TrackerConfig::camera_hfov_deg`]).
 //! - Roll's deficit comes from features that straddle the outline, half on the still
 //!   background: keeping only those inside 0.7 of the ellipse gives 1.005 ± 0.035, at the
 //!   cost of fewer matches and a larger error on the other scenarios.
