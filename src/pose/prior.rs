@@ -286,26 +286,40 @@ pub struct FitStart {
     pub centre: Vector2<f64>,
 }
 
-/// A Gaussian prior on the fitted rotation, which turns the least-squares fit into a maximum
-/// a posteriori one: `Σ_j |q_j - q̂_j|² / σ_px² + Σ_k (ω_k / σ_k)²`, with `ω = log(R Mᵀ)` the
-/// rotation vector from the prior's mean `M` (about the camera's axes).
+/// A Gaussian prior on the fitted motion, which turns the least-squares fit into a maximum
+/// a posteriori one: `Σ_j |q_j - q̂_j|² / σ_px² + Σ_k (ω_k / σ_k)² + |t - t0|² / σ_t²`, with
+/// `ω = log(R Mᵀ)` the rotation vector from the prior's mean `M` (about the camera's axes)
+/// and, when [`MotionPrior::centre_sigma`] is set, `t0` the start's centre
+/// ([`FitStart::centre`]).
 ///
 /// Out-of-plane rotation shows only as parallax, a few pixels over tens of degrees, so with
 /// 10-20 matches a fit can trade tilt against scale and jump by 10° or more between frames
 /// (seen on the synthetic nod: fits 12-18° off with a scale of 1.08 where the truth is 1).
 /// The tracker sets the mean to the previous estimate and `σ_k` to its filter's random-walk
 /// dynamics, so the fit and the filter assume the same motion between frames.
+///
+/// The centre term is there because a small turn and a shift look alike: turning by `θ`
+/// about the vertical axis moves a lifted point by `θ·z` sideways, and `z` varies across the
+/// visible surface only from the model's depth at its middle to 0 at its outline, so most of
+/// a pan could also be a shift `t`. With the rotation held to its prior and `t` free, the fit
+/// takes the cheap explanation and the turn lags. The tracker centres `t0` on the block
+/// matching's prediction, which follows the matched region as a whole, not the texture
+/// sliding across it; see [`crate::tracker::TrackerConfig::fit_centre_sigma`] for what it
+/// measured.
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct RotationPrior {
+pub struct MotionPrior {
     /// The prior's mean (rotation from the keyframe's pose).
     pub mean: Matrix3<f64>,
     /// σ of the rotation vector's components about the camera's x, y, z axes (radians).
     pub sigma: [f64; 3],
     /// σ of a matched point's position (pixels): how much one match weighs against the prior.
     pub pixel_sigma: f64,
+    /// σ of the fitted centre about the start's centre (pixels, per image axis); `None` leaves
+    /// the centre free.
+    pub centre_sigma: Option<f64>,
 }
 
-impl RotationPrior {
+impl MotionPrior {
     /// Checks the prior: a finite mean ([`PoseError::NonFinite`]) and positive, finite sigmas
     /// ([`PoseError::InvalidParameter`]).
     pub fn check(&self) -> Result<(), PoseError> {
@@ -315,24 +329,34 @@ impl RotationPrior {
         }
         if !ok(self.pixel_sigma) || !self.sigma.iter().all(|&s| ok(s)) {
             return Err(PoseError::InvalidParameter(
-                "a rotation prior's sigmas must be positive and finite",
+                "a motion prior's rotation and pixel sigmas must be positive and finite",
+            ));
+        }
+        if self.centre_sigma.is_some_and(|s| !ok(s)) {
+            return Err(PoseError::InvalidParameter(
+                "a motion prior's centre sigma must be positive and finite",
             ));
         }
         Ok(())
     }
 
-    /// The prior's weight on each rotation component, `(σ_px / σ_k)²` (the matches' weight is
-    /// 1), once [`RotationPrior::check`] passes.
-    fn weights(&self) -> Result<[f64; 3], PoseError> {
+    /// The prior's weights, the matches' being 1, once [`MotionPrior::check`] passes: on each
+    /// rotation component `(σ_px / σ_k)²`, and on each axis of the centre `(σ_px / σ_t)²` (0
+    /// without a centre term).
+    fn weights(&self) -> Result<([f64; 3], f64), PoseError> {
         self.check()?;
-        Ok(self.sigma.map(|s| (self.pixel_sigma / s).powi(2)))
+        let centre = self
+            .centre_sigma
+            .map_or(0.0, |s| (self.pixel_sigma / s).powi(2));
+        Ok((self.sigma.map(|s| (self.pixel_sigma / s).powi(2)), centre))
     }
 }
 
 /// Fits the view of a reference view's points lifted onto its ellipsoid (`X`, [`lift`]) to matches `p` (keyframe) →
 /// `q` (current frame): rotation `R`, scale `s` and centre `t` such that
 /// `q ≈ t + s·(R X)_xy` under weak perspective, or its pinhole projection with a camera,
-/// starting from `start`, with an optional prior on the rotation ([`RotationPrior`]).
+/// starting from `start`, with an optional prior on the rotation and the centre
+/// ([`MotionPrior`]).
 /// Residuals beyond `3 × max(1 px, median)` are dropped after each of a few rounds (robust to
 /// mismatches). Needs at least 4 matches.
 pub fn fit_with_depth_prior(
@@ -341,7 +365,7 @@ pub fn fit_with_depth_prior(
     model: &Ellipsoid,
     camera: Option<&Pinhole>,
     start: &FitStart,
-    prior: Option<&RotationPrior>,
+    prior: Option<&MotionPrior>,
 ) -> Result<PriorFit, PoseError> {
     if p.len() != q.len() {
         return Err(PoseError::Degenerate("p and q differ in length"));
@@ -396,12 +420,18 @@ pub fn fit_with_depth_prior(
                 jtj += jac.transpose() * jac;
                 jtr += jac.transpose() * r;
             }
-            // The prior's term, linearised like the matches' (ω moves by δω to first order).
-            if let Some((mean, w)) = &prior {
+            // The prior's terms, linearised like the matches' (ω moves by δω to first order;
+            // the centre term is already linear in t).
+            if let Some((mean, (w, wt))) = &prior {
                 let e = log_so3(&(rot * mean.transpose()));
                 for k in 0..3 {
                     jtj[(k, k)] += w[k];
                     jtr[k] -= w[k] * e[k];
+                }
+                let d = t - start.centre;
+                for k in 0..2 {
+                    jtj[(4 + k, 4 + k)] += wt;
+                    jtr[4 + k] -= wt * d[k];
                 }
             }
             // A light damping keeps the step defined when the points are nearly planar.
@@ -560,11 +590,12 @@ mod tests {
         }
     }
 
-    fn prior(mean: Matrix3<f64>, sigma: f64) -> RotationPrior {
-        RotationPrior {
+    fn prior(mean: Matrix3<f64>, sigma: f64) -> MotionPrior {
+        MotionPrior {
             mean,
             sigma: [sigma; 3],
             pixel_sigma: 1.0,
+            centre_sigma: None,
         }
     }
 
@@ -611,11 +642,57 @@ mod tests {
     }
 
     #[test]
+    fn a_centre_prior_at_the_truth_changes_nothing_on_exact_data() {
+        let truth = Euler::from_degrees(10.0, -25.0, 15.0);
+        let t = Vector2::new(83.0, 57.5);
+        let (p, q, key) = scene(&truth, 1.1, t);
+        let pr = MotionPrior {
+            centre_sigma: Some(0.5),
+            ..prior(truth.matrix(), 0.05)
+        };
+        let model = Ellipsoid::facing(&key, 1.0);
+        let f = fit_with_depth_prior(&p, &q, &model, None, &at(t), Some(&pr)).unwrap();
+        assert!(angle_between(&f.rot, &truth.matrix()) < 1e-6);
+        assert!((f.scale - 1.1).abs() < 1e-6 && (f.centre - t).norm() < 1e-6);
+    }
+
+    #[test]
+    fn a_centre_prior_keeps_a_held_pan_from_passing_for_a_shift() {
+        // The object pans 4 degrees in place while the rotation prior, at the previous
+        // estimate (no turn), holds it back. With the centre free, the fit explains more than
+        // half of the turn as a sideways shift (the points move by about `θ z`, nearly
+        // alike); held to the centre it was predicted at (the truth here), it turns by three
+        // quarters of it.
+        let truth = Euler::from_degrees(0.0, 4.0, 0.0);
+        let t = Vector2::new(80.0, 60.0);
+        let (p, q, key) = scene(&truth, 1.0, t);
+        let model = Ellipsoid::facing(&key, 1.0);
+        let pan = |centre_sigma| {
+            let pr = MotionPrior {
+                centre_sigma,
+                ..prior(Matrix3::identity(), 0.05)
+            };
+            let f = fit_with_depth_prior(&p, &q, &model, None, &at(t), Some(&pr)).unwrap();
+            (Euler::from_matrix(&f.rot).ry.to_degrees(), f.centre.x - t.x)
+        };
+        let (free, free_shift) = pan(None);
+        let (held, held_shift) = pan(Some(0.5));
+        assert!(
+            free < 2.2 && free_shift.abs() > 0.5,
+            "free: {free} deg, shift {free_shift}"
+        );
+        assert!(
+            held > 3.0 && held_shift.abs() < 0.3,
+            "held: {held} deg, shift {held_shift}"
+        );
+    }
+
+    #[test]
     fn an_invalid_prior_is_an_error() {
         let t = Vector2::new(80.0, 60.0);
         let (p, q, key) = scene(&Euler::from_degrees(5.0, 0.0, 0.0), 1.0, t);
         let model = Ellipsoid::facing(&key, 1.0);
-        let fit = |pr: RotationPrior| fit_with_depth_prior(&p, &q, &model, None, &at(t), Some(&pr));
+        let fit = |pr: MotionPrior| fit_with_depth_prior(&p, &q, &model, None, &at(t), Some(&pr));
         for sigma in [0.0, -0.1, f64::NAN, f64::INFINITY] {
             let r = fit(prior(Matrix3::identity(), sigma));
             assert!(
@@ -623,11 +700,21 @@ mod tests {
                 "{sigma}: {r:?}"
             );
         }
-        let r = fit(RotationPrior {
+        let r = fit(MotionPrior {
             pixel_sigma: 0.0,
             ..prior(Matrix3::identity(), 0.05)
         });
         assert!(matches!(r, Err(PoseError::InvalidParameter(_))));
+        for sigma in [0.0, -1.0, f64::NAN, f64::INFINITY] {
+            let r = fit(MotionPrior {
+                centre_sigma: Some(sigma),
+                ..prior(Matrix3::identity(), 0.05)
+            });
+            assert!(
+                matches!(r, Err(PoseError::InvalidParameter(_))),
+                "centre {sigma}: {r:?}"
+            );
+        }
         let r = fit(prior(Matrix3::from_element(f64::NAN), 0.05));
         assert!(matches!(r, Err(PoseError::NonFinite)));
     }

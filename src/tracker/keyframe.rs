@@ -16,7 +16,7 @@ use crate::filter::Hypothesis;
 use crate::geometry::{Ellipse, angle_between};
 use crate::likelihood::FeaturePair;
 use crate::pose::prior::{
-    Ellipsoid, FitStart, Pinhole, PriorFit, RotationPrior, fit_with_depth_prior,
+    Ellipsoid, FitStart, MotionPrior, Pinhole, PriorFit, fit_with_depth_prior,
 };
 use crate::tracker::AnchorRefit;
 
@@ -50,9 +50,9 @@ pub(crate) struct FitContext<'a> {
     pub max_residual: f64,
     /// Largest rotation (radians) from the previous estimate an accepted fit may imply.
     pub max_step: f64,
-    /// The rotation prior's σ per axis (radians) and the matches' σ (pixels); `None` for
-    /// no prior.
-    pub prior: Option<([f64; 3], f64)>,
+    /// The motion prior; each fit puts its mean at its own start (the previous estimate,
+    /// seen from the keyframe). `None` for no prior.
+    pub prior: Option<MotionPrior>,
     /// The free fit against the anchor that may replace the best one; `None` for none.
     pub anchor_refit: Option<AnchorRefit>,
 }
@@ -105,11 +105,7 @@ pub(crate) fn accepted_fit(
         centre: Vector2::new(ctx.prev.cx, ctx.prev.cy) + ctx.shift,
     };
     // The prior's mean is the start: the previous estimate, seen from the keyframe.
-    let prior = ctx.prior.map(|(sigma, pixel_sigma)| RotationPrior {
-        mean: *rot0,
-        sigma,
-        pixel_sigma,
-    });
+    let prior = ctx.prior.map(|pr| MotionPrior { mean: *rot0, ..pr });
     let fit = fit_with_depth_prior(&p, &q, model, ctx.camera, &start, prior.as_ref()).ok()?;
     let inliers: Vec<FeaturePair> = pairs
         .iter()
@@ -485,7 +481,12 @@ mod tests {
             min_inliers: 10,
             max_residual: 3.0,
             max_step: 20f64.to_radians(),
-            prior: Some(([0.05; 3], 1.0)),
+            prior: Some(MotionPrior {
+                mean: Matrix3::identity(),
+                sigma: [0.05; 3],
+                pixel_sigma: 1.0,
+                centre_sigma: None,
+            }),
             anchor_refit,
         };
         // Held by the prior, the fit stays near the previous estimate, the turn taken up by

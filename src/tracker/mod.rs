@@ -209,9 +209,22 @@ fn check_init(init: &Init, w: u32, h: u32) -> Result<(), TrackError> {
     Ok(())
 }
 
+/// The keyframe fits' motion prior from the configuration (its mean is each fit's start):
+/// the filter's rotation walk, [`TrackerConfig::fit_pixel_sigma`] and
+/// [`TrackerConfig::fit_centre_sigma`]; `None` without a pixel σ.
+fn fit_prior(cfg: &TrackerConfig) -> Option<crate::pose::prior::MotionPrior> {
+    cfg.fit_pixel_sigma
+        .map(|px| crate::pose::prior::MotionPrior {
+            mean: Matrix3::identity(),
+            sigma: cfg.filter.dynamics.rotation,
+            pixel_sigma: px,
+            centre_sigma: cfg.fit_centre_sigma,
+        })
+}
+
 /// Checks the settings the tracker itself uses (the filter, SIFT and the likelihood check
-/// theirs): the feature weight, the keyframe fits' rotation prior by the rule of the fit
-/// itself ([`crate::pose::prior::RotationPrior::check`]), and each optional part's own
+/// theirs): the feature weight, the keyframe fits' motion prior by the rule of the fit
+/// itself ([`crate::pose::prior::MotionPrior::check`]), and each optional part's own
 /// `check` (anchor refit, colour update, contrast, inter-frame consensus, template) and
 /// widening factors (size hold, aspect slack).
 fn check_config(cfg: &TrackerConfig) -> Result<(), TrackError> {
@@ -222,17 +235,13 @@ fn check_config(cfg: &TrackerConfig) -> Result<(), TrackError> {
             cfg.feature_weight
         )));
     }
-    if let Some(px) = cfg.fit_pixel_sigma {
-        let prior = crate::pose::prior::RotationPrior {
-            mean: Matrix3::identity(),
-            sigma: cfg.filter.dynamics.rotation,
-            pixel_sigma: px,
-        };
+    if let Some(prior) = fit_prior(cfg) {
         prior.check().map_err(|e| {
             TrackError::BadConfig(format!(
-                "fit_pixel_sigma {px} with the filter's rotation walk {:?}: {e}; set \
-                 fit_pixel_sigma to None to fit without the prior",
-                cfg.filter.dynamics.rotation
+                "fit_pixel_sigma {} with the filter's rotation walk {:?} and fit_centre_sigma \
+                 {:?}: {e}; set fit_pixel_sigma to None to fit without the prior, \
+                 fit_centre_sigma to None to leave the centre free",
+                prior.pixel_sigma, cfg.filter.dynamics.rotation, cfg.fit_centre_sigma
             ))
         })?;
     }
@@ -590,8 +599,13 @@ impl Tracker {
             Err(_) => {
                 let (pairs, inter) = between_frames();
                 let (dx, dy) = median_displacement(&pairs);
-                let ctx =
+                let mut ctx =
                     self.fit_context(&self.prev, nalgebra::Vector2::new(dx, dy), camera.as_ref());
+                // The features' own displacement follows the texture, turn included: the
+                // centre is held only to block matching's prediction of the region.
+                if let Some(p) = &mut ctx.prior {
+                    p.centre_sigma = None;
+                }
                 let key_fit = against_keys(&ctx);
                 (dx, dy, 1.0, ctx, ((pairs, inter), key_fit))
             }
@@ -887,7 +901,7 @@ impl Tracker {
 
     /// The keyframe fits' settings from the configuration, for a fit from `prev` moved by
     /// `shift` seen through `camera` ([`Tracker::camera`]): matching, the acceptance
-    /// thresholds, the largest step and the rotation prior.
+    /// thresholds, the largest step and the motion prior.
     fn fit_context<'a>(
         &'a self,
         prev: &'a Hypothesis,
@@ -902,10 +916,7 @@ impl Tracker {
             min_inliers: self.cfg.min_fit_inliers,
             max_residual: self.cfg.max_fit_residual,
             max_step: self.cfg.max_rotation_step,
-            prior: self
-                .cfg
-                .fit_pixel_sigma
-                .map(|px| (self.cfg.filter.dynamics.rotation, px)),
+            prior: fit_prior(&self.cfg),
             anchor_refit: self.cfg.anchor_refit,
         }
     }

@@ -76,6 +76,20 @@ pub struct TrackArgs {
     /// `TrackerConfig::fit_pixel_sigma`).
     #[arg(long)]
     pub no_fit_prior: bool,
+    /// σ in pixels of the keyframe fits' centre about where block matching predicts it, in
+    /// the motion prior: it keeps a turn from passing for a shift (see
+    /// `TrackerConfig::fit_centre_sigma`).
+    #[arg(
+        long,
+        value_name = "PX",
+        default_value_t = 0.5,
+        conflicts_with = "no_fit_centre_prior"
+    )]
+    pub fit_centre_sigma: f64,
+    /// Leave the keyframe fits' centre free in the motion prior (the prior then holds the
+    /// rotation alone).
+    #[arg(long)]
+    pub no_fit_centre_prior: bool,
     /// Measure each frame only against the keyframes nearest the previous estimate, without
     /// the free fit against the first view that resets the chain's drift when it fits tightly
     /// (see `TrackerConfig::anchor_refit`).
@@ -363,6 +377,7 @@ pub fn run(a: TrackArgs) -> anyhow::Result<()> {
     if a.no_fit_prior {
         cfg.fit_pixel_sigma = None;
     }
+    cfg.fit_centre_sigma = (!a.no_fit_centre_prior).then_some(a.fit_centre_sigma);
     if a.no_anchor_refit {
         cfg.anchor_refit = None;
     }
