@@ -243,6 +243,12 @@ pub struct TrackerConfig {
     /// every form (see [`crate::pose::prior`]). So the camera stays opt-in: it is right for a
     /// head whose camera is known, and the default is what a user without one gets. Real
     /// footage is not affected (no camera given).
+    ///
+    /// The table above predates the fits' centre prior ([`TrackerConfig::fit_centre_sigma`]).
+    /// With it (measured 2026-12-02, filter seed 0), `--hfov 50` gives a sum of 54.1
+    /// against 46.8 without the camera: nod 1.6 / 1.2 / 1.2, pan 2.4 / 3.1 / 2.5 (gain 0.94
+    /// about y), combo 3.3 / 4.9 / 2.6, car 3.4 / 16.6 / 4.2. The camera still removes the
+    /// tilt's over-reading, and the pan's lag and the box's under-rotation still outweigh it.
     pub camera_hfov_deg: Option<f64>,
     /// σ of a matched point's position (pixels) in the keyframe fits' rotation prior
     /// ([`crate::pose::prior::MotionPrior`]): each fit's rotation is held to the previous
