@@ -604,11 +604,23 @@ mod tests {
         let truth = Euler::from_degrees(10.0, -25.0, 15.0);
         let t = Vector2::new(83.0, 57.5);
         let (p, q, key) = scene(&truth, 1.1, t);
-        let pr = prior(truth.matrix(), 0.05);
         let model = Ellipsoid::facing(&key, 1.0);
-        let f = fit_with_depth_prior(&p, &q, &model, None, &at(t), Some(&pr)).unwrap();
-        assert!(angle_between(&f.rot, &truth.matrix()) < 1e-6);
-        assert!((f.scale - 1.1).abs() < 1e-6 && (f.centre - t).norm() < 1e-6);
+        // With the centre free, and held to the truth as well.
+        for centre_sigma in [None, Some(0.5)] {
+            let pr = MotionPrior {
+                centre_sigma,
+                ..prior(truth.matrix(), 0.05)
+            };
+            let f = fit_with_depth_prior(&p, &q, &model, None, &at(t), Some(&pr)).unwrap();
+            assert!(
+                angle_between(&f.rot, &truth.matrix()) < 1e-6,
+                "{centre_sigma:?}"
+            );
+            assert!(
+                (f.scale - 1.1).abs() < 1e-6 && (f.centre - t).norm() < 1e-6,
+                "{centre_sigma:?}"
+            );
+        }
     }
 
     #[test]
@@ -639,21 +651,6 @@ mod tests {
             }
             last = off;
         }
-    }
-
-    #[test]
-    fn a_centre_prior_at_the_truth_changes_nothing_on_exact_data() {
-        let truth = Euler::from_degrees(10.0, -25.0, 15.0);
-        let t = Vector2::new(83.0, 57.5);
-        let (p, q, key) = scene(&truth, 1.1, t);
-        let pr = MotionPrior {
-            centre_sigma: Some(0.5),
-            ..prior(truth.matrix(), 0.05)
-        };
-        let model = Ellipsoid::facing(&key, 1.0);
-        let f = fit_with_depth_prior(&p, &q, &model, None, &at(t), Some(&pr)).unwrap();
-        assert!(angle_between(&f.rot, &truth.matrix()) < 1e-6);
-        assert!((f.scale - 1.1).abs() < 1e-6 && (f.centre - t).norm() < 1e-6);
     }
 
     #[test]
