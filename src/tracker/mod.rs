@@ -527,7 +527,18 @@ impl Tracker {
     }
 
     /// Tracks the target into the next frame.
+    ///
+    /// The step runs as one task of rayon's pool: called from outside the pool, the calling
+    /// thread hands the whole step over and waits once, instead of once for each of the
+    /// step's parallel parts (SIFT's bands, block matching beside SIFT, the particles'
+    /// likelihoods, the template terms), each of which would otherwise wake a worker and
+    /// put the caller to sleep again. Called from inside the pool it runs in place.
     pub fn step(&mut self, frame: &image::RgbImage) -> crate::Result<Estimate> {
+        rayon::scope(|_| self.step_in_pool(frame))
+    }
+
+    /// [`Self::step`]'s work, on a thread of rayon's pool.
+    fn step_in_pool(&mut self, frame: &image::RgbImage) -> crate::Result<Estimate> {
         let (w, h) = frame.dimensions();
         let index = self.frame + 1;
         if (w, h) != self.size {
