@@ -69,16 +69,22 @@ impl GrayF32 {
                 return lerp_2x2(top[0], top[1], bot[0], bot[1], fx, fy);
             }
         }
-        let x0 = x.floor();
-        let y0 = y.floor();
-        let fx = x - x0;
-        let fy = y - y0;
+        self.sample_clamped(x, y)
+    }
+
+    /// [`Self::sample`] with every pixel read through [`Self::get_clamped`]: its form at
+    /// and beyond the border.
+    fn sample_clamped(&self, x: f32, y: f32) -> f32 {
+        let (x0, y0) = (x.floor(), y.floor());
         let (xi, yi) = (x0 as i64, y0 as i64);
-        let p00 = self.get_clamped(xi, yi);
-        let p10 = self.get_clamped(xi + 1, yi);
-        let p01 = self.get_clamped(xi, yi + 1);
-        let p11 = self.get_clamped(xi + 1, yi + 1);
-        lerp_2x2(p00, p10, p01, p11, fx, fy)
+        lerp_2x2(
+            self.get_clamped(xi, yi),
+            self.get_clamped(xi + 1, yi),
+            self.get_clamped(xi, yi + 1),
+            self.get_clamped(xi + 1, yi + 1),
+            x - x0,
+            y - y0,
+        )
     }
 }
 
@@ -104,20 +110,6 @@ mod tests {
         assert!((g.sample(0.5, 0.5) - 1.5).abs() < 1e-6);
         assert_eq!(g.sample(-3.0, -3.0), 0.0);
         assert_eq!(g.sample(5.0, 5.0), 3.0);
-    }
-
-    /// The clamped four-read form of bilinear sampling, every pixel through `get_clamped`.
-    fn sample_clamped(g: &GrayF32, x: f32, y: f32) -> f32 {
-        let (x0, y0) = (x.floor(), y.floor());
-        let (xi, yi) = (x0 as i64, y0 as i64);
-        lerp_2x2(
-            g.get_clamped(xi, yi),
-            g.get_clamped(xi + 1, yi),
-            g.get_clamped(xi, yi + 1),
-            g.get_clamped(xi + 1, yi + 1),
-            x - x0,
-            y - y0,
-        )
     }
 
     #[test]
@@ -149,7 +141,7 @@ mod tests {
         }
         for &x in &xs {
             for &y in &ys {
-                let (a, b) = (g.sample(x, y), sample_clamped(&g, x, y));
+                let (a, b) = (g.sample(x, y), g.sample_clamped(x, y));
                 assert_eq!(a.to_bits(), b.to_bits(), "({x}, {y}): {a} against {b}");
             }
         }
