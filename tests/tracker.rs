@@ -422,6 +422,19 @@ fn jumped(r: &Renderer, k: usize, jump: usize) -> (image::RgbImage, (f64, f64)) 
     (img, (truth.cx - 55.0, truth.cy))
 }
 
+/// Every estimate of `track` within 3 px of its centre, and not lost.
+fn assert_followed(track: &[(pftrack::tracker::Estimate, (f64, f64))]) {
+    for (e, (cx, cy)) in track {
+        let d = (e.state.cx - cx).hypot(e.state.cy - cy);
+        assert!(
+            d < 3.0 && !e.lost,
+            "frame {}: {d:.1} px off, lost {}",
+            e.frame,
+            e.lost
+        );
+    }
+}
+
 #[test]
 fn a_target_that_jumps_away_is_lost_then_reacquired_by_its_features() {
     let r = Renderer::new(&SynthConfig::new(Scenario::Nod)).unwrap();
@@ -458,15 +471,7 @@ fn a_target_that_jumps_away_is_lost_then_reacquired_by_its_features() {
         e.confidence
     );
     // Then followed.
-    for (e, (cx, cy)) in &track[n - 10..] {
-        let d = (e.state.cx - cx).hypot(e.state.cy - cy);
-        assert!(
-            d < 3.0 && !e.lost,
-            "frame {}: {d:.1} px off, lost {}",
-            e.frame,
-            e.lost
-        );
-    }
+    assert_followed(&track[n - 10..]);
 }
 
 #[test]
@@ -680,4 +685,48 @@ fn the_motion_scales_the_ellipse_only_when_asked() {
         init.a,
         init.b
     );
+}
+
+/// As above, but with no keyframe fit possible (more inliers asked of a fit than a frame has
+/// features, and no anchor refit), as on a target too small for 10 matches: the features can
+/// no longer recognise the head after its jump, and its template does.
+#[test]
+fn a_target_too_small_for_a_feature_fit_is_reacquired_by_its_template() {
+    let r = Renderer::new(&SynthConfig::new(Scenario::Nod)).unwrap();
+    let (jump, n) = (6, 30);
+    let run = |reacquire_ncc: Option<f64>| {
+        let cfg = TrackerConfig {
+            min_fit_inliers: usize::MAX,
+            anchor_refit: None,
+            reacquire_ncc,
+            ..TrackerConfig::default()
+        };
+        let (first, _) = jumped(&r, 0, jump);
+        let mut t = Tracker::new(cfg, &first, Init::frontal(r.init_ellipse())).unwrap();
+        (1..n)
+            .map(|k| {
+                let (img, centre) = jumped(&r, k, jump);
+                (t.step(&img).unwrap(), centre)
+            })
+            .collect::<Vec<_>>()
+    };
+    // By its features alone the head is not found on the frame it is declared lost: the
+    // track is lost there, far off (its widened random walk may stumble on the head later).
+    let blind = run(None);
+    let (e, (cx, _)) = &blind[jump + 1];
+    assert!(
+        e.lost && (e.state.cx - cx).abs() > 20.0,
+        "frame {}: found without a fit ({e:?})",
+        e.frame
+    );
+    // With the template it is found on the frame it is declared lost, then followed.
+    let track = run(TrackerConfig::default().reacquire_ncc);
+    let (e, (cx, cy)) = &track[jump + 1];
+    let d = (e.state.cx - cx).hypot(e.state.cy - cy);
+    assert!(
+        d < 5.0 && !e.lost,
+        "frame {}: {d:.1} px off, {e:?}",
+        e.frame
+    );
+    assert_followed(&track[n - 10..]);
 }

@@ -94,7 +94,9 @@ pub struct Estimate {
     /// when no features could measure the rotation. On a frame where a lost target is
     /// re-acquired, the found target's own (at least [`TrackerConfig::lost_below`]).
     pub confidence: f64,
-    /// Whether the target is considered lost.
+    /// Whether the target is considered lost: from the [`TrackerConfig::lost_after`]-th
+    /// frame in a row below [`TrackerConfig::lost_below`] until a frame reaches
+    /// [`TrackerConfig::found_above`] or the target is re-acquired.
     pub lost: bool,
     /// Feature matches used for the rotation this frame (0: colour and gradient only).
     pub matches: usize,
@@ -116,6 +118,10 @@ const KEYFRAME_TRIES: usize = 3;
 /// Keyframes further than this from the previous estimate (radians, 45°) are not tried: SIFT
 /// matches few features across larger turns.
 const KEYFRAME_REACH: f64 = std::f64::consts::FRAC_PI_4;
+
+/// Candidates of a re-acquisition placed to the template on a finer grid, the best by their
+/// correlation on the search's grid first ([`Tracker::refine_by_template`]).
+const TEMPLATE_REFINED: usize = 3;
 
 /// Sizes a re-acquisition searches at, times the initial ellipse's: an octave either way in
 /// half-octave steps.
@@ -279,6 +285,21 @@ fn check_config(cfg: &TrackerConfig) -> Result<(), TrackError> {
                 "{e}; set template to None to weigh the particles without a template"
             ))
         })?;
+    }
+    if !(0.0..=1.0).contains(&cfg.lost_below) || !(cfg.lost_below..=1.0).contains(&cfg.found_above)
+    {
+        return Err(TrackError::BadConfig(format!(
+            "lost_below {} and found_above {} must satisfy 0 <= lost_below <= found_above <= 1",
+            cfg.lost_below, cfg.found_above
+        )));
+    }
+    if let Some(n) = cfg.reacquire_ncc
+        && !(-1.0..=1.0).contains(&n)
+    {
+        return Err(TrackError::BadConfig(format!(
+            "reacquire_ncc {n} is not in [-1, 1]; set it to None to recognise a re-acquired \
+             target by its features alone"
+        )));
     }
     check_factor(
         "size_hold",
@@ -711,14 +732,8 @@ impl Tracker {
             &totals.iter().map(|&t| t as f64).collect::<Vec<_>>(),
         );
         let mut confidence = self.confidence(&lp, &weights, inter.is_some() || key_inter);
-        if confidence < self.cfg.lost_below {
-            self.low_count += 1;
-        } else {
-            self.low_count = 0;
-            self.lost = false;
-        }
+        (self.low_count, self.lost) = lost_state(&self.cfg, self.low_count, self.lost, confidence);
         if self.low_count >= self.cfg.lost_after {
-            self.lost = true;
             if let Some((found, c)) = self.reacquire(frame, &gray, &est)? {
                 self.filter.reset(&found);
                 est = found;
@@ -1023,15 +1038,67 @@ impl Tracker {
         if rotation_measured { c } else { 0.8 * c }
     }
 
+    /// The correlation of each of `cands` with the target's templates (the learning one and
+    /// the first view's, unturned), the higher of the two; `None` without the template term.
+    fn template_correlations(&self, gray: &GrayF32, cands: &[Particle]) -> Option<Vec<f32>> {
+        let theta0 = self.theta0 as f32;
+        let mut best: Option<Vec<f32>> = None;
+        let templates = self
+            .template
+            .iter()
+            .chain(self.anchor.iter().map(|(t, _)| t));
+        for t in templates.filter(|t| t.is_usable()) {
+            let mut ncc = Vec::new();
+            t.correlate(gray, cands, theta0, &mut ncc);
+            best = Some(match best {
+                None => ncc,
+                Some(b) => b.into_iter().zip(ncc).map(|(x, y)| x.max(y)).collect(),
+            });
+        }
+        best
+    }
+
+    /// `c` moved and scaled to where it correlates best with the target's templates
+    /// ([`Self::template_correlations`]), on a grid of a quarter of the search's step either
+    /// way by two (5 x 5 positions) at three sizes a quarter octave apart; with that
+    /// correlation. `None` without a template.
+    fn refine_by_template(&self, gray: &GrayF32, c: &Particle) -> Option<(Particle, f32)> {
+        let step = (0.5 * c.a.min(c.b)).max(2.0) / 4.0;
+        let mut local = Vec::with_capacity(75);
+        for k in [-0.25f32, 0.0, 0.25] {
+            let s = k.exp2();
+            for j in -2..=2 {
+                for i in -2..=2 {
+                    local.push(Particle {
+                        cx: c.cx + i as f32 * step,
+                        cy: c.cy + j as f32 * step,
+                        a: c.a * s,
+                        b: c.b * s,
+                        ..*c
+                    });
+                }
+            }
+        }
+        let ncc = self.template_correlations(gray, &local)?;
+        local
+            .into_iter()
+            .zip(ncc)
+            .filter(|(_, n)| n.is_finite())
+            .max_by(|a, b| a.1.total_cmp(&b.1))
+    }
+
     /// Looks for the target over the whole frame: by colour first, ellipses at
     /// [`REACQUIRE_SCALES`] times the initial ellipse's size on a grid of half a semi-axis,
     /// all evaluated in one engine call and ranked by the colour term plus, when it is on,
     /// the contrast term (which prefers the size holding the target's colours and no more);
     /// the best one, when its colour similarity reaches [`TrackerConfig::reacquire_rho`], is
     /// then verified by its features, which must fit one of the keyframes (any pose).
-    /// Returns the target as that fit places it, with its own confidence, when it lies where
-    /// it was searched ([`placed_within`]), passes the candidate's colour test and is
-    /// confident ([`TrackerConfig::lost_below`]).
+    /// With [`TrackerConfig::reacquire_ncc`], the candidate of the target's colours that
+    /// correlates best with its template is taken instead when it reaches that correlation,
+    /// and is recognised by it even when its features fit no keyframe.
+    /// Returns the target as the fit places it (or as the template found it), with its own
+    /// confidence, when it lies where it was searched ([`placed_within`]), passes the
+    /// candidate's colour test and is confident ([`TrackerConfig::lost_below`]).
     ///
     /// The sizes come from the initial ellipse, not from the track: a track is declared lost
     /// only after its estimate has drifted for a while, and by then its size is no guide (on
@@ -1057,23 +1124,42 @@ impl Tracker {
         };
         let mut out = Vec::new();
         self.engine.evaluate(&input, &lp, &cands, &mut out)?;
+        let rhos: Vec<f64> = out
+            .iter()
+            .map(|t| rho_from_log(t.colour, lp.sigma_colour))
+            .collect();
         let best = out
             .iter()
             .enumerate()
             .max_by(|a, b| a.1.total.total_cmp(&b.1.total))
-            .map(|(i, t)| (i, rho_from_log(t.colour, lp.sigma_colour)));
-        let found = match best {
-            Some((i, rho)) if rho >= self.cfg.reacquire_rho => {
-                let c = cands[i];
-                Hypothesis {
-                    cx: c.cx as f64,
-                    cy: c.cy as f64,
-                    a: c.a as f64,
-                    b: c.b as f64,
-                    rot: est.rot,
-                }
+            .map(|(i, _)| (i, rhos[i]));
+        // Among the candidates of the target's colours, the one its template recognises best,
+        // each of the best few placed first to the template on a finer grid (the search's
+        // grid, half a semi-axis, is too coarse for a sharp texture to correlate).
+        let recognised = match (
+            self.cfg.reacquire_ncc,
+            self.template_correlations(gray, &cands),
+        ) {
+            (Some(min_ncc), Some(ncc)) => {
+                best_by_template(&rhos, &ncc, self.cfg.reacquire_rho, TEMPLATE_REFINED)
+                    .into_iter()
+                    .filter_map(|(i, _)| self.refine_by_template(gray, &cands[i]))
+                    .max_by(|a, b| a.1.total_cmp(&b.1))
+                    .filter(|&(_, n)| f64::from(n) >= min_ncc)
             }
+            _ => None,
+        };
+        let chosen = match (recognised, best) {
+            (Some((p, _)), _) => p,
+            (None, Some((i, rho))) if rho >= self.cfg.reacquire_rho => cands[i],
             _ => return Ok(None),
+        };
+        let found = Hypothesis {
+            cx: chosen.cx as f64,
+            cy: chosen.cy as f64,
+            a: chosen.a as f64,
+            b: chosen.b as f64,
+            rot: est.rot,
         };
         // Colour alone is not enough: another object of the target's colours (a brown box
         // for a face) is not the target. The candidate must be recognised, its features
@@ -1091,7 +1177,12 @@ impl Tracker {
         let fit = self
             .keyframes
             .best_fit(&features, &ctx, KEYFRAMES, std::f64::consts::PI);
-        let Some(placed) = fit.map(|k| k.placed()) else {
+        // Its features place it when they fit; a candidate the template recognised stands
+        // where it was found when they do not (a small target has too few for a fit).
+        let Some(placed) = fit
+            .map(|k| k.placed())
+            .or(recognised.is_some().then_some(found))
+        else {
             return Ok(None);
         };
         // The fit may place the target only where its evidence came from, and the target so
@@ -1116,6 +1207,39 @@ impl Tracker {
         let c = self.confidence(&shown, &[1.0], true);
         Ok((rho >= self.cfg.reacquire_rho && c >= self.cfg.lost_below).then_some((placed, c)))
     }
+}
+
+/// The tracker's lost state after a frame of confidence `c`, from `low` (consecutive frames
+/// below [`TrackerConfig::lost_below`], or more while lost) and `lost`: a frame below
+/// `lost_below` counts one more; a lost target stays lost, and `low` where it was, until a
+/// frame reaches [`TrackerConfig::found_above`]; otherwise the count starts over. The
+/// target is declared lost once `low` reaches [`TrackerConfig::lost_after`] (the caller
+/// then searches for it).
+fn lost_state(cfg: &TrackerConfig, low: usize, lost: bool, c: f64) -> (usize, bool) {
+    if c < cfg.lost_below {
+        let low = low.saturating_add(1);
+        (low, lost || low >= cfg.lost_after)
+    } else if lost && c < cfg.found_above {
+        (low, true)
+    } else {
+        (0, false)
+    }
+}
+
+/// Among re-acquisition candidates with colour similarities `rho` and template correlations
+/// `ncc`, the `k` that correlate best among those of at least `min_rho`, best first, with
+/// their correlations.
+fn best_by_template(rho: &[f64], ncc: &[f32], min_rho: f64, k: usize) -> Vec<(usize, f32)> {
+    let mut ranked: Vec<(usize, f32)> = rho
+        .iter()
+        .zip(ncc)
+        .enumerate()
+        .filter(|(_, (r, n))| **r >= min_rho && n.is_finite())
+        .map(|(i, (_, &n))| (i, n))
+        .collect();
+    ranked.sort_by(|a, b| b.1.total_cmp(&a.1).then(a.0.cmp(&b.0)));
+    ranked.truncate(k);
+    ranked
 }
 
 /// The candidates of a re-acquisition in a `w x h` frame: for each of [`REACQUIRE_SCALES`],
@@ -1281,6 +1405,94 @@ mod tests {
         let wide = aspect_range(&e, 1.0, Some(1.5)).unwrap();
         assert!((wide.lo() - 0.5).abs() < 1e-12 && (wide.hi() - 2.0).abs() < 1e-12);
         assert!(aspect_range(&e, 1.0, None).is_none());
+    }
+
+    #[test]
+    fn the_lost_flag_needs_lost_after_low_frames_and_clears_only_above_found_above() {
+        let cfg = TrackerConfig::default();
+        let (below, band, above) = (0.1, 0.3, 0.6);
+        assert!(below < cfg.lost_below && band >= cfg.lost_below && band < cfg.found_above);
+        assert!(above >= cfg.found_above && cfg.lost_after == 3);
+        let run = |cs: &[f64]| {
+            let mut s = (0, false);
+            cs.iter()
+                .map(|&c| {
+                    s = lost_state(&cfg, s.0, s.1, c);
+                    s
+                })
+                .collect::<Vec<_>>()
+        };
+        // Not yet lost: a frame in the band starts the count over.
+        assert_eq!(
+            run(&[below, below, band, below, below]),
+            [(1, false), (2, false), (0, false), (1, false), (2, false)]
+        );
+        // Lost on the third low frame; frames in the band keep it lost (and searched for,
+        // the count staying at `lost_after`), and only a frame above `found_above` clears it.
+        assert_eq!(
+            run(&[below, below, below, band, band, below, above, band]),
+            [
+                (1, false),
+                (2, false),
+                (3, true),
+                (3, true),
+                (3, true),
+                (4, true),
+                (0, false),
+                (0, false)
+            ]
+        );
+        // With `found_above` at `lost_below`, the first frame in the band clears it.
+        let old = TrackerConfig {
+            found_above: cfg.lost_below,
+            ..cfg.clone()
+        };
+        assert_eq!(lost_state(&old, 3, true, band), (0, false));
+    }
+
+    #[test]
+    fn the_template_ranks_the_candidates_of_the_targets_colours_by_correlation() {
+        let rho = [0.95, 0.85, 0.6, 0.9, 0.81, 0.99];
+        let ncc = [0.3, 0.7, 0.9, f32::NAN, 0.5, 0.5];
+        // Candidate 2 correlates best but has other colours; 3's correlation is unusable;
+        // ties go to the earlier candidate.
+        assert_eq!(
+            best_by_template(&rho, &ncc, 0.8, 3),
+            [(1, 0.7), (4, 0.5), (5, 0.5)]
+        );
+        assert_eq!(best_by_template(&rho, &ncc, 0.8, 1), [(1, 0.7)]);
+        // Nothing of the target's colours, nothing ranked.
+        assert!(best_by_template(&rho, &ncc, 0.995, 3).is_empty());
+        assert!(best_by_template(&[], &[], 0.0, 3).is_empty());
+    }
+
+    #[test]
+    fn found_above_and_reacquire_ncc_are_checked() {
+        let bad = [
+            TrackerConfig {
+                found_above: 0.2,
+                ..TrackerConfig::default()
+            },
+            TrackerConfig {
+                found_above: 1.5,
+                ..TrackerConfig::default()
+            },
+            TrackerConfig {
+                reacquire_ncc: Some(f64::NAN),
+                ..TrackerConfig::default()
+            },
+            TrackerConfig {
+                reacquire_ncc: Some(1.1),
+                ..TrackerConfig::default()
+            },
+        ];
+        for cfg in bad {
+            assert!(
+                matches!(check_config(&cfg), Err(TrackError::BadConfig(_))),
+                "{cfg:?}"
+            );
+        }
+        assert!(check_config(&TrackerConfig::default()).is_ok());
     }
 
     #[test]

@@ -134,6 +134,24 @@ pub struct TrackArgs {
     /// Leave the ellipse's size free while the target is uncertain, as the paper does.
     #[arg(long)]
     pub no_size_hold: bool,
+    /// Once lost, count the target as found again only on a frame with at least this
+    /// confidence (or when a search finds it), so that a confidence hovering about the lost
+    /// threshold does not flip the flag (see `TrackerConfig::found_above`).
+    #[arg(long, value_name = "C", default_value_t = 0.5)]
+    pub found_above: f64,
+    /// A lost target searched for is recognised by its grey levels when they correlate at
+    /// least this much with its template, as well as by its features (see
+    /// `TrackerConfig::reacquire_ncc`).
+    #[arg(
+        long,
+        value_name = "NCC",
+        default_value_t = 0.5,
+        conflicts_with = "no_template_reacquire"
+    )]
+    pub reacquire_ncc: f64,
+    /// Recognise a lost target searched for by its features alone.
+    #[arg(long)]
+    pub no_template_reacquire: bool,
     /// Estimate the rotation between successive frames from any 3 or more matches, as the
     /// paper does, instead of from at least 5 that one affine map carries to within 1 px
     /// (see `pose::Consensus`).
@@ -383,6 +401,8 @@ pub fn run(a: TrackArgs) -> anyhow::Result<()> {
     }
     cfg.aspect_slack = (!a.no_aspect_bound).then_some(a.aspect_slack);
     cfg.size_hold = (!a.no_size_hold).then_some(a.size_hold);
+    cfg.found_above = a.found_above;
+    cfg.reacquire_ncc = (!a.no_template_reacquire).then_some(a.reacquire_ncc);
     cfg.motion_scale = a.motion_scale;
     if a.no_interframe_consensus {
         cfg.interframe_consensus = None;
