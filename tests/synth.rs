@@ -949,3 +949,37 @@ fn head_colours_differ_from_the_background_but_overlap() {
     );
     assert!(rho > 0.15, "head trivially separable by colour: {rho}");
 }
+
+/// The lost-state and re-acquisition settings of `track` are checked before anything is
+/// tracked: one line naming the setting, a non-zero exit and no pose CSV.
+#[test]
+fn cli_track_rejects_bad_lost_and_reacquisition_settings() {
+    let dir = tmp_dir("track-bad");
+    let d = dir.to_str().unwrap();
+    let out = pftrack(&["synth", d, "--frames", "2", "--size", "64x48"]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let csv = dir.join("poses.csv");
+    let c = csv.to_str().unwrap();
+    for (flag, value, needle) in [
+        ("--found-above", "0.1", "found_above"),
+        ("--found-above", "2", "found_above"),
+        ("--reacquire-ncc", "1.5", "reacquire_ncc"),
+        ("--reacquire-ncc", "NaN", "reacquire_ncc"),
+    ] {
+        let args = ["track", d, "--backend", "cpu", flag, value, "--out", c];
+        let out = pftrack(&args);
+        assert!(!out.status.success(), "{args:?} succeeded");
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(err.trim_end().lines().count(), 1, "{args:?}: {err}");
+        assert!(
+            err.contains(needle) && !err.contains("panicked"),
+            "{args:?}: {err}"
+        );
+        assert!(!csv.exists(), "{args:?} left a pose CSV");
+    }
+    std::fs::remove_dir_all(&dir).unwrap();
+}
