@@ -1102,8 +1102,9 @@ impl Tracker {
     /// the best one, when its colour similarity reaches [`TrackerConfig::reacquire_rho`], is
     /// then verified by its features, which must fit one of the keyframes (any pose).
     /// With [`TrackerConfig::reacquire_ncc`], the candidate of the target's colours that
-    /// correlates best with its templates ([`Self::template_correlations`]) is taken instead when it reaches that correlation,
-    /// and is recognised by it even when its features fit no keyframe.
+    /// correlates best with its templates ([`Self::template_correlations`]) is taken instead
+    /// when it reaches that correlation, and is recognised by it even when its features fit
+    /// no keyframe.
     /// Returns the target as the fit places it (or as the template found it), with its own
     /// confidence, when it lies where it was searched ([`placed_within`]), passes the
     /// candidate's colour test and is confident ([`TrackerConfig::lost_below`]).
@@ -1170,8 +1171,9 @@ impl Tracker {
             rot: est.rot,
         };
         // Colour alone is not enough: another object of the target's colours (a brown box
-        // for a face) is not the target. The candidate must be recognised, its features
-        // fitted to one of the keyframes; the fit then places the target.
+        // for a face) is not the target. The candidate must be recognised: its features
+        // fitted to one of the keyframes (the fit then places the target), or its grey levels
+        // by both templates (above).
         let e = found.to_state().ellipse(self.theta0);
         let region = search_region(&e, w, h);
         let features = self.sift.detect(gray, Some(region))?;
