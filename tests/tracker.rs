@@ -422,6 +422,24 @@ fn jumped(r: &Renderer, k: usize, jump: usize) -> (image::RgbImage, (f64, f64)) 
     (img, (truth.cx - 55.0, truth.cy))
 }
 
+/// Frames 1 to `n - 1` of [`jumped`] tracked with `cfg` from frame 0: each estimate with the
+/// head's true centre (`[k]` is frame `k + 1`).
+fn track_jumped(
+    r: &Renderer,
+    cfg: TrackerConfig,
+    jump: usize,
+    n: usize,
+) -> Vec<(pftrack::tracker::Estimate, (f64, f64))> {
+    let (first, _) = jumped(r, 0, jump);
+    let mut t = Tracker::new(cfg, &first, Init::frontal(r.init_ellipse())).unwrap();
+    (1..n)
+        .map(|k| {
+            let (img, centre) = jumped(r, k, jump);
+            (t.step(&img).unwrap(), centre)
+        })
+        .collect()
+}
+
 /// Every estimate of `track` within 3 px of its centre, and not lost.
 fn assert_followed(track: &[(pftrack::tracker::Estimate, (f64, f64))]) {
     for (e, (cx, cy)) in track {
@@ -439,19 +457,7 @@ fn assert_followed(track: &[(pftrack::tracker::Estimate, (f64, f64))]) {
 fn a_target_that_jumps_away_is_lost_then_reacquired_by_its_features() {
     let r = Renderer::new(&SynthConfig::new(Scenario::Nod)).unwrap();
     let (jump, n) = (6, 30);
-    let (first, _) = jumped(&r, 0, jump);
-    let mut t = Tracker::new(
-        TrackerConfig::default(),
-        &first,
-        Init::frontal(r.init_ellipse()),
-    )
-    .unwrap();
-    let track: Vec<_> = (1..n)
-        .map(|k| {
-            let (img, centre) = jumped(&r, k, jump);
-            (t.step(&img).unwrap(), centre)
-        })
-        .collect();
+    let track = track_jumped(&r, TrackerConfig::default(), jump, n);
     // (`track[k]` is frame `k + 1`.) At the jump the filter stays where the head was, with
     // no confidence.
     let (e, (cx, _)) = &track[jump - 1];
@@ -701,14 +707,7 @@ fn a_target_too_small_for_a_feature_fit_is_reacquired_by_its_template() {
             reacquire_ncc,
             ..TrackerConfig::default()
         };
-        let (first, _) = jumped(&r, 0, jump);
-        let mut t = Tracker::new(cfg, &first, Init::frontal(r.init_ellipse())).unwrap();
-        (1..n)
-            .map(|k| {
-                let (img, centre) = jumped(&r, k, jump);
-                (t.step(&img).unwrap(), centre)
-            })
-            .collect::<Vec<_>>()
+        track_jumped(&r, cfg, jump, n)
     };
     // By its features alone the head is not found on the frame it is declared lost: the
     // track is lost there, far off (its widened random walk may stumble on the head later).

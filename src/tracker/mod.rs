@@ -1071,7 +1071,7 @@ impl Tracker {
     /// way by two (5 x 5 positions) at three sizes a quarter octave apart; with that
     /// correlation. `None` without a template.
     fn refine_by_template(&self, gray: &GrayF32, c: &Particle) -> Option<(Particle, f32)> {
-        let step = (0.5 * c.a.min(c.b)).max(2.0) / 4.0;
+        let step = search_step(f64::from(c.a), f64::from(c.b)) as f32 / 4.0;
         let mut local = Vec::with_capacity(75);
         for k in [-0.25f32, 0.0, 0.25] {
             let s = k.exp2();
@@ -1145,19 +1145,15 @@ impl Tracker {
         // Among the candidates of the target's colours, the one its template recognises best,
         // each of the best few placed first to the template on a finer grid (the search's
         // grid, half a semi-axis, is too coarse for a sharp texture to correlate).
-        let recognised = match (
-            self.cfg.reacquire_ncc,
-            self.template_correlations(gray, &cands),
-        ) {
-            (Some(min_ncc), Some(ncc)) => {
-                best_by_template(&rhos, &ncc, self.cfg.reacquire_rho, TEMPLATE_REFINED)
-                    .into_iter()
-                    .filter_map(|(i, _)| self.refine_by_template(gray, &cands[i]))
-                    .max_by(|a, b| a.1.total_cmp(&b.1))
-                    .filter(|&(_, n)| f64::from(n) >= min_ncc)
-            }
-            _ => None,
-        };
+        // (The correlations are computed only when the template may recognise a candidate.)
+        let recognised = self.cfg.reacquire_ncc.and_then(|min_ncc| {
+            let ncc = self.template_correlations(gray, &cands)?;
+            best_by_template(&rhos, &ncc, self.cfg.reacquire_rho, TEMPLATE_REFINED)
+                .into_iter()
+                .filter_map(|(i, _)| self.refine_by_template(gray, &cands[i]))
+                .max_by(|a, b| a.1.total_cmp(&b.1))
+                .filter(|&(_, n)| f64::from(n) >= min_ncc)
+        });
         let chosen = match (recognised, best) {
             (Some((p, _)), _) => p,
             (None, Some((i, rho))) if rho >= self.cfg.reacquire_rho => cands[i],
@@ -1252,6 +1248,12 @@ fn best_by_template(rho: &[f64], ncc: &[f32], min_rho: f64, k: usize) -> Vec<(us
     ranked
 }
 
+/// The step of a re-acquisition's grid for ellipses of semi-axes `a`, `b`: half the smaller
+/// semi-axis, at least 2 px.
+fn search_step(a: f64, b: f64) -> f64 {
+    (0.5 * a.min(b)).max(2.0)
+}
+
 /// The candidates of a re-acquisition in a `w x h` frame: for each of [`REACQUIRE_SCALES`],
 /// ellipses of `reference`'s semi-axes times the scale, centred on a grid from the frame's
 /// corner with a step of half the smaller semi-axis (at least 2 px), at angles `e`.
@@ -1259,7 +1261,7 @@ fn search_grid(reference: &Ellipse, w: u32, h: u32, e: &Euler) -> Vec<Particle> 
     let mut cands = Vec::new();
     for scale in REACQUIRE_SCALES {
         let (a, b) = (scale * reference.a, scale * reference.b);
-        let step = (0.5 * a.min(b)).max(2.0);
+        let step = search_step(a, b);
         let mut y = 0.0;
         while y < h as f64 {
             let mut x = 0.0;
