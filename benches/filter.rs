@@ -7,8 +7,9 @@
 //! - `tracker step WxH, N particles`: [`Tracker::step`] on the synthetic `nod` head (SIFT,
 //!   matching, Sylvester, keyframe fit, block matching, filter, CPU likelihoods on all
 //!   threads) at 128x96, 160x120 and 320x240 with 200 particles, and at 160x120 with 1000 and
-//!   10000; and at 160x120 with 200 particles without the appearance template (`, no
-//!   template`), to show the term's cost. Run it under `taskset -c 0` (and
+//!   10000; and at 160x120 with 200 particles without the re-anchoring on the first view
+//!   (`, no re-anchoring`), without the turned first view (`, no turned first view`) and
+//!   without the appearance template (`, no template`), to show what each costs. Run it under `taskset -c 0` (and
 //!   `RAYON_NUM_THREADS=1`) for one core.
 
 use std::hint::black_box;
@@ -77,16 +78,19 @@ fn bench_filter(c: &mut Criterion) {
 fn bench_tracker(c: &mut Criterion) {
     let mut g = c.benchmark_group("tracker step");
     g.sample_size(20);
-    // The last field is what of the appearance template is on (`Full`, `NoAnchor`: without
-    // the turned first view, `Off`), to show what each part costs.
+    // The last field is what of the appearance template is on (`Full`, `NoReanchor`: without
+    // the re-anchoring on the first view, `NoAnchor`: without the turned first view, which
+    // the re-anchoring needs too, `Off`), to show what each part costs.
     enum Tpl {
         Full,
+        NoReanchor,
         NoAnchor,
         Off,
     }
     for (w, h, n, template) in [
         (128u32, 96u32, 200usize, Tpl::Full),
         (160, 120, 200, Tpl::Full),
+        (160, 120, 200, Tpl::NoReanchor),
         (160, 120, 200, Tpl::NoAnchor),
         (160, 120, 200, Tpl::Off),
         (320, 240, 200, Tpl::Full),
@@ -107,6 +111,7 @@ fn bench_tracker(c: &mut Criterion) {
         tc.filter.particles = n;
         match template {
             Tpl::Full => {}
+            Tpl::NoReanchor => tc.reanchor = None,
             Tpl::NoAnchor => {
                 if let Some(t) = tc.template.as_mut() {
                     t.anchor_weight = 0.0;
@@ -121,6 +126,7 @@ fn bench_tracker(c: &mut Criterion) {
         let mut k = 1;
         let name = match template {
             Tpl::Full => format!("{w}x{h}, {n} particles"),
+            Tpl::NoReanchor => format!("{w}x{h}, {n} particles, no re-anchoring"),
             Tpl::NoAnchor => format!("{w}x{h}, {n} particles, no turned first view"),
             Tpl::Off => format!("{w}x{h}, {n} particles, no template"),
         };

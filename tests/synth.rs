@@ -969,6 +969,8 @@ fn cli_track_rejects_bad_lost_and_reacquisition_settings() {
         ("--found-above", "2", "found_above"),
         ("--reacquire-ncc", "1.5", "reacquire_ncc"),
         ("--reacquire-ncc", "NaN", "reacquire_ncc"),
+        ("--reanchor-ncc", "1.5", "reanchor min_ncc"),
+        ("--reanchor-ncc", "NaN", "reanchor min_ncc"),
     ] {
         let args = ["track", d, "--backend", "cpu", flag, value, "--out", c];
         let out = pftrack(&args);

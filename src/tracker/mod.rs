@@ -32,7 +32,9 @@
 mod config;
 mod keyframe;
 
-pub use config::{AnchorRefit, ColourUpdate, Contrast, Init, Mode, TemplateTerm, TrackerConfig};
+pub use config::{
+    AnchorRefit, ColourUpdate, Contrast, Init, Mode, Reanchor, TemplateTerm, TrackerConfig,
+};
 
 use nalgebra::Matrix3;
 
@@ -276,6 +278,13 @@ fn check_config(cfg: &TrackerConfig) -> Result<(), TrackError> {
         c.check().map_err(|e| {
             TrackError::BadConfig(format!(
                 "{e}; set interframe_consensus to None to estimate the rotation from any 3 matches"
+            ))
+        })?;
+    }
+    if let Some(r) = &cfg.reanchor {
+        r.check().map_err(|e| {
+            TrackError::BadConfig(format!(
+                "{e}; set reanchor to None to leave the estimate to the filter"
             ))
         })?;
     }
@@ -732,6 +741,18 @@ impl Tracker {
             &totals.iter().map(|&t| t as f64).collect::<Vec<_>>(),
         );
         let mut confidence = self.confidence(&lp, &weights, inter.is_some() || key_inter);
+        // Loop closure on appearance: the first view found again beside the estimate, and
+        // clearly better there than the estimate's own pose and place explain it.
+        if !self.lost
+            && let Some(found) = self.reanchor(&gray, &est, confidence)
+        {
+            let (_, c) = self.own_confidence(&input, lp, &found)?;
+            if c >= self.cfg.lost_below {
+                self.filter.reset(&found);
+                est = found;
+                confidence = c;
+            }
+        }
         (self.low_count, self.lost) = lost_state(&self.cfg, self.low_count, self.lost, confidence);
         if self.low_count >= self.cfg.lost_after {
             if let Some((found, c)) = self.reacquire(frame, &gray, &est)? {
@@ -1095,6 +1116,147 @@ impl Tracker {
             .max_by(|a, b| a.1.total_cmp(&b.1))
     }
 
+    /// The target re-anchored on its first view ([`TrackerConfig::reanchor`]): on a frame of
+    /// at least [`Reanchor::min_confidence`], the first view's template is looked for
+    /// unturned beside the estimate ([`Self::find_first_view`]), at the estimate's area and
+    /// the first ellipse's aspect. When it correlates there at least [`Reanchor::min_ncc`],
+    /// and by [`Reanchor::margin`] more than the first view turned by the estimate's pose
+    /// correlates at the estimate itself, the target is where the first view was found, in
+    /// the first pose. `None` otherwise, or without a first view (the template or its
+    /// anchor off).
+    fn reanchor(&self, gray: &GrayF32, est: &Hypothesis, confidence: f64) -> Option<Hypothesis> {
+        let r = self.cfg.reanchor?;
+        let (t, first) = self.anchor.as_ref()?;
+        if confidence < r.min_confidence {
+            return None;
+        }
+        let theta0 = self.theta0 as f32;
+        let mut at_estimate = Vec::with_capacity(1);
+        t.correlate_turned(gray, &[est.to_particle()], theta0, first, &mut at_estimate);
+        let explained = f64::from(at_estimate.first().copied().unwrap_or(0.0));
+        // No correlation passes 1, so an estimate that explains the first view within the
+        // margin of that keeps it without the search.
+        if explained + r.margin > 1.0 {
+            return None;
+        }
+        let f = first.particle;
+        let k = ((est.a * est.b) / (f64::from(f.a) * f64::from(f.b))).sqrt() as f32;
+        let like_first = Particle {
+            cx: est.cx as f32,
+            cy: est.cy as f32,
+            a: f.a * k,
+            b: f.b * k,
+            ..f
+        };
+        let (p, ncc) = self.find_first_view(gray, &like_first)?;
+        let ncc = f64::from(ncc);
+        if ncc < r.min_ncc || ncc < explained + r.margin {
+            return None;
+        }
+        let first_pose = PoseState {
+            rx: f64::from(f.rx),
+            ry: f64::from(f.ry),
+            rz: f64::from(f.rz),
+            ..PoseState::default()
+        };
+        // The estimate's area at the first ellipse's aspect, in full precision: an estimate of
+        // the first ellipse's size keeps it exactly.
+        let (area, aspect) = (est.a * est.b, self.reference.a / self.reference.b);
+        Some(Hypothesis {
+            cx: f64::from(p.cx),
+            cy: f64::from(p.cy),
+            a: (area * aspect).sqrt(),
+            b: (area / aspect).sqrt(),
+            rot: Hypothesis::from_state(&first_pose).rot,
+        })
+    }
+
+    /// Where the first view's template correlates best (plain, unturned: `c` carries the
+    /// first pose) near `c`: on a grid of half the search's step (the step is half the
+    /// smaller semi-axis) four either way, at sizes from half an octave smaller to a quarter
+    /// octave larger in quarter octaves; then around the best three on a grid of an eighth
+    /// of the step, two either way, at sizes an eighth of an octave apart, and around the
+    /// best of those a thirty-second of the step apart at sizes a sixteenth of an octave
+    /// apart; with that correlation. `None`
+    /// without a first view. The sizes only place the template: the NCC of a small view
+    /// of a face's middle runs high, so the size it finds is not taken.
+    fn find_first_view(&self, gray: &GrayF32, c: &Particle) -> Option<(Particle, f32)> {
+        let (t, _) = self.anchor.as_ref()?;
+        let theta0 = self.theta0 as f32;
+        let step = search_step(f64::from(c.a), f64::from(c.b)) as f32;
+        let grid = |around: &[Particle], step: f32, reach: i32, octaves: &[f32]| {
+            let side = (2 * reach + 1) as usize;
+            let mut out = Vec::with_capacity(around.len() * side * side * octaves.len());
+            for p in around {
+                for &o in octaves {
+                    let s = o.exp2();
+                    for j in -reach..=reach {
+                        for i in -reach..=reach {
+                            out.push(Particle {
+                                cx: p.cx + i as f32 * step,
+                                cy: p.cy + j as f32 * step,
+                                a: p.a * s,
+                                b: p.b * s,
+                                ..*p
+                            });
+                        }
+                    }
+                }
+            }
+            out
+        };
+        let coarse = grid(
+            std::slice::from_ref(c),
+            step / 2.0,
+            4,
+            &[-0.5, -0.25, 0.0, 0.25],
+        );
+        let mut ncc = Vec::new();
+        t.correlate(gray, &coarse, theta0, &mut ncc);
+        let mut order: Vec<usize> = (0..coarse.len()).filter(|&i| ncc[i].is_finite()).collect();
+        order.sort_by(|&x, &y| ncc[y].total_cmp(&ncc[x]).then(x.cmp(&y)));
+        let best: Vec<Particle> = order.iter().take(3).map(|&i| coarse[i]).collect();
+        // Then around the best three an eighth of a step apart, and around the best of those
+        // a thirty-second (a sharp texture decorrelates within a pixel).
+        let (mut around, mut found) = (best, None);
+        for (step, octaves) in [
+            (step / 8.0, [-0.125, 0.0, 0.125]),
+            (step / 32.0, [-0.0625, 0.0, 0.0625]),
+        ] {
+            let fine = grid(&around, step, 2, &octaves);
+            t.correlate(gray, &fine, theta0, &mut ncc);
+            let top = fine
+                .into_iter()
+                .zip(ncc.iter().copied())
+                .filter(|(_, n)| n.is_finite())
+                .max_by(|x, y| x.1.total_cmp(&y.1))?;
+            around = vec![top.0];
+            found = Some(top);
+        }
+        found
+    }
+
+    /// The colour similarity and confidence of one hypothesis on this frame's `input`, as
+    /// the frame reports it: from the colour and contour terms of `lp` alone, as if its
+    /// features had measured the rotation.
+    fn own_confidence(
+        &mut self,
+        input: &FrameInput<'_>,
+        mut lp: LikelihoodParams,
+        h: &Hypothesis,
+    ) -> crate::Result<(f64, f64)> {
+        let mut shown = self.cfg.likelihood;
+        shown.terms &= TERM_COLOUR | TERM_GRADIENT;
+        lp.terms = TERM_COLOUR | shown.terms;
+        self.engine
+            .evaluate(input, &lp, &[h.to_particle()], &mut self.terms)?;
+        let rho = self
+            .terms
+            .first()
+            .map_or(0.0, |t| rho_from_log(t.colour, lp.sigma_colour));
+        Ok((rho, self.confidence(&shown, &[1.0], true)))
+    }
+
     /// Looks for the target over the whole frame: by colour first, ellipses at
     /// [`REACQUIRE_SCALES`] times the initial ellipse's size on a grid of half a semi-axis,
     /// all evaluated in one engine call and ranked by the colour term plus, when it is on,
@@ -1201,16 +1363,7 @@ impl Tracker {
         // The frame will report the target found, so its confidence is the found target's
         // own (its features measured the rotation), not the lost track's; one evaluation
         // gives the colour test and the confidence.
-        let mut shown = self.cfg.likelihood;
-        shown.terms &= TERM_COLOUR | TERM_GRADIENT;
-        lp.terms = TERM_COLOUR | shown.terms;
-        self.engine
-            .evaluate(&input, &lp, &[placed.to_particle()], &mut self.terms)?;
-        let rho = self
-            .terms
-            .first()
-            .map_or(0.0, |t| rho_from_log(t.colour, lp.sigma_colour));
-        let c = self.confidence(&shown, &[1.0], true);
+        let (rho, c) = self.own_confidence(&input, lp, &placed)?;
         Ok((rho >= self.cfg.reacquire_rho && c >= self.cfg.lost_below).then_some((placed, c)))
     }
 }
@@ -1505,6 +1658,100 @@ mod tests {
             );
         }
         assert!(check_config(&TrackerConfig::default()).is_ok());
+    }
+
+    /// A tracker on the first frame of the synthetic `nod`, with that frame's grey image
+    /// and the initial ellipse.
+    fn nod_tracker(cfg: TrackerConfig) -> (Tracker, GrayF32, Ellipse) {
+        let r = crate::synth::Renderer::new(&crate::synth::SynthConfig::new(
+            crate::synth::Scenario::Nod,
+        ))
+        .unwrap();
+        let (first, _) = r.render(0);
+        let init = r.init_ellipse();
+        let t = Tracker::new(cfg, &first, Init::frontal(init)).unwrap();
+        (t, GrayF32::from_rgb(&first), init)
+    }
+
+    #[test]
+    fn an_estimate_off_the_first_view_is_reanchored_on_it_in_the_first_pose() {
+        let (t, gray, init) = nod_tracker(TrackerConfig::default());
+        // On the first frame itself, 4 px right and 3 px up, turned 20° about x and y and
+        // rolled 15°: the first view turned so matches the frame poorly there.
+        let off = Hypothesis {
+            cx: init.cx + 4.0,
+            cy: init.cy - 3.0,
+            a: init.a * 1.1,
+            b: init.b * 1.1,
+            rot: Euler::new(0.35, 0.35, 0.26).matrix(),
+        };
+        let found = t.reanchor(&gray, &off, 1.0).expect("re-anchored");
+        let miss = (found.cx - init.cx).hypot(found.cy - init.cy);
+        assert!(miss < 1.0, "found {miss:.2} px from the first view");
+        assert!(angle_between(&found.rot, &Matrix3::identity()) < 1e-9);
+        // The estimate's area, the first ellipse's aspect.
+        assert!((found.a * found.b - off.a * off.b).abs() < 1e-3 * off.a * off.b);
+        assert!((found.b / found.a - init.b / init.a).abs() < 1e-6);
+        // Not when unsure, nor when switched off.
+        assert!(t.reanchor(&gray, &off, 0.49).is_none());
+        let (t_off, gray_off, _) = nod_tracker(TrackerConfig {
+            reanchor: None,
+            ..TrackerConfig::default()
+        });
+        assert!(t_off.reanchor(&gray_off, &off, 1.0).is_none());
+    }
+
+    #[test]
+    fn an_estimate_that_explains_the_first_view_is_left_alone() {
+        let (t, gray, init) = nod_tracker(TrackerConfig::default());
+        let on = Hypothesis {
+            cx: init.cx,
+            cy: init.cy,
+            a: init.a,
+            b: init.b,
+            rot: Matrix3::identity(),
+        };
+        // The first view is found where the estimate is (correlation 1 at the estimate), so
+        // nothing beats it by the margin.
+        assert!(t.reanchor(&gray, &on, 1.0).is_none());
+        // A small turn the first view still correlates with closely is not re-anchored either.
+        let near = Hypothesis {
+            rot: Euler::new(0.02, -0.02, 0.0).matrix(),
+            ..on
+        };
+        assert!(t.reanchor(&gray, &near, 1.0).is_none());
+    }
+
+    #[test]
+    fn reanchor_settings_are_checked() {
+        let bad = [
+            Reanchor {
+                min_ncc: 1.5,
+                ..Reanchor::default()
+            },
+            Reanchor {
+                min_ncc: f64::NAN,
+                ..Reanchor::default()
+            },
+            Reanchor {
+                margin: -0.1,
+                ..Reanchor::default()
+            },
+            Reanchor {
+                min_confidence: 2.0,
+                ..Reanchor::default()
+            },
+        ];
+        for r in bad {
+            let cfg = TrackerConfig {
+                reanchor: Some(r),
+                ..TrackerConfig::default()
+            };
+            assert!(
+                matches!(check_config(&cfg), Err(TrackError::BadConfig(_))),
+                "{r:?}"
+            );
+        }
     }
 
     #[test]

@@ -152,6 +152,19 @@ pub struct TrackArgs {
     /// Recognise a lost target searched for by its features alone.
     #[arg(long)]
     pub no_template_reacquire: bool,
+    /// Re-anchor the target on its first view where that is found beside the estimate at
+    /// least this correlation, and clearly better than the estimate explains it (see
+    /// `TrackerConfig::reanchor`).
+    #[arg(
+        long,
+        value_name = "NCC",
+        default_value_t = 0.7,
+        conflicts_with = "no_reanchor"
+    )]
+    pub reanchor_ncc: f64,
+    /// Leave the estimate to the filter: no re-anchoring on the first view.
+    #[arg(long)]
+    pub no_reanchor: bool,
     /// Estimate the rotation between successive frames from any 3 or more matches, as the
     /// paper does, instead of from at least 5 that one affine map carries to within 1 px
     /// (see `pose::Consensus`).
@@ -403,6 +416,10 @@ pub fn run(a: TrackArgs) -> anyhow::Result<()> {
     cfg.size_hold = (!a.no_size_hold).then_some(a.size_hold);
     cfg.found_above = a.found_above;
     cfg.reacquire_ncc = (!a.no_template_reacquire).then_some(a.reacquire_ncc);
+    cfg.reanchor = (!a.no_reanchor).then_some(pftrack::tracker::Reanchor {
+        min_ncc: a.reanchor_ncc,
+        ..Default::default()
+    });
     cfg.motion_scale = a.motion_scale;
     if a.no_interframe_consensus {
         cfg.interframe_consensus = None;
