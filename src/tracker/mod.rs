@@ -94,7 +94,7 @@ pub struct Estimate {
     pub ellipse: Ellipse,
     /// Confidence in `[0, 1]`: colour similarity and contour support of the estimate, lowered
     /// when no features could measure the rotation. On a frame where a lost target is
-    /// re-acquired, the found target's own (at least [`TrackerConfig::lost_below`]).
+    /// re-acquired, the found target's own (at least [`TrackerConfig::found_above`]).
     pub confidence: f64,
     /// Whether the target is considered lost: from the [`TrackerConfig::lost_after`]-th
     /// frame in a row below [`TrackerConfig::lost_below`] until a frame reaches
@@ -1269,7 +1269,7 @@ impl Tracker {
     /// no keyframe.
     /// Returns the target as the fit places it (or as the template found it), with its own
     /// confidence, when it lies where it was searched ([`placed_within`]), passes the
-    /// candidate's colour test and is confident ([`TrackerConfig::lost_below`]).
+    /// candidate's colour test and is as confident as a found track ([`reacquired`]).
     ///
     /// The sizes come from the initial ellipse, not from the track: a track is declared lost
     /// only after its estimate has drifted for a while, and by then its size is no guide (on
@@ -1364,8 +1364,19 @@ impl Tracker {
         // own (its features measured the rotation), not the lost track's; one evaluation
         // gives the colour test and the confidence.
         let (rho, c) = self.own_confidence(&input, lp, &placed)?;
-        Ok((rho >= self.cfg.reacquire_rho && c >= self.cfg.lost_below).then_some((placed, c)))
+        Ok(reacquired(&self.cfg, rho, c).then_some((placed, c)))
     }
+}
+
+/// Whether a re-acquisition candidate placed with colour similarity `rho` and confidence `c`
+/// is taken as the target found: of the target's colours ([`TrackerConfig::reacquire_rho`])
+/// and as confident as a lost track must be to count as found
+/// ([`TrackerConfig::found_above`]). A re-acquisition clears the lost flag, so it meets the
+/// same bar as the track's own frames: at [`TrackerConfig::lost_below`] a found target at
+/// the corner of OTB girl's frame, 0.31, half outside it, was taken and followed for the
+/// rest of the sequence at 0.3-0.5 (filter seed 11).
+fn reacquired(cfg: &TrackerConfig, rho: f64, c: f64) -> bool {
+    rho >= cfg.reacquire_rho && c >= cfg.found_above
 }
 
 /// The tracker's lost state after a frame of confidence `c`, from `low` (consecutive frames
@@ -1613,6 +1624,25 @@ mod tests {
             ..cfg.clone()
         };
         assert_eq!(lost_state(&old, 3, true, band), (0, false));
+    }
+
+    #[test]
+    fn a_reacquired_target_needs_the_colours_and_the_confidence_of_a_found_track() {
+        let cfg = TrackerConfig::default();
+        let (rho, band) = (cfg.reacquire_rho, 0.5 * (cfg.lost_below + cfg.found_above));
+        assert!(band >= cfg.lost_below && band < cfg.found_above);
+        assert!(reacquired(&cfg, rho, cfg.found_above));
+        assert!(reacquired(&cfg, 1.0, 1.0));
+        // Confident enough to keep a track, not to find one.
+        assert!(!reacquired(&cfg, 1.0, band));
+        // Confident, but not of the target's colours.
+        assert!(!reacquired(&cfg, rho - 0.01, 1.0));
+        // With `found_above` at `lost_below`, the lower bar.
+        let old = TrackerConfig {
+            found_above: cfg.lost_below,
+            ..cfg.clone()
+        };
+        assert!(reacquired(&old, rho, band));
     }
 
     #[test]

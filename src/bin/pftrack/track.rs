@@ -135,8 +135,9 @@ pub struct TrackArgs {
     #[arg(long)]
     pub no_size_hold: bool,
     /// Once lost, count the target as found again only on a frame with at least this
-    /// confidence (or when a search finds it), so that a confidence hovering about the lost
-    /// threshold does not flip the flag (see `TrackerConfig::found_above`).
+    /// confidence (or when a search finds it with at least this confidence), so that a
+    /// confidence hovering about the lost threshold does not flip the flag (see
+    /// `TrackerConfig::found_above`).
     #[arg(long, value_name = "C", default_value_t = 0.5)]
     pub found_above: f64,
     /// A lost target searched for is recognised by its grey levels when they correlate at
