@@ -122,6 +122,13 @@ fi
 
 # A number field of a one-line JSON report ("key":value, or within "angle_rmse_deg").
 field() { grep -o "\"$2\":[-0-9.eE+]*" "$1" | head -1 | cut -d: -f2; }
+# One axis of a report's angle gain; empty where the truth hardly turns about it (null).
+gain() {
+    grep -o '"angle_gain":{[^}]*}' "$1" | grep -o "\"$2\":[-0-9.eE+][-0-9.eE+]*" |
+        cut -d: -f2 || true
+}
+# The mean of the numbers on stdin to 3 places, "-" when there are none.
+mean_or_dash() { awk '{ s += $1; n++ } END { if (n) printf "%.3f", s / n; else printf "-" }'; }
 # Mean and standard error of the numbers on stdin.
 stats() { awk '{ s += $1; q += $1 * $1; n++ } END {
     m = s / n; v = n > 1 ? (q - n * m * m) / (n - 1) : 0; if (v < 0) v = 0;
@@ -139,8 +146,10 @@ if [ "$mode" = real ]; then
         printf '       per seed: %s\n' "$(for v in $per; do printf '%.3f ' "$v"; done)"
     done
 else
-    echo "angle RMSE in degrees, mean over scenario seeds $seeds (filter seed $filter_seed)"
-    printf '%-6s %7s %7s %7s %10s %5s %8s\n' scenario rx ry rz centre_px lost worst
+    echo "angle RMSE in degrees, mean over scenario seeds $seeds (filter seed $filter_seed);"
+    echo "gain: slope of the estimate against the truth per axis, mean over the seeds where the truth turns"
+    printf '%-6s %7s %7s %7s %10s %5s %8s %7s %7s %7s\n' scenario rx ry rz centre_px lost worst \
+        gain_rx gain_ry gain_rz
     total=0
     for sc in $scenarios; do
         row=$(for s in $seeds; do
@@ -150,7 +159,12 @@ else
                 w = $1 + $2 + $3; if (w > worst) worst = w }
             END { printf "%-6s %7.2f %7.2f %7.2f %10.2f %5d %8.1f %.6f\n", sc, x / n, y / n, z / n,
                   c / n, l, worst, (x + y + z) / n }')
-        echo "${row% *}"
+        g=""
+        for ax in rx ry rz; do
+            g+=" $(for s in $seeds; do gain "$out/$sc-$s.json" "$ax"; done | mean_or_dash)"
+        done
+        # shellcheck disable=SC2086 # the three gains are separate words
+        printf '%s %7s %7s %7s\n' "${row% *}" $g
         total=$(awk -v t="$total" -v r="${row##* }" 'BEGIN { printf "%.6f", t + r }')
     done
     printf 'sum of the per-axis means: %.1f\n' "$total"

@@ -202,7 +202,7 @@ fn otb_box_truth_against_the_same_boxes() {
     assert_eq!(truth, Truth::Boxes(boxes.clone()));
     let r = evaluate(&truth, &from_boxes(&boxes)).unwrap();
     assert_eq!((r.truth_frames, r.evaluated, r.missing), (12, 12, 0));
-    assert!(r.angle_rmse_deg.is_none() && r.angle_mae_deg.is_none());
+    assert!(r.angle_rmse_deg.is_none() && r.angle_mae_deg.is_none() && r.angle_gain.is_none());
     assert!(r.mean_centre_error_px < 1e-12);
     assert_eq!(r.precision_20px, 1.0);
     assert_eq!(r.success_auc, AUC_MAX);

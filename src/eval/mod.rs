@@ -6,7 +6,11 @@
 //!
 //! Measures, per truth frame `f` with an estimate:
 //! - angle errors `wrap_180(est − truth)` in degrees per axis (only when the truth has poses),
-//!   summarised as RMSE and MAE over the evaluated frames;
+//!   summarised as RMSE and MAE over the evaluated frames, and as a gain: the least-squares
+//!   slope of the estimate against the truth (the estimate taken as `truth + error`, so
+//!   wrapping never breaks the line), 1 when the estimate follows the truth's swing, above 1
+//!   when it over-reads the turn and below when it under-reads it; an axis about which the
+//!   truth hardly turns (standard deviation under [`GAIN_MIN_SPREAD_DEG`]) has none;
 //! - centre error: distance between the estimated centre `(cx, cy)` and the truth centre
 //!   (pose centre, or box centre), mean over the evaluated frames;
 //! - IoU between the estimate's box `state.ellipse(0).to_box() = (cx − a, cy − b, 2a, 2b)` and
@@ -39,6 +43,10 @@ use crate::io::{FormatError, PoseRecord};
 
 /// Centre-error threshold of the precision score (pixels).
 pub const PRECISION_THRESHOLD_PX: f64 = 20.0;
+
+/// Least standard deviation of the truth's angle about an axis (degrees) for that axis to
+/// have a gain ([`Report::angle_gain`]): about a still axis the slope measures only noise.
+pub const GAIN_MIN_SPREAD_DEG: f64 = 1.0;
 
 /// Number of IoU thresholds of the success plot: `0, 0.05, …, 1`.
 pub const SUCCESS_STEPS: usize = 21;
@@ -213,6 +221,34 @@ impl Axes {
     }
 }
 
+/// Per-axis gains of the estimated angles ([`Report::angle_gain`]); `None` on an axis about
+/// which the truth hardly turns.
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize)]
+pub struct Gains {
+    /// Tilt.
+    pub rx: Option<f64>,
+    /// Pan.
+    pub ry: Option<f64>,
+    /// Roll.
+    pub rz: Option<f64>,
+}
+
+/// The least-squares slope of `truth + error` against `truth` over `(truth, error)` pairs in
+/// degrees, `None` when the truth's standard deviation is under [`GAIN_MIN_SPREAD_DEG`].
+pub fn gain(pairs: &[(f64, f64)]) -> Option<f64> {
+    let n = pairs.len() as f64;
+    if pairs.is_empty() {
+        return None;
+    }
+    let (mt, md) = pairs
+        .iter()
+        .fold((0.0, 0.0), |(a, b), &(t, d)| (a + t / n, b + d / n));
+    let (stt, std) = pairs.iter().fold((0.0, 0.0), |(a, b), &(t, d)| {
+        (a + (t - mt) * (t - mt), b + (t - mt) * (d - md))
+    });
+    ((stt / n).sqrt() >= GAIN_MIN_SPREAD_DEG).then(|| 1.0 + std / stt)
+}
+
 /// The scores of an estimate (see the module docs for the definitions).
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct Report {
@@ -232,6 +268,9 @@ pub struct Report {
     pub angle_rmse_deg: Option<Axes>,
     /// Angle MAE per axis (degrees, over evaluated frames); `None` for box truth.
     pub angle_mae_deg: Option<Axes>,
+    /// Gain of the estimated angle per axis (the slope of estimate against truth, over
+    /// evaluated frames); `None` for box truth.
+    pub angle_gain: Option<Gains>,
     /// Mean centre error over evaluated frames (pixels).
     pub mean_centre_error_px: f64,
     /// Share of truth frames with centre error `≤ 20` px (missing frames fail).
@@ -304,6 +343,7 @@ pub fn evaluate(truth: &Truth, est: &[PoseRecord]) -> Result<Report, EvalError> 
     let mut ious = Vec::with_capacity(n);
     let mut sq = [0.0f64; 3];
     let mut abs = [0.0f64; 3];
+    let mut swings: [Vec<(f64, f64)>; 3] = Default::default();
     let (mut lost, mut any_lost_col) = (0usize, false);
     let (mut score_sum, mut score_n) = (0.0f64, 0usize);
     for t in &tf {
@@ -321,6 +361,7 @@ pub fn evaluate(truth: &Truth, est: &[PoseRecord]) -> Result<Report, EvalError> 
                 let d = angle_error_deg(e, t[k]);
                 sq[k] += d * d;
                 abs[k] += d.abs();
+                swings[k].push((deg(t[k]), d));
             }
         }
         if let Some(l) = r.lost {
@@ -352,6 +393,11 @@ pub fn evaluate(truth: &Truth, est: &[PoseRecord]) -> Result<Report, EvalError> 
         ignored,
         angle_rmse_deg: has_angles.then(|| Axes::from_array(sq.map(|v| (v / m).sqrt()))),
         angle_mae_deg: has_angles.then(|| Axes::from_array(abs.map(|v| v / m))),
+        angle_gain: has_angles.then(|| Gains {
+            rx: gain(&swings[0]),
+            ry: gain(&swings[1]),
+            rz: gain(&swings[2]),
+        }),
         mean_centre_error_px: centre_errs.iter().sum::<f64>() / m,
         precision_20px: centre_errs
             .iter()
@@ -430,9 +476,19 @@ impl Report {
             row(&mut s, "mean score", format!("{sc:.4}"));
         }
         if let (Some(r), Some(m)) = (self.angle_rmse_deg, self.angle_mae_deg) {
-            let _ = writeln!(s, "\n{:<6}{:>12}{:>12}", "axis", "RMSE (deg)", "MAE (deg)");
-            for (name, a, b) in [("rx", r.rx, m.rx), ("ry", r.ry, m.ry), ("rz", r.rz, m.rz)] {
-                let _ = writeln!(s, "{name:<6}{a:>12.3}{b:>12.3}");
+            let g = self.angle_gain.unwrap_or_default();
+            let _ = writeln!(
+                s,
+                "\n{:<6}{:>12}{:>12}{:>8}",
+                "axis", "RMSE (deg)", "MAE (deg)", "gain"
+            );
+            for (name, a, b, g) in [
+                ("rx", r.rx, m.rx, g.rx),
+                ("ry", r.ry, m.ry, g.ry),
+                ("rz", r.rz, m.rz, g.rz),
+            ] {
+                let g = g.map_or_else(|| "-".to_string(), |g| format!("{g:.3}"));
+                let _ = writeln!(s, "{name:<6}{a:>12.3}{b:>12.3}{g:>8}");
             }
         }
         s
@@ -490,6 +546,44 @@ mod tests {
         assert!((rmse.rx - 10f64.sqrt()).abs() < 1e-9, "{}", rmse.rx);
         assert!((r.angle_mae_deg.unwrap().rx - 3.0).abs() < 1e-9);
         assert_eq!(rmse.ry, 0.0);
+    }
+
+    #[test]
+    fn the_gain_is_the_slope_of_the_estimate_against_the_truth() {
+        // Tilt read 1.1 times its swing and 2° high; pan still in the truth.
+        let truth: Vec<PoseRecord> = (0..40)
+            .map(|k| rec(k, 50.0, 30.0 * (k as f64 * 0.3).sin()))
+            .collect();
+        let est: Vec<PoseRecord> = truth
+            .iter()
+            .map(|t| rec(t.frame, 50.0, 1.1 * deg(t.state.rx) + 2.0))
+            .collect();
+        let r = evaluate(&Truth::Poses(truth.clone()), &est).unwrap();
+        let g = r.angle_gain.unwrap();
+        assert!((g.rx.unwrap() - 1.1).abs() < 1e-9, "{:?}", g.rx);
+        assert_eq!((g.ry, g.rz), (None, None));
+        // An estimate equal to the truth has gain 1; the table shows it, and "-" for a
+        // still axis.
+        let same = evaluate(&Truth::Poses(truth.clone()), &truth).unwrap();
+        assert!((same.angle_gain.unwrap().rx.unwrap() - 1.0).abs() < 1e-12);
+        let table = same.to_table();
+        assert!(table.contains("gain"), "{table}");
+        assert!(
+            table
+                .lines()
+                .any(|l| l.starts_with("ry") && l.ends_with('-'))
+        );
+        // Across ±180°: the truth swinging 170° → 190° (written -170°) and the estimate
+        // following it exactly, however it writes the angle.
+        let wrap_t: Vec<PoseRecord> = (0..21).map(|k| rec(k, 50.0, 170.0 + k as f64)).collect();
+        let wrap_e: Vec<PoseRecord> = (0..21)
+            .map(|k| rec(k, 50.0, wrap_180(170.0 + k as f64)))
+            .collect();
+        let w = evaluate(&Truth::Poses(wrap_t), &wrap_e).unwrap();
+        assert!((w.angle_gain.unwrap().rx.unwrap() - 1.0).abs() < 1e-9);
+        // A truth that hardly turns has no gain, nor an empty one.
+        assert_eq!(gain(&[(0.0, 1.0), (0.5, 2.0), (1.0, 0.0)]), None);
+        assert_eq!(gain(&[]), None);
     }
 
     #[test]
