@@ -9,8 +9,8 @@
 //!   threads) at 128x96, 160x120 and 320x240 with 200 particles, and at 160x120 with 1000 and
 //!   10000; and at 160x120 with 200 particles without the re-anchoring on the first view
 //!   (`, no re-anchoring`), without the turned first view (`, no turned first view`) and
-//!   without the appearance template (`, no template`), to show what each costs. Run it under `taskset -c 0` (and
-//!   `RAYON_NUM_THREADS=1`) for one core.
+//!   without the appearance template (`, no template`), to show what each costs. Run it
+//!   under `taskset -c 0` (and `RAYON_NUM_THREADS=1`) for one core.
 
 use std::hint::black_box;
 

@@ -1093,21 +1093,7 @@ impl Tracker {
     /// correlation. `None` without a template.
     fn refine_by_template(&self, gray: &GrayF32, c: &Particle) -> Option<(Particle, f32)> {
         let step = search_step(f64::from(c.a), f64::from(c.b)) as f32 / 4.0;
-        let mut local = Vec::with_capacity(75);
-        for k in [-0.25f32, 0.0, 0.25] {
-            let s = k.exp2();
-            for j in -2..=2 {
-                for i in -2..=2 {
-                    local.push(Particle {
-                        cx: c.cx + i as f32 * step,
-                        cy: c.cy + j as f32 * step,
-                        a: c.a * s,
-                        b: c.b * s,
-                        ..*c
-                    });
-                }
-            }
-        }
+        let local = local_grid(std::slice::from_ref(c), step, 2, &[-0.25, 0.0, 0.25]);
         let ncc = self.template_correlations(gray, &local)?;
         local
             .into_iter()
@@ -1177,35 +1163,14 @@ impl Tracker {
     /// octave larger in quarter octaves; then around the best three on a grid of an eighth
     /// of the step, two either way, at sizes an eighth of an octave apart, and around the
     /// best of those a thirty-second of the step apart at sizes a sixteenth of an octave
-    /// apart; with that correlation. `None`
-    /// without a first view. The sizes only place the template: the NCC of a small view
-    /// of a face's middle runs high, so the size it finds is not taken.
+    /// apart ([`local_grid`]); with that correlation. `None` without a first view. The sizes
+    /// only place the template: the NCC of a small view of a face's middle runs high, so the
+    /// size it finds is not taken.
     fn find_first_view(&self, gray: &GrayF32, c: &Particle) -> Option<(Particle, f32)> {
         let (t, _) = self.anchor.as_ref()?;
         let theta0 = self.theta0 as f32;
         let step = search_step(f64::from(c.a), f64::from(c.b)) as f32;
-        let grid = |around: &[Particle], step: f32, reach: i32, octaves: &[f32]| {
-            let side = (2 * reach + 1) as usize;
-            let mut out = Vec::with_capacity(around.len() * side * side * octaves.len());
-            for p in around {
-                for &o in octaves {
-                    let s = o.exp2();
-                    for j in -reach..=reach {
-                        for i in -reach..=reach {
-                            out.push(Particle {
-                                cx: p.cx + i as f32 * step,
-                                cy: p.cy + j as f32 * step,
-                                a: p.a * s,
-                                b: p.b * s,
-                                ..*p
-                            });
-                        }
-                    }
-                }
-            }
-            out
-        };
-        let coarse = grid(
+        let coarse = local_grid(
             std::slice::from_ref(c),
             step / 2.0,
             4,
@@ -1223,7 +1188,7 @@ impl Tracker {
             (step / 8.0, [-0.125, 0.0, 0.125]),
             (step / 32.0, [-0.0625, 0.0, 0.0625]),
         ] {
-            let fine = grid(&around, step, 2, &octaves);
+            let fine = local_grid(&around, step, 2, &octaves);
             t.correlate(gray, &fine, theta0, &mut ncc);
             let top = fine
                 .into_iter()
@@ -1410,6 +1375,32 @@ fn best_by_template(rho: &[f64], ncc: &[f32], min_rho: f64, k: usize) -> Vec<(us
     ranked.sort_by(|a, b| b.1.total_cmp(&a.1).then(a.0.cmp(&b.0)));
     ranked.truncate(k);
     ranked
+}
+
+/// The ellipses about each of `around`, in order: for each size `2^o` times its semi-axes
+/// (`o` in `octaves`), the centres `step` apart on a square grid `reach` either way, row by
+/// row. The local searches of the re-acquisition and the re-anchoring place the templates on
+/// it.
+fn local_grid(around: &[Particle], step: f32, reach: i32, octaves: &[f32]) -> Vec<Particle> {
+    let side = (2 * reach + 1) as usize;
+    let mut out = Vec::with_capacity(around.len() * side * side * octaves.len());
+    for p in around {
+        for &o in octaves {
+            let s = o.exp2();
+            for j in -reach..=reach {
+                for i in -reach..=reach {
+                    out.push(Particle {
+                        cx: p.cx + i as f32 * step,
+                        cy: p.cy + j as f32 * step,
+                        a: p.a * s,
+                        b: p.b * s,
+                        ..*p
+                    });
+                }
+            }
+        }
+    }
+    out
 }
 
 /// The step of a re-acquisition's grid for ellipses of semi-axes `a`, `b`: half the smaller
@@ -1624,6 +1615,25 @@ mod tests {
             ..cfg.clone()
         };
         assert_eq!(lost_state(&old, 3, true, band), (0, false));
+    }
+
+    #[test]
+    fn a_local_grid_runs_over_centres_then_sizes_then_starts() {
+        let p = |cx: f32| Particle {
+            cx,
+            cy: 10.0,
+            a: 4.0,
+            b: 2.0,
+            ..Particle::default()
+        };
+        let g = local_grid(&[p(0.0), p(100.0)], 0.5, 1, &[-1.0, 0.0]);
+        assert_eq!(g.len(), 2 * 2 * 9);
+        // Row by row from the top left, at half size first, then the next start.
+        assert_eq!((g[0].cx, g[0].cy, g[0].a, g[0].b), (-0.5, 9.5, 2.0, 1.0));
+        assert_eq!((g[1].cx, g[1].cy), (0.0, 9.5));
+        assert_eq!((g[3].cx, g[3].cy), (-0.5, 10.0));
+        assert_eq!((g[13].cx, g[13].cy, g[13].a), (0.0, 10.0, 4.0));
+        assert_eq!((g[18].cx, g[18].a), (99.5, 2.0));
     }
 
     #[test]
