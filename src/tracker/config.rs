@@ -396,7 +396,7 @@ pub struct TrackerConfig {
     /// it never closes there. After her turn the estimated pose is tens of degrees off on a
     /// frontal face (tilt −24°, roll 93° on one seed), the turned first view then matches
     /// nothing, and the colour and contour terms settle on the outline of her hair, which
-    /// hangs below her chin: the ellipse sat 10-11 px low and a third too tall (frames
+    /// hangs below her chin: the ellipse sat about 10 px low and a third too tall (frames
     /// 260-420). Re-anchored, it sits on her face.
     ///
     /// Measured 2026-12-02 (`scripts/eval_seeds.sh`, success AUC, mean ± standard error; CPU
@@ -410,8 +410,8 @@ pub struct TrackerConfig {
     /// | car4, 16-31 | 0.772 ± 0.031 | 0.772 ± 0.031 |
     ///
     /// On girl, frames 260-420 (frontal again after her turn), the mean IoU over seeds 0-15
-    /// rises from 0.51 to 0.72 and the centre's offset from +11 to +3 px below the truth's;
-    /// frames 420-500 (the occluding face) from 0.30 to 0.68; the mean centre error from 11.2
+    /// rises from 0.53 to 0.72 and the centre's offset from +10 to +1 px below the truth's;
+    /// frames 420-500 (the occluding face) from 0.31 to 0.67; the mean centre error from 11.2
     /// to 7.0 px. The spread between seeds grows: most seeds reach 0.57-0.71, the weakest
     /// of 32 (11) 0.45, a false re-acquisition that the bar of [`TrackerConfig::found_above`]
     /// now refuses (0.65 with it; the table's right column is before that change). On car4
