@@ -515,11 +515,11 @@ fn the_tracker_keeps_its_particles_to_the_models_aspect_range() {
     );
 }
 
-/// While the tracker is unsure of its target, its particles keep the size of the last
-/// confident estimate (within `size_hold`); without the hold nothing keeps them there. The
-/// head of `nod` is followed for a few frames, then leaves nothing but a flat grey frame: no
-/// likelihood can rank sizes there, and the random walk (three times wider once the target
-/// is lost) spreads them.
+/// While the tracker is unsure of its target (after a frame below `found_above`, or lost), its
+/// particles keep the size of the last trusted estimate (within `size_hold`); without the
+/// hold nothing keeps them there. The head of `nod` is followed for a few frames, then leaves
+/// nothing but a flat grey frame: no likelihood can rank sizes there, and the random walk
+/// (three times wider once the target is lost) spreads them.
 #[test]
 fn an_uncertain_tracker_holds_the_last_confident_size() {
     let r = Renderer::new(&SynthConfig::new(Scenario::Nod)).unwrap();
@@ -531,13 +531,14 @@ fn an_uncertain_tracker_holds_the_last_confident_size() {
             size_hold: hold,
             ..TrackerConfig::default()
         };
-        let lost_below = cfg.lost_below;
+        let (lost_below, found_above) = (cfg.lost_below, cfg.found_above);
         let mut t = Tracker::new(cfg, &first, Init::frontal(r.init_ellipse())).unwrap();
         let mut held = (r.init_ellipse().a, r.init_ellipse().b);
         // The largest factor between a particle's semi-axis and the held one, over the frames
-        // where the tracker was unsure.
+        // that followed one the tracker did not trust.
         let mut worst: f64 = 1.0;
         let mut unsure = 0;
+        let mut trusted = true;
         for k in 1..n {
             let img = if k < gone {
                 r.render(k).0
@@ -548,14 +549,16 @@ fn an_uncertain_tracker_holds_the_last_confident_size() {
             if k < gone {
                 assert!(e.confidence >= lost_below && !e.lost, "frame {k}: {e:?}");
             }
-            if e.confidence < lost_below {
+            if !trusted {
                 unsure += 1;
                 for p in t.filter().particles() {
                     for (x, h) in [(p.a, held.0), (p.b, held.1)] {
                         worst = worst.max(x / h).max(h / x);
                     }
                 }
-            } else {
+            }
+            trusted = !e.lost && e.confidence >= found_above;
+            if trusted {
                 held = (e.state.a, e.state.b);
             }
         }

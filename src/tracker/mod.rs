@@ -152,9 +152,12 @@ pub struct Tracker {
     prev_euler: Euler,
     low_count: usize,
     lost: bool,
-    /// The semi-axes of the last confident estimate, which the filter's proposals are held
-    /// near while the tracker is unsure ([`TrackerConfig::size_hold`]).
+    /// The semi-axes of the last trusted estimate (confidence at least
+    /// [`TrackerConfig::found_above`]), which the filter's proposals are held near while the
+    /// tracker is unsure ([`TrackerConfig::size_hold`]).
     held_axes: (f64, f64),
+    /// The previous frame's confidence (1 after an initialisation).
+    prev_confidence: f64,
     particles: Vec<Particle>,
     terms: Vec<TermLogs>,
     first: Estimate,
@@ -430,6 +433,7 @@ impl Tracker {
             low_count: 0,
             lost: false,
             held_axes: (1.0, 1.0),
+            prev_confidence: 1.0,
             particles: Vec::new(),
             terms: Vec::new(),
             colour_model: ColourHistogram(Vec::new()),
@@ -511,6 +515,7 @@ impl Tracker {
         self.low_count = 0;
         self.lost = false;
         self.held_axes = (hyp.a, hyp.b);
+        self.prev_confidence = 1.0;
         self.first = Estimate {
             frame: self.frame,
             state,
@@ -703,7 +708,7 @@ impl Tracker {
 
         // The filter step.
         let spread = if self.lost { 3.0 } else { 1.0 };
-        let unsure = self.unsure();
+        let unsure = holds_size(&self.cfg, self.lost, self.prev_confidence);
         self.filter.set_size_range(
             self.cfg
                 .size_hold
@@ -784,9 +789,10 @@ impl Tracker {
             ry: euler.ry,
             rz: euler.rz,
         };
-        if !self.unsure() {
+        if !holds_size(&self.cfg, self.lost, confidence) {
             self.held_axes = (est.a, est.b);
         }
+        self.prev_confidence = confidence;
         self.prev = est;
         self.prev_euler = euler;
         self.prev_gray = gray;
@@ -1344,6 +1350,20 @@ fn reacquired(cfg: &TrackerConfig, rho: f64, c: f64) -> bool {
     rho >= cfg.reacquire_rho && c >= cfg.found_above
 }
 
+/// Whether the ellipse's size is held ([`TrackerConfig::size_hold`]) on the frame after one
+/// of confidence `c` that left the tracker `lost` or not: while the target is lost, or after
+/// a frame the tracker did not trust (below [`TrackerConfig::found_above`]). The size a
+/// frame that is not held ends with becomes the one later frames are held near.
+///
+/// Why `found_above` and not [`TrackerConfig::lost_below`]: on OTB girl, as she turns her
+/// back (frames 60-180), the confidence sits at 0.35-0.5 for a hundred frames, above the lost
+/// bar, and with the hold only below it the ellipse shrank onto a patch of her hair, from
+/// 9x13 to 4x6 px in ten frames, before the track was lost at all (filter seeds 32, 43,
+/// 46).
+fn holds_size(cfg: &TrackerConfig, lost: bool, c: f64) -> bool {
+    lost || c < cfg.found_above
+}
+
 /// The tracker's lost state after a frame of confidence `c`, from `low` (consecutive frames
 /// below [`TrackerConfig::lost_below`], or more while lost) and `lost`: a frame below
 /// `lost_below` counts one more; a lost target stays lost, and `low` where it was, until a
@@ -1572,6 +1592,27 @@ mod tests {
         let wide = aspect_range(&e, 1.0, Some(1.5)).unwrap();
         assert!((wide.lo() - 0.5).abs() < 1e-12 && (wide.hi() - 2.0).abs() < 1e-12);
         assert!(aspect_range(&e, 1.0, None).is_none());
+    }
+
+    #[test]
+    fn the_size_is_held_after_an_untrusted_frame_or_while_lost() {
+        let cfg = TrackerConfig::default();
+        let band = 0.5 * (cfg.lost_below + cfg.found_above);
+        assert!(band >= cfg.lost_below && band < cfg.found_above);
+        // Below the lost bar and in the band between the two bars: held.
+        assert!(holds_size(&cfg, false, 0.5 * cfg.lost_below));
+        assert!(holds_size(&cfg, false, band));
+        // A trusted frame frees it, unless the target is still lost.
+        assert!(!holds_size(&cfg, false, cfg.found_above));
+        assert!(!holds_size(&cfg, false, 1.0));
+        assert!(holds_size(&cfg, true, 1.0));
+        // With `found_above` at `lost_below`, the hold starts below the lost bar.
+        let low = TrackerConfig {
+            found_above: cfg.lost_below,
+            ..cfg.clone()
+        };
+        assert!(!holds_size(&low, false, band));
+        assert!(holds_size(&low, false, 0.5 * cfg.lost_below));
     }
 
     #[test]

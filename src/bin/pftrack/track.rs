@@ -120,8 +120,8 @@ pub struct TrackArgs {
     /// Leave the ellipse's aspect free, as the paper does.
     #[arg(long)]
     pub no_aspect_bound: bool,
-    /// While the target is uncertain (confidence below the lost threshold), keep the
-    /// ellipse's semi-axes within this factor of the last confident estimate's, so a
+    /// While the target is uncertain (lost, or after a frame below --found-above), keep the
+    /// ellipse's semi-axes within this factor of the last trusted estimate's, so a
     /// likelihood that has lost the target cannot shrink it to a few pixels (see
     /// `TrackerConfig::size_hold`).
     #[arg(
