@@ -1,7 +1,9 @@
 //! Benchmarks of the `likelihood` stage (criterion): the whole CPU pass (colour, gradient and
 //! feature terms, per-frame preparation included) for N = 200, 1k, 10k, 100k particles, on one
 //! thread and on all threads, at 160x120 (a ~40 px target, the tracker's working size) and
-//! 640x480 (the same scene scaled 4x); and the three terms alone at 160x120, N = 200.
+//! 640x480 (the same scene scaled 4x); and the three terms alone at 160x120, N = 200, with
+//! the tracker's appearance template (`likelihood::template`: the plain and the turned
+//! correlation of 200 particles, 16x16 grid, one thread).
 //! The GPU engine (`likelihood_gpu/...`) runs the same frames and particles when a Vulkan
 //! adapter exists (upload, all kernels and readback included, as a tracker pays them).
 //!
@@ -17,9 +19,11 @@ use std::time::Duration;
 
 use criterion::{BenchmarkId, Criterion, criterion_group, criterion_main};
 use image::{Rgb, RgbImage};
+use pftrack::frames::GrayF32;
 use pftrack::geometry::Ellipse;
 use pftrack::likelihood::cpu::CpuEngine;
 use pftrack::likelihood::gpu::GpuEngine;
+use pftrack::likelihood::template::{FirstView, Template};
 use pftrack::likelihood::{
     COLOUR_RGB, ColourHistogram, FeaturePair, FrameInput, LikelihoodEngine, LikelihoodParams,
     Particle, TERM_COLOUR, TERM_FEATURE, TERM_GRADIENT,
@@ -192,6 +196,28 @@ fn per_term(c: &mut Criterion) {
             })
         });
     }
+    // The template terms run on rayon's pool: one thread, as the terms above.
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(1)
+        .build()
+        .expect("pool");
+    let gray = GrayF32::from_rgb(&img);
+    let first = prev_of(&target);
+    let template = Template::new(&gray, &first, 0.0, 16);
+    let view = FirstView::weak(first);
+    let mut ncc = Vec::new();
+    group.bench_function("template", |b| {
+        b.iter(|| {
+            pool.install(|| template.correlate(&gray, black_box(&ps), 0.0, &mut ncc));
+            black_box(&ncc);
+        })
+    });
+    group.bench_function("template turned", |b| {
+        b.iter(|| {
+            pool.install(|| template.correlate_turned(&gray, black_box(&ps), 0.0, &view, &mut ncc));
+            black_box(&ncc);
+        })
+    });
     group.finish();
 }
 

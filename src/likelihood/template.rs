@@ -50,12 +50,23 @@ pub fn disk_grid(grid: usize) -> Vec<[f32; 2]> {
 /// (orientation `theta0 + p.rz`), bilinear, edges replicated; into `out` (cleared first).
 pub fn sample(gray: &GrayF32, p: &Particle, theta0: f32, pts: &[[f32; 2]], out: &mut Vec<f32>) {
     out.clear();
+    out.resize(pts.len(), 0.0);
     let (s, c) = (theta0 + p.rz).sin_cos();
-    out.extend(pts.iter().map(|&[u, v]| {
-        let (x, y) = (p.a * u, p.b * v);
-        gray.sample(p.cx + c * x - s * y, p.cy + s * x + c * y)
-    }));
+    // The positions of a chunk of points, then their samples in one batch.
+    let (mut xs, mut ys) = ([0f32; CHUNK], [0f32; CHUNK]);
+    for (chunk, o) in pts.chunks(CHUNK).zip(out.chunks_mut(CHUNK)) {
+        for ((&[u, v], x_out), y_out) in chunk.iter().zip(&mut xs).zip(&mut ys) {
+            let (x, y) = (p.a * u, p.b * v);
+            *x_out = p.cx + c * x - s * y;
+            *y_out = p.cy + s * x + c * y;
+        }
+        let m = chunk.len();
+        gray.sample_many(&xs[..m], &ys[..m], o);
+    }
 }
+
+/// Points placed, then sampled together ([`GrayF32::sample_many`]), at a time.
+const CHUNK: usize = 64;
 
 /// `values` made zero-mean and unit-norm in place; `false` (and all zeros) when they are flat
 /// (their spread below `1e-6` per sample), which no template can correlate with.
@@ -239,27 +250,35 @@ impl Template {
                 // One pass: the sums the correlation over the visible points needs.
                 let (mut m, mut sb, mut sbb, mut st, mut stt, mut sbt) =
                     (0usize, 0.0f64, 0.0f64, 0.0f64, 0.0f64, 0.0f64);
-                for (x, &t) in lifted.iter().zip(&self.raw) {
-                    let z = dr[2][0] * x[0] + dr[2][1] * x[1] + dr[2][2] * x[2];
-                    if z > 0.0 {
-                        continue;
+                // By chunks: every point placed (hidden ones too) and sampled in one batch,
+                // then the visible ones summed in the points' order.
+                let (mut xs, mut ys, mut zs) = ([0f32; CHUNK], [0f32; CHUNK], [0f32; CHUNK]);
+                let mut seen = [0f32; CHUNK];
+                for (chunk, raw) in lifted.chunks(CHUNK).zip(self.raw.chunks(CHUNK)) {
+                    for (j, x) in chunk.iter().enumerate() {
+                        let z = dr[2][0] * x[0] + dr[2][1] * x[1] + dr[2][2] * x[2];
+                        let px = dr[0][0] * x[0] + dr[0][1] * x[1] + dr[0][2] * x[2];
+                        let py = dr[1][0] * x[0] + dr[1][1] * x[1] + dr[1][2] * x[2];
+                        [xs[j], ys[j]] = match &camera {
+                            None => [p.cx + k * px, p.cy + k * py],
+                            Some(cam) => cam.project([p.cx, p.cy], [k * px, k * py, k * z]),
+                        };
+                        zs[j] = z;
                     }
-                    let px = dr[0][0] * x[0] + dr[0][1] * x[1] + dr[0][2] * x[2];
-                    let py = dr[1][0] * x[0] + dr[1][1] * x[1] + dr[1][2] * x[2];
-                    let b = match &camera {
-                        None => gray.sample(p.cx + k * px, p.cy + k * py),
-                        Some(cam) => {
-                            let [qx, qy] = cam.project([p.cx, p.cy], [k * px, k * py, k * z]);
-                            gray.sample(qx, qy)
+                    let c = chunk.len();
+                    gray.sample_many(&xs[..c], &ys[..c], &mut seen[..c]);
+                    for ((&z, &b), &t) in zs[..c].iter().zip(&seen[..c]).zip(raw) {
+                        if z > 0.0 {
+                            continue;
                         }
-                    } as f64;
-                    let t = t as f64;
-                    m += 1;
-                    sb += b;
-                    sbb += b * b;
-                    st += t;
-                    stt += t * t;
-                    sbt += b * t;
+                        let (b, t) = (b as f64, t as f64);
+                        m += 1;
+                        sb += b;
+                        sbb += b * b;
+                        st += t;
+                        stt += t * t;
+                        sbt += b * t;
+                    }
                 }
                 if m * 2 < n {
                     return 0.0;
