@@ -493,7 +493,7 @@ pub struct TrackerConfig {
     /// ([`crate::filter::SizeRange`]); `None` leaves them free, as the paper does. 1.2 by
     /// default.
     ///
-    /// The hold began below [`TrackerConfig::lost_below`] until 2026-12-02. On OTB girl, as
+    /// The hold began below [`TrackerConfig::lost_below`] until 2026-12-03. On OTB girl, as
     /// she turns her back (frames 60-180), the confidence sits at 0.35-0.5 for a hundred
     /// frames, above the lost bar, and the ellipse shrank onto a patch of her hair, 9x13 to
     /// 4x6 px in ten frames, before the track was lost at all (filter seeds 32, 43, 46).

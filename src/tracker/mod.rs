@@ -1353,13 +1353,8 @@ fn reacquired(cfg: &TrackerConfig, rho: f64, c: f64) -> bool {
 /// Whether the ellipse's size is held ([`TrackerConfig::size_hold`]) on the frame after one
 /// of confidence `c` that left the tracker `lost` or not: while the target is lost, or after
 /// a frame the tracker did not trust (below [`TrackerConfig::found_above`]). The size a
-/// frame that is not held ends with becomes the one later frames are held near.
-///
-/// Why `found_above` and not [`TrackerConfig::lost_below`]: on OTB girl, as she turns her
-/// back (frames 60-180), the confidence sits at 0.35-0.5 for a hundred frames, above the lost
-/// bar, and with the hold only below it the ellipse shrank onto a patch of her hair, from
-/// 9x13 to 4x6 px in ten frames, before the track was lost at all (filter seeds 32, 43,
-/// 46).
+/// frame that is not held ends with becomes the one later frames are held near. Why
+/// `found_above` and not [`TrackerConfig::lost_below`]: see [`TrackerConfig::size_hold`].
 fn holds_size(cfg: &TrackerConfig, lost: bool, c: f64) -> bool {
     lost || c < cfg.found_above
 }
