@@ -1121,6 +1121,27 @@ impl Tracker {
             .max_by(|a, b| a.1.total_cmp(&b.1))
     }
 
+    /// The re-anchoring's settings and how well the first view, turned by the estimate's
+    /// pose, correlates at the estimate: the common start of [`Self::reanchor`] and
+    /// [`Self::repose`]. `None` when re-anchoring or the first view is off, or the frame's
+    /// confidence is below [`Reanchor::min_confidence`].
+    fn first_view_at(
+        &self,
+        gray: &GrayF32,
+        est: &Hypothesis,
+        confidence: f64,
+    ) -> Option<(Reanchor, f64)> {
+        let r = self.cfg.reanchor?;
+        let (t, first) = self.anchor.as_ref()?;
+        if confidence < r.min_confidence {
+            return None;
+        }
+        let mut at_estimate = Vec::with_capacity(1);
+        let theta0 = self.theta0 as f32;
+        t.correlate_turned(gray, &[est.to_particle()], theta0, first, &mut at_estimate);
+        Some((r, f64::from(at_estimate.first().copied().unwrap_or(0.0))))
+    }
+
     /// The target re-anchored on its first view ([`TrackerConfig::reanchor`]): on a frame of
     /// at least [`Reanchor::min_confidence`], the first view's template is looked for
     /// unturned beside the estimate ([`Self::find_first_view`]), at the estimate's area and
@@ -1130,15 +1151,8 @@ impl Tracker {
     /// the first pose. `None` otherwise, or without a first view (the template or its
     /// anchor off).
     fn reanchor(&self, gray: &GrayF32, est: &Hypothesis, confidence: f64) -> Option<Hypothesis> {
-        let r = self.cfg.reanchor?;
-        let (t, first) = self.anchor.as_ref()?;
-        if confidence < r.min_confidence {
-            return None;
-        }
-        let theta0 = self.theta0 as f32;
-        let mut at_estimate = Vec::with_capacity(1);
-        t.correlate_turned(gray, &[est.to_particle()], theta0, first, &mut at_estimate);
-        let explained = f64::from(at_estimate.first().copied().unwrap_or(0.0));
+        let (r, explained) = self.first_view_at(gray, est, confidence)?;
+        let (_, first) = self.anchor.as_ref()?;
         // No correlation passes 1, so an estimate that explains the first view within the
         // margin of that keeps it without the search.
         if explained + r.margin > 1.0 {
@@ -1191,20 +1205,15 @@ impl Tracker {
     /// frames, where the first view correlated 0.2 at the estimate and 0.77 at the truth)
     /// gets no pull back from it.
     fn repose(&self, gray: &GrayF32, est: &Hypothesis, confidence: f64) -> Option<Hypothesis> {
-        let r = self.cfg.reanchor?;
+        let (r, explained) = self.first_view_at(gray, est, confidence)?;
+        if explained >= r.min_ncc {
+            return None;
+        }
         let (t, first) = self.anchor.as_ref()?;
-        if confidence < r.min_confidence {
-            return None;
-        }
-        let theta0 = self.theta0 as f32;
-        let p = est.to_particle();
+        let (theta0, p) = (self.theta0 as f32, est.to_particle());
         let mut ncc = Vec::new();
-        t.correlate_turned(gray, std::slice::from_ref(&p), theta0, first, &mut ncc);
-        let explained = ncc.first().copied().unwrap_or(0.0);
-        if f64::from(explained) >= r.min_ncc {
-            return None;
-        }
-        let mut best = (p, explained);
+        // The estimate's correlation came from an `f32`, so this is exact.
+        let mut best = (p, explained as f32);
         for (step, reach) in [
             (REPOSE_STEP_DEG, REPOSE_REACH_DEG),
             (REPOSE_STEP_DEG / 4.0, REPOSE_STEP_DEG / 2.0),
@@ -1238,7 +1247,7 @@ impl Tracker {
         if turn < REPOSE_STEP_DEG {
             return None;
         }
-        if f64::from(v) < r.min_ncc || f64::from(v) < f64::from(explained) + r.margin {
+        if f64::from(v) < r.min_ncc || f64::from(v) < explained + r.margin {
             return None;
         }
         let s = est.to_state();
