@@ -1908,6 +1908,41 @@ mod tests {
     }
 
     #[test]
+    fn a_turn_back_of_less_than_a_step_is_left_to_the_filter() {
+        // A bar the estimate's own correlation misses even a few degrees off the first pose,
+        // so that only the rule on the step decides.
+        let strict = Reanchor {
+            min_ncc: 0.97,
+            margin: 0.01,
+            ..Reanchor::default()
+        };
+        let (t, gray, init) = nod_tracker(TrackerConfig {
+            reanchor: Some(strict),
+            ..TrackerConfig::default()
+        });
+        let at = |rx_deg: f64, ry_deg: f64| Hypothesis {
+            cx: init.cx,
+            cy: init.cy,
+            a: init.a,
+            b: init.b,
+            rot: Euler::new(rx_deg.to_radians(), ry_deg.to_radians(), 0.0).matrix(),
+        };
+        // 3° off on both axes: the first pose, where the correlation is highest, is less than
+        // a step away.
+        let near = at(3.0, -3.0);
+        let (_, explained) = t.first_view_at(&gray, &near, 1.0).expect("re-anchoring on");
+        assert!(
+            explained < strict.min_ncc - strict.margin,
+            "the test needs the bar missed at 3°: {explained:.3}"
+        );
+        assert!(t.repose(&gray, &near, 1.0).is_none());
+        // 10° off on both axes: two steps away, turned back.
+        let found = t.repose(&gray, &at(10.0, -10.0), 1.0).expect("turned back");
+        let miss = angle_between(&found.rot, &Matrix3::identity()).to_degrees();
+        assert!(miss < 2.0, "turned back to {miss:.2}° from the first pose");
+    }
+
+    #[test]
     fn an_estimate_that_explains_the_first_view_is_left_alone() {
         let (t, gray, init) = nod_tracker(TrackerConfig::default());
         let on = Hypothesis {
