@@ -318,6 +318,13 @@ pub struct TrackerConfig {
     /// against 46.8 without the camera: nod 1.6 / 1.2 / 1.2, pan 2.4 / 3.1 / 2.5 (gain 0.94
     /// about y), combo 3.3 / 4.9 / 2.6, car 3.4 / 16.6 / 4.2. The camera still removes the
     /// tilt's over-reading, and the pan's lag and the box's under-rotation still outweigh it.
+    ///
+    /// Measured again 2026-12-03, with the turn-back on the first view
+    /// ([`TrackerConfig::reanchor`]; filter seed 0): 51.7 against 46.2; nod 1.62 / 1.16 /
+    /// 1.21, pan 2.41 / 3.13 / 2.52 (gain 0.94 about y), combo 2.89 / 3.40 / 2.49 (gains
+    /// 1.07 / 0.90 about x / y), car 3.60 / 16.6 / 4.11. The pan's lag did not give way to a
+    /// weaker rotation prior (`fit_pixel_sigma` 0.5: pan gain 0.947), a free or tighter centre
+    /// (0.955 and 0.941), the turned first view off (0.958) or the template off (0.969).
     pub camera_hfov_deg: Option<f64>,
     /// σ of a matched point's position (pixels) in the keyframe fits' rotation prior
     /// ([`crate::pose::prior::MotionPrior`]): each fit's rotation is held to the previous
@@ -327,6 +334,20 @@ pub struct TrackerConfig {
     /// order of SIFT's localisation error at this scale, not a tuned value: summed synthetic
     /// RMSE over seeds 0-5 was 77, 71, 76 and 83 degrees at 0.7, 0.95, 1.0 and 1.15 px,
     /// against 83.5 without the prior (over seeds 0-11 at 1 px: 84 against 98).
+    ///
+    /// The prior's mean is the previous estimate: no motion. Tried 2026-12-03 in a
+    /// throwaway build and not kept: a constant-velocity mean (the previous estimate turned
+    /// on by the last step's change of rotation, identity after a reset, also as the start
+    /// of the fit between successive frames). With the camera (`--hfov 50`) and the feature
+    /// term and turned first view off, the chain followed 0.84 of the pan instead of 0.76
+    /// (seeds 0-5), but with every term on the six scenarios' sum went 46.2 → 46.9 without
+    /// the camera (nod about x 3.50 → 3.79, pan about y 2.30 → 2.59; car 10.2 → 9.6 about y)
+    /// and 51.7 → 50.9 with it, and nod, pan and combo with filter seed 1 and the camera
+    /// 20.0 → 20.9. The velocity taken from successive estimates is as noisy as the
+    /// estimates (a degree or two a frame on the axes that do not move); smoothed
+    /// exponentially (a third of each new step), the three scenarios summed 22.3 against
+    /// 22.4 without the camera. Real footage was unchanged (girl 0.659 ± 0.011, car4
+    /// 0.798 ± 0.003 over filter seeds 0-15).
     pub fit_pixel_sigma: Option<f64>,
     /// σ (pixels, per image axis) of the keyframe fits' centre about the centre predicted for
     /// the frame (the previous estimate moved by block matching), in the fits' motion prior
