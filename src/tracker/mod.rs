@@ -1844,6 +1844,11 @@ mod tests {
         (t, GrayF32::from_rgb(&first), init)
     }
 
+    /// The estimate at the first ellipse, tilted by `rx` and panned by `ry` (radians).
+    fn in_place(init: &Ellipse, rx: f64, ry: f64) -> Hypothesis {
+        Hypothesis::from_state(&PoseState::from_parts(init, Euler::new(rx, ry, 0.0)))
+    }
+
     #[test]
     fn an_estimate_off_the_first_view_is_reanchored_on_it_in_the_first_pose() {
         let (t, gray, init) = nod_tracker(TrackerConfig::default());
@@ -1877,13 +1882,7 @@ mod tests {
         let (t, gray, init) = nod_tracker(TrackerConfig::default());
         // On the first frame itself, in place, tilted 15° and panned −20° away from the
         // first pose: the first view turned so correlates poorly; turned back, fully.
-        let off = Hypothesis {
-            cx: init.cx,
-            cy: init.cy,
-            a: init.a,
-            b: init.b,
-            rot: Euler::new(0.26, -0.35, 0.0).matrix(),
-        };
+        let off = in_place(&init, 0.26, -0.35);
         let found = t.repose(&gray, &off, 1.0).expect("turned back");
         let miss = angle_between(&found.rot, &Matrix3::identity()).to_degrees();
         assert!(miss < 2.0, "turned back to {miss:.2}° from the first pose");
@@ -1920,13 +1919,8 @@ mod tests {
             reanchor: Some(strict),
             ..TrackerConfig::default()
         });
-        let at = |rx_deg: f64, ry_deg: f64| Hypothesis {
-            cx: init.cx,
-            cy: init.cy,
-            a: init.a,
-            b: init.b,
-            rot: Euler::new(rx_deg.to_radians(), ry_deg.to_radians(), 0.0).matrix(),
-        };
+        let at =
+            |rx_deg: f64, ry_deg: f64| in_place(&init, rx_deg.to_radians(), ry_deg.to_radians());
         // 3° off on both axes: the first pose, where the correlation is highest, is less than
         // a step away.
         let near = at(3.0, -3.0);
@@ -1945,13 +1939,7 @@ mod tests {
     #[test]
     fn an_estimate_that_explains_the_first_view_is_left_alone() {
         let (t, gray, init) = nod_tracker(TrackerConfig::default());
-        let on = Hypothesis {
-            cx: init.cx,
-            cy: init.cy,
-            a: init.a,
-            b: init.b,
-            rot: Matrix3::identity(),
-        };
+        let on = in_place(&init, 0.0, 0.0);
         // The first view is found where the estimate is (correlation 1 at the estimate), so
         // nothing beats it by the margin.
         assert!(t.reanchor(&gray, &on, 1.0).is_none());
