@@ -11,12 +11,18 @@
 //!   (`, no re-anchoring`), without the turned first view (`, no turned first view`) and
 //!   without the appearance template (`, no template`), to show what each costs. Run it
 //!   under `taskset -c 0` (and `RAYON_NUM_THREADS=1`) for one core.
+//! - `tracker step WxH, N particles, gpu`: the same step with the likelihoods on the GPU
+//!   engine (the adapter `PFTRACK_ADAPTER` names, or the best one) at 160x120 with 200 and
+//!   10000 particles and at 320x240 with 200; skipped with a note when no Vulkan adapter
+//!   opens.
 
 use std::hint::black_box;
 
 use criterion::{BenchmarkId, Criterion, criterion_group, criterion_main};
 use pftrack::filter::{FilterParams, Hypothesis, Motion, ParticleFilter, resample};
 use pftrack::geometry::{Euler, PoseState};
+use pftrack::likelihood::gpu::GpuEngine;
+use pftrack::likelihood::{FallbackEngine, LikelihoodEngine};
 use pftrack::synth::{Renderer, Scenario, SynthConfig};
 use pftrack::tracker::{Init, Tracker, TrackerConfig};
 use rand::rngs::StdRng;
@@ -81,12 +87,15 @@ fn bench_tracker(c: &mut Criterion) {
     // The last field is what of the appearance template is on (`Full`, `NoReanchor`: without
     // the re-anchoring on the first view, `NoAnchor`: without the turned first view, which
     // the re-anchoring needs too, `Off`), to show what each part costs.
+    // `Gpu` is the whole template on the GPU likelihood engine.
     enum Tpl {
         Full,
         NoReanchor,
         NoAnchor,
         Off,
+        Gpu,
     }
+    let mut gpu_note = None;
     for (w, h, n, template) in [
         (128u32, 96u32, 200usize, Tpl::Full),
         (160, 120, 200, Tpl::Full),
@@ -96,6 +105,9 @@ fn bench_tracker(c: &mut Criterion) {
         (320, 240, 200, Tpl::Full),
         (160, 120, 1000, Tpl::Full),
         (160, 120, 10000, Tpl::Full),
+        (160, 120, 200, Tpl::Gpu),
+        (320, 240, 200, Tpl::Gpu),
+        (160, 120, 10000, Tpl::Gpu),
     ] {
         let cfg = SynthConfig {
             width: w,
@@ -118,9 +130,25 @@ fn bench_tracker(c: &mut Criterion) {
                 }
             }
             Tpl::Off => tc.template = None,
+            Tpl::Gpu => {}
         }
         let init = Init::frontal(r.init_ellipse());
-        let Ok(mut t) = Tracker::new(tc, &frames[0], init) else {
+        let made = if let Tpl::Gpu = template {
+            match GpuEngine::new() {
+                Ok(g) => {
+                    let engine: Box<dyn LikelihoodEngine + Send> =
+                        Box::new(FallbackEngine::new(Box::new(g)));
+                    Tracker::with_engine(tc, engine, &frames[0], init)
+                }
+                Err(e) => {
+                    gpu_note.get_or_insert_with(|| e.to_string());
+                    continue;
+                }
+            }
+        } else {
+            Tracker::new(tc, &frames[0], init)
+        };
+        let Ok(mut t) = made else {
             continue;
         };
         let mut k = 1;
@@ -129,6 +157,7 @@ fn bench_tracker(c: &mut Criterion) {
             Tpl::NoReanchor => format!("{w}x{h}, {n} particles, no re-anchoring"),
             Tpl::NoAnchor => format!("{w}x{h}, {n} particles, no turned first view"),
             Tpl::Off => format!("{w}x{h}, {n} particles, no template"),
+            Tpl::Gpu => format!("{w}x{h}, {n} particles, gpu"),
         };
         g.bench_function(name, |b| {
             b.iter(|| {
@@ -144,6 +173,9 @@ fn bench_tracker(c: &mut Criterion) {
         });
     }
     g.finish();
+    if let Some(e) = gpu_note {
+        println!("note: no GPU rows of the tracker step ({e})");
+    }
 }
 
 criterion_group! {
