@@ -14,24 +14,8 @@ use pftrack::likelihood::{
     TERM_CONTRAST, TERM_GRADIENT,
 };
 
-fn skip(reason: &str) {
-    let _ = writeln!(std::io::stderr(), "SKIPPED: {reason}");
-}
-
-/// The engine, or `None` (with a printed reason) when there is no adapter and the GPU is not
-/// required.
-fn engine() -> Option<GpuEngine> {
-    match GpuEngine::new() {
-        Ok(e) => Some(e),
-        Err(e) => {
-            if std::env::var("PFTRACK_REQUIRE_GPU").as_deref() == Ok("1") {
-                panic!("PFTRACK_REQUIRE_GPU=1 but no GPU engine: {e}");
-            }
-            skip(&format!("no GPU engine ({e})"));
-            None
-        }
-    }
-}
+mod common;
+use common::{engine, engine_alone, skip};
 
 fn particle(cx: f32, cy: f32, a: f32, b: f32) -> Particle {
     Particle {
@@ -62,9 +46,8 @@ fn names_the_adapter_and_its_backend() {
 
 #[test]
 fn an_unknown_adapter_name_is_an_error_listing_the_available_ones() {
-    if engine().is_none() {
-        return;
-    }
+    // Held to the end: the adapters are enumerated beside it.
+    let Some(_gpu) = engine() else { return };
     match GpuDevice::open_matching(Some("no-such-adapter-4f2a")) {
         Err(LikelihoodError::AdapterNotFound { wanted, available }) => {
             assert_eq!(wanted, "no-such-adapter-4f2a");
@@ -329,7 +312,7 @@ fn more_particle_lines_than_a_buffer_holds_is_too_many_particles() {
 
 #[test]
 fn a_lost_device_is_a_clear_error_from_then_on() {
-    let Some(mut e) = engine() else { return };
+    let Some(mut e) = engine_alone() else { return };
     let img = RgbImage::from_pixel(16, 16, Rgb([1, 2, 3]));
     e.set_colour_model(&one_hot(0)).unwrap();
     let frame = FrameInput {
@@ -781,9 +764,8 @@ fn seventy_thousand_particles_agree_with_cpu_on_a_subset() {
 
 #[test]
 fn auto_backend_picks_the_gpu_when_an_adapter_exists() {
-    if engine().is_none() {
-        return;
-    }
+    // Held to the end, so that the engines below open beside it, as the others' do.
+    let Some(_gpu) = engine() else { return };
     let (e, notice) =
         pftrack::likelihood::create_engine(pftrack::likelihood::Backend::Auto).unwrap();
     assert!(e.name().contains("Vulkan"), "{}", e.name());

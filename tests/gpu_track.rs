@@ -43,28 +43,8 @@ use pftrack::likelihood::{FallbackEngine, LikelihoodEngine};
 use pftrack::synth::{Renderer, Scenario, SynthConfig};
 use pftrack::tracker::{Estimate, Init, Tracker, TrackerConfig};
 
-fn skip(reason: &str) {
-    let _ = writeln!(std::io::stderr(), "SKIPPED: {reason}");
-}
-
-fn gpu_required() -> bool {
-    std::env::var("PFTRACK_REQUIRE_GPU").as_deref() == Ok("1")
-}
-
-/// The GPU engine, or `None` (with a printed reason) when there is no adapter and the GPU is
-/// not required.
-fn engine() -> Option<GpuEngine> {
-    match GpuEngine::new() {
-        Ok(e) => Some(e),
-        Err(e) => {
-            if gpu_required() {
-                panic!("PFTRACK_REQUIRE_GPU=1 but no GPU engine: {e}");
-            }
-            skip(&format!("no GPU engine ({e})"));
-            None
-        }
-    }
-}
+mod common;
+use common::{engine, engine_alone};
 
 /// Frames tracked per scenario: short, so CI stays cheap (one 160x120 frame takes a few ms of
 /// likelihood and ~20 ms of SIFT and matching).
@@ -329,9 +309,8 @@ fn likelihood_flips(wc: &[f64], wg: &[f64]) -> (usize, f64) {
 
 #[test]
 fn gpu_track_follows_the_cpu_track_on_synthetic_scenarios() {
-    if engine().is_none() {
-        return;
-    }
+    // Held to the end, so that the engines below open beside it, as the others' do.
+    let Some(_gpu) = engine() else { return };
     for scenario in [Scenario::Nod, Scenario::Pan, Scenario::Roll] {
         let (r, frames) = scenario_frames(scenario, FRAMES);
         let cpu = track(&r, &frames, 0, Box::new(CpuEngine::new()));
@@ -362,9 +341,8 @@ fn gpu_track_follows_the_cpu_track_on_synthetic_scenarios() {
 /// for the command.
 #[test]
 fn pftrack_track_backend_gpu_writes_the_library_gpu_track() {
-    if engine().is_none() {
-        return;
-    }
+    // Held to the end, so that the engines below open beside it, as the others' do.
+    let Some(_gpu) = engine() else { return };
     const N: usize = 10;
     let (r, frames) = scenario_frames(Scenario::Nod, N);
     let dir = std::env::temp_dir().join(format!("pftrack-gpu-track-{}", std::process::id()));
@@ -419,13 +397,13 @@ fn pftrack_track_backend_gpu_writes_the_library_gpu_track() {
 
 #[test]
 fn a_tracker_whose_gpu_device_is_lost_goes_on_on_the_cpu_with_one_notice() {
-    let Some(gpu) = engine() else { return };
+    let Some(gpu) = engine_alone() else { return };
     // A handle on the device, to destroy it as a driver reset would.
     let device = gpu.device().device.clone();
     let (r, frames) = scenario_frames(Scenario::Roll, 8);
     let mut t = Tracker::with_engine(
         TrackerConfig::default(),
-        Box::new(FallbackEngine::new(Box::new(gpu))),
+        Box::new(FallbackEngine::new(Box::new(gpu.engine))),
         &frames[0],
         Init::frontal(r.init_ellipse()),
     )
