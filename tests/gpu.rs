@@ -337,7 +337,11 @@ fn a_lost_device_is_a_clear_error_from_then_on() {
 //
 // Stated tolerances (and why):
 // - histograms: exact (integer counts of the same f32 inside test; the ellipse's sin/cos come
-//   from the host, see common.wgsl);
+//   from the host, see common.wgsl), except for pixel centres whose test is a tie (`q = u² + v²`
+//   within `INSIDE_TIE` of 1): a compiler may fuse `c dx + s dy` and `u u + v v` into FMAs,
+//   which moves q by ulps. lavapipe does not; on an NVIDIA H200 (2026-12-04) one particle of
+//   403 differed by such a pixel. A histogram that differs must differ by no more pixels than
+//   its ties, and at most `MAX_HIST_TIE_FRACTION` of the particles may;
 // - line edge distances: identical except rounding ties, at most `MAX_LINE_TIE_FRACTION` of
 //   the lines: the line angles phi_k use the GPU's sin/cos (a few ulp from Rust's) and FMA
 //   contraction may fuse `cx + c*ex - s*ey`, so a sample within an ulp of a pixel boundary
@@ -356,6 +360,13 @@ use pftrack::likelihood::{FeaturePair, TermLogs};
 use rand::{Rng, SeedableRng, rngs::StdRng};
 
 const MAX_LINE_TIE_FRACTION: f64 = 1e-3;
+/// A pixel centre whose `q = u² + v²` (in `f64`, from the particle's `f32` values and the host's
+/// `sin_cos`) lies within this of 1 may be inside for one engine and outside for the other.
+/// Fused or not, `q` moves by a few ulps of `(|c dx| + |s dy|) / a` and of its squares, about
+/// 1e-7 for the aspect ratios here: this leaves a factor of 100.
+const INSIDE_TIE: f64 = 1e-5;
+/// Most particles (a share) whose histograms may differ by tie pixels.
+const MAX_HIST_TIE_FRACTION: f64 = 1e-2;
 const TOL_COLOUR: f32 = 1e-4;
 const TOL_GRADIENT: f32 = 1e-4;
 const TOL_FEATURE: f32 = 1e-5;
@@ -424,6 +435,8 @@ fn random_features(rng: &mut StdRng, e: &Particle, n: usize) -> Vec<FeaturePair>
 struct Agreement {
     particles: usize,
     hist_mismatch: usize,
+    /// Histograms that differ by more pixels than their ellipse has tie pixels.
+    hist_unexplained: usize,
     lines: usize,
     line_mismatch: usize,
     max_colour: f32,
@@ -490,22 +503,21 @@ fn compare(
             assert_eq!(w, g, "degenerate particle {i}");
             continue;
         }
-        let e = EllipseF32::from_particle(p, frame.theta0);
-        let (counts, _) = cpu::colour::histogram(image, &e, params.colour_bins);
-        let same_hist = counts[..] == got.histograms[i * HIST_BINS..(i + 1) * HIST_BINS];
+        let want_d = cpu_decisions(image, &grad, p, frame.theta0, params);
+        let counts = want_d.counts;
+        let flipped = hist_difference(&counts, &got.histograms[i * HIST_BINS..(i + 1) * HIST_BINS]);
+        let same_hist = flipped == 0;
         if !same_hist {
             a.hist_mismatch += 1;
+            let e = EllipseF32::from_particle(p, frame.theta0);
+            if flipped > tie_pixels(&e, image.width(), image.height()) {
+                a.hist_unexplained += 1;
+            }
         }
-        let dists = if params.terms & TERM_GRADIENT != 0 {
-            cpu::gradient::edge_distances(&grad, p, frame.theta0, params)
-        } else {
-            Vec::new()
-        };
         let mut same_lines = true;
-        for (k, d) in dists.iter().enumerate() {
+        for (k, d) in want_d.lines.iter().enumerate() {
             a.lines += 1;
-            let d = d.map_or(NO_EDGE, |d| d as i32);
-            if got.line_distances[i * l + k] != d {
+            if got.line_distances[i * l + k] != *d {
                 a.line_mismatch += 1;
                 same_lines = false;
             }
@@ -536,9 +548,73 @@ fn compare(
     a
 }
 
+/// What the CPU twin decides for a (non-degenerate) particle: its histogram counts and, with
+/// the gradient term on, each normal line's edge distance as the GPU writes it.
+struct Decisions {
+    counts: [u32; HIST_BINS],
+    lines: Vec<i32>,
+}
+
+fn cpu_decisions(
+    image: &RgbImage,
+    grad: &cpu::gradient::GradientImage,
+    p: &Particle,
+    theta0: f32,
+    params: &LikelihoodParams,
+) -> Decisions {
+    let e = EllipseF32::from_particle(p, theta0);
+    let (counts, _) = cpu::colour::histogram(image, &e, params.colour_bins);
+    let lines = if params.terms & TERM_GRADIENT != 0 {
+        cpu::gradient::edge_distances(grad, p, theta0, params)
+            .iter()
+            .map(|d| d.map_or(NO_EDGE, |d| d as i32))
+            .collect()
+    } else {
+        Vec::new()
+    };
+    Decisions { counts, lines }
+}
+
+/// Pixels counted by one histogram and not the other (the L1 distance of the counts).
+fn hist_difference(a: &[u32], b: &[u32]) -> usize {
+    a.iter().zip(b).map(|(x, y)| x.abs_diff(*y) as usize).sum()
+}
+
+/// Pixel centres of a `w × h` frame whose inside test against `e` is a tie (`INSIDE_TIE`).
+fn tie_pixels(e: &EllipseF32, w: u32, h: u32) -> usize {
+    let (s, c) = e.theta.sin_cos();
+    let (s, c) = (s as f64, c as f64);
+    let (cx, cy, a, b) = (e.cx as f64, e.cy as f64, e.a as f64, e.b as f64);
+    let r = a.max(b) + 2.0;
+    let span = |lo: f64, hi: f64, n: u32| {
+        let lo = lo.floor().max(0.0) as i64;
+        let hi = hi.ceil().min(n as f64 - 1.0) as i64;
+        lo..=hi
+    };
+    let mut ties = 0;
+    for y in span(cy - r, cy + r, h) {
+        for x in span(cx - r, cx + r, w) {
+            let (dx, dy) = (x as f64 - cx, y as f64 - cy);
+            let u = (c * dx + s * dy) / a;
+            let v = (-s * dx + c * dy) / b;
+            if (u * u + v * v - 1.0).abs() <= INSIDE_TIE {
+                ties += 1;
+            }
+        }
+    }
+    ties
+}
+
 fn assert_agreement(what: &str, a: &Agreement) {
     let _ = writeln!(std::io::stderr(), "{what}: {a:?}");
-    assert_eq!(a.hist_mismatch, 0, "{what}: histograms differ: {a:?}");
+    assert_eq!(
+        a.hist_unexplained, 0,
+        "{what}: histograms differ beyond their tie pixels: {a:?}"
+    );
+    assert!(
+        (a.hist_mismatch as f64) <= MAX_HIST_TIE_FRACTION * a.particles as f64,
+        "{what}: too many histograms differ: {a:?}"
+    );
     assert!(
         (a.line_mismatch as f64) <= MAX_LINE_TIE_FRACTION * a.lines as f64,
         "{what}: too many line distances differ: {a:?}"
@@ -783,8 +859,11 @@ fn auto_backend_picks_the_gpu_when_an_adapter_exists() {
 // a deciding cumulative sum). A log-likelihood difference of ~1e-5 moves a running sum by
 // ~1e-5 times the weight involved, so a tooth closer than that to a boundary (a tie) may draw
 // the neighbouring particle. Asserted: the running sums agree within `TOL_CUM_WEIGHT` (the
-// weights agree), every draw outside a tie is identical, and an index set that differs does
-// so at a tie. Ties are counted and printed.
+// weights agree) unless one to `MAX_FLIPS` particles had a pixel or an edge decided
+// differently (a tie of the inside test or of a line sample, as in the agreement tests above:
+// that particle's log-likelihood then differs by 1e-3 to 1; seen on an NVIDIA H200, never on
+// lavapipe), every draw outside a tie is identical, and an index set that differs does so at a
+// tie. Ties and such draws are counted and printed, and together are at most a quarter.
 // ---------------------------------------------------------------------------------------------
 
 use pftrack::filter::resample::{max_cumulative_difference, systematic_margin};
@@ -803,6 +882,8 @@ struct DrawStats {
     identical: usize,
     ties: usize,
     flips: usize,
+    /// Draws whose weights differ because a particle's pixel or edge was decided differently.
+    flip_draws: usize,
     max_dcum: f64,
     min_margin: f64,
 }
@@ -847,10 +928,18 @@ fn draw_on_both(
     } else {
         stats.min_margin.min(margin)
     };
-    assert!(
-        dcum <= TOL_CUM_WEIGHT,
-        "weights disagree: running sums differ by {dcum:e}"
-    );
+    if dcum > TOL_CUM_WEIGHT {
+        // Only a particle whose pixel or edge decision was a tie that the engines decided
+        // differently (see the agreement tests) may move the weights this much.
+        let flipped = decided_differently(gpu, frame, params, &ps);
+        assert!(
+            (1..=MAX_FLIPS).contains(&flipped),
+            "weights disagree: running sums differ by {dcum:e}, and {flipped} particles' \
+             pixels or edges were decided differently"
+        );
+        stats.flip_draws += 1;
+        return;
+    }
     let tie = dcum >= margin;
     stats.ties += usize::from(tie);
     if rc.indices == rg.indices {
@@ -863,6 +952,34 @@ fn draw_on_both(
         );
         stats.flips += 1;
     }
+}
+
+/// Most particles of one draw whose likelihoods may flip: a flip is one particle's tie.
+const MAX_FLIPS: usize = 3;
+
+/// The particles (non-degenerate) whose histogram or line distances differ between the
+/// engines.
+fn decided_differently(
+    gpu: &mut GpuEngine,
+    frame: &FrameInput<'_>,
+    params: &LikelihoodParams,
+    ps: &[Particle],
+) -> usize {
+    let got = gpu.evaluate_debug(frame, params, ps).unwrap();
+    let grad = cpu::gradient::GradientImage::new(frame.image);
+    let l = params.num_lines as usize;
+    ps.iter()
+        .enumerate()
+        .filter(|(i, p)| {
+            if cpu::is_degenerate(p) {
+                return false;
+            }
+            let want = cpu_decisions(frame.image, &grad, p, frame.theta0, params);
+            let hist = &got.histograms[i * HIST_BINS..(i + 1) * HIST_BINS];
+            let lines = &got.line_distances[i * l..i * l + want.lines.len()];
+            hist_difference(&want.counts, hist) > 0 || want.lines[..] != lines[..]
+        })
+        .count()
 }
 
 fn hypothesis(p: &Particle) -> Hypothesis {
@@ -958,8 +1075,12 @@ fn resampling_draws_the_same_particles_on_cpu_and_gpu_likelihoods() {
         "resampling on CPU vs GPU weights: {stats:?}"
     );
     assert!(stats.draws >= 48, "{stats:?}");
-    // Ties are the exception: most draws must be decided away from any comb tooth.
-    assert!(stats.ties * 4 <= stats.draws, "{stats:?}");
+    // Ties are the exception: most draws must be decided away from any comb tooth, with the
+    // same decisions for every pixel and edge.
+    assert!(
+        (stats.ties + stats.flip_draws) * 4 <= stats.draws,
+        "{stats:?}"
+    );
 }
 
 #[test]
