@@ -838,16 +838,35 @@ fn seventy_thousand_particles_agree_with_cpu_on_a_subset() {
     assert!(big * 200 <= idx.len(), "{big} of {} differ", idx.len());
 }
 
+/// `auto` takes a hardware adapter or a named one; the best adapter when it renders in
+/// software (lavapipe in CI) is left for the CPU engine, with a notice naming it. `gpu` opens
+/// whatever adapter there is.
 #[test]
-fn auto_backend_picks_the_gpu_when_an_adapter_exists() {
+fn auto_backend_takes_a_hardware_or_named_adapter_and_leaves_a_software_one_to_the_cpu() {
+    use pftrack::likelihood::{Backend, create_engine_for};
     // Held to the end, so that the engines below open beside it, as the others' do.
-    let Some(_gpu) = engine() else { return };
-    let (e, notice) =
-        pftrack::likelihood::create_engine(pftrack::likelihood::Backend::Auto).unwrap();
+    let Some(gpu) = engine() else { return };
+    let info = gpu.device().info.clone();
+    let named = pftrack::likelihood::gpu::named_adapter();
+    let (e, notice) = create_engine_for(Backend::Auto, named.as_deref()).unwrap();
+    if info.device_type == wgpu::DeviceType::Cpu && named.is_none() {
+        assert!(e.name().starts_with("cpu"), "{}", e.name());
+        let notice = notice.expect("a notice when auto leaves the GPU");
+        assert!(
+            notice.contains("software") && notice.contains(&info.name),
+            "{notice}"
+        );
+    } else {
+        assert!(e.name().contains("Vulkan"), "{}", e.name());
+        assert!(notice.is_none(), "{notice:?}");
+    }
+    // Named, the same adapter is opened whatever it is.
+    let (e, notice) = create_engine_for(Backend::Auto, Some(&info.name)).unwrap();
+    assert!(e.name().contains(&info.name), "{}", e.name());
+    assert!(notice.is_none(), "{notice:?}");
+    let (e, notice) = create_engine_for(Backend::Gpu, named.as_deref()).unwrap();
     assert!(e.name().contains("Vulkan"), "{}", e.name());
-    assert!(notice.is_none());
-    let (e, _) = pftrack::likelihood::create_engine(pftrack::likelihood::Backend::Gpu).unwrap();
-    assert!(e.name().contains("Vulkan"));
+    assert!(notice.is_none(), "{notice:?}");
 }
 
 // ---------------------------------------------------------------------------------------------

@@ -337,6 +337,15 @@ pub enum LikelihoodError {
         "no Vulkan adapter found (install a Vulkan driver, e.g. `apt-get install mesa-vulkan-drivers libvulkan1`, or use --backend cpu)"
     )]
     NoAdapter,
+    /// The best Vulkan adapter renders in software on the CPU (e.g. Mesa's lavapipe), so the
+    /// automatic choice leaves it for the CPU engine, which is faster.
+    #[error(
+        "the best Vulkan adapter here, {name}, renders in software, slower than the CPU engine (--backend gpu or PFTRACK_ADAPTER uses it)"
+    )]
+    SoftwareAdapter {
+        /// The adapter's description.
+        name: String,
+    },
     /// `PFTRACK_ADAPTER` names no adapter.
     #[error("no Vulkan adapter matches PFTRACK_ADAPTER={wanted:?}; available: {}", available.join("; "))]
     AdapterNotFound {
@@ -382,12 +391,15 @@ pub enum LikelihoodError {
 /// Which likelihood engine to run.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, clap::ValueEnum)]
 pub enum Backend {
-    /// The GPU when a Vulkan adapter exists, else the CPU (with a one-line notice).
+    /// The GPU when a hardware Vulkan adapter exists (or `PFTRACK_ADAPTER` names one), else
+    /// the CPU (with a one-line notice): a software adapter such as lavapipe is slower than the
+    /// CPU engine.
     #[default]
     Auto,
     /// The CPU reference engine.
     Cpu,
-    /// The GPU engine; an error when there is no Vulkan adapter.
+    /// The GPU engine on the best or the named adapter, software ones too; an error when
+    /// there is no Vulkan adapter.
     Gpu,
 }
 
@@ -417,23 +429,38 @@ impl std::fmt::Display for Backend {
 
 /// The likelihood engine for `backend`, with a one-line notice when `Auto` fell back to the CPU.
 ///
-/// `Auto` opens the GPU engine when a Vulkan adapter exists (`PFTRACK_ADAPTER` picks one by
-/// name) and otherwise returns the CPU engine with a notice saying why; `Gpu` fails when there
-/// is no adapter ([`LikelihoodError::NoAdapter`], naming the package to install); `Cpu` is the
-/// CPU engine on all threads. The GPU engine comes wrapped in a [`FallbackEngine`]: when its
+/// `Auto` opens the GPU engine when a hardware Vulkan adapter exists (or the one
+/// `PFTRACK_ADAPTER` names, by a substring of its name, whatever it is) and otherwise returns
+/// the CPU engine with a notice saying why: no adapter, or only a software one such as Mesa's
+/// lavapipe, which trails the CPU engine ([`LikelihoodError::SoftwareAdapter`]). `Gpu` opens
+/// the best or the named adapter, software ones too, and fails when there is none
+/// ([`LikelihoodError::NoAdapter`], naming the package to install); `Cpu` is the CPU engine on
+/// all threads. The GPU engine comes wrapped in a [`FallbackEngine`]: when its
 /// device is lost mid-run it continues on the CPU for the rest of the run and hands the caller
 /// a one-line notice through [`LikelihoodEngine::take_notice`] (which the caller should print).
 pub fn create_engine(
     backend: Backend,
 ) -> Result<(Box<dyn LikelihoodEngine + Send>, Option<String>), LikelihoodError> {
+    create_engine_for(backend, gpu::named_adapter().as_deref())
+}
+
+/// [`create_engine`] with the adapter named by `adapter` (a substring of its name, or `None`
+/// for the best one) instead of `PFTRACK_ADAPTER`: for a program that chooses the adapter
+/// itself.
+pub fn create_engine_for(
+    backend: Backend,
+    adapter: Option<&str>,
+) -> Result<(Box<dyn LikelihoodEngine + Send>, Option<String>), LikelihoodError> {
+    let gpu_engine = |device: gpu::GpuDevice| -> Result<Box<dyn LikelihoodEngine + Send>, _> {
+        Ok(Box::new(FallbackEngine::new(Box::new(
+            gpu::GpuEngine::with_device(device)?,
+        ))))
+    };
     match backend {
         Backend::Cpu => Ok((Box::new(cpu::CpuEngine::new()), None)),
-        Backend::Gpu => Ok((
-            Box::new(FallbackEngine::new(Box::new(gpu::GpuEngine::new()?))),
-            None,
-        )),
-        Backend::Auto => match gpu::GpuEngine::new() {
-            Ok(g) => Ok((Box::new(FallbackEngine::new(Box::new(g))), None)),
+        Backend::Gpu => Ok((gpu_engine(gpu::GpuDevice::open_matching(adapter)?)?, None)),
+        Backend::Auto => match gpu::GpuDevice::open_hardware(adapter).and_then(gpu_engine) {
+            Ok(e) => Ok((e, None)),
             // A named adapter that does not exist is the user's mistake: report it.
             Err(e @ LikelihoodError::AdapterNotFound { .. }) => Err(e),
             Err(e) => Ok((

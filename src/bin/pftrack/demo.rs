@@ -27,7 +27,7 @@ pub struct DemoArgs {
     /// Where the sequence, the poses and the score go.
     #[arg(long, default_value = "pftrack-demo")]
     pub out: PathBuf,
-    /// Likelihood engine: auto, cpu or gpu.
+    /// Likelihood engine: auto (the GPU if a hardware Vulkan adapter exists), cpu or gpu.
     #[arg(long, default_value = "auto")]
     pub backend: String,
     /// Number of particles.

@@ -50,7 +50,7 @@ pub struct TrackArgs {
     /// The system: sea (full), optimal (certified solver), tpe (tracking then pose), rls.
     #[arg(long, default_value = "sea")]
     pub mode: String,
-    /// Likelihood engine: auto (GPU if a Vulkan adapter exists), cpu or gpu.
+    /// Likelihood engine: auto (the GPU if a hardware Vulkan adapter exists, or the one PFTRACK_ADAPTER names; else the CPU), cpu or gpu (any Vulkan adapter, software ones too).
     #[arg(long, default_value = "auto")]
     pub backend: String,
     /// The camera's horizontal field of view in degrees, for the perspective form of the

@@ -37,7 +37,7 @@ mod device;
 mod engine;
 pub mod workload;
 
-pub use device::{GpuDevice, adapter_names};
+pub use device::{ADAPTER_ENV, GpuDevice, adapter_names, named_adapter};
 pub use engine::{DebugOutput, GpuEngine, StageTimes, TimingSource};
 
 use bytemuck::{Pod, Zeroable};
