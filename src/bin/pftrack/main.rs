@@ -41,6 +41,14 @@ enum Command {
 }
 
 fn main() {
+    // Mesa's device-select layer prints "error: XDG_RUNTIME_DIR is invalid or not set" for each
+    // Vulkan instance on a headless machine, which reads as pftrack's own error. pftrack
+    // chooses its adapter itself (PFTRACK_ADAPTER), so the layer is off unless the user set
+    // NODEVICE_SELECT.
+    if std::env::var_os("NODEVICE_SELECT").is_none() {
+        // SAFETY: the first statement of `main`, before any thread exists.
+        unsafe { std::env::set_var("NODEVICE_SELECT", "1") };
+    }
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Demo(a) => demo::run(a),
