@@ -21,8 +21,7 @@ use std::hint::black_box;
 use criterion::{BenchmarkId, Criterion, criterion_group, criterion_main};
 use pftrack::filter::{FilterParams, Hypothesis, Motion, ParticleFilter, resample};
 use pftrack::geometry::{Euler, PoseState};
-use pftrack::likelihood::gpu::GpuEngine;
-use pftrack::likelihood::{FallbackEngine, LikelihoodEngine};
+use pftrack::likelihood::{Backend, create_engine};
 use pftrack::synth::{Renderer, Scenario, SynthConfig};
 use pftrack::tracker::{Init, Tracker, TrackerConfig};
 use rand::rngs::StdRng;
@@ -134,12 +133,8 @@ fn bench_tracker(c: &mut Criterion) {
         }
         let init = Init::frontal(r.init_ellipse());
         let made = if let Tpl::Gpu = template {
-            match GpuEngine::new() {
-                Ok(g) => {
-                    let engine: Box<dyn LikelihoodEngine + Send> =
-                        Box::new(FallbackEngine::new(Box::new(g)));
-                    Tracker::with_engine(tc, engine, &frames[0], init)
-                }
+            match create_engine(Backend::Gpu) {
+                Ok((engine, _)) => Tracker::with_engine(tc, engine, &frames[0], init),
                 Err(e) => {
                     gpu_note.get_or_insert_with(|| e.to_string());
                     continue;
