@@ -504,8 +504,8 @@ fn compare(
             continue;
         }
         let want_d = cpu_decisions(image, &grad, p, frame.theta0, params);
-        let counts = want_d.counts;
-        let flipped = hist_difference(&counts, &got.histograms[i * HIST_BINS..(i + 1) * HIST_BINS]);
+        let counts = &want_d.counts;
+        let flipped = hist_difference(counts, &got.histograms[i * HIST_BINS..(i + 1) * HIST_BINS]);
         let same_hist = flipped == 0;
         if !same_hist {
             a.hist_mismatch += 1;
