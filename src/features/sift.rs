@@ -328,7 +328,7 @@ impl Sift {
             return Ok(out);
         }
         let Some(region) = region else {
-            self.detect_window(&img.data, w, h, 0, 0, &mut out);
+            self.detect_window(&img.data, w, h, [0, 0], None, &mut out);
             finish(&mut out);
             return Ok(out);
         };
@@ -360,21 +360,11 @@ impl Sift {
         for y in y0..y0 + ch {
             crop.extend_from_slice(&img.data[y * w + x0..y * w + x0 + cw]);
         }
-        self.detect_window(&crop, cw, ch, x0, y0, &mut out);
-        // Keep keypoints inside the region.
-        let inside = |k: &Keypoint| {
-            let (x, y) = (f64::from(k.x), f64::from(k.y));
-            x >= region.x && x <= region.x + region.w && y >= region.y && y <= region.y + region.h
-        };
-        let mut kept = Features::default();
-        for (k, d) in out.keypoints.iter().zip(&out.descriptors) {
-            if inside(k) {
-                kept.keypoints.push(*k);
-                kept.descriptors.push(*d);
-            }
-        }
-        finish(&mut kept);
-        Ok(kept)
+        // Only keypoints inside the region are described: those of the margin give the
+        // region's keypoints their context and are not returned.
+        self.detect_window(&crop, cw, ch, [x0, y0], Some(&region), &mut out);
+        finish(&mut out);
+        Ok(out)
     }
 
     fn check_params(&self) -> Result<(), FeatureError> {
@@ -397,25 +387,26 @@ impl Sift {
         }
     }
 
-    /// Runs SIFT on a `w x h` window whose top-left pixel is `(ox, oy)` in the full image,
-    /// appending keypoints in full-image coordinates.
+    /// Runs SIFT on a `w x h` window whose top-left pixel is `origin` in the full image,
+    /// appending keypoints in full-image coordinates; with `keep` (full-image coordinates),
+    /// only those whose centre lies in it, the others not even described.
     fn detect_window(
         &self,
         data: &[f32],
         w: usize,
         h: usize,
-        ox: usize,
-        oy: usize,
+        origin: [usize; 2],
+        keep: Option<&BoxRect>,
         out: &mut Features,
     ) {
         #[cfg(target_arch = "x86_64")]
         if std::arch::is_x86_feature_detected!("avx2") {
             // SAFETY: the CPU supports AVX2 (checked just above), the only requirement of
             // calling a function compiled with that target feature.
-            unsafe { self.detect_window_avx2(data, w, h, ox, oy, out) };
+            unsafe { self.detect_window_avx2(data, w, h, origin, keep, out) };
             return;
         }
-        self.detect_window_impl(data, w, h, ox, oy, out);
+        self.detect_window_impl(data, w, h, origin, keep, out);
     }
 
     /// [`Self::detect_window_impl`] compiled for AVX2 (8-wide blurs, extrema tests and
@@ -428,11 +419,11 @@ impl Sift {
         data: &[f32],
         w: usize,
         h: usize,
-        ox: usize,
-        oy: usize,
+        origin: [usize; 2],
+        keep: Option<&BoxRect>,
         out: &mut Features,
     ) {
-        self.detect_window_impl(data, w, h, ox, oy, out);
+        self.detect_window_impl(data, w, h, origin, keep, out);
     }
 
     #[inline(always)]
@@ -441,8 +432,8 @@ impl Sift {
         data: &[f32],
         w: usize,
         h: usize,
-        ox: usize,
-        oy: usize,
+        origin: [usize; 2],
+        keep: Option<&BoxRect>,
         out: &mut Features,
     ) {
         // The blur's scratch image, at the size of the first (largest) octave.
@@ -504,9 +495,16 @@ impl Sift {
             octaves: &octaves,
             base_factor,
             first_octave: -i32::from(self.params.upsample),
-            ox,
-            oy,
+            ox: origin[0],
+            oy: origin[1],
         };
+        if let Some(r) = keep {
+            found.retain(|f| {
+                let (x, y) = d.position(f);
+                let (x, y) = (f64::from(x), f64::from(y));
+                x >= r.x && x <= r.x + r.w && y >= r.y && y <= r.y + r.h
+            });
+        }
         let described: Vec<(Keypoint, [u8; DESCRIPTOR_LEN])> =
             if found.len() >= PARALLEL_MIN_EXTREMA && rayon::current_num_threads() > 1 {
                 use rayon::prelude::*;
@@ -770,6 +768,16 @@ impl Describer<'_> {
         self.describe(f, grad, out);
     }
 
+    /// Where the keypoints of the refined extremum `f` (octave `f.0`) lie in the input image.
+    #[inline(always)]
+    fn position(&self, f: &(usize, Extremum)) -> (f32, f32) {
+        let (o, e) = f;
+        let factor = self.base_factor * (1u32 << o) as f32;
+        let xo = e.c as f32 + e.xc;
+        let yo = e.r as f32 + e.xr;
+        (xo * factor + self.ox as f32, yo * factor + self.oy as f32)
+    }
+
     /// The keypoints of one refined extremum of octave `f.0`: one per dominant orientation,
     /// each with its descriptor, appended to `out`.
     #[inline(always)]
@@ -788,12 +796,13 @@ impl Describer<'_> {
         let yo = e.r as f32 + e.xr;
         let mut angles = [0f32; ORI_BINS];
         let na = orientations(img, oct.w, oct.h, e.c, e.r, sigma_oct, &mut angles, grad);
+        let (x, y) = self.position(f);
         for &angle in &angles[..na] {
             let desc = descriptor(img, oct.w, oct.h, xo, yo, sigma_oct, angle, grad);
             out.push((
                 Keypoint {
-                    x: xo * factor + self.ox as f32,
-                    y: yo * factor + self.oy as f32,
+                    x,
+                    y,
                     scale: sigma_oct * factor,
                     angle,
                     response: e.response,
