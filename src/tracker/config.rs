@@ -77,20 +77,17 @@ pub struct TrackerConfig {
     pub filter: FilterParams,
     /// The likelihood model.
     pub likelihood: LikelihoodParams,
-    /// SIFT. The tracker's default differs from [`SiftParams::default`] in one place: the
-    /// context margin around the search region ([`SiftParams::region_margin`]) is 8 px
-    /// instead of 16. The search region already reaches half the ellipse's larger axis and
-    /// 8 px beyond its bounding box, so the keypoints whose windows the narrower margin
-    /// clips lie on the background, far from the target, where they serve only as the
-    /// matcher's distractors.
+    /// SIFT.
     ///
-    /// Measured 2026-12-04 (AMD EPYC, 2 vCPUs): a step at 160x120 on two threads 8-12 % faster
-    /// in five paired runs (SIFT 1.83-2.06 → 1.53-1.75 ms, one run even), and no change in
-    /// accuracy beyond the seeds' noise: the synthetic per-axis RMSE summed over the six
-    /// scenarios 46.2 → 46.6 (scenario seeds 0-11, filter seed 0; car about y 10.2 → 9.3,
-    /// pan about y 2.3 → 2.65), girl's success AUC 0.642 → 0.648 over filter seeds 0-39
-    /// (0.659 → 0.640 on seeds 0-15, 0.631 → 0.654 on 16-39), car4 0.801 → 0.798 (seeds
-    /// 0-15).
+    /// The context margin around the search region ([`SiftParams::region_margin`]) stays at
+    /// its 16 px. Tried 2026-12-04 at 8 px: a step at 160x120 on two threads was 8-12 %
+    /// faster (five paired runs, AMD EPYC, 2 vCPUs), girl and car4 were unchanged (success
+    /// AUC 0.648 against 0.642 over filter seeds 0-39, 0.798 against 0.801), but `nod`,
+    /// `pan` and `combo` summed over their nine axes 0.2-1.0° worse with each of three filter
+    /// seeds (0, 1, each scenario's own), the roll on `combo` worse every time (2.79 → 3.22,
+    /// 3.12 → 3.50, 2.78 → 2.93). The margin is not only for the keypoints near the region's
+    /// edge: the blurs reflect at the crop's border, and at the coarse octaves that
+    /// reflection reaches tens of pixels in, onto the target's own large-scale keypoints.
     pub sift: SiftParams,
     /// Feature matching.
     pub matching: MatchParams,
@@ -1005,10 +1002,7 @@ impl Default for TrackerConfig {
             seed: 0,
             filter: FilterParams::default(),
             likelihood: LikelihoodParams::default(),
-            sift: SiftParams {
-                region_margin: 8.0,
-                ..SiftParams::default()
-            },
+            sift: SiftParams::default(),
             matching: MatchParams::default(),
             abm: AbmParams::default(),
             lost_below: 0.25,
