@@ -124,6 +124,7 @@ fn whole_pass(c: &mut Criterion) {
         let frame = FrameInput {
             image: &img,
             features: &feats,
+            depths: None,
             prev: prev_of(&target),
             theta0: 0.0,
         };
@@ -167,6 +168,7 @@ fn per_term(c: &mut Criterion) {
     let frame = FrameInput {
         image: &img,
         features: &feats,
+        depths: None,
         prev: prev_of(&target),
         theta0: 0.0,
     };
@@ -237,6 +239,7 @@ fn gpu_pass(c: &mut Criterion) {
         let frame = FrameInput {
             image: &img,
             features: &feats,
+            depths: None,
             prev: prev_of(&target),
             theta0: 0.0,
         };

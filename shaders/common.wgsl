@@ -23,10 +23,11 @@ struct TermLogs {
     total: f32,
 }
 
-// `likelihood::FeaturePair`: a match p (frame t-1) -> q (frame t).
-struct FeaturePair {
-    p: vec2<f32>,
-    q: vec2<f32>,
+// `likelihood::LiftedFeature`: a match, its frame t-1 position lifted on the host,
+// x = (p - c_prev, z), and its frame t position q. 20 bytes (arrays of f32, no vec padding).
+struct LiftedFeature {
+    x: array<f32, 3>,
+    q: array<f32, 2>,
 }
 
 // `likelihood::LikelihoodParams`.

@@ -1,11 +1,11 @@
 // Feature term (twin of src/likelihood/cpu/feature.rs): one invocation per particle, looping
-// over the matched features. Each feature p of the previous frame is lifted onto the
-// ellipsoid prior of the previous estimate, X = (p - c_prev, z), rotated by
+// over the matched features. Each feature p of the previous frame comes lifted to 3D by the
+// host (the same lift as the CPU twin's), X = (p - c_prev, z); it is rotated by
 // dR = R_i R_prev^T (R = Rx Ry Rz), scaled by s = sqrt(a b / (a_prev b_prev)) and moved to the
 // particle's centre; ln p_feature = ln(sum_j 1 / (eps + |q_j - q_hat_j|)), 0 without features.
 
 @group(0) @binding(4) var<storage, read> particles: array<Particle>;
-@group(0) @binding(6) var<storage, read> features: array<FeaturePair>;
+@group(0) @binding(6) var<storage, read> features: array<LiftedFeature>;
 @group(0) @binding(7) var<storage, read_write> terms: array<TermLogs>;
 
 // 3x3 matrices as arrays of rows; the products are written out term by term in the order of
@@ -65,22 +65,16 @@ fn feature(
     let d0 = dr[0];
     let d1 = dr[1];
     let scale = sqrt((p.a * p.b) / (q.a * q.b));
-    let thp = fu.theta0 + q.rz;
-    let c = cos(thp);
-    let s = sin(thp);
-    let zs = -params.depth_ratio * sqrt(q.a * q.b);
     var sum = 0.0;
     for (var j = 0u; j < fu.num_features; j++) {
         let f = features[j];
-        let dx = f.p.x - q.cx;
-        let dy = f.p.y - q.cy;
-        let u = (c * dx + s * dy) / q.a;
-        let v = (-s * dx + c * dy) / q.b;
-        let z = zs * sqrt(max(0.0, 1.0 - u * u - v * v));
+        let dx = f.x[0];
+        let dy = f.x[1];
+        let z = f.x[2];
         let qx = p.cx + scale * (d0.x * dx + d0.y * dy + d0.z * z);
         let qy = p.cy + scale * (d1.x * dx + d1.y * dy + d1.z * z);
-        let ex = f.q.x - qx;
-        let ey = f.q.y - qy;
+        let ex = f.q[0] - qx;
+        let ey = f.q[1] - qy;
         sum += 1.0 / (params.feature_eps + sqrt(ex * ex + ey * ey));
     }
     terms[i].feature = log(sum);

@@ -73,6 +73,7 @@ fn uniform_frame_histogram_counts_the_pixel_centres_inside_and_rho_is_one() {
     let frame = FrameInput {
         image: &img,
         features: &[],
+        depths: None,
         prev: particle(32.0, 24.0, 10.0, 10.0),
         theta0: 0.0,
     };
@@ -137,6 +138,7 @@ fn a_painted_disk_puts_an_edge_on_every_normal_line_at_its_contour() {
     let frame = FrameInput {
         image: &img,
         features: &[],
+        depths: None,
         prev: particle(cx, cy, r, r),
         theta0: 0.0,
     };
@@ -174,6 +176,7 @@ fn degenerate_particles_get_the_degenerate_total_and_zero_terms() {
     let frame = FrameInput {
         image: &img,
         features: &features,
+        depths: None,
         prev: particle(16.0, 16.0, 5.0, 5.0),
         theta0: 0.0,
     };
@@ -215,6 +218,7 @@ fn a_frame_without_features_has_a_zero_feature_term_after_one_with_features() {
     let mut frame = FrameInput {
         image: &img,
         features: &features,
+        depths: None,
         prev: particle(16.0, 16.0, 5.0, 5.0),
         theta0: 0.0,
     };
@@ -254,6 +258,7 @@ fn colour_without_a_valid_model_is_an_error() {
     let frame = FrameInput {
         image: &img,
         features: &[],
+        depths: None,
         prev: particle(4.0, 4.0, 2.0, 2.0),
         theta0: 0.0,
     };
@@ -298,6 +303,7 @@ fn more_particle_lines_than_a_buffer_holds_is_too_many_particles() {
     let frame = FrameInput {
         image: &img,
         features: &[],
+        depths: None,
         prev: particle(8.0, 8.0, 3.0, 3.0),
         theta0: 0.0,
     };
@@ -318,6 +324,7 @@ fn a_lost_device_is_a_clear_error_from_then_on() {
     let frame = FrameInput {
         image: &img,
         features: &[],
+        depths: None,
         prev: particle(8.0, 8.0, 3.0, 3.0),
         theta0: 0.0,
     };
@@ -685,6 +692,7 @@ fn gpu_agrees_with_cpu_on_real_frames() {
             let frame = FrameInput {
                 image: &image,
                 features: &features,
+                depths: None,
                 prev,
                 theta0: 0.02,
             };
@@ -764,6 +772,7 @@ fn gpu_agrees_with_cpu_on_synthetic_frames() {
             let frame = FrameInput {
                 image: &image,
                 features: &features,
+                depths: None,
                 prev: e,
                 theta0,
             };
@@ -772,6 +781,48 @@ fn gpu_agrees_with_cpu_on_synthetic_frames() {
             assert_agreement(&format!("synthetic {w}x{h} theta0 {theta0}"), &a);
         }
     }
+}
+
+/// Depths given with the features (the tracker's turned object model when the camera is
+/// known) reach the GPU's feature term as they reach the CPU's, and do move it.
+#[test]
+fn gpu_agrees_with_cpu_with_given_feature_depths() {
+    let Some(mut gpu) = engine() else { return };
+    let mut rng = StdRng::seed_from_u64(12);
+    let (image, e) = synthetic_frame(160, 120, 4);
+    let features = random_features(&mut rng, &e, 30);
+    let depths: Vec<f32> = (0..features.len())
+        .map(|_| rng.random_range(-25.0..0.0))
+        .collect();
+    let mut prev = e;
+    prev.ry = 0.4;
+    prev.rx = -0.1;
+    let params = LikelihoodParams::default();
+    let ps = random_particles(&mut rng, &e, 300);
+    let mut feature_terms = Vec::new();
+    for d in [None, Some(&depths[..])] {
+        let frame = FrameInput {
+            image: &image,
+            features: &features,
+            depths: d,
+            prev,
+            theta0: 0.1,
+        };
+        let a = compare(&mut gpu, &image, &e, &frame, &params, &ps);
+        assert_agreement(&format!("given depths {}", d.is_some()), &a);
+        let mut out = Vec::new();
+        gpu.evaluate(&frame, &params, &ps, &mut out).unwrap();
+        feature_terms.push(out.iter().map(|t| t.feature).collect::<Vec<_>>());
+    }
+    let moved = feature_terms[0]
+        .iter()
+        .zip(&feature_terms[1])
+        .map(|(a, b)| (a - b).abs())
+        .fold(0.0f32, f32::max);
+    assert!(
+        moved > 0.05,
+        "the depths moved the GPU's feature term by {moved} at most"
+    );
 }
 
 #[test]
@@ -787,6 +838,7 @@ fn seventy_thousand_particles_agree_with_cpu_on_a_subset() {
     let frame = FrameInput {
         image: &image,
         features: &features,
+        depths: None,
         prev: e,
         theta0: 0.0,
     };
@@ -1074,6 +1126,7 @@ fn resampling_draws_the_same_particles_on_cpu_and_gpu_likelihoods() {
         let frame = FrameInput {
             image: img,
             features: &features,
+            depths: None,
             prev: *e,
             theta0: 0.0,
         };
@@ -1124,6 +1177,7 @@ fn a_frame_beyond_the_buffer_limits_fails_evaluate_before_any_allocation() {
     let frame = FrameInput {
         image: &img,
         features: &[],
+        depths: None,
         prev: particle(100.0, 100.0, 20.0, 20.0),
         theta0: 0.0,
     };

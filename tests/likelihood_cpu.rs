@@ -479,6 +479,7 @@ fn engine_is_deterministic_and_thread_count_independent() {
     let frame = FrameInput {
         image: &img,
         features: &feats,
+        depths: None,
         prev,
         theta0,
     };
@@ -572,6 +573,7 @@ fn engine_terms_flags_and_errors() {
     let frame = FrameInput {
         image: &img,
         features: &feats,
+        depths: None,
         prev,
         theta0,
     };
@@ -777,6 +779,7 @@ fn contrast_term_is_the_table_summed_over_the_pixels_and_peaks_at_the_target_siz
     let frame = FrameInput {
         image: &img,
         features: &[],
+        depths: None,
         prev: ps[10],
         theta0: 0.0,
     };
@@ -812,4 +815,122 @@ fn contrast_term_is_the_table_summed_over_the_pixels_and_peaks_at_the_target_siz
     );
     assert!(out[best].contrast > out[0].contrast + 1.0);
     assert!(out[best].contrast > out[20].contrast + 1.0);
+}
+
+/// Depths given with the features replace the facing ellipsoid prior of the feature term and
+/// nothing else: the prior's own depths give the same result bit for bit, other depths move
+/// the feature term as the model `q̂ = c + s (ΔR X)_xy`, `X = (p − c_prev, z)`, predicts, and
+/// depths that do not fit the features are an error.
+#[test]
+fn given_feature_depths_replace_the_facing_prior() {
+    let mut rng = StdRng::seed_from_u64(41);
+    let image = RgbImage::from_fn(120, 90, |x, y| {
+        Rgb([(x * 2) as u8, (y * 2) as u8, ((x * y) % 251) as u8])
+    });
+    let prev = Particle {
+        cx: 60.0,
+        cy: 45.0,
+        a: 18.0,
+        b: 24.0,
+        rx: 0.2,
+        ry: -0.3,
+        rz: 0.1,
+        ..Default::default()
+    };
+    let theta0 = 0.15;
+    let features: Vec<FeaturePair> = (0..30)
+        .map(|_| {
+            let p = [
+                prev.cx + prev.a * rng.random_range(-0.9..0.9),
+                prev.cy + prev.b * rng.random_range(-0.9..0.9),
+            ];
+            let q = [
+                p[0] + rng.random_range(-3.0..3.0),
+                p[1] + rng.random_range(-3.0..3.0),
+            ];
+            FeaturePair { p, q }
+        })
+        .collect();
+    let params = LikelihoodParams {
+        terms: TERM_FEATURE | TERM_GRADIENT,
+        ..LikelihoodParams::default()
+    };
+    let facing: Vec<f32> = features
+        .iter()
+        .map(|f| feature::lift(f.p, &prev, theta0, params.depth_ratio)[2])
+        .collect();
+    let ps: Vec<Particle> = (0..20)
+        .map(|_| Particle {
+            cx: prev.cx + rng.random_range(-3.0..3.0),
+            cy: prev.cy + rng.random_range(-3.0..3.0),
+            a: prev.a * rng.random_range(0.9..1.1),
+            b: prev.b * rng.random_range(0.9..1.1),
+            rx: prev.rx + rng.random_range(-0.3..0.3),
+            ry: prev.ry + rng.random_range(-0.3..0.3),
+            rz: prev.rz + rng.random_range(-0.2..0.2),
+            ..Default::default()
+        })
+        .collect();
+    let mut eng = CpuEngine::new();
+    let mut run = |depths: Option<&[f32]>| -> Result<Vec<TermLogs>, LikelihoodError> {
+        let frame = FrameInput {
+            image: &image,
+            features: &features,
+            depths,
+            prev,
+            theta0,
+        };
+        let mut out = Vec::new();
+        eng.evaluate(&frame, &params, &ps, &mut out).map(|_| out)
+    };
+    let prior = run(None).unwrap();
+    assert_eq!(run(Some(&facing)).unwrap(), prior);
+
+    // Other depths: the gradient term is untouched, the feature term follows the model.
+    let other: Vec<f32> = facing
+        .iter()
+        .map(|z| 0.5 * z + rng.random_range(-4.0..0.0))
+        .collect();
+    let given = run(Some(&other)).unwrap();
+    let r_prev = Euler::new(prev.rx as f64, prev.ry as f64, prev.rz as f64).matrix();
+    let mut moved = 0.0f32;
+    for ((p, g), w) in ps.iter().zip(&given).zip(&prior) {
+        assert_eq!(g.gradient, w.gradient);
+        let dr = Euler::new(p.rx as f64, p.ry as f64, p.rz as f64).matrix() * r_prev.transpose();
+        let s = ((p.a * p.b) as f64 / (prev.a * prev.b) as f64).sqrt();
+        let sum: f64 = features
+            .iter()
+            .zip(&other)
+            .map(|(f, &z)| {
+                let x = nalgebra::Vector3::new(
+                    (f.p[0] - prev.cx) as f64,
+                    (f.p[1] - prev.cy) as f64,
+                    z as f64,
+                );
+                let y = dr * x;
+                let (qx, qy) = (p.cx as f64 + s * y.x, p.cy as f64 + s * y.y);
+                let e = ((f.q[0] as f64 - qx).powi(2) + (f.q[1] as f64 - qy).powi(2)).sqrt();
+                1.0 / (params.feature_eps as f64 + e)
+            })
+            .sum();
+        assert!(
+            (g.feature as f64 - sum.ln()).abs() < 1e-4,
+            "{} against {}",
+            g.feature,
+            sum.ln()
+        );
+        moved = moved.max((g.feature - w.feature).abs());
+    }
+    assert!(
+        moved > 0.05,
+        "the depths changed the feature term by {moved} at most"
+    );
+
+    // Depths that do not fit the features.
+    for bad in [&facing[..10], &[f32::NAN; 30][..]] {
+        match run(Some(bad)) {
+            Err(LikelihoodError::Invalid(m)) => assert!(m.contains("depth"), "{m}"),
+            other => panic!("accepted bad depths: {other:?}"),
+        }
+    }
 }

@@ -165,6 +165,7 @@ mod tests {
         let frame = FrameInput {
             image: &img,
             features: &[],
+            depths: None,
             prev: Particle {
                 cx: 16.0,
                 cy: 12.0,
@@ -227,6 +228,7 @@ mod tests {
         let frame = FrameInput {
             image: &img,
             features: &[],
+            depths: None,
             prev: Particle::default(),
             theta0: 0.0,
         };

@@ -67,6 +67,20 @@ pub struct FeaturePair {
     pub q: [f32; 2],
 }
 
+/// A matched feature as the feature term uses it, prepared once per frame on the host: the
+/// previous position lifted to 3D relative to the previous estimate's centre,
+/// `x = (p − c_prev, z)` (pixels, `z` negative towards the camera), and the matched position
+/// `q` in the current frame. Mirrored in WGSL; both engines read the same lift, so the GPU
+/// does per particle only what depends on the particle.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, Pod, Zeroable)]
+pub struct LiftedFeature {
+    /// `X = (p − c_prev, z)`.
+    pub x: [f32; 3],
+    /// Matched position in the current frame (pixels).
+    pub q: [f32; 2],
+}
+
 impl FeaturePair {
     /// The pairs' positions as two lists in `f64`, `(p, q)`, the form the pose solvers take.
     pub fn split(pairs: &[FeaturePair]) -> (Vec<[f64; 2]>, Vec<[f64; 2]>) {
@@ -178,9 +192,15 @@ pub struct FrameInput<'a> {
     pub image: &'a image::RgbImage,
     /// Matched features between the previous and the current frame.
     pub features: &'a [FeaturePair],
+    /// The depth `z` of each feature's lift (pixels, negative towards the camera), one per
+    /// feature, from a model of the object in the previous view that the caller holds (the
+    /// tracker's ellipsoid turned to the previous estimate's pose when the camera is known,
+    /// [`crate::tracker::TrackerConfig::camera_hfov_deg`]); `None` for the ellipsoid facing
+    /// the camera of [`LikelihoodParams::depth_ratio`].
+    pub depths: Option<&'a [f32]>,
     /// The previous frame's estimate: its centre, semi-axes and rotation. The feature term
-    /// lifts `p` to 3D with the ellipsoid prior of [`LikelihoodParams::depth_ratio`],
-    /// `X = (p − c_prev, z)`, and predicts `q̂ = c_particle + s · (ΔR X)_xy`, with
+    /// lifts `p` to 3D, `X = (p − c_prev, z)` with `z` from [`FrameInput::depths`] or the
+    /// ellipsoid prior of [`LikelihoodParams::depth_ratio`], and predicts `q̂ = c_particle + s · (ΔR X)_xy`, with
     /// `ΔR = R_particle · R_prevᵀ` and `s = sqrt(a b / (a_prev b_prev))`.
     pub prev: Particle,
     /// Orientation of the ellipse in the reference pose (radians): a particle's ellipse is

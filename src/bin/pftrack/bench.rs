@@ -106,6 +106,7 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
     let frame = FrameInput {
         image: &w.image,
         features: &w.features,
+        depths: None,
         prev: w.target,
         theta0: 0.0,
     };

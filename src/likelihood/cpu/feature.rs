@@ -3,14 +3,16 @@
 //! the previous estimate, compared with where they were matched in the current frame.
 //!
 //! # Semantics (exact, shared with the GPU)
-//! For each pair `(p, q)`: `(u, v) = E_prev.to_unit(p)` (theta = `theta0 + prev.rz`);
-//! `X = (p.x - prev.cx, p.y - prev.cy, z)`, `z = (-depth_ratio · sqrt(a_prev b_prev)) ·
-//! sqrt(max(0, (1 - u²) - v²))`; `ΔR = R_i R_prevᵀ` with `R = (Rx Ry) Rz` in `f32`;
+//! For each pair `(p, q)`: `X = (p.x - prev.cx, p.y - prev.cy, z)`, with `z` the caller's
+//! depth of the pair ([`crate::likelihood::FrameInput::depths`]) or else the facing prior,
+//! `(u, v) = E_prev.to_unit(p)` (theta = `theta0 + prev.rz`), `z = (-depth_ratio ·
+//! sqrt(a_prev b_prev)) · sqrt(max(0, (1 - u²) - v²))`, computed once per frame on the host
+//! for both engines; `ΔR = R_i R_prevᵀ` with `R = (Rx Ry) Rz` in `f32`;
 //! `s = sqrt((a b) / (a_prev b_prev))`; `q̂ = (cx, cy) + s (ΔR X)_xy`;
 //! `ln p_feature = ln Σ_j 1 / (ε + ‖q_j − q̂_j‖)`; no features: 0.
 
 use super::EllipseF32;
-use crate::likelihood::{FeaturePair, LikelihoodParams, Particle};
+use crate::likelihood::{FeaturePair, LiftedFeature, LikelihoodParams, Particle};
 
 /// A 3×3 matrix, row-major, `f32`.
 pub type Mat3 = [[f32; 3]; 3];
@@ -48,20 +50,11 @@ pub fn rotation(rx: f32, ry: f32, rz: f32) -> Mat3 {
     mat_mul(&mat_mul(&mx, &my), &mz)
 }
 
-/// A feature prepared once per frame: its lifted previous position `X` and its current `q`.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Lifted {
-    /// `X = (p - c_prev, z)`.
-    pub x: [f32; 3],
-    /// Matched position in the current frame.
-    pub q: [f32; 2],
-}
-
 /// What the feature term needs per frame: the lifted features and `R_prevᵀ`.
 #[derive(Debug, Clone, PartialEq)]
 pub struct FeatureFrame {
     /// Lifted features.
-    pub lifted: Vec<Lifted>,
+    pub lifted: Vec<LiftedFeature>,
     /// `R_prevᵀ`.
     pub r_prev_t: Mat3,
     /// `a_prev · b_prev`.
@@ -88,18 +81,25 @@ pub fn prior_depth(u: f32, v: f32, a: f32, b: f32, depth_ratio: f32) -> f32 {
 }
 
 impl FeatureFrame {
-    /// Prepares the features of a frame against the previous estimate.
+    /// Prepares the features of a frame against the previous estimate: each lifted with its
+    /// depth from `depths` (one per feature, checked by the engines) when given, else with
+    /// the facing ellipsoid prior ([`lift`]).
     pub fn new(
         features: &[FeaturePair],
+        depths: Option<&[f32]>,
         prev: &Particle,
         theta0: f32,
         params: &LikelihoodParams,
     ) -> Self {
         let lifted = features
             .iter()
-            .map(|f| Lifted {
-                x: lift(f.p, prev, theta0, params.depth_ratio),
-                q: f.q,
+            .enumerate()
+            .map(|(j, f)| {
+                let x = match depths.and_then(|d| d.get(j)) {
+                    Some(&z) => [f.p[0] - prev.cx, f.p[1] - prev.cy, z],
+                    None => lift(f.p, prev, theta0, params.depth_ratio),
+                };
+                LiftedFeature { x, q: f.q }
             })
             .collect();
         Self {
@@ -142,7 +142,8 @@ pub fn log_likelihood(
     theta0: f32,
     params: &LikelihoodParams,
 ) -> f32 {
-    FeatureFrame::new(features, prev, theta0, params).log_likelihood(particle, params.feature_eps)
+    FeatureFrame::new(features, None, prev, theta0, params)
+        .log_likelihood(particle, params.feature_eps)
 }
 
 #[cfg(test)]

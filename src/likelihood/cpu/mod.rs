@@ -238,8 +238,15 @@ impl CpuEngine {
         if use_gradient {
             self.grad.fill(frame.image, &mut self.luma, parallel);
         }
-        let feats = use_feature
-            .then(|| feature::FeatureFrame::new(frame.features, &frame.prev, frame.theta0, params));
+        let feats = use_feature.then(|| {
+            feature::FeatureFrame::new(
+                frame.features,
+                frame.depths,
+                &frame.prev,
+                frame.theta0,
+                params,
+            )
+        });
         let lines = use_gradient.then(|| gradient::LineTables::new(params));
         let (bins, grad) = (&self.bins, &self.grad);
         let theta0 = frame.theta0;
@@ -341,6 +348,18 @@ pub fn validate(frame: &FrameInput<'_>, params: &LikelihoodParams) -> Result<(),
             .any(|f| !(f.p.iter().chain(&f.q).all(|v| v.is_finite())))
         {
             return bad("a feature position is not finite");
+        }
+        if let Some(d) = frame.depths {
+            if d.len() != frame.features.len() {
+                return Err(LikelihoodError::Invalid(format!(
+                    "{} feature depths for {} features",
+                    d.len(),
+                    frame.features.len()
+                )));
+            }
+            if !d.iter().all(|z| z.is_finite()) {
+                return bad("a feature depth is not finite");
+            }
         }
     }
     Ok(())

@@ -7,7 +7,7 @@ use super::device::GpuDevice;
 use super::{FLAG_DEBUG_HIST, FrameUniform, STAGES, stage_source};
 use crate::likelihood::cpu;
 use crate::likelihood::{
-    ColourHistogram, ContrastTable, FeaturePair, FrameInput, HIST_BINS, LikelihoodEngine,
+    ColourHistogram, ContrastTable, FrameInput, HIST_BINS, LiftedFeature, LikelihoodEngine,
     LikelihoodError, LikelihoodParams, Particle, TERM_COLOUR, TERM_CONTRAST, TERM_FEATURE,
     TERM_GRADIENT, TermLogs,
 };
@@ -473,7 +473,10 @@ impl GpuEngine {
         changed |= b.grad.ensure(device, px * 8);
         changed |= b.particles.ensure(device, n64 * 32);
         changed |= b.trig.ensure(device, n64 * 8);
-        changed |= b.features.ensure(device, frame.features.len() as u64 * 16);
+        changed |= b.features.ensure(
+            device,
+            frame.features.len() as u64 * size_of::<LiftedFeature>() as u64,
+        );
         changed |= b.terms.ensure(device, n64 * logs);
         changed |= b.line_d.ensure(device, n64 * num_lines as u64 * 4);
         let hist_bytes = if debug.is_some() && hist_on {
@@ -538,9 +541,17 @@ impl GpuEngine {
             particle_sin_cos(particles, frame.theta0, &mut self.trig_scratch);
             queue.write_buffer(&b.trig.buf, 0, bytemuck::cast_slice(&self.trig_scratch));
         }
-        if feat_on && !frame.features.is_empty() {
-            let f: &[FeaturePair] = frame.features;
-            queue.write_buffer(&b.features.buf, 0, bytemuck::cast_slice(f));
+        if feat_on {
+            // The lift does not depend on the particle: done once here, as the CPU twin does.
+            let lifted = cpu::feature::FeatureFrame::new(
+                frame.features,
+                frame.depths,
+                &frame.prev,
+                frame.theta0,
+                params,
+            )
+            .lifted;
+            queue.write_buffer(&b.features.buf, 0, bytemuck::cast_slice(&lifted));
         }
         let t_uploaded = Instant::now();
 

@@ -4,12 +4,13 @@
 //! One WGSL file per stage in `shaders/` (`colour.wgsl`, `gradient.wgsl`, `feature.wgsl`,
 //! `combine.wgsl`), each prefixed with `common.wgsl`, which mirrors the shared Rust structs
 //! ([`Particle`], [`TermLogs`](crate::likelihood::TermLogs),
-//! [`FeaturePair`](crate::likelihood::FeaturePair),
+//! [`LiftedFeature`](crate::likelihood::LiftedFeature),
 //! [`LikelihoodParams`](crate::likelihood::LikelihoodParams) and [`FrameUniform`]); a unit
 //! test checks that sizes and field offsets agree.
 //!
-//! Per frame the engine uploads the frame (one `u32` per pixel, `r | g << 8 | b << 16`) and the
-//! particles once (with each particle's `(sin, cos)` of `theta0 + rz`, computed on the host
+//! Per frame the engine uploads the frame (one `u32` per pixel, `r | g << 8 | b << 16`), the
+//! features lifted to 3D on the host (the CPU twin's own lift: it does not depend on the
+//! particle) and the particles once (with each particle's `(sin, cos)` of `theta0 + rz`, computed on the host
 //! exactly as the CPU twin does, so that the pixel sets, and so the histograms, agree exactly:
 //! WGSL's sin/cos are a few ulp off Rust's), runs five kernels in one submission and reads
 //! back the `N` [`TermLogs`](crate::likelihood::TermLogs) once:
@@ -109,7 +110,7 @@ pub fn stage_source(stage: &str) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::likelihood::{FeaturePair, LikelihoodParams, TermLogs};
+    use crate::likelihood::{LiftedFeature, LikelihoodParams, TermLogs};
     use std::mem::{offset_of, size_of};
 
     fn parse_and_validate(src: &str) -> (naga::Module, naga::valid::ModuleInfo) {
@@ -210,11 +211,11 @@ mod tests {
             ],
         );
         check(
-            "FeaturePair",
-            size_of::<FeaturePair>(),
+            "LiftedFeature",
+            size_of::<LiftedFeature>(),
             &[
-                ("p", offset_of!(FeaturePair, p)),
-                ("q", offset_of!(FeaturePair, q)),
+                ("x", offset_of!(LiftedFeature, x)),
+                ("q", offset_of!(LiftedFeature, q)),
             ],
         );
         check(
