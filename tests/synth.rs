@@ -824,7 +824,10 @@ fn cli_writes_frames_truth_and_init() {
     let t0 = truth[0].state;
     assert_eq!((t0.rx, t0.ry, t0.rz), (0.0, 0.0, 0.0));
     assert!(truth[1].state.rx > 0.5, "nods: {:?}", truth[1].state);
-    let init = read_init(&dir.join("init.txt")).unwrap();
+    let file = read_init(&dir.join("init.txt")).unwrap();
+    // the camera the frames were rendered with
+    assert_eq!(file.hfov_deg, Some(pftrack::synth::HFOV_DEG));
+    let init = file.ellipse;
     assert!((init.cx - t0.cx).abs() < 1e-5 && (init.a - t0.a).abs() < 1e-5);
     assert!((init.cy - t0.cy).abs() < 1e-5 && (init.b - t0.b).abs() < 1e-5);
     // the same as the library's render of that configuration
@@ -983,5 +986,53 @@ fn cli_track_rejects_bad_lost_and_reacquisition_settings() {
         );
         assert!(!csv.exists(), "{args:?} left a pose CSV");
     }
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// `track` takes the camera from the init file `synth` writes, `--hfov` overrides it and
+/// `--weak-perspective` sets it aside; a bad camera line is one clear error and no poses.
+#[test]
+fn cli_track_takes_the_camera_from_the_init_file() {
+    let dir = tmp_dir("track-camera");
+    let d = dir.to_str().unwrap();
+    let out = pftrack(&["synth", d, "--frames", "4", "--size", "64x48"]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let init = std::fs::read_to_string(dir.join("init.txt")).unwrap();
+    assert!(init.lines().any(|l| l == "hfov,50.000000"), "{init}");
+    let csv = dir.join("poses.csv");
+    let c = csv.to_str().unwrap();
+    let mut tracks = Vec::new();
+    for (extra, said) in [
+        (&[][..], "camera hfov 50°"),
+        (&["--hfov", "60"][..], "camera hfov 60°"),
+        (&["--weak-perspective"][..], "weak perspective"),
+    ] {
+        let mut args = vec!["track", d, "--backend", "cpu", "--out", c];
+        args.extend_from_slice(extra);
+        let out = pftrack(&args);
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(out.status.success(), "{args:?}: {err}");
+        assert!(err.contains(said), "{args:?}: {err}");
+        tracks.push(std::fs::read(&csv).unwrap());
+    }
+    // The camera reaches the tracker: the three tracks differ.
+    assert!(tracks[0] != tracks[1] && tracks[0] != tracks[2] && tracks[1] != tracks[2]);
+    let out = pftrack(&["track", d, "--hfov", "60", "--weak-perspective", "--out", c]);
+    assert!(!out.status.success());
+
+    // A camera line that is not one.
+    std::fs::remove_file(&csv).unwrap();
+    let ellipse_line = init.lines().next().unwrap();
+    std::fs::write(dir.join("init.txt"), format!("{ellipse_line}\nhfov,200\n")).unwrap();
+    let out = pftrack(&["track", d, "--backend", "cpu", "--out", c]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success());
+    assert_eq!(err.trim_end().lines().count(), 1, "{err}");
+    assert!(err.contains("hfov") && !err.contains("panicked"), "{err}");
+    assert!(!csv.exists(), "a bad init file left a pose CSV");
     std::fs::remove_dir_all(&dir).unwrap();
 }

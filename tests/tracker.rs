@@ -235,19 +235,32 @@ fn bad_input_is_an_error() {
         let err = Tracker::new(cfg, &img, Init::frontal(r.init_ellipse())).unwrap_err();
         assert!(err.to_string().contains("feature_weight"), "{w}: {err}");
     }
+    // (weight, grid, rate, min_confidence, anchor_weight, anchor_weight_camera,
+    // anchor_threshold)
     let bad_templates = [
-        (-1.0, 16, 0.05, 0.5, 40.0, 0.5),
-        (f64::NAN, 16, 0.05, 0.5, 40.0, 0.5),
-        (20.0, 1, 0.05, 0.5, 40.0, 0.5),
-        (20.0, 65, 0.05, 0.5, 40.0, 0.5),
-        (20.0, 16, 1.5, 0.5, 40.0, 0.5),
-        (20.0, 16, 0.05, f64::NAN, 40.0, 0.5),
-        (20.0, 16, 0.05, 0.5, -1.0, 0.5),
-        (20.0, 16, 0.05, 0.5, f64::INFINITY, 0.5),
-        (20.0, 16, 0.05, 0.5, 40.0, 1.0),
-        (20.0, 16, 0.05, 0.5, 40.0, f64::NAN),
+        (-1.0, 16, 0.05, 0.5, 40.0, 80.0, 0.5),
+        (f64::NAN, 16, 0.05, 0.5, 40.0, 80.0, 0.5),
+        (20.0, 1, 0.05, 0.5, 40.0, 80.0, 0.5),
+        (20.0, 65, 0.05, 0.5, 40.0, 80.0, 0.5),
+        (20.0, 16, 1.5, 0.5, 40.0, 80.0, 0.5),
+        (20.0, 16, 0.05, f64::NAN, 40.0, 80.0, 0.5),
+        (20.0, 16, 0.05, 0.5, -1.0, 80.0, 0.5),
+        (20.0, 16, 0.05, 0.5, f64::INFINITY, 80.0, 0.5),
+        (20.0, 16, 0.05, 0.5, 40.0, -1.0, 0.5),
+        (20.0, 16, 0.05, 0.5, 40.0, f64::NAN, 0.5),
+        (20.0, 16, 0.05, 0.5, 40.0, 80.0, 1.0),
+        (20.0, 16, 0.05, 0.5, 40.0, 80.0, f64::NAN),
     ];
-    for (weight, grid, rate, min_confidence, anchor_weight, anchor_threshold) in bad_templates {
+    for (
+        weight,
+        grid,
+        rate,
+        min_confidence,
+        anchor_weight,
+        anchor_weight_camera,
+        anchor_threshold,
+    ) in bad_templates
+    {
         let cfg = TrackerConfig {
             template: Some(pftrack::tracker::TemplateTerm {
                 weight,
@@ -255,6 +268,7 @@ fn bad_input_is_an_error() {
                 rate,
                 min_confidence,
                 anchor_weight,
+                anchor_weight_camera,
                 anchor_threshold,
             }),
             ..TrackerConfig::default()

@@ -1,6 +1,9 @@
 //! `init.txt`: the initial ellipse of a sequence, one line `cx,cy,a,b` (pixels), optionally a
-//! fifth value, the ellipse's orientation in degrees. Written by `pftrack synth`, read by
-//! `pftrack track --init-file`.
+//! fifth value, the ellipse's orientation in degrees; optionally a line `hfov,DEG` after it,
+//! the horizontal field of view of the camera that took the sequence (degrees), for the
+//! tracker's perspective model ([`crate::tracker::TrackerConfig::camera_hfov_deg`]). Blank
+//! lines and lines starting with `#` are skipped. Written by `pftrack synth` (with its
+//! camera), read by `pftrack track --init-file`.
 
 use std::io::Write;
 use std::path::Path;
@@ -8,58 +11,96 @@ use std::path::Path;
 use super::{AtomicFile, FormatError, parse_f64};
 use crate::geometry::{Ellipse, deg, rad};
 
+/// What an init file holds.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct InitFile {
+    /// The initial ellipse.
+    pub ellipse: Ellipse,
+    /// The camera's horizontal field of view (degrees, in `(0, 180)`), when the file gives it.
+    pub hfov_deg: Option<f64>,
+}
+
 /// Reads an init file.
-pub fn read_init(path: &Path) -> Result<Ellipse, FormatError> {
+pub fn read_init(path: &Path) -> Result<InitFile, FormatError> {
     let text = std::fs::read_to_string(path).map_err(|e| FormatError::io(path, e))?;
     parse_init(&text, path)
 }
 
-/// Parses `cx,cy,a,b[,angle_deg]`; `path` only names the source in errors.
-pub fn parse_init(text: &str, path: &Path) -> Result<Ellipse, FormatError> {
-    let line = text
+/// Parses `cx,cy,a,b[,angle_deg]` and an optional `hfov,DEG` line; `path` only names the
+/// source in errors.
+pub fn parse_init(text: &str, path: &Path) -> Result<InitFile, FormatError> {
+    let mut lines = text
         .lines()
-        .map(str::trim)
-        .find(|l| !l.is_empty() && !l.starts_with('#'))
-        .ok_or_else(|| FormatError::Empty {
-            path: path.display().to_string(),
-        })?;
+        .enumerate()
+        .map(|(k, l)| (k + 1, l.trim()))
+        .filter(|(_, l)| !l.is_empty() && !l.starts_with('#'));
+    let (n, line) = lines.next().ok_or_else(|| FormatError::Empty {
+        path: path.display().to_string(),
+    })?;
     let f: Vec<&str> = line.split(',').collect();
     if f.len() != 4 && f.len() != 5 {
         return Err(FormatError::parse(
             path,
-            1,
+            n,
             format!("expected cx,cy,a,b[,angle], found '{line}'"),
         ));
     }
     let mut v = [0.0; 5];
     for (k, s) in f.iter().enumerate() {
         v[k] = parse_f64(s, ["cx", "cy", "a", "b", "angle"][k])
-            .map_err(|m| FormatError::parse(path, 1, m))?;
+            .map_err(|m| FormatError::parse(path, n, m))?;
     }
     if v[2] <= 0.0 || v[3] <= 0.0 {
         return Err(FormatError::parse(
             path,
-            1,
+            n,
             "semi-axes a and b must be positive",
         ));
     }
-    Ok(Ellipse {
-        cx: v[0],
-        cy: v[1],
-        a: v[2],
-        b: v[3],
-        theta: rad(v[4]),
+    let mut hfov_deg = None;
+    for (n, line) in lines {
+        let value = match line.split_once(',') {
+            Some((key, value)) if key.trim() == "hfov" && hfov_deg.is_none() => value,
+            _ => {
+                return Err(FormatError::parse(
+                    path,
+                    n,
+                    format!("expected one line hfov,DEG after the ellipse, found '{line}'"),
+                ));
+            }
+        };
+        let h = parse_f64(value, "hfov").map_err(|m| FormatError::parse(path, n, m))?;
+        if !(h > 0.0 && h < 180.0) {
+            return Err(FormatError::parse(
+                path,
+                n,
+                format!("hfov must lie strictly between 0 and 180 degrees, found {h}"),
+            ));
+        }
+        hfov_deg = Some(h);
+    }
+    Ok(InitFile {
+        ellipse: Ellipse {
+            cx: v[0],
+            cy: v[1],
+            a: v[2],
+            b: v[3],
+            theta: rad(v[4]),
+        },
+        hfov_deg,
     })
 }
 
-/// Writes an init file (complete or absent, see [`AtomicFile`]).
-pub fn write_init(path: &Path, e: &Ellipse) -> Result<(), FormatError> {
+/// Writes an init file (complete or absent, see [`AtomicFile`]): the ellipse, and the
+/// camera's horizontal field of view when given.
+pub fn write_init(path: &Path, init: &InitFile) -> Result<(), FormatError> {
     let mut f = AtomicFile::create(path)?;
-    let line = if e.theta == 0.0 {
-        format!("{:.6},{:.6},{:.6},{:.6}", e.cx, e.cy, e.a, e.b)
+    let e = &init.ellipse;
+    let mut text = if e.theta == 0.0 {
+        format!("{:.6},{:.6},{:.6},{:.6}\n", e.cx, e.cy, e.a, e.b)
     } else {
         format!(
-            "{:.6},{:.6},{:.6},{:.6},{:.6}",
+            "{:.6},{:.6},{:.6},{:.6},{:.6}\n",
             e.cx,
             e.cy,
             e.a,
@@ -67,7 +108,11 @@ pub fn write_init(path: &Path, e: &Ellipse) -> Result<(), FormatError> {
             deg(e.theta)
         )
     };
-    writeln!(f, "{line}").map_err(|err| FormatError::io(path, err))?;
+    if let Some(h) = init.hfov_deg {
+        text.push_str(&format!("hfov,{h:.6}\n"));
+    }
+    f.write_all(text.as_bytes())
+        .map_err(|err| FormatError::io(path, err))?;
     f.commit()
 }
 
@@ -77,15 +122,71 @@ mod tests {
 
     #[test]
     fn parses_and_rejects() {
-        let e = parse_init("64,48,20,25\n", Path::new("i")).unwrap();
+        let i = parse_init("64,48,20,25\n", Path::new("i")).unwrap();
+        let e = i.ellipse;
         assert_eq!(
             (e.cx, e.cy, e.a, e.b, e.theta),
             (64.0, 48.0, 20.0, 25.0, 0.0)
         );
-        let e = parse_init("# comment\n1,2,3,4,90", Path::new("i")).unwrap();
+        assert_eq!(i.hfov_deg, None);
+        let e = parse_init("# comment\n1,2,3,4,90", Path::new("i"))
+            .unwrap()
+            .ellipse;
         assert!((e.theta - std::f64::consts::FRAC_PI_2).abs() < 1e-12);
         for bad in ["", "1,2,3", "1,2,3,-4", "1,2,3,4,5,6", "a,b,c,d"] {
             assert!(parse_init(bad, Path::new("i")).is_err(), "accepted {bad:?}");
         }
+    }
+
+    #[test]
+    fn reads_the_camera_line_and_rejects_bad_ones() {
+        let i = parse_init("1,2,3,4\n\n# camera\nhfov, 50\n", Path::new("i")).unwrap();
+        assert_eq!(i.hfov_deg, Some(50.0));
+        for (bad, what) in [
+            ("1,2,3,4\nhfov,0", "between 0 and 180"),
+            ("1,2,3,4\nhfov,180", "between 0 and 180"),
+            ("1,2,3,4\nhfov,nan", "hfov"),
+            ("1,2,3,4\nhfov,50\nhfov,60", "one line hfov"),
+            ("1,2,3,4\nfocal,50", "one line hfov"),
+            ("1,2,3,4\n5,6,7,8", "one line hfov"),
+        ] {
+            let err = parse_init(bad, Path::new("i")).unwrap_err().to_string();
+            assert!(err.contains(what), "{bad:?}: {err}");
+        }
+    }
+
+    #[test]
+    fn round_trips_through_a_file() {
+        let dir = std::env::temp_dir().join(format!("pftrack-init-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("init.txt");
+        for init in [
+            InitFile {
+                ellipse: Ellipse::new(79.5, 59.5, 18.52, 24.7),
+                hfov_deg: Some(50.0),
+            },
+            InitFile {
+                ellipse: Ellipse {
+                    theta: rad(30.0),
+                    ..Ellipse::new(10.25, 20.5, 3.0, 4.0)
+                },
+                hfov_deg: None,
+            },
+        ] {
+            write_init(&path, &init).unwrap();
+            let back = read_init(&path).unwrap();
+            assert_eq!(back.hfov_deg, init.hfov_deg);
+            let (a, b) = (back.ellipse, init.ellipse);
+            for (x, y) in [
+                (a.cx, b.cx),
+                (a.cy, b.cy),
+                (a.a, b.a),
+                (a.b, b.b),
+                (a.theta, b.theta),
+            ] {
+                assert!((x - y).abs() < 1e-6, "{x} != {y}");
+            }
+        }
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 }

@@ -24,7 +24,8 @@
 //!   with semi-axes `a`, `b` along that frame has exactly these moments (its variance along an
 //!   axis is a quarter of the squared semi-axis), so for the head's near-elliptical outline
 //!   `a, b` are its semi-axes; for the box they are those of the ellipse with the same moments.
-//! - `init.txt`: `cx, cy, a, b` of frame 0 (orientation 0).
+//! - `init.txt`: `cx, cy, a, b` of frame 0 (orientation 0), and the camera's horizontal field
+//!   of view (`hfov,50`, [`crate::io::InitFile`]), which `pftrack track` then uses.
 
 mod camera;
 mod render;
@@ -41,7 +42,7 @@ pub use texture::{Background, Material, SolidTexture, hash, noise};
 pub use trajectory::{CAR_DEPTH, HEAD_DEPTH, ObjectPose, Trajectory, smoothstep};
 
 use crate::geometry::Ellipse;
-use crate::io::{FormatError, PoseCsvWriter, PoseRecord, write_init};
+use crate::io::{FormatError, InitFile, PoseCsvWriter, PoseRecord, write_init};
 
 /// Errors of this module.
 #[derive(Debug, thiserror::Error)]
@@ -339,7 +340,13 @@ pub fn write_sequence(
     w.finish()?;
     let s0 = truth[0];
     let init = Ellipse::new(s0.cx, s0.cy, s0.a, s0.b);
-    write_init(&init_path, &init)?;
+    write_init(
+        &init_path,
+        &InitFile {
+            ellipse: init,
+            hfov_deg: Some(HFOV_DEG),
+        },
+    )?;
     Ok(SynthSummary {
         config: *cfg,
         frames_dir,

@@ -60,13 +60,16 @@ pub fn run(a: DemoArgs) -> anyhow::Result<()> {
     if let Some(n) = notice {
         eprintln!("pftrack: {n}");
     }
-    let init = Init::frontal(read_init(&seq_dir.join("init.txt"))?);
+    let init_file = read_init(&seq_dir.join("init.txt"))?;
+    let init = Init::frontal(init_file.ellipse);
     let mut source = frames::open(&summary.frames_dir, &SourceOptions::default())?;
     let first = source
         .next()
         .context("the rendered sequence has no frames")??;
-    let mut tracker =
-        Tracker::with_engine(config("sea", a.particles, a.seed)?, engine, &first, init)?;
+    // The synthetic camera is known: the init file gives it.
+    let mut tcfg = config("sea", a.particles, a.seed)?;
+    tcfg.camera_hfov_deg = init_file.hfov_deg;
+    let mut tracker = Tracker::with_engine(tcfg, engine, &first, init)?;
     let poses = a.out.join("poses.csv");
     let mut w = PoseCsvWriter::create(&poses, true)?;
     let pb = progress(Some(cfg.frames));

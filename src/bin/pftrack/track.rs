@@ -54,11 +54,15 @@ pub struct TrackArgs {
     #[arg(long, default_value = "auto")]
     pub backend: String,
     /// The camera's horizontal field of view in degrees, for the perspective form of the
-    /// keyframe depth prior and of the turned first view; weak perspective (the paper's
-    /// model) when absent. Weak perspective over-reads the tilt of a near head by about a
-    /// tenth (see `TrackerConfig::camera_hfov_deg`).
-    #[arg(long, value_name = "DEG")]
+    /// keyframe depth prior and of the turned first view; when absent, the init file's
+    /// (`hfov,DEG`, which `pftrack synth` writes), else weak perspective (the paper's model).
+    /// Weak perspective over-reads the tilt of a near head by about a tenth (see
+    /// `TrackerConfig::camera_hfov_deg`).
+    #[arg(long, value_name = "DEG", conflicts_with = "weak_perspective")]
     pub hfov: Option<f64>,
+    /// Weak perspective even when the init file gives the camera.
+    #[arg(long)]
+    pub weak_perspective: bool,
     /// Depth relief of the target's visible surface relative to its size, for the feature
     /// term and the keyframe fits: 1 for a head (the default), less for a flatter target,
     /// e.g. about 0.25 for a car's rear seen from behind. Too much depth lets sideways motion
@@ -199,9 +203,10 @@ pub struct TrackArgs {
     /// Weight of the first view turned with each particle's rotation and compared with the
     /// frame (`TemplateTerm::anchor_weight`): it counts where the first view is recognised
     /// (correlation above 0.65), and sees the rotation. 0 leaves it out; it needs the template
-    /// term on.
-    #[arg(long, value_name = "W", default_value_t = pftrack::tracker::TemplateTerm::default().anchor_weight)]
-    pub anchor_weight: f64,
+    /// term on. 40 by default, 80 when the camera is known
+    /// (`TemplateTerm::anchor_weight_camera`).
+    #[arg(long, value_name = "W")]
+    pub anchor_weight: Option<f64>,
     /// Resize every frame to WxH first.
     #[arg(long, value_name = "WxH")]
     pub resize: Option<String>,
@@ -242,21 +247,33 @@ fn resolve_input(input: &Path) -> (PathBuf, Option<PathBuf>) {
     }
 }
 
-/// The initial ellipse from whichever option was given.
-pub fn initial_ellipse(a: &TrackArgs, synth_init: Option<&Path>) -> anyhow::Result<Ellipse> {
+/// The initial ellipse from whichever option was given, with the camera's horizontal field of
+/// view when an init file gives it.
+pub fn initial_ellipse(
+    a: &TrackArgs,
+    synth_init: Option<&Path>,
+) -> anyhow::Result<(Ellipse, Option<f64>)> {
+    let file = |p: &Path| -> anyhow::Result<(Ellipse, Option<f64>)> {
+        let i = pftrack::io::read_init(p)?;
+        Ok((i.ellipse, i.hfov_deg))
+    };
     if let Some(s) = &a.init_ellipse {
         let v = parse_floats(s, &[4, 5], "--init-ellipse")?;
-        return Ok(Ellipse {
+        let e = Ellipse {
             cx: v[0],
             cy: v[1],
             a: v[2],
             b: v[3],
             theta: v.get(4).copied().unwrap_or(0.0).to_radians(),
-        });
+        };
+        return Ok((e, None));
     }
     if let Some(s) = &a.init_box {
         let v = parse_floats(s, &[4], "--init-box")?;
-        return Ok(Ellipse::from_box(&BoxRect::new(v[0], v[1], v[2], v[3])));
+        return Ok((
+            Ellipse::from_box(&BoxRect::new(v[0], v[1], v[2], v[3])),
+            None,
+        ));
     }
     if let Some(s) = &a.init_points {
         let pts: anyhow::Result<Vec<[f64; 2]>> = s
@@ -265,20 +282,21 @@ pub fn initial_ellipse(a: &TrackArgs, synth_init: Option<&Path>) -> anyhow::Resu
             .map(|t| parse_floats(t, &[2], "--init-points").map(|v| [v[0], v[1]]))
             .collect();
         let pts = pts?;
-        return pftrack::motion::fit_ellipse(&pts)
-            .context("--init-points: no ellipse fits these points");
+        let e = pftrack::motion::fit_ellipse(&pts)
+            .context("--init-points: no ellipse fits these points")?;
+        return Ok((e, None));
     }
     if let Some(p) = &a.init_file {
-        return Ok(pftrack::io::read_init(p)?);
+        return file(p);
     }
     if let Some(p) = &a.init_truth {
         return match pftrack::eval::load_truth(p)? {
-            pftrack::eval::Truth::Poses(r) => Ok(r[0].state.ellipse(0.0)),
-            pftrack::eval::Truth::Boxes(b) => Ok(Ellipse::from_box(&b[0])),
+            pftrack::eval::Truth::Poses(r) => Ok((r[0].state.ellipse(0.0), None)),
+            pftrack::eval::Truth::Boxes(b) => Ok((Ellipse::from_box(&b[0]), None)),
         };
     }
     if let Some(p) = synth_init {
-        return Ok(pftrack::io::read_init(p)?);
+        return file(p);
     }
     bail!(
         "no initial ellipse: give one of --init-ellipse, --init-box, --init-points, --init-file, --init-truth"
@@ -331,12 +349,13 @@ pub fn apply_feature_weight(cfg: &mut TrackerConfig, w: f64) -> anyhow::Result<(
 }
 
 /// Checks and applies `--template-weight`, `--template-rate` and `--anchor-weight` (template
-/// weight 0: the term off, and the anchor with it).
+/// weight 0: the term off, and the anchor with it). A given anchor weight holds with and
+/// without a camera; none keeps the library's two defaults.
 pub fn apply_template(
     cfg: &mut TrackerConfig,
     weight: f64,
     rate: f64,
-    anchor_weight: f64,
+    anchor_weight: Option<f64>,
 ) -> anyhow::Result<()> {
     if !(weight.is_finite() && weight >= 0.0) {
         bail!("--template-weight must be finite and at least 0, got {weight}");
@@ -344,14 +363,18 @@ pub fn apply_template(
     if !(0.0..=1.0).contains(&rate) {
         bail!("--template-rate must lie between 0 and 1, got {rate}");
     }
-    if !(anchor_weight.is_finite() && anchor_weight >= 0.0) {
-        bail!("--anchor-weight must be finite and at least 0, got {anchor_weight}");
+    if let Some(w) = anchor_weight
+        && !(w.is_finite() && w >= 0.0)
+    {
+        bail!("--anchor-weight must be finite and at least 0, got {w}");
     }
+    let base = cfg.template.unwrap_or_default();
     cfg.template = (weight > 0.0).then(|| pftrack::tracker::TemplateTerm {
         weight,
         rate,
-        anchor_weight,
-        ..cfg.template.unwrap_or_default()
+        anchor_weight: anchor_weight.unwrap_or(base.anchor_weight),
+        anchor_weight_camera: anchor_weight.unwrap_or(base.anchor_weight_camera),
+        ..base
     });
     Ok(())
 }
@@ -396,14 +419,21 @@ pub fn progress(len: Option<usize>) -> indicatif::ProgressBar {
 /// Runs the command.
 pub fn run(a: TrackArgs) -> anyhow::Result<()> {
     let (frames_path, synth_init) = resolve_input(&a.input);
-    let init_e = initial_ellipse(&a, synth_init.as_deref())?;
+    let (init_e, file_hfov) = initial_ellipse(&a, synth_init.as_deref())?;
     let pose = parse_floats(&a.init_pose, &[3], "--init-pose")?;
     let init = Init {
         ellipse: init_e,
         pose: Euler::from_degrees(pose[0], pose[1], pose[2]),
     };
     let mut cfg = config(&a.mode, a.particles, a.seed)?;
-    apply_hfov(&mut cfg, a.hfov)?;
+    apply_hfov(
+        &mut cfg,
+        if a.weak_perspective {
+            None
+        } else {
+            a.hfov.or(file_hfov)
+        },
+    )?;
     apply_depth_ratio(&mut cfg, a.depth_ratio)?;
     apply_edge_threshold(&mut cfg, a.edge_threshold)?;
     if a.no_fit_prior {
@@ -467,12 +497,17 @@ pub fn run(a: TrackArgs) -> anyhow::Result<()> {
         std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
     }
     let first = source.next().context("the input has no frames")??;
+    let camera = match cfg.camera_hfov_deg {
+        Some(h) => format!("camera hfov {h}°"),
+        None => "weak perspective".to_string(),
+    };
     let mut tracker = Tracker::with_engine(cfg, engine, &first, init)?;
     let written = run_loop(&a, &mut source, &mut tracker, &first)?;
     eprintln!(
-        "pftrack: tracked {written} frames with {} ({}){}",
+        "pftrack: tracked {written} frames with {} ({}, {}){}",
         tracker.engine_name(),
         a.mode,
+        camera,
         a.out
             .as_ref()
             .map(|p| format!(", poses in {}", p.display()))
@@ -576,25 +611,40 @@ mod tests {
     #[test]
     fn template_settings_are_checked_and_applied() {
         let mut cfg = TrackerConfig::default();
-        apply_template(&mut cfg, 35.0, 0.1, 25.0).unwrap();
+        apply_template(&mut cfg, 35.0, 0.1, Some(25.0)).unwrap();
         let t = cfg.template.unwrap();
-        assert_eq!((t.weight, t.rate, t.anchor_weight), (35.0, 0.1, 25.0));
-        apply_template(&mut cfg, 0.0, 0.1, 25.0).unwrap();
+        assert_eq!(
+            (t.weight, t.rate, t.anchor_weight, t.anchor_weight_camera),
+            (35.0, 0.1, 25.0, 25.0)
+        );
+        apply_template(&mut cfg, 0.0, 0.1, Some(25.0)).unwrap();
         assert!(cfg.template.is_none());
-        apply_template(&mut cfg, 10.0, 0.0, 0.0).unwrap();
+        apply_template(&mut cfg, 10.0, 0.0, Some(0.0)).unwrap();
         assert_eq!(
             cfg.template.map(|t| (t.weight, t.rate, t.anchor_weight)),
             Some((10.0, 0.0, 0.0))
         );
+        // No --anchor-weight: the library's defaults, with and without a camera.
+        let mut cfg = TrackerConfig::default();
+        apply_template(&mut cfg, 20.0, 0.05, None).unwrap();
+        let (d, t) = (
+            pftrack::tracker::TemplateTerm::default(),
+            cfg.template.unwrap(),
+        );
+        assert_eq!(
+            (t.anchor_weight, t.anchor_weight_camera),
+            (d.anchor_weight, d.anchor_weight_camera)
+        );
+        assert!(t.anchor_weight_for(true) > t.anchor_weight_for(false));
         for (w, r, a, flag) in [
-            (-1.0, 0.1, 40.0, "--template-weight"),
-            (f64::NAN, 0.1, 40.0, "--template-weight"),
-            (f64::INFINITY, 0.1, 40.0, "--template-weight"),
-            (20.0, -0.1, 40.0, "--template-rate"),
-            (20.0, 1.5, 40.0, "--template-rate"),
-            (20.0, f64::NAN, 40.0, "--template-rate"),
-            (20.0, 0.1, -1.0, "--anchor-weight"),
-            (20.0, 0.1, f64::NAN, "--anchor-weight"),
+            (-1.0, 0.1, None, "--template-weight"),
+            (f64::NAN, 0.1, None, "--template-weight"),
+            (f64::INFINITY, 0.1, Some(40.0), "--template-weight"),
+            (20.0, -0.1, None, "--template-rate"),
+            (20.0, 1.5, None, "--template-rate"),
+            (20.0, f64::NAN, None, "--template-rate"),
+            (20.0, 0.1, Some(-1.0), "--anchor-weight"),
+            (20.0, 0.1, Some(f64::NAN), "--anchor-weight"),
         ] {
             let e = apply_template(&mut cfg, w, r, a).unwrap_err().to_string();
             assert!(e.starts_with(flag), "{e}");
