@@ -7,7 +7,7 @@ use anyhow::{Context, bail};
 use clap::Args;
 use pftrack::frames::{self, SourceOptions};
 use pftrack::geometry::{BoxRect, Ellipse, Euler};
-use pftrack::io::{PoseCsvWriter, PoseRecord};
+use pftrack::io::{InitFile, PoseCsvWriter, PoseRecord};
 use pftrack::likelihood::{Backend, create_engine};
 use pftrack::output::{Overlay, render_overlay, write_png};
 use pftrack::tracker::{ColourUpdate, Estimate, Init, Mode, Tracker, TrackerConfig};
@@ -249,31 +249,26 @@ fn resolve_input(input: &Path) -> (PathBuf, Option<PathBuf>) {
 
 /// The initial ellipse from whichever option was given, with the camera's horizontal field of
 /// view when an init file gives it.
-pub fn initial_ellipse(
-    a: &TrackArgs,
-    synth_init: Option<&Path>,
-) -> anyhow::Result<(Ellipse, Option<f64>)> {
-    let file = |p: &Path| -> anyhow::Result<(Ellipse, Option<f64>)> {
-        let i = pftrack::io::read_init(p)?;
-        Ok((i.ellipse, i.hfov_deg))
+pub fn initial_ellipse(a: &TrackArgs, synth_init: Option<&Path>) -> anyhow::Result<InitFile> {
+    let no_camera = |ellipse| InitFile {
+        ellipse,
+        hfov_deg: None,
     };
     if let Some(s) = &a.init_ellipse {
         let v = parse_floats(s, &[4, 5], "--init-ellipse")?;
-        let e = Ellipse {
+        return Ok(no_camera(Ellipse {
             cx: v[0],
             cy: v[1],
             a: v[2],
             b: v[3],
             theta: v.get(4).copied().unwrap_or(0.0).to_radians(),
-        };
-        return Ok((e, None));
+        }));
     }
     if let Some(s) = &a.init_box {
         let v = parse_floats(s, &[4], "--init-box")?;
-        return Ok((
-            Ellipse::from_box(&BoxRect::new(v[0], v[1], v[2], v[3])),
-            None,
-        ));
+        return Ok(no_camera(Ellipse::from_box(&BoxRect::new(
+            v[0], v[1], v[2], v[3],
+        ))));
     }
     if let Some(s) = &a.init_points {
         let pts: anyhow::Result<Vec<[f64; 2]>> = s
@@ -282,21 +277,21 @@ pub fn initial_ellipse(
             .map(|t| parse_floats(t, &[2], "--init-points").map(|v| [v[0], v[1]]))
             .collect();
         let pts = pts?;
-        let e = pftrack::motion::fit_ellipse(&pts)
-            .context("--init-points: no ellipse fits these points")?;
-        return Ok((e, None));
+        return pftrack::motion::fit_ellipse(&pts)
+            .map(no_camera)
+            .context("--init-points: no ellipse fits these points");
     }
     if let Some(p) = &a.init_file {
-        return file(p);
+        return Ok(pftrack::io::read_init(p)?);
     }
     if let Some(p) = &a.init_truth {
         return match pftrack::eval::load_truth(p)? {
-            pftrack::eval::Truth::Poses(r) => Ok((r[0].state.ellipse(0.0), None)),
-            pftrack::eval::Truth::Boxes(b) => Ok((Ellipse::from_box(&b[0]), None)),
+            pftrack::eval::Truth::Poses(r) => Ok(no_camera(r[0].state.ellipse(0.0))),
+            pftrack::eval::Truth::Boxes(b) => Ok(no_camera(Ellipse::from_box(&b[0]))),
         };
     }
     if let Some(p) = synth_init {
-        return file(p);
+        return Ok(pftrack::io::read_init(p)?);
     }
     bail!(
         "no initial ellipse: give one of --init-ellipse, --init-box, --init-points, --init-file, --init-truth"
@@ -419,10 +414,10 @@ pub fn progress(len: Option<usize>) -> indicatif::ProgressBar {
 /// Runs the command.
 pub fn run(a: TrackArgs) -> anyhow::Result<()> {
     let (frames_path, synth_init) = resolve_input(&a.input);
-    let (init_e, file_hfov) = initial_ellipse(&a, synth_init.as_deref())?;
+    let init_file = initial_ellipse(&a, synth_init.as_deref())?;
     let pose = parse_floats(&a.init_pose, &[3], "--init-pose")?;
     let init = Init {
-        ellipse: init_e,
+        ellipse: init_file.ellipse,
         pose: Euler::from_degrees(pose[0], pose[1], pose[2]),
     };
     let mut cfg = config(&a.mode, a.particles, a.seed)?;
@@ -431,7 +426,7 @@ pub fn run(a: TrackArgs) -> anyhow::Result<()> {
         if a.weak_perspective {
             None
         } else {
-            a.hfov.or(file_hfov)
+            a.hfov.or(init_file.hfov_deg)
         },
     )?;
     apply_depth_ratio(&mut cfg, a.depth_ratio)?;
