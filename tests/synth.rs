@@ -843,33 +843,36 @@ fn cli_writes_frames_truth_and_init() {
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
-fn assert_one_line_error(args: &[&str], needle: &str, dir: &Path) {
+/// Runs `pftrack args` and checks it fails with one line naming `needle`, without a panic,
+/// leaving no `unwritten` file (the output a complete run would have written).
+fn assert_one_line_error(args: &[&str], needle: &str, unwritten: &Path) {
     let out = pftrack(args);
     assert!(!out.status.success(), "{args:?} succeeded");
     let err = String::from_utf8_lossy(&out.stderr);
     assert_eq!(err.trim_end().lines().count(), 1, "{args:?}: {err}");
     assert!(err.contains(needle), "{args:?}: {err}");
     assert!(!err.contains("panicked"), "{err}");
-    assert!(!dir.join("truth.csv").exists());
+    assert!(!unwritten.exists(), "{args:?} left {}", unwritten.display());
 }
 
 #[test]
 fn cli_bad_input_is_a_one_line_error() {
     let dir = tmp_dir("bad");
     let d = dir.to_str().unwrap();
+    let truth = dir.join("truth.csv");
     assert_one_line_error(
         &["synth", d, "--scenario", "spin"],
         "unknown scenario 'spin'",
-        &dir,
+        &truth,
     );
     assert_one_line_error(
         &["synth", d, "--scenario", "spin"],
         "nod, pan, roll, combo, depth, car, long",
-        &dir,
+        &truth,
     );
-    assert_one_line_error(&["synth", d, "--frames", "0"], "at least 1", &dir);
+    assert_one_line_error(&["synth", d, "--frames", "0"], "at least 1", &truth);
     for size in ["10x", "0x120", "abc", "160x120x3", "100000x100"] {
-        assert_one_line_error(&["synth", d, "--size", size], "size", &dir);
+        assert_one_line_error(&["synth", d, "--size", size], "size", &truth);
     }
     // a directory that cannot be created: its parent is a file
     std::fs::create_dir_all(&dir).unwrap();
@@ -879,7 +882,7 @@ fn cli_bad_input_is_a_one_line_error() {
     assert_one_line_error(
         &["synth", under.to_str().unwrap(), "--frames", "2"],
         "plain-file",
-        &under,
+        &under.join("truth.csv"),
     );
     std::fs::remove_dir_all(&dir).unwrap();
 }
@@ -976,15 +979,7 @@ fn cli_track_rejects_bad_lost_and_reacquisition_settings() {
         ("--reanchor-ncc", "NaN", "reanchor min_ncc"),
     ] {
         let args = ["track", d, "--backend", "cpu", flag, value, "--out", c];
-        let out = pftrack(&args);
-        assert!(!out.status.success(), "{args:?} succeeded");
-        let err = String::from_utf8_lossy(&out.stderr);
-        assert_eq!(err.trim_end().lines().count(), 1, "{args:?}: {err}");
-        assert!(
-            err.contains(needle) && !err.contains("panicked"),
-            "{args:?}: {err}"
-        );
-        assert!(!csv.exists(), "{args:?} left a pose CSV");
+        assert_one_line_error(&args, needle, &csv);
     }
     std::fs::remove_dir_all(&dir).unwrap();
 }
@@ -1028,11 +1023,6 @@ fn cli_track_takes_the_camera_from_the_init_file() {
     std::fs::remove_file(&csv).unwrap();
     let ellipse_line = init.lines().next().unwrap();
     std::fs::write(dir.join("init.txt"), format!("{ellipse_line}\nhfov,200\n")).unwrap();
-    let out = pftrack(&["track", d, "--backend", "cpu", "--out", c]);
-    let err = String::from_utf8_lossy(&out.stderr);
-    assert!(!out.status.success());
-    assert_eq!(err.trim_end().lines().count(), 1, "{err}");
-    assert!(err.contains("hfov") && !err.contains("panicked"), "{err}");
-    assert!(!csv.exists(), "a bad init file left a pose CSV");
+    assert_one_line_error(&["track", d, "--backend", "cpu", "--out", c], "hfov", &csv);
     std::fs::remove_dir_all(&dir).unwrap();
 }

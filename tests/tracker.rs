@@ -3,7 +3,9 @@
 
 use pftrack::geometry::{Ellipse, angle_between, rot_x};
 use pftrack::synth::{Renderer, Scenario, SynthConfig};
-use pftrack::tracker::{AnchorRefit, ColourUpdate, Contrast, Init, Tracker, TrackerConfig};
+use pftrack::tracker::{
+    AnchorRefit, ColourUpdate, Contrast, Init, TemplateTerm, Tracker, TrackerConfig,
+};
 
 type Track = (
     Vec<pftrack::tracker::Estimate>,
@@ -235,42 +237,49 @@ fn bad_input_is_an_error() {
         let err = Tracker::new(cfg, &img, Init::frontal(r.init_ellipse())).unwrap_err();
         assert!(err.to_string().contains("feature_weight"), "{w}: {err}");
     }
-    // (weight, grid, rate, min_confidence, anchor_weight, anchor_weight_camera,
-    // anchor_threshold)
+    // The default template with one setting out of range.
+    let t = TemplateTerm::default();
     let bad_templates = [
-        (-1.0, 16, 0.05, 0.5, 40.0, 80.0, 0.5),
-        (f64::NAN, 16, 0.05, 0.5, 40.0, 80.0, 0.5),
-        (20.0, 1, 0.05, 0.5, 40.0, 80.0, 0.5),
-        (20.0, 65, 0.05, 0.5, 40.0, 80.0, 0.5),
-        (20.0, 16, 1.5, 0.5, 40.0, 80.0, 0.5),
-        (20.0, 16, 0.05, f64::NAN, 40.0, 80.0, 0.5),
-        (20.0, 16, 0.05, 0.5, -1.0, 80.0, 0.5),
-        (20.0, 16, 0.05, 0.5, f64::INFINITY, 80.0, 0.5),
-        (20.0, 16, 0.05, 0.5, 40.0, -1.0, 0.5),
-        (20.0, 16, 0.05, 0.5, 40.0, f64::NAN, 0.5),
-        (20.0, 16, 0.05, 0.5, 40.0, 80.0, 1.0),
-        (20.0, 16, 0.05, 0.5, 40.0, 80.0, f64::NAN),
+        TemplateTerm { weight: -1.0, ..t },
+        TemplateTerm {
+            weight: f64::NAN,
+            ..t
+        },
+        TemplateTerm { grid: 1, ..t },
+        TemplateTerm { grid: 65, ..t },
+        TemplateTerm { rate: 1.5, ..t },
+        TemplateTerm {
+            min_confidence: f64::NAN,
+            ..t
+        },
+        TemplateTerm {
+            anchor_weight: -1.0,
+            ..t
+        },
+        TemplateTerm {
+            anchor_weight: f64::INFINITY,
+            ..t
+        },
+        TemplateTerm {
+            anchor_weight_camera: -1.0,
+            ..t
+        },
+        TemplateTerm {
+            anchor_weight_camera: f64::NAN,
+            ..t
+        },
+        TemplateTerm {
+            anchor_threshold: 1.0,
+            ..t
+        },
+        TemplateTerm {
+            anchor_threshold: f64::NAN,
+            ..t
+        },
     ];
-    for (
-        weight,
-        grid,
-        rate,
-        min_confidence,
-        anchor_weight,
-        anchor_weight_camera,
-        anchor_threshold,
-    ) in bad_templates
-    {
+    for template in bad_templates {
         let cfg = TrackerConfig {
-            template: Some(pftrack::tracker::TemplateTerm {
-                weight,
-                grid,
-                rate,
-                min_confidence,
-                anchor_weight,
-                anchor_weight_camera,
-                anchor_threshold,
-            }),
+            template: Some(template),
             ..TrackerConfig::default()
         };
         let err = Tracker::new(cfg, &img, Init::frontal(r.init_ellipse())).unwrap_err();
