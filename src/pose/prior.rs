@@ -176,9 +176,17 @@ impl Ellipsoid {
 /// optical axis under weak perspective, from the camera centre with a camera) meets the
 /// ellipsoid's near side; a ray that misses it takes its point of closest approach (the
 /// outline). Points are relative to the ellipsoid's centre, in pixels at its depth; with a
-/// camera, the centre lies at depth `focal`.
+/// camera, the centre lies at depth `focal`. A model of no depth (depth ratio 0: a flat disc)
+/// lifts every ray onto the disc's plane, or, for a ray in that plane, to the point closest
+/// to the centre.
 pub fn lift(p: &[[f64; 2]], model: &Ellipsoid, camera: Option<&Pinhole>) -> Vec<Vector3<f64>> {
-    let inv = Matrix3::from_diagonal(&model.semi.map(|s| 1.0 / (s * s)));
+    let flat = model.semi.z <= 0.0;
+    let normal = model.orientation.column(2).into_owned();
+    let inv = Matrix3::from_diagonal(
+        &model
+            .semi
+            .map(|s| if s > 0.0 { 1.0 / (s * s) } else { 0.0 }),
+    );
     let q = model.orientation * inv * model.orientation.transpose();
     p.iter()
         .map(|p| {
@@ -196,6 +204,15 @@ pub fn lift(p: &[[f64; 2]], model: &Ellipsoid, camera: Option<&Pinhole>) -> Vec<
                     Vector3::new(p[0] - c.principal.x, p[1] - c.principal.y, c.focal),
                 ),
             };
+            if flat {
+                let along = normal.dot(&dir);
+                let lambda = if along.abs() > 1e-9 * dir.norm() {
+                    -normal.dot(&origin) / along
+                } else {
+                    -dir.dot(&origin) / dir.dot(&dir)
+                };
+                return origin + lambda * dir;
+            }
             let qa = dir.dot(&(q * dir));
             let qb = dir.dot(&(q * origin));
             let qc = origin.dot(&(q * origin)) - 1.0;
@@ -922,5 +939,24 @@ mod tests {
         for x in lift(&[[70.0, 62.0], [75.0, 70.0], [60.0, 55.0]], &m, None) {
             assert!((x.dot(&(q * x)) - 1.0).abs() < 1e-9);
         }
+    }
+
+    #[test]
+    fn a_model_of_no_depth_lifts_onto_its_plane() {
+        let reference = Ellipse::new(80.0, 60.0, 18.0, 24.0);
+        let view = Ellipse::new(70.0, 62.0, 9.0, 24.0);
+        let rot = Euler::from_degrees(0.0, 60.0, 0.0).matrix();
+        let m = Ellipsoid::posed(&reference, 0.0, &rot, &view);
+        let normal = m.orientation.column(2).into_owned();
+        let cam = Pinhole::from_hfov(160, 120, 50.0).unwrap();
+        for camera in [None, Some(&cam)] {
+            for x in lift(&[[70.0, 62.0], [75.0, 70.0], [60.0, 55.0]], &m, camera) {
+                assert!(x.iter().all(|v| v.is_finite()), "{x:?}");
+                assert!(normal.dot(&x).abs() < 1e-9, "{x:?} off the plane");
+            }
+        }
+        // Facing the camera, the plane is the image plane: no depth anywhere.
+        let x = lift(&[[75.0, 70.0]], &Ellipsoid::facing(&reference, 0.0), None)[0];
+        assert_eq!(x, Vector3::new(-5.0, 10.0, 0.0));
     }
 }
