@@ -1014,6 +1014,35 @@ fn cli_track_takes_the_camera_from_the_init_file() {
         assert!(err.contains(said), "{args:?}: {err}");
         tracks.push(std::fs::read(&csv).unwrap());
     }
+    // A flat model (no depth) through the camera: every lifted feature lies on the disc's
+    // plane, and the track is as complete as any other (at 64x48 too few features reach the
+    // lift; 96x72 failed at frame 3 when the flat model's lift divided by its zero depth).
+    let flat_dir = dir.join("flat");
+    let fd = flat_dir.to_str().unwrap();
+    let out = pftrack(&["synth", fd, "--frames", "4", "--size", "96x72"]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let out = pftrack(&[
+        "track",
+        fd,
+        "--backend",
+        "cpu",
+        "--depth-ratio",
+        "0",
+        "--out",
+        c,
+    ]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let flat = std::fs::read_to_string(&csv).unwrap();
+    assert_eq!(flat.lines().count(), 5, "{flat}");
+    assert!(!flat.contains("NaN") && !flat.contains("inf"), "{flat}");
     // The camera reaches the tracker: the three tracks differ.
     assert!(tracks[0] != tracks[1] && tracks[0] != tracks[2] && tracks[1] != tracks[2]);
     let out = pftrack(&["track", d, "--hfov", "60", "--weak-perspective", "--out", c]);
@@ -1024,5 +1053,74 @@ fn cli_track_takes_the_camera_from_the_init_file() {
     let ellipse_line = init.lines().next().unwrap();
     std::fs::write(dir.join("init.txt"), format!("{ellipse_line}\nhfov,200\n")).unwrap();
     assert_one_line_error(&["track", d, "--backend", "cpu", "--out", c], "hfov", &csv);
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// Negative numbers are values (a box reaching past the left edge, a negative SNR, a depth
+/// ratio the tracker then rejects itself), and a usage error is one line like any other.
+#[test]
+fn cli_takes_negative_values_and_reports_usage_errors_on_one_line() {
+    let dir = tmp_dir("negative");
+    let d = dir.to_str().unwrap();
+    let out = pftrack(&["synth", d, "--frames", "2", "--size", "64x48"]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let csv = dir.join("poses.csv");
+    let c = csv.to_str().unwrap();
+    for args in [
+        &["--init-box", "-4,10,40,30"][..],
+        &["--init-pose", "-10,5,-3"][..],
+        &["--init-points", "-2,20;20,5;42,20;20,35;5,30"][..],
+    ] {
+        let mut all = vec!["track", d, "--backend", "cpu", "--out", c];
+        all.extend_from_slice(args);
+        let out = pftrack(&all);
+        assert!(
+            out.status.success(),
+            "{args:?}: {}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        std::fs::remove_file(&csv).unwrap();
+    }
+    let snr = dir.join("snr.csv");
+    let out = pftrack(&[
+        "pose-noise",
+        "--snr",
+        "-5,0",
+        "--lambda-snr",
+        "0",
+        "--trials",
+        "4",
+        "--csv",
+        snr.to_str().unwrap(),
+    ]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let table = std::fs::read_to_string(&snr).unwrap();
+    assert!(table.lines().nth(1).unwrap().starts_with("-5"), "{table}");
+
+    let track = |extra: &[&'static str]| {
+        let mut v = vec!["track", d, "--backend", "cpu", "--out", c];
+        v.extend_from_slice(extra);
+        v
+    };
+    assert_one_line_error(
+        &track(&["--depth-ratio", "-1"]),
+        "--depth-ratio must lie",
+        &csv,
+    );
+    assert_one_line_error(&track(&["--bogus"]), "unexpected argument '--bogus'", &csv);
+    assert_one_line_error(
+        &track(&["--particles", "many"]),
+        "invalid value 'many'",
+        &csv,
+    );
+    assert_one_line_error(&["track", "--out", c], "<INPUT>", &csv);
     std::fs::remove_dir_all(&dir).unwrap();
 }

@@ -12,6 +12,7 @@ use pftrack::likelihood::{Backend, FrameInput, LikelihoodEngine, LikelihoodError
 
 /// Arguments of `pftrack bench`.
 #[derive(Debug, Args)]
+#[command(allow_negative_numbers = true)]
 pub struct BenchArgs {
     /// Particle counts, comma separated.
     #[arg(long, value_delimiter = ',', default_value = "200,1000,10000,100000")]

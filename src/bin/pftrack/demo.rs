@@ -17,6 +17,7 @@ use crate::track::{config, progress, record};
 
 /// Arguments of `pftrack demo`.
 #[derive(Debug, Args)]
+#[command(allow_negative_numbers = true)]
 pub struct DemoArgs {
     /// Scenario to render (nod, pan, roll, combo, depth, car, long).
     #[arg(long, default_value = "nod")]

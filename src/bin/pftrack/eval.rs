@@ -9,6 +9,7 @@ use pftrack::io::read_pose_csv;
 
 /// Arguments of `pftrack eval`.
 #[derive(Debug, Args)]
+#[command(allow_negative_numbers = true)]
 pub struct EvalArgs {
     /// Ground truth: a pose CSV (`frame,cx,cy,a,b,rx,ry,rz`) or an OTB box file (`x,y,w,h`
     /// per frame, 1-based, commas or tabs).

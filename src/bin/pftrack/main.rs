@@ -10,6 +10,7 @@ mod sift;
 mod synth;
 mod track;
 
+use clap::error::ErrorKind;
 use clap::{Parser, Subcommand};
 
 /// Joint video tracking and 3D pose estimation of a rigid object.
@@ -49,7 +50,10 @@ fn main() {
         // SAFETY: the first statement of `main`, before any thread exists.
         unsafe { std::env::set_var("NODEVICE_SELECT", "1") };
     }
-    let cli = Cli::parse();
+    let cli = match Cli::try_parse() {
+        Ok(cli) => cli,
+        Err(e) => usage_error(e),
+    };
     let result = match cli.command {
         Command::Demo(a) => demo::run(a),
         Command::Track(a) => track::run(*a),
@@ -69,5 +73,76 @@ fn main() {
             .join(": ");
         eprintln!("pftrack: error: {msg}");
         std::process::exit(1);
+    }
+}
+
+/// Prints a command-line usage error as one line, `pftrack: error: ...` with clap's tip and a
+/// pointer to the help, and exits with status 2 (clap's own for usage errors); help and
+/// version requests print as clap prints them.
+fn usage_error(e: clap::Error) -> ! {
+    match e.kind() {
+        ErrorKind::DisplayHelp
+        | ErrorKind::DisplayVersion
+        | ErrorKind::DisplayHelpOnMissingArgumentOrSubcommand => e.exit(),
+        _ => {
+            eprintln!("pftrack: error: {}", one_line(&e.render().to_string()));
+            std::process::exit(2);
+        }
+    }
+}
+
+/// clap's rendered message on one line: the lines before its usage block, trimmed and joined,
+/// without the leading `error: `, and the usage's command pointed to for help.
+fn one_line(rendered: &str) -> String {
+    let mut parts = Vec::new();
+    let mut help = None;
+    for line in rendered.lines() {
+        let line = line.trim();
+        if let Some(usage) = line.strip_prefix("Usage: ") {
+            // "pftrack track [OPTIONS] <INPUT>": the command is the words before the first
+            // placeholder.
+            let cmd: Vec<&str> = usage
+                .split_whitespace()
+                .take_while(|w| !w.starts_with(['[', '<', '-']))
+                .collect();
+            help = Some(format!("see '{} --help'", cmd.join(" ")));
+            break;
+        }
+        if !line.is_empty() && !line.starts_with("For more information") {
+            parts.push(line.strip_prefix("error: ").unwrap_or(line).to_string());
+        }
+    }
+    parts.extend(help);
+    // A list after a colon (the missing arguments) continues its sentence.
+    let mut out = String::new();
+    for p in parts {
+        if !out.is_empty() {
+            out.push_str(if out.ends_with(':') { " " } else { "; " });
+        }
+        out.push_str(&p);
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::one_line;
+
+    #[test]
+    fn clap_messages_become_one_line() {
+        let rendered = "error: unexpected argument '--bogus' found\n\n  tip: to pass '--bogus' as a \
+                        value, use '-- --bogus'\n\nUsage: pftrack track [OPTIONS] <INPUT>\n\nFor \
+                        more information, try '--help'.\n";
+        assert_eq!(
+            one_line(rendered),
+            "unexpected argument '--bogus' found; tip: to pass '--bogus' as a value, use \
+             '-- --bogus'; see 'pftrack track --help'"
+        );
+        let missing = "error: the following required arguments were not provided:\n  <INPUT>\n\n\
+                       Usage: pftrack track <INPUT>\n\nFor more information, try '--help'.\n";
+        assert_eq!(
+            one_line(missing),
+            "the following required arguments were not provided: <INPUT>; see 'pftrack track --help'"
+        );
     }
 }

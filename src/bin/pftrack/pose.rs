@@ -15,13 +15,14 @@ use crate::track::parse_floats;
 
 /// Arguments of `pftrack pose`.
 #[derive(Debug, Args)]
+#[command(allow_negative_numbers = true)]
 pub struct PoseArgs {
     /// The first image.
     pub frame_a: PathBuf,
     /// The second image (same size).
     pub frame_b: PathBuf,
     /// The object's ellipse in the first image, `cx,cy,a,b[,angle_deg]`.
-    #[arg(long, value_name = "CX,CY,A,B[,ANGLE]")]
+    #[arg(long, value_name = "CX,CY,A,B[,ANGLE]", allow_hyphen_values = true)]
     pub ellipse: String,
     /// Solver: sea, optimal, lsm, rls or essential.
     #[arg(long, default_value = "sea")]

@@ -27,6 +27,7 @@ pub enum NoiseFrames {
 /// coordinates, σ the noise standard deviation per coordinate. Error = angle of
 /// R_est · R_trueᵀ in degrees, scoring for every solver the Necker branch nearer the truth.
 #[derive(Debug, Args)]
+#[command(allow_negative_numbers = true)]
 pub struct PoseNoiseArgs {
     /// Points per trial.
     #[arg(long, default_value_t = 20)]
@@ -38,14 +39,16 @@ pub struct PoseNoiseArgs {
     #[arg(
         long,
         value_delimiter = ',',
-        default_value = "0,5,10,15,20,25,30,35,40"
+        default_value = "0,5,10,15,20,25,30,35,40",
+        allow_hyphen_values = true
     )]
     pub snr: Vec<f64>,
     /// SNRs in dB of the perturbation of SEA's multiplier Λ (Fig. 3a), comma-separated.
     #[arg(
         long,
         value_delimiter = ',',
-        default_value = "0,5,10,15,20,25,30,35,40"
+        default_value = "0,5,10,15,20,25,30,35,40",
+        allow_hyphen_values = true
     )]
     pub lambda_snr: Vec<f64>,
     /// Input SNR (dB) of the Λ experiment (Fig. 3a).

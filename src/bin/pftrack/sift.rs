@@ -12,11 +12,12 @@ use pftrack::geometry::BoxRect;
 
 /// Arguments of `pftrack sift`.
 #[derive(Debug, Args)]
+#[command(allow_negative_numbers = true)]
 pub struct SiftArgs {
     /// The image (PNG, JPEG, BMP, PNM).
     pub image: PathBuf,
     /// Detect only in this box `x,y,w,h` (pixels, origin at the top-left pixel's centre).
-    #[arg(long, value_parser = parse_region)]
+    #[arg(long, value_parser = parse_region, allow_hyphen_values = true)]
     pub region: Option<BoxRect>,
     /// Write keypoints and descriptors as CSV: `x,y,scale,angle_deg,response,octave,d0..d127`
     /// (`scale` is σ in pixels; OpenCV's `size` is 2σ). Without it, print a summary.

@@ -9,6 +9,7 @@ use pftrack::synth::{Scenario, SynthConfig, parse_size, write_sequence};
 
 /// Arguments of `pftrack synth`.
 #[derive(Debug, Args)]
+#[command(allow_negative_numbers = true)]
 pub struct SynthArgs {
     /// Output directory: receives frames/00000.png..., truth.csv and init.txt.
     pub dir: PathBuf,

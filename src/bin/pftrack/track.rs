@@ -14,18 +14,34 @@ use pftrack::tracker::{ColourUpdate, Estimate, Init, Mode, Tracker, TrackerConfi
 
 /// Arguments of `pftrack track`.
 #[derive(Debug, Args)]
+#[command(allow_negative_numbers = true)]
 pub struct TrackArgs {
     /// A directory of frames, a .y4m file, or any video ffmpeg reads. A directory written by
     /// `pftrack synth` (with frames/ and init.txt) is accepted as is.
     pub input: PathBuf,
     /// Initial ellipse `cx,cy,a,b[,angle_deg]` in pixels.
-    #[arg(long, value_name = "CX,CY,A,B[,ANGLE]", group = "init")]
+    #[arg(
+        long,
+        value_name = "CX,CY,A,B[,ANGLE]",
+        group = "init",
+        allow_hyphen_values = true
+    )]
     pub init_ellipse: Option<String>,
     /// Initial box `x,y,w,h` (top-left corner, pixels); its inscribed ellipse is tracked.
-    #[arg(long, value_name = "X,Y,W,H", group = "init")]
+    #[arg(
+        long,
+        value_name = "X,Y,W,H",
+        group = "init",
+        allow_hyphen_values = true
+    )]
     pub init_box: Option<String>,
     /// Points around the object `"x1,y1;x2,y2;..."` (at least 5): a least-squares ellipse.
-    #[arg(long, value_name = "X,Y;X,Y;...", group = "init")]
+    #[arg(
+        long,
+        value_name = "X,Y;X,Y;...",
+        group = "init",
+        allow_hyphen_values = true
+    )]
     pub init_points: Option<String>,
     /// An init file `cx,cy,a,b[,angle]` (what `pftrack synth` writes).
     #[arg(long, value_name = "FILE", group = "init")]
