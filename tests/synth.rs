@@ -1124,3 +1124,63 @@ fn cli_takes_negative_values_and_reports_usage_errors_on_one_line() {
     assert_one_line_error(&["track", "--out", c], "<INPUT>", &csv);
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+/// `sift` and `pose` check their input before any work: a region off the image, an image that
+/// is not one (its cause said once) and an unknown solver are each one line and no output.
+#[test]
+fn cli_sift_and_pose_reject_bad_input_in_one_line() {
+    let dir = tmp_dir("sift-pose");
+    let d = dir.to_str().unwrap();
+    let out = pftrack(&["synth", d, "--frames", "2", "--size", "96x72"]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let f0 = dir.join("frames/00000.png");
+    let f1 = dir.join("frames/00001.png");
+    let (f0, f1) = (f0.to_str().unwrap(), f1.to_str().unwrap());
+    let kps = dir.join("kps.csv");
+    let k = kps.to_str().unwrap();
+    for region in ["-20,-20,10,10", "96,0,10,10", "0,72,5,5"] {
+        assert_one_line_error(
+            &["sift", f0, "--region", region, "--out", k],
+            "lies outside the 96x72 image",
+            &kps,
+        );
+    }
+    // A region reaching past the top-left corner is still inside.
+    let out = pftrack(&["sift", f0, "--region", "-10,-10,60,50", "--out", k]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    std::fs::remove_file(&kps).unwrap();
+
+    let junk = dir.join("junk.png");
+    std::fs::write(&junk, "not a png").unwrap();
+    assert_one_line_error(
+        &["sift", junk.to_str().unwrap(), "--out", k],
+        "junk.png",
+        &kps,
+    );
+    let err =
+        String::from_utf8_lossy(&pftrack(&["sift", junk.to_str().unwrap()]).stderr).to_string();
+    assert_eq!(err.matches("signature").count(), 1, "{err}");
+
+    let drawn = dir.join("drawn.png");
+    let args = [
+        "pose",
+        f0,
+        f1,
+        "--ellipse",
+        "48,36,14,18",
+        "--solver",
+        "foo",
+        "--draw",
+        drawn.to_str().unwrap(),
+    ];
+    assert_one_line_error(&args, "sea, optimal, lsm, rls or essential", &drawn);
+    std::fs::remove_dir_all(&dir).unwrap();
+}

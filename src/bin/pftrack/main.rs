@@ -66,14 +66,26 @@ fn main() {
     };
     if let Err(e) = result {
         // One line: the error and its causes joined.
-        let msg = e
-            .chain()
-            .map(|c| c.to_string())
-            .collect::<Vec<_>>()
-            .join(": ");
+        let msg = one_line_chain(e.chain().map(|c| c.to_string()));
         eprintln!("pftrack: error: {msg}");
         std::process::exit(1);
     }
+}
+
+/// An error and its causes joined with `: `, leaving out a cause whose text the message
+/// already ends with (some errors, the image crate's among them, repeat their source's text
+/// in their own).
+fn one_line_chain(chain: impl Iterator<Item = String>) -> String {
+    let mut msg = String::new();
+    for c in chain {
+        if msg.is_empty() {
+            msg = c;
+        } else if !msg.ends_with(c.as_str()) {
+            msg.push_str(": ");
+            msg.push_str(&c);
+        }
+    }
+    msg
 }
 
 /// Prints a command-line usage error as one line, `pftrack: error: ...` with clap's tip and a
@@ -126,7 +138,25 @@ fn one_line(rendered: &str) -> String {
 
 #[cfg(test)]
 mod tests {
-    use super::one_line;
+    use super::{one_line, one_line_chain};
+
+    #[test]
+    fn a_repeated_cause_is_said_once() {
+        let chain = [
+            "cannot read x.png",
+            "Format error: bad signature",
+            "bad signature",
+        ];
+        assert_eq!(
+            one_line_chain(chain.iter().map(|s| s.to_string())),
+            "cannot read x.png: Format error: bad signature"
+        );
+        let chain = ["reading the truth", "t.csv: no such file"];
+        assert_eq!(
+            one_line_chain(chain.iter().map(|s| s.to_string())),
+            "reading the truth: t.csv: no such file"
+        );
+    }
 
     #[test]
     fn clap_messages_become_one_line() {

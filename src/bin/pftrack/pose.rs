@@ -77,6 +77,15 @@ pub fn run(a: PoseArgs) -> anyhow::Result<()> {
     if !e.is_valid() {
         bail!("--ellipse: semi-axes must be positive");
     }
+    // `None`: the essential-matrix baseline, which is not a block solver.
+    let solver = match a.solver.as_str() {
+        "essential" => None,
+        name => Some(SolverKind::from_name(name).map_err(|_| {
+            anyhow::anyhow!(
+                "unknown solver `{name}` (expected sea, optimal, lsm, rls or essential)"
+            )
+        })?),
+    };
     let (ia, ib) = (load(&a.frame_a)?, load(&a.frame_b)?);
     if ia.dimensions() != ib.dimensions() {
         bail!(
@@ -115,7 +124,12 @@ pub fn run(a: PoseArgs) -> anyhow::Result<()> {
         let [x, y, z] = Euler::from_matrix(r).to_degrees();
         println!("{name}: tilt {x:.2} pan {y:.2} roll {z:.2} (degrees)");
     };
-    if a.solver == "essential" {
+    if let Some(kind) = solver {
+        let i = interframe(&p, &q, [e.cx, e.cy], kind)?;
+        println!("residual {:.3} px", i.block.residual);
+        show("rotation", &i.pair.a);
+        show("its Necker mirror", &i.pair.b);
+    } else {
         let w = ia.width() as f64;
         let k = pftrack::pose::Intrinsics {
             fx: w,
@@ -125,12 +139,6 @@ pub fn run(a: PoseArgs) -> anyhow::Result<()> {
         };
         let r = essential_rotation(&p, &q, &k)?;
         show("essential (focal = image width assumed)", &r.rotation);
-    } else {
-        let kind = SolverKind::from_name(&a.solver)?;
-        let i = interframe(&p, &q, [e.cx, e.cy], kind)?;
-        println!("residual {:.3} px", i.block.residual);
-        show("rotation", &i.pair.a);
-        show("its Necker mirror", &i.pair.b);
     }
     if let Some(path) = &a.draw {
         let mut img = ib.clone();

@@ -4,7 +4,7 @@ use std::io::Write;
 use std::path::PathBuf;
 use std::time::Instant;
 
-use anyhow::Context;
+use anyhow::{Context, bail};
 use clap::Args;
 use pftrack::features::{Sift, SiftParams, UpsampleGrid};
 use pftrack::frames::GrayF32;
@@ -56,6 +56,22 @@ pub fn run(args: SiftArgs) -> anyhow::Result<()> {
     let img = image::open(&args.image)
         .with_context(|| format!("cannot read image {}", args.image.display()))?
         .to_rgb8();
+    if let Some(r) = &args.region
+        && (r.x >= img.width() as f64
+            || r.y >= img.height() as f64
+            || r.x + r.w <= 0.0
+            || r.y + r.h <= 0.0)
+    {
+        bail!(
+            "--region {},{},{},{} lies outside the {}x{} image",
+            r.x,
+            r.y,
+            r.w,
+            r.h,
+            img.width(),
+            img.height()
+        );
+    }
     let gray = GrayF32::from_rgb(&img);
     let sift = Sift::new(SiftParams {
         upsample: !args.no_upsample,
