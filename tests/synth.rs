@@ -1184,3 +1184,46 @@ fn cli_sift_and_pose_reject_bad_input_in_one_line() {
     assert_one_line_error(&args, "sea, optimal, lsm, rls or essential", &drawn);
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+/// A track that fails part-way (a frame of another size) leaves neither a pose CSV nor the
+/// frames it had drawn: nothing that reads as a whole track.
+#[test]
+fn cli_a_failed_track_leaves_no_render() {
+    let dir = tmp_dir("failed-render");
+    let d = dir.to_str().unwrap();
+    let out = pftrack(&["synth", d, "--frames", "5", "--size", "64x48"]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let render = dir.join("render");
+    let csv = dir.join("poses.csv");
+    let args = [
+        "track",
+        d,
+        "--backend",
+        "cpu",
+        "--render",
+        render.to_str().unwrap(),
+        "--out",
+        csv.to_str().unwrap(),
+    ];
+    // Whole, it draws every frame.
+    let ok = pftrack(&args);
+    assert!(
+        ok.status.success(),
+        "{}",
+        String::from_utf8_lossy(&ok.stderr)
+    );
+    assert_eq!(std::fs::read_dir(&render).unwrap().count(), 5);
+    std::fs::remove_dir_all(&render).unwrap();
+    std::fs::remove_file(&csv).unwrap();
+    image::RgbImage::new(32, 24)
+        .save(dir.join("frames/00003.png"))
+        .unwrap();
+    assert_one_line_error(&args, "frame 3", &csv);
+    let left: Vec<_> = std::fs::read_dir(&render).unwrap().collect();
+    assert!(left.is_empty(), "{left:?}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}

@@ -232,7 +232,8 @@ pub struct TrackArgs {
     /// Pose CSV to write (`frame,cx,cy,a,b,rx,ry,rz,score,lost`); standard output if absent.
     #[arg(long, short)]
     pub out: Option<PathBuf>,
-    /// Write each frame with the ellipse, pan/tilt bars and angles drawn, as PNG, here.
+    /// Write each frame with the ellipse, pan/tilt bars and angles drawn, as PNG, here; a run
+    /// that fails removes the frames it drew, as it writes no pose CSV.
     #[arg(long, value_name = "DIR")]
     pub render: Option<PathBuf>,
 }
@@ -513,7 +514,18 @@ pub fn run(a: TrackArgs) -> anyhow::Result<()> {
         None => "weak perspective".to_string(),
     };
     let mut tracker = Tracker::with_engine(cfg, engine, &first, init)?;
-    let written = run_loop(&a, &mut source, &mut tracker, &first)?;
+    let mut rendered = Vec::new();
+    let written = match run_loop(&a, &mut source, &mut tracker, &first, &mut rendered) {
+        Ok(n) => n,
+        Err(e) => {
+            // The frames drawn before the failure would read as a whole track's: remove them,
+            // as the pose CSV is never moved into place.
+            for f in &rendered {
+                let _ = std::fs::remove_file(f);
+            }
+            return Err(e);
+        }
+    };
     eprintln!(
         "pftrack: tracked {written} frames with {} ({}, {}){}",
         tracker.engine_name(),
@@ -532,6 +544,7 @@ fn run_loop(
     source: &mut frames::FrameSource,
     tracker: &mut Tracker,
     first: &image::RgbImage,
+    rendered: &mut Vec<PathBuf>,
 ) -> anyhow::Result<usize> {
     let limit = a.max_frames.unwrap_or(usize::MAX);
     let pb = progress(source.len_hint().map(|n| n.min(limit)));
@@ -555,10 +568,9 @@ fn run_loop(
                 lost: e.lost,
             };
             let scale = if frame.width() < 320 { 3 } else { 1 };
-            write_png(
-                &dir.join(format!("{:05}.png", e.frame)),
-                &render_overlay(frame, &o, scale),
-            )?;
+            let path = dir.join(format!("{:05}.png", e.frame));
+            rendered.push(path.clone());
+            write_png(&path, &render_overlay(frame, &o, scale))?;
         }
         pb.inc(1);
         Ok(())
