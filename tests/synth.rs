@@ -843,6 +843,27 @@ fn cli_writes_frames_truth_and_init() {
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
+/// A fresh temporary directory `name` holding a synthetic sequence of the default scenario
+/// (`pftrack synth`), `frames` long at `size`.
+fn synth_dir(name: &str, frames: usize, size: &str) -> PathBuf {
+    let dir = tmp_dir(name);
+    let frames = frames.to_string();
+    let out = pftrack(&[
+        "synth",
+        dir.to_str().unwrap(),
+        "--frames",
+        &frames,
+        "--size",
+        size,
+    ]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    dir
+}
+
 /// Runs `pftrack args` and checks it fails with one line naming `needle`, without a panic,
 /// leaving no `unwritten` file (the output a complete run would have written).
 fn assert_one_line_error(args: &[&str], needle: &str, unwritten: &Path) {
@@ -960,14 +981,8 @@ fn head_colours_differ_from_the_background_but_overlap() {
 /// tracked: one line naming the setting, a non-zero exit and no pose CSV.
 #[test]
 fn cli_track_rejects_bad_lost_and_reacquisition_settings() {
-    let dir = tmp_dir("track-bad");
+    let dir = synth_dir("track-bad", 2, "64x48");
     let d = dir.to_str().unwrap();
-    let out = pftrack(&["synth", d, "--frames", "2", "--size", "64x48"]);
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
     let csv = dir.join("poses.csv");
     let c = csv.to_str().unwrap();
     for (flag, value, needle) in [
@@ -988,14 +1003,8 @@ fn cli_track_rejects_bad_lost_and_reacquisition_settings() {
 /// `--weak-perspective` sets it aside; a bad camera line is one clear error and no poses.
 #[test]
 fn cli_track_takes_the_camera_from_the_init_file() {
-    let dir = tmp_dir("track-camera");
+    let dir = synth_dir("track-camera", 4, "64x48");
     let d = dir.to_str().unwrap();
-    let out = pftrack(&["synth", d, "--frames", "4", "--size", "64x48"]);
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
     let init = std::fs::read_to_string(dir.join("init.txt")).unwrap();
     assert!(init.lines().any(|l| l == "hfov,50.000000"), "{init}");
     let csv = dir.join("poses.csv");
@@ -1017,14 +1026,8 @@ fn cli_track_takes_the_camera_from_the_init_file() {
     // A flat model (no depth) through the camera: every lifted feature lies on the disc's
     // plane, and the track is as complete as any other (at 64x48 too few features reach the
     // lift; 96x72 failed at frame 3 when the flat model's lift divided by its zero depth).
-    let flat_dir = dir.join("flat");
+    let flat_dir = synth_dir("track-camera-flat", 4, "96x72");
     let fd = flat_dir.to_str().unwrap();
-    let out = pftrack(&["synth", fd, "--frames", "4", "--size", "96x72"]);
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
     let out = pftrack(&[
         "track",
         fd,
@@ -1043,6 +1046,7 @@ fn cli_track_takes_the_camera_from_the_init_file() {
     let flat = std::fs::read_to_string(&csv).unwrap();
     assert_eq!(flat.lines().count(), 5, "{flat}");
     assert!(!flat.contains("NaN") && !flat.contains("inf"), "{flat}");
+    std::fs::remove_dir_all(&flat_dir).unwrap();
     // The camera reaches the tracker: the three tracks differ.
     assert!(tracks[0] != tracks[1] && tracks[0] != tracks[2] && tracks[1] != tracks[2]);
     let out = pftrack(&["track", d, "--hfov", "60", "--weak-perspective", "--out", c]);
@@ -1060,14 +1064,8 @@ fn cli_track_takes_the_camera_from_the_init_file() {
 /// ratio the tracker then rejects itself), and a usage error is one line like any other.
 #[test]
 fn cli_takes_negative_values_and_reports_usage_errors_on_one_line() {
-    let dir = tmp_dir("negative");
+    let dir = synth_dir("negative", 2, "64x48");
     let d = dir.to_str().unwrap();
-    let out = pftrack(&["synth", d, "--frames", "2", "--size", "64x48"]);
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
     let csv = dir.join("poses.csv");
     let c = csv.to_str().unwrap();
     for args in [
@@ -1129,14 +1127,7 @@ fn cli_takes_negative_values_and_reports_usage_errors_on_one_line() {
 /// is not one (its cause said once) and an unknown solver are each one line and no output.
 #[test]
 fn cli_sift_and_pose_reject_bad_input_in_one_line() {
-    let dir = tmp_dir("sift-pose");
-    let d = dir.to_str().unwrap();
-    let out = pftrack(&["synth", d, "--frames", "2", "--size", "96x72"]);
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    let dir = synth_dir("sift-pose", 2, "96x72");
     let f0 = dir.join("frames/00000.png");
     let f1 = dir.join("frames/00001.png");
     let (f0, f1) = (f0.to_str().unwrap(), f1.to_str().unwrap());
@@ -1189,14 +1180,8 @@ fn cli_sift_and_pose_reject_bad_input_in_one_line() {
 /// frames it had drawn: nothing that reads as a whole track.
 #[test]
 fn cli_a_failed_track_leaves_no_render() {
-    let dir = tmp_dir("failed-render");
+    let dir = synth_dir("failed-render", 5, "64x48");
     let d = dir.to_str().unwrap();
-    let out = pftrack(&["synth", d, "--frames", "5", "--size", "64x48"]);
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
     let render = dir.join("render");
     let csv = dir.join("poses.csv");
     let args = [
