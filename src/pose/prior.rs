@@ -56,6 +56,21 @@
 //!   1.5 gives 0.72 and 1.26. The true camera gives 0.56 about y. This is the tracker's
 //!   under-rotation of the car's 57° turn: a model of the object's shape, not the filter,
 //!   is what would remove it.
+//! - Two ways of letting the data shape the model were tried in `fit_bias` (2026-12-04, camera
+//!   50°, car seeds 0-2, nod 0-1, pan 0-1, roll 0) and not kept:
+//!   - Each point's depth free along its ray about the ellipsoid's (a Gaussian prior, σ a
+//!     tenth to the whole of the model's depth), two views: the car's gain about y went
+//!     0.31-0.68 to 0.53-0.77 at σ 0.1 and past 1 at σ 0.3, and the heads over-rotated
+//!     (pan 1.10 to 1.48-1.70 on seed 0) with two to three times the error: a free depth per
+//!     point absorbs noise more cheaply the more the view turns, so the least-squares fit
+//!     leans to larger turns.
+//!   - The same jointly over four views of one keyframe (2, 4, 6 and 8 frames on, depths
+//!     shared): the car's gain about y came to 0.90-1.12 (8 frames) and 0.68-0.78 (16, where
+//!     the single fit gives 0.24-0.44), but the heads still over-rotated (nod 1.35-1.50) with
+//!     twice the error. The free depths cut the residual about as much on the heads as on
+//!     the car (0.19-1.47 against 0.33-0.75 px² per point), so the residual cannot tell the
+//!     tracker which objects need them. A structure-from-motion model that knows when the
+//!     ellipsoid is wrong remains to be built.
 
 use nalgebra::{Matrix3, SMatrix, SVector, Vector2, Vector3};
 
