@@ -1212,3 +1212,50 @@ fn cli_a_failed_track_leaves_no_render() {
     assert!(left.is_empty(), "{left:?}");
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+/// `bench --step` times the whole tracker step: a row per particle count with a positive
+/// time and its frames per second, for one thread (and all, where there are more).
+#[test]
+fn cli_bench_step_times_the_whole_step() {
+    let out = pftrack(&[
+        "bench",
+        "--step",
+        "--particles",
+        "20,40",
+        "--size",
+        "64x48",
+        "--repeats",
+        "1",
+        "--backend",
+        "cpu",
+    ]);
+    let text = String::from_utf8_lossy(&out.stdout).to_string();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(
+        text.contains("whole tracker step: `nod` at 64x48"),
+        "{text}"
+    );
+    for n in ["20", "40"] {
+        let row = text
+            .lines()
+            .find(|l| l.split_whitespace().next() == Some(n))
+            .unwrap_or_else(|| panic!("no row for {n}: {text}"));
+        // "N  ms (fps/s)" per column
+        let cells: Vec<&str> = row.split_whitespace().skip(1).collect();
+        assert!(!cells.is_empty() && cells.len().is_multiple_of(2), "{row}");
+        for pair in cells.chunks(2) {
+            let ms: f64 = pair[0].parse().unwrap();
+            let fps: f64 = pair[1]
+                .trim_start_matches('(')
+                .trim_end_matches("/s)")
+                .parse()
+                .unwrap();
+            assert!(ms > 0.0 && fps > 0.0, "{row}");
+            assert!((ms * fps / 1000.0 - 1.0).abs() < 0.05, "{row}");
+        }
+    }
+}

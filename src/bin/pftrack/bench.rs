@@ -1,5 +1,6 @@
 //! `pftrack bench`: times the likelihood pass stage by stage, CPU and GPU, on a synthetic
-//! frame made in code (no data needed).
+//! frame made in code (no data needed); with `--step`, the whole tracker step on a rendered
+//! synthetic sequence.
 
 use std::time::{Duration, Instant};
 
@@ -8,7 +9,9 @@ use clap::Args;
 use pftrack::likelihood::cpu::CpuEngine;
 use pftrack::likelihood::gpu::workload::{particles, workload};
 use pftrack::likelihood::gpu::{GpuEngine, StageTimes, TimingSource};
-use pftrack::likelihood::{Backend, FrameInput, LikelihoodEngine, LikelihoodError};
+use pftrack::likelihood::{Backend, FrameInput, LikelihoodEngine, LikelihoodError, create_engine};
+use pftrack::synth::{Renderer, Scenario, SynthConfig};
+use pftrack::tracker::{Init, Tracker, TrackerConfig};
 
 /// Arguments of `pftrack bench`.
 #[derive(Debug, Args)]
@@ -23,9 +26,15 @@ pub struct BenchArgs {
     /// Which engines to time: `auto` = CPU and, when an adapter exists, GPU.
     #[arg(long, default_value = "auto")]
     pub backend: Backend,
-    /// Timed runs per measurement (the median is printed), after one warm-up run.
+    /// Timed runs per measurement (the median is printed), after one warm-up run; with
+    /// `--step`, passes over the sequence.
     #[arg(long, default_value_t = 5)]
     pub repeats: usize,
+    /// Time the whole tracker step instead (SIFT, matching, the keyframe fits, block
+    /// matching, the filter with all its terms) on the synthetic `nod` scenario rendered at
+    /// `--size`: the median per step and frames per second, on one thread and on all.
+    #[arg(long)]
+    pub step: bool,
 }
 
 fn parse_size(s: &str) -> Result<(u32, u32), String> {
@@ -100,6 +109,9 @@ fn median_stages(runs: &[StageTimes]) -> StageTimes {
 pub fn run(args: BenchArgs) -> anyhow::Result<()> {
     if args.particles.is_empty() || args.particles.contains(&0) {
         anyhow::bail!("--particles needs positive counts");
+    }
+    if args.step {
+        return run_step(&args);
     }
     let repeats = args.repeats.max(1);
     let (width, height) = args.size;
@@ -206,27 +218,8 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
         header.extend(stage_names.iter().map(|s| s.to_string()));
         header.push("readback".into());
     }
-    let widths: Vec<usize> = (0..header.len())
-        .map(|i| {
-            rows.iter()
-                .filter_map(|r| r.get(i))
-                .chain([&header[i]])
-                .map(|s| s.len())
-                .max()
-                .unwrap_or(0)
-        })
-        .collect();
-    let line = |r: &[String]| {
-        r.iter()
-            .enumerate()
-            .map(|(i, s)| format!("{:>w$}", s, w = widths.get(i).copied().unwrap_or(0)))
-            .collect::<Vec<_>>()
-            .join("  ")
-    };
-    println!("{}", line(&header));
-    for r in &rows {
-        println!("{}", line(r));
-    }
+    let table: Vec<Vec<String>> = std::iter::once(header).chain(rows).collect();
+    print_table(&table);
     if gpu.is_some() {
         println!(
             "gpu = one plain evaluate (upload, all kernels, readback); gpu/cpu = gpu over the faster CPU column; \
@@ -234,6 +227,129 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
         );
     }
     Ok(())
+}
+
+/// Frames of the whole-step benchmark's sequence (the first starts each pass).
+const STEP_FRAMES: usize = 60;
+
+/// `--step`: the whole tracker step, per particle count, on one thread, on all, and on the
+/// GPU engine when one is asked for or (with `auto`) found.
+fn run_step(args: &BenchArgs) -> anyhow::Result<()> {
+    let passes = args.repeats.max(1);
+    let (width, height) = args.size;
+    let cfg = SynthConfig {
+        width,
+        height,
+        frames: STEP_FRAMES,
+        ..SynthConfig::new(Scenario::Nod)
+    };
+    let renderer = Renderer::new(&cfg).context("rendering the benchmark sequence")?;
+    let frames: Vec<image::RgbImage> = (0..cfg.frames).map(|k| renderer.render(k).0).collect();
+    let init = Init::frontal(renderer.init_ellipse());
+    let all = std::thread::available_parallelism().map_or(1, |n| n.get());
+    let want_gpu = match args.backend {
+        Backend::Cpu => false,
+        Backend::Gpu => true,
+        Backend::Auto => match create_engine(Backend::Gpu) {
+            Ok(_) => true,
+            Err(e) => {
+                println!("note: no GPU row ({e})");
+                false
+            }
+        },
+    };
+    // (label, threads, on the GPU)
+    let mut columns: Vec<(String, usize, bool)> = Vec::new();
+    if args.backend != Backend::Gpu {
+        columns.push(("cpu 1t".into(), 1, false));
+        if all > 1 {
+            columns.push((format!("cpu {all}t"), all, false));
+        }
+    }
+    if want_gpu {
+        columns.push((format!("gpu {all}t"), all, true));
+    }
+    println!(
+        "whole tracker step: `nod` at {width}x{height}, {} steps x {passes} passes, median ms per \
+         step (frames/s)",
+        cfg.frames - 1
+    );
+    let mut rows = vec![
+        std::iter::once("N".to_string())
+            .chain(columns.iter().map(|c| c.0.clone()))
+            .collect::<Vec<_>>(),
+    ];
+    for &n in &args.particles {
+        let mut row = vec![n.to_string()];
+        for (_, threads, on_gpu) in &columns {
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(*threads)
+                .build()
+                .with_context(|| format!("starting {threads} threads"))?;
+            let mut tc = TrackerConfig::default();
+            tc.filter.particles = n;
+            let per_step = pool.install(|| -> anyhow::Result<Duration> {
+                let engine = if *on_gpu {
+                    create_engine(Backend::Gpu)?.0
+                } else {
+                    Box::new(CpuEngine::new())
+                };
+                let mut tracker = Tracker::with_engine(tc, engine, &frames[0], init)?;
+                time_steps(&mut tracker, &frames, init, passes)
+            })?;
+            let secs = per_step.as_secs_f64();
+            row.push(format!("{:.3} ({:.0}/s)", secs * 1e3, 1.0 / secs));
+        }
+        rows.push(row);
+    }
+    print_table(&rows);
+    Ok(())
+}
+
+/// The median wall time of one step over `passes` passes through `frames` after a warm-up
+/// pass, the tracker started afresh on the first frame before each (not timed).
+fn time_steps(
+    tracker: &mut Tracker,
+    frames: &[image::RgbImage],
+    init: Init,
+    passes: usize,
+) -> anyhow::Result<Duration> {
+    let mut times = Vec::with_capacity(passes * frames.len());
+    for pass in 0..=passes {
+        tracker.reinit(&frames[0], init)?;
+        for (k, f) in frames.iter().enumerate().skip(1) {
+            let t0 = Instant::now();
+            tracker
+                .step(f)
+                .with_context(|| format!("benchmark frame {k}"))?;
+            if pass > 0 {
+                times.push(t0.elapsed());
+            }
+        }
+    }
+    Ok(median(times))
+}
+
+/// Prints rows right-aligned in columns, the first row the header.
+fn print_table(rows: &[Vec<String>]) {
+    let cols = rows.iter().map(|r| r.len()).max().unwrap_or(0);
+    let widths: Vec<usize> = (0..cols)
+        .map(|i| {
+            rows.iter()
+                .filter_map(|r| r.get(i))
+                .map(|s| s.len())
+                .max()
+                .unwrap_or(0)
+        })
+        .collect();
+    for r in rows {
+        let line: Vec<String> = r
+            .iter()
+            .zip(&widths)
+            .map(|(s, w)| format!("{s:>w$}"))
+            .collect();
+        println!("{}", line.join("  "));
+    }
 }
 
 #[cfg(test)]
