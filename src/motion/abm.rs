@@ -326,15 +326,15 @@ impl Window {
 /// (`W = 0`). The fixed-width form compiles to `psadbw` on x86-64 (SSE2).
 #[inline(always)]
 fn row_sad<const W: usize>(a: &[u8], b: &[u8]) -> u32 {
-    if W > 0 {
-        if let (Some(a), Some(b)) = (a.first_chunk::<W>(), b.first_chunk::<W>()) {
-            // max − min on bytes, then a widening sum.
-            let mut d = [0u8; W];
-            for ((d, &p), &q) in d.iter_mut().zip(a).zip(b) {
-                *d = p.max(q) - p.min(q);
-            }
-            return d.iter().map(|&v| v as u32).sum();
+    if W > 0
+        && let (Some(a), Some(b)) = (a.first_chunk::<W>(), b.first_chunk::<W>())
+    {
+        // max − min on bytes, then a widening sum.
+        let mut d = [0u8; W];
+        for ((d, &p), &q) in d.iter_mut().zip(a).zip(b) {
+            *d = p.max(q) - p.min(q);
         }
+        return d.iter().map(|&v| v as u32).sum();
     }
     a.iter().zip(b).map(|(&p, &q)| p.abs_diff(q) as u32).sum()
 }

@@ -679,9 +679,9 @@ impl Tracker {
         };
         let key_inter = key_fit.is_some() || prior_prev.is_some();
         let mut lp = self.cfg.likelihood;
-        let (dx, dy, scale, rotations) = match (&key_fit, &inter, self.cfg.mode) {
-            (_, _, Mode::Tpe) => (dx, dy, scale, vec![(1.0, Matrix3::identity())]),
-            (Some(k), _, _) => {
+        let (dx, dy, scale, rotations) = match (&key_fit, &prior_prev, &inter, self.cfg.mode) {
+            (_, _, _, Mode::Tpe) => (dx, dy, scale, vec![(1.0, Matrix3::identity())]),
+            (Some(k), _, _, _) => {
                 let at = k.placed();
                 (
                     at.cx - self.prev.cx,
@@ -690,14 +690,14 @@ impl Tracker {
                     vec![(1.0, at.rot * self.prev.rot.transpose())],
                 )
             }
-            (None, _, _) if let Some(f) = &prior_prev => (
+            (None, Some(f), _, _) => (
                 f.centre.x - self.prev.cx,
                 f.centre.y - self.prev.cy,
                 f.scale,
                 vec![(1.0, f.rot)],
             ),
-            (None, Some(i), _) => (dx, dy, scale, vec![(0.5, i.pair.a), (0.5, i.pair.b)]),
-            (None, None, _) => (dx, dy, scale, vec![(1.0, Matrix3::identity())]),
+            (None, None, Some(i), _) => (dx, dy, scale, vec![(0.5, i.pair.a), (0.5, i.pair.b)]),
+            (None, None, None, _) => (dx, dy, scale, vec![(1.0, Matrix3::identity())]),
         };
         let motion = Motion {
             dx,
@@ -774,14 +774,14 @@ impl Tracker {
             est = found;
         }
         (self.low_count, self.lost) = lost_state(&self.cfg, self.low_count, self.lost, confidence);
-        if self.low_count >= self.cfg.lost_after {
-            if let Some((found, c)) = self.reacquire(frame, &gray, &est)? {
-                self.filter.reset(&found);
-                est = found;
-                confidence = c;
-                self.low_count = 0;
-                self.lost = false;
-            }
+        if self.low_count >= self.cfg.lost_after
+            && let Some((found, c)) = self.reacquire(frame, &gray, &est)?
+        {
+            self.filter.reset(&found);
+            est = found;
+            confidence = c;
+            self.low_count = 0;
+            self.lost = false;
         }
 
         if !self.lost {
