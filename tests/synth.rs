@@ -1113,6 +1113,7 @@ fn cli_takes_negative_values_and_reports_usage_errors_on_one_line() {
         "--depth-ratio must lie",
         &csv,
     );
+    assert_one_line_error(&track(&["--max-frames", "0"]), "--max-frames", &csv);
     assert_one_line_error(&track(&["--bogus"]), "unexpected argument '--bogus'", &csv);
     assert_one_line_error(
         &track(&["--particles", "many"]),

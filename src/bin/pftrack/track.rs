@@ -430,6 +430,9 @@ pub fn progress(len: Option<usize>) -> indicatif::ProgressBar {
 
 /// Runs the command.
 pub fn run(a: TrackArgs) -> anyhow::Result<()> {
+    if a.max_frames == Some(0) {
+        bail!("--max-frames must be at least 1 (the first frame is the initial estimate)");
+    }
     let (frames_path, synth_init) = resolve_input(&a.input);
     let init_file = initial_ellipse(&a, synth_init.as_deref())?;
     let pose = parse_floats(&a.init_pose, &[3], "--init-pose")?;
