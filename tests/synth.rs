@@ -1014,6 +1014,12 @@ fn cli_track_takes_the_camera_from_the_init_file() {
         (&[][..], "camera hfov 50°"),
         (&["--hfov", "60"][..], "camera hfov 60°"),
         (&["--weak-perspective"][..], "weak perspective"),
+        // The camera belongs to the footage, however the target is initialised.
+        (&["--init-box", "20,14,24,20"][..], "camera hfov 50°"),
+        (
+            &["--init-box", "20,14,24,20", "--weak-perspective"][..],
+            "weak perspective",
+        ),
     ] {
         let mut args = vec!["track", d, "--backend", "cpu", "--out", c];
         args.extend_from_slice(extra);
@@ -1047,8 +1053,10 @@ fn cli_track_takes_the_camera_from_the_init_file() {
     assert_eq!(flat.lines().count(), 5, "{flat}");
     assert!(!flat.contains("NaN") && !flat.contains("inf"), "{flat}");
     std::fs::remove_dir_all(&flat_dir).unwrap();
-    // The camera reaches the tracker: the three tracks differ.
+    // The camera reaches the tracker: the first three tracks differ, and so do the two
+    // started from a box.
     assert!(tracks[0] != tracks[1] && tracks[0] != tracks[2] && tracks[1] != tracks[2]);
+    assert!(tracks[3] != tracks[4]);
     let out = pftrack(&["track", d, "--hfov", "60", "--weak-perspective", "--out", c]);
     assert!(!out.status.success());
 

@@ -70,8 +70,10 @@ pub struct TrackArgs {
     #[arg(long, default_value = "auto")]
     pub backend: String,
     /// The camera's horizontal field of view in degrees, for the perspective form of the
-    /// keyframe depth prior and of the turned first view; when absent, the init file's
-    /// (`hfov,DEG`, which `pftrack synth` writes), else weak perspective (the paper's model).
+    /// keyframe depth prior and of the turned first view; when absent, the --init-file's
+    /// (`hfov,DEG`, which `pftrack synth` writes), else that of the input directory's
+    /// `init.txt` (however the target is initialised), else weak perspective (the paper's
+    /// model).
     /// Weak perspective over-reads the tilt of a near head by about a tenth (see
     /// `TrackerConfig::camera_hfov_deg`).
     #[arg(long, value_name = "DEG", conflicts_with = "weak_perspective")]
@@ -441,12 +443,22 @@ pub fn run(a: TrackArgs) -> anyhow::Result<()> {
         pose: Euler::from_degrees(pose[0], pose[1], pose[2]),
     };
     let mut cfg = config(&a.mode, a.particles, a.seed)?;
+    // The camera belongs to the footage: a directory written by `synth` gives its own however
+    // the target is initialised, unless --hfov or the init file given says otherwise.
+    let dir_hfov = match (&synth_init, init_file.hfov_deg, a.hfov) {
+        (Some(p), None, None) if !a.weak_perspective => {
+            pftrack::io::read_init(p)
+                .with_context(|| format!("reading the camera in {}", p.display()))?
+                .hfov_deg
+        }
+        _ => None,
+    };
     apply_hfov(
         &mut cfg,
         if a.weak_perspective {
             None
         } else {
-            a.hfov.or(init_file.hfov_deg)
+            a.hfov.or(init_file.hfov_deg).or(dir_hfov)
         },
     )?;
     apply_depth_ratio(&mut cfg, a.depth_ratio)?;
