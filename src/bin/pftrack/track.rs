@@ -266,28 +266,53 @@ fn resolve_input(input: &Path) -> (PathBuf, Option<PathBuf>) {
     }
 }
 
-/// The initial ellipse from whichever option was given, with the camera's horizontal field of
-/// view when an init file gives it.
+/// The initial ellipse from whichever option was given, else from the `init.txt` of a
+/// directory written by `synth`, with the camera's horizontal field of view when an init file
+/// gives it. The camera belongs to the footage: that directory gives its own however the
+/// target is initialised, unless the init file given, `--hfov` or `--weak-perspective`
+/// decides it (its file is then not read).
 pub fn initial_ellipse(a: &TrackArgs, synth_init: Option<&Path>) -> anyhow::Result<InitFile> {
+    match (given_init(a)?, synth_init) {
+        (Some(given), Some(p))
+            if given.hfov_deg.is_none() && a.hfov.is_none() && !a.weak_perspective =>
+        {
+            let dir = pftrack::io::read_init(p)
+                .with_context(|| format!("reading the camera in {}", p.display()))?;
+            Ok(InitFile {
+                hfov_deg: dir.hfov_deg,
+                ..given
+            })
+        }
+        (Some(given), _) => Ok(given),
+        (None, Some(p)) => Ok(pftrack::io::read_init(p)?),
+        (None, None) => bail!(
+            "no initial ellipse: give one of --init-ellipse, --init-box, --init-points, --init-file, --init-truth"
+        ),
+    }
+}
+
+/// The initial ellipse of the option given (`None` for none), with the camera when it is an
+/// init file that gives one.
+fn given_init(a: &TrackArgs) -> anyhow::Result<Option<InitFile>> {
     let no_camera = |ellipse| InitFile {
         ellipse,
         hfov_deg: None,
     };
     if let Some(s) = &a.init_ellipse {
         let v = parse_floats(s, &[4, 5], "--init-ellipse")?;
-        return Ok(no_camera(Ellipse {
+        return Ok(Some(no_camera(Ellipse {
             cx: v[0],
             cy: v[1],
             a: v[2],
             b: v[3],
             theta: v.get(4).copied().unwrap_or(0.0).to_radians(),
-        }));
+        })));
     }
     if let Some(s) = &a.init_box {
         let v = parse_floats(s, &[4], "--init-box")?;
-        return Ok(no_camera(Ellipse::from_box(&BoxRect::new(
+        return Ok(Some(no_camera(Ellipse::from_box(&BoxRect::new(
             v[0], v[1], v[2], v[3],
-        ))));
+        )))));
     }
     if let Some(s) = &a.init_points {
         let pts: anyhow::Result<Vec<[f64; 2]>> = s
@@ -297,24 +322,20 @@ pub fn initial_ellipse(a: &TrackArgs, synth_init: Option<&Path>) -> anyhow::Resu
             .collect();
         let pts = pts?;
         return pftrack::motion::fit_ellipse(&pts)
-            .map(no_camera)
+            .map(|e| Some(no_camera(e)))
             .context("--init-points: no ellipse fits these points");
     }
     if let Some(p) = &a.init_file {
-        return Ok(pftrack::io::read_init(p)?);
+        return Ok(Some(pftrack::io::read_init(p)?));
     }
     if let Some(p) = &a.init_truth {
-        return match pftrack::eval::load_truth(p)? {
-            pftrack::eval::Truth::Poses(r) => Ok(no_camera(r[0].state.ellipse(0.0))),
-            pftrack::eval::Truth::Boxes(b) => Ok(no_camera(Ellipse::from_box(&b[0]))),
+        let e = match pftrack::eval::load_truth(p)? {
+            pftrack::eval::Truth::Poses(r) => r[0].state.ellipse(0.0),
+            pftrack::eval::Truth::Boxes(b) => Ellipse::from_box(&b[0]),
         };
+        return Ok(Some(no_camera(e)));
     }
-    if let Some(p) = synth_init {
-        return Ok(pftrack::io::read_init(p)?);
-    }
-    bail!(
-        "no initial ellipse: give one of --init-ellipse, --init-box, --init-points, --init-file, --init-truth"
-    )
+    Ok(None)
 }
 
 /// Builds the tracker configuration from the arguments.
@@ -443,22 +464,12 @@ pub fn run(a: TrackArgs) -> anyhow::Result<()> {
         pose: Euler::from_degrees(pose[0], pose[1], pose[2]),
     };
     let mut cfg = config(&a.mode, a.particles, a.seed)?;
-    // The camera belongs to the footage: a directory written by `synth` gives its own however
-    // the target is initialised, unless --hfov or the init file given says otherwise.
-    let dir_hfov = match (&synth_init, init_file.hfov_deg, a.hfov) {
-        (Some(p), None, None) if !a.weak_perspective => {
-            pftrack::io::read_init(p)
-                .with_context(|| format!("reading the camera in {}", p.display()))?
-                .hfov_deg
-        }
-        _ => None,
-    };
     apply_hfov(
         &mut cfg,
         if a.weak_perspective {
             None
         } else {
-            a.hfov.or(init_file.hfov_deg).or(dir_hfov)
+            a.hfov.or(init_file.hfov_deg)
         },
     )?;
     apply_depth_ratio(&mut cfg, a.depth_ratio)?;
