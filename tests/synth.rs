@@ -790,11 +790,22 @@ fn pftrack(args: &[&str]) -> std::process::Output {
         .expect("run pftrack")
 }
 
+/// Runs `pftrack args` and checks it succeeded (naming the arguments and the error if not).
+fn pftrack_ok(args: &[&str]) -> std::process::Output {
+    let out = pftrack(args);
+    assert!(
+        out.status.success(),
+        "{args:?}: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    out
+}
+
 #[test]
 fn cli_writes_frames_truth_and_init() {
     let dir = tmp_dir("cli");
     let d = dir.to_str().unwrap();
-    let out = pftrack(&[
+    pftrack_ok(&[
         "synth",
         d,
         "--scenario",
@@ -806,11 +817,6 @@ fn cli_writes_frames_truth_and_init() {
         "--seed",
         "3",
     ]);
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
     let frames: Vec<_> = std::fs::read_dir(dir.join("frames")).unwrap().collect();
     assert_eq!(frames.len(), 5);
     let img = image::open(dir.join("frames/00004.png")).unwrap();
@@ -848,7 +854,7 @@ fn cli_writes_frames_truth_and_init() {
 fn synth_dir(name: &str, frames: usize, size: &str) -> PathBuf {
     let dir = tmp_dir(name);
     let frames = frames.to_string();
-    let out = pftrack(&[
+    pftrack_ok(&[
         "synth",
         dir.to_str().unwrap(),
         "--frames",
@@ -856,11 +862,6 @@ fn synth_dir(name: &str, frames: usize, size: &str) -> PathBuf {
         "--size",
         size,
     ]);
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
     dir
 }
 
@@ -1023,9 +1024,8 @@ fn cli_track_takes_the_camera_from_the_init_file() {
     ] {
         let mut args = vec!["track", d, "--backend", "cpu", "--out", c];
         args.extend_from_slice(extra);
-        let out = pftrack(&args);
+        let out = pftrack_ok(&args);
         let err = String::from_utf8_lossy(&out.stderr);
-        assert!(out.status.success(), "{args:?}: {err}");
         assert!(err.contains(said), "{args:?}: {err}");
         tracks.push(std::fs::read(&csv).unwrap());
     }
@@ -1034,7 +1034,7 @@ fn cli_track_takes_the_camera_from_the_init_file() {
     // lift; 96x72 failed at frame 3 when the flat model's lift divided by its zero depth).
     let flat_dir = synth_dir("track-camera-flat", 4, "96x72");
     let fd = flat_dir.to_str().unwrap();
-    let out = pftrack(&[
+    pftrack_ok(&[
         "track",
         fd,
         "--backend",
@@ -1044,11 +1044,6 @@ fn cli_track_takes_the_camera_from_the_init_file() {
         "--out",
         c,
     ]);
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
     let flat = std::fs::read_to_string(&csv).unwrap();
     assert_eq!(flat.lines().count(), 5, "{flat}");
     assert!(!flat.contains("NaN") && !flat.contains("inf"), "{flat}");
@@ -1083,16 +1078,11 @@ fn cli_takes_negative_values_and_reports_usage_errors_on_one_line() {
     ] {
         let mut all = vec!["track", d, "--backend", "cpu", "--out", c];
         all.extend_from_slice(args);
-        let out = pftrack(&all);
-        assert!(
-            out.status.success(),
-            "{args:?}: {}",
-            String::from_utf8_lossy(&out.stderr)
-        );
+        pftrack_ok(&all);
         std::fs::remove_file(&csv).unwrap();
     }
     let snr = dir.join("snr.csv");
-    let out = pftrack(&[
+    pftrack_ok(&[
         "pose-noise",
         "--snr",
         "-5,0",
@@ -1103,11 +1093,6 @@ fn cli_takes_negative_values_and_reports_usage_errors_on_one_line() {
         "--csv",
         snr.to_str().unwrap(),
     ]);
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
     let table = std::fs::read_to_string(&snr).unwrap();
     assert!(table.lines().nth(1).unwrap().starts_with("-5"), "{table}");
 
@@ -1150,12 +1135,7 @@ fn cli_sift_and_pose_reject_bad_input_in_one_line() {
         );
     }
     // A region reaching past the top-left corner is still inside.
-    let out = pftrack(&["sift", f0, "--region", "-10,-10,60,50", "--out", k]);
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    pftrack_ok(&["sift", f0, "--region", "-10,-10,60,50", "--out", k]);
     std::fs::remove_file(&kps).unwrap();
 
     let junk = dir.join("junk.png");
@@ -1204,12 +1184,7 @@ fn cli_a_failed_track_leaves_no_render() {
         csv.to_str().unwrap(),
     ];
     // Whole, it draws every frame.
-    let ok = pftrack(&args);
-    assert!(
-        ok.status.success(),
-        "{}",
-        String::from_utf8_lossy(&ok.stderr)
-    );
+    pftrack_ok(&args);
     assert_eq!(std::fs::read_dir(&render).unwrap().count(), 5);
     std::fs::remove_dir_all(&render).unwrap();
     std::fs::remove_file(&csv).unwrap();
@@ -1226,7 +1201,7 @@ fn cli_a_failed_track_leaves_no_render() {
 /// time and its frames per second, for one thread (and all, where there are more).
 #[test]
 fn cli_bench_step_times_the_whole_step() {
-    let out = pftrack(&[
+    let out = pftrack_ok(&[
         "bench",
         "--step",
         "--particles",
@@ -1239,11 +1214,6 @@ fn cli_bench_step_times_the_whole_step() {
         "cpu",
     ]);
     let text = String::from_utf8_lossy(&out.stdout).to_string();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
     assert!(
         text.contains("whole tracker step: `nod` at 64x48"),
         "{text}"
