@@ -449,6 +449,35 @@ fn carphone_mp4_through_ffmpeg() {
     drop(src);
 }
 
+#[test]
+fn box_mp4_gives_each_decoded_frame_once() {
+    // The OpenCV box clip has a slice ffmpeg cannot decode: its container lists 456 frames and
+    // 455 decode. Written as constant-rate raw video, ffmpeg repeated frames to fill the gap
+    // and sent 457, so frame numbers drifted from the video's own.
+    let Some(p) = data("box/box.mp4") else {
+        return;
+    };
+    if !have_ffmpeg() {
+        return;
+    }
+    let out = std::process::Command::new("ffprobe")
+        .args(["-v", "error", "-count_frames", "-select_streams", "v:0"])
+        .args(["-show_entries", "stream=nb_read_frames", "-of", "csv=p=0"])
+        .arg(&p)
+        .output()
+        .unwrap();
+    assert!(out.status.success());
+    let decoded: usize = String::from_utf8_lossy(&out.stdout).trim().parse().unwrap();
+    let src = frames::open(&p, &SourceOptions::default()).unwrap();
+    assert_eq!(src.size(), (640, 480));
+    let mut n = 0;
+    for f in src {
+        f.unwrap();
+        n += 1;
+    }
+    assert_eq!(n, decoded, "frames read against ffprobe's decoded count");
+}
+
 /// Runs ffmpeg with `args`, failing the test when it fails.
 fn ffmpeg(args: &[&std::ffi::OsStr]) {
     let out = std::process::Command::new("ffmpeg")
@@ -681,6 +710,43 @@ mod fake {
             assert_eq!(src.next().unwrap().unwrap().dimensions(), (2, 2));
         }
         drop(src);
+
+        // An ffmpeg older than 5.1 rejects `-fps_mode`: the decode restarts with `-vsync`.
+        let old = script(
+            &d,
+            "ffmpeg-old",
+            "case \"$*\" in\n\
+             *-fps_mode*) echo \"Unrecognized option 'fps_mode'.\" >&2;\n\
+               echo 'Error splitting the argument list: Option not found' >&2; exit 1;;\n\
+             *'-vsync passthrough'*) head -c 24 /dev/zero;;\n\
+             *) exit 4;;\n\
+             esac",
+        );
+        let tools = FfmpegTools {
+            ffmpeg: old,
+            ffprobe: ffprobe.clone(),
+        };
+        let res: Vec<_> = open_fake(&input, &tools).collect();
+        assert_eq!(res.len(), 2, "{res:?}");
+        assert!(
+            res.iter()
+                .all(|f| f.as_ref().unwrap().dimensions() == (2, 2))
+        );
+        // Any other failure before the first frame is reported, not retried.
+        let other = script(
+            &d,
+            "ffmpeg-other",
+            "case \"$*\" in *-vsync*) head -c 24 /dev/zero;; *) echo 'bad codec' >&2; exit 1;; esac",
+        );
+        let tools = FfmpegTools {
+            ffmpeg: other,
+            ffprobe: ffprobe.clone(),
+        };
+        let res: Vec<_> = open_fake(&input, &tools).collect();
+        assert!(
+            matches!(res[..], [Err(FrameError::Ffmpeg { .. })]),
+            "{res:?}"
+        );
 
         // ffprobe that finds no video stream.
         let noprobe = script(&d, "ffprobe-empty", "exit 0");

@@ -1,11 +1,19 @@
 //! Any other video through an `ffmpeg` child process: raw RGB24 frames over a pipe.
 //!
 //! The size comes first from `ffprobe` (ships with ffmpeg); then
-//! `ffmpeg -v error -nostdin -noautorotate -i file:INPUT -map 0:v:0 -f rawvideo -pix_fmt rgb24 -`
-//! streams the first video stream. `-noautorotate` keeps frames as stored in the file, so their
-//! size is the one ffprobe reports (a rotation tag would otherwise transpose the frames while
-//! keeping the byte count, which cannot be detected). The `file:` prefix stops ffmpeg from
-//! reading a name like `http:x` as a protocol.
+//! `ffmpeg -v error -nostdin -noautorotate -i file:INPUT -map 0:v:0 -fps_mode passthrough
+//! -f rawvideo -pix_fmt rgb24 -` streams the first video stream. `-noautorotate` keeps frames as
+//! stored in the file, so their size is the one ffprobe reports (a rotation tag would otherwise
+//! transpose the frames while keeping the byte count, which cannot be detected). The `file:`
+//! prefix stops ffmpeg from reading a name like `http:x` as a protocol.
+//!
+//! `-fps_mode passthrough` hands over each decoded frame once, in order. Without it ffmpeg
+//! writes raw video at the container's constant rate, repeating or dropping frames where the
+//! timestamps leave a gap, so the k-th frame out is not the video's k-th: on the OpenCV box
+//! clip (one undecodable slice) it sent 457 frames for the 455 it decoded, and every frame
+//! after the gap was off by one against per-frame ground truth. ffmpeg before 5.1 has no
+//! `-fps_mode`: when it rejects the option before sending a frame, the decode restarts with
+//! the old spelling, `-vsync passthrough` (which ffmpeg 9 removed).
 //!
 //! Shutdown: dropping the source kills and waits the child. When ffmpeg exits non-zero, the
 //! iterator ends with an error carrying the last line of ffmpeg's stderr (never a short video
@@ -127,10 +135,75 @@ pub fn probe(tools: &FfmpegTools, path: &Path) -> Result<(u32, u32, Option<usize
     }
 }
 
+/// The decode's frame-rate option: each decoded frame passed through once, never repeated or
+/// dropped to a constant rate; `legacy` spells it as ffmpeg before 5.1 did.
+fn passthrough_args(legacy: bool) -> [&'static str; 2] {
+    if legacy {
+        ["-vsync", "passthrough"]
+    } else {
+        ["-fps_mode", "passthrough"]
+    }
+}
+
+/// Whether a failed decode's stderr says this ffmpeg does not know `-fps_mode` (before 5.1:
+/// "Unrecognized option 'fps_mode'.").
+fn rejects_fps_mode(stderr: &str) -> bool {
+    stderr
+        .lines()
+        .any(|l| l.contains("option") && l.contains("fps_mode"))
+}
+
+/// A running decode: the child, its stdout, and a thread draining its stderr.
+type Decoder = (Child, ChildStdout, JoinHandle<String>);
+
+/// Starts `ffmpeg` decoding `path`'s first video stream to raw RGB24 on its stdout.
+fn spawn_decoder(ffmpeg: &Path, path: &Path, legacy_sync: bool) -> Result<Decoder, FrameError> {
+    let mut child = Command::new(ffmpeg)
+        .args(["-v", "error", "-nostdin", "-noautorotate", "-i"])
+        .arg(file_arg(path))
+        .args(["-map", "0:v:0"])
+        .args(passthrough_args(legacy_sync))
+        .args(["-f", "rawvideo", "-pix_fmt", "rgb24", "-"])
+        .stdin(Stdio::null())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .map_err(|e| spawn_error(ffmpeg, e))?;
+    let (Some(stdout), Some(mut stderr)) = (child.stdout.take(), child.stderr.take()) else {
+        let _ = child.kill();
+        let _ = child.wait();
+        return Err(FrameError::io(
+            ffmpeg,
+            std::io::Error::other("no pipes to the child process"),
+        ));
+    };
+    // Drain stderr on a thread (a chatty decoder would otherwise block on a full pipe),
+    // keeping only its tail.
+    let stderr = std::thread::spawn(move || {
+        let mut kept: Vec<u8> = Vec::new();
+        let mut buf = [0u8; 4096];
+        while let Ok(n) = stderr.read(&mut buf) {
+            if n == 0 {
+                break;
+            }
+            kept.extend_from_slice(&buf[..n]);
+            if kept.len() > 2 * STDERR_KEEP {
+                kept.drain(..kept.len() - STDERR_KEEP);
+            }
+        }
+        String::from_utf8_lossy(&kept).into_owned()
+    });
+    Ok((child, stdout, stderr))
+}
+
 /// A running ffmpeg decode.
 #[derive(Debug)]
 pub(crate) struct FfmpegSource {
     path: PathBuf,
+    /// The `ffmpeg` program, for a restart with the older option.
+    ffmpeg: PathBuf,
+    /// The decode runs with `-vsync passthrough` (ffmpeg before 5.1).
+    legacy_sync: bool,
     child: Child,
     stdout: ChildStdout,
     stderr: Option<JoinHandle<String>>,
@@ -150,41 +223,11 @@ impl FfmpegSource {
             });
         }
         let (w, h, n) = probe(tools, path)?;
-        let mut child = Command::new(&tools.ffmpeg)
-            .args(["-v", "error", "-nostdin", "-noautorotate", "-i"])
-            .arg(file_arg(path))
-            .args(["-map", "0:v:0", "-f", "rawvideo", "-pix_fmt", "rgb24", "-"])
-            .stdin(Stdio::null())
-            .stdout(Stdio::piped())
-            .stderr(Stdio::piped())
-            .spawn()
-            .map_err(|e| spawn_error(&tools.ffmpeg, e))?;
-        let (Some(stdout), Some(mut stderr)) = (child.stdout.take(), child.stderr.take()) else {
-            let _ = child.kill();
-            let _ = child.wait();
-            return Err(FrameError::io(
-                &tools.ffmpeg,
-                std::io::Error::other("no pipes to the child process"),
-            ));
-        };
-        // Drain stderr on a thread (a chatty decoder would otherwise block on a full pipe),
-        // keeping only its tail.
-        let stderr = std::thread::spawn(move || {
-            let mut kept: Vec<u8> = Vec::new();
-            let mut buf = [0u8; 4096];
-            while let Ok(n) = stderr.read(&mut buf) {
-                if n == 0 {
-                    break;
-                }
-                kept.extend_from_slice(&buf[..n]);
-                if kept.len() > 2 * STDERR_KEEP {
-                    kept.drain(..kept.len() - STDERR_KEEP);
-                }
-            }
-            String::from_utf8_lossy(&kept).into_owned()
-        });
+        let (child, stdout, stderr) = spawn_decoder(&tools.ffmpeg, path, false)?;
         Ok(Self {
             path: path.to_path_buf(),
+            ffmpeg: tools.ffmpeg.clone(),
+            legacy_sync: false,
             child,
             stdout,
             stderr: Some(stderr),
@@ -222,8 +265,20 @@ impl FfmpegSource {
 
     /// Reads the next frame; `Ok(None)` when ffmpeg ends cleanly.
     pub(crate) fn next_frame(&mut self) -> Result<Option<Frame>, FrameError> {
+        loop {
+            match self.read_frame()? {
+                Pipe::Frame(f) => return Ok(Some(f)),
+                Pipe::End => return Ok(None),
+                Pipe::Restarted => {}
+            }
+        }
+    }
+
+    /// One frame, the end, or a restart of the decode with `-vsync` (see the module
+    /// documentation) when this ffmpeg rejected `-fps_mode` before its first frame.
+    fn read_frame(&mut self) -> Result<Pipe, FrameError> {
         if self.reaped {
-            return Ok(None);
+            return Ok(Pipe::End);
         }
         let (w, h) = self.size;
         let mut buf = vec![0u8; w as usize * h as usize * 3];
@@ -238,12 +293,23 @@ impl FfmpegSource {
         }
         if got == buf.len() {
             self.frames += 1;
-            return Frame::from_raw(w, h, buf).map(Some).ok_or_else(|| {
+            return Frame::from_raw(w, h, buf).map(Pipe::Frame).ok_or_else(|| {
                 FrameError::io(&self.path, std::io::Error::other("frame buffer size"))
             });
         }
         let (status, text) = self.finish()?;
         let path = self.path.display().to_string();
+        if !status.success()
+            && self.frames == 0
+            && got == 0
+            && !self.legacy_sync
+            && rejects_fps_mode(&text)
+        {
+            let (child, stdout, stderr) = spawn_decoder(&self.ffmpeg, &self.path, true)?;
+            (self.child, self.stdout, self.stderr) = (child, stdout, Some(stderr));
+            (self.legacy_sync, self.reaped) = (true, false);
+            return Ok(Pipe::Restarted);
+        }
         if !status.success() {
             return Err(FrameError::Ffmpeg {
                 path,
@@ -261,8 +327,16 @@ impl FfmpegSource {
                 msg: format!("ffmpeg sent {got} of {} bytes", buf.len()),
             });
         }
-        Ok(None)
+        Ok(Pipe::End)
     }
+}
+
+/// What one read of the decode's pipe gave.
+enum Pipe {
+    Frame(Frame),
+    End,
+    /// The decode restarted with the older frame-rate option; read again.
+    Restarted,
 }
 
 impl Drop for FfmpegSource {
