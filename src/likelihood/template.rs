@@ -85,11 +85,26 @@ pub fn normalise(values: &mut [f32]) -> bool {
     true
 }
 
-/// The correlation of two normalised sample sets ([`normalise`]): their dot product, in
-/// `[-1, 1]`.
-fn unit_dot(a: &[f32], b: &[f32]) -> f32 {
-    let d: f64 = a.iter().zip(b).map(|(&x, &y)| x as f64 * y as f64).sum();
-    d.clamp(-1.0, 1.0) as f32
+/// The correlation of raw samples `b` with a normalised template `t` ([`normalise`]) in
+/// `[-1, 1]`, from the sums of one pass, `Σb`, `Σb²` and `Σbt`: `(Σbt − Σb·Σt/n) /
+/// sqrt(var_b · var_t)`, with `t`'s own sums `st = Σt` (0 up to rounding) and `stt = Σt²` (1).
+/// 0 for samples flat by the rule of [`normalise`]. The same value as normalising `b` and
+/// taking the dot product, without the passes that mean, normalise and then multiply.
+fn correlate_raw(b: &[f32], t: &[f32], st: f64, stt: f64) -> f32 {
+    let (mut sb, mut sbb, mut sbt) = (0.0f64, 0.0f64, 0.0f64);
+    for (&b, &t) in b.iter().zip(t) {
+        let (b, t) = (b as f64, t as f64);
+        sb += b;
+        sbb += b * b;
+        sbt += b * t;
+    }
+    let n = b.len().max(1) as f64;
+    let vb = (sbb - sb * sb / n).max(0.0);
+    let vt = (stt - st * st / n).max(0.0);
+    if vb.sqrt() < 1e-6 * n.sqrt() || vt <= 0.0 {
+        return 0.0;
+    }
+    ((sbt - sb * st / n) / (vb * vt).sqrt()).clamp(-1.0, 1.0) as f32
 }
 
 /// The target's template: the mean grey levels at the grid points over the frames it has
@@ -99,6 +114,8 @@ pub struct Template {
     pts: Vec<[f32; 2]>,
     raw: Vec<f32>,
     unit: Vec<f32>,
+    /// `Σ unit` and `Σ unit²` (0 and 1 up to rounding), for [`correlate_raw`].
+    unit_sums: (f64, f64),
     usable: bool,
 }
 
@@ -112,6 +129,7 @@ impl Template {
             pts,
             raw,
             unit: Vec::new(),
+            unit_sums: (0.0, 0.0),
             usable: false,
         };
         t.refresh();
@@ -121,6 +139,10 @@ impl Template {
     fn refresh(&mut self) {
         self.unit.clone_from(&self.raw);
         self.usable = normalise(&mut self.unit);
+        self.unit_sums = self.unit.iter().fold((0.0, 0.0), |(s, ss), &t| {
+            let t = t as f64;
+            (s + t, ss + t * t)
+        });
     }
 
     /// Whether the template has any contrast to correlate with (a flat target has none).
@@ -163,10 +185,8 @@ impl Template {
                 || Vec::with_capacity(n),
                 |buf, p| {
                     sample(gray, p, theta0, &self.pts, buf);
-                    if !normalise(buf) {
-                        return 0.0;
-                    }
-                    unit_dot(buf, &self.unit)
+                    let (st, stt) = self.unit_sums;
+                    correlate_raw(buf, &self.unit, st, stt)
                 },
             )
             .collect_into_vec(out);
@@ -324,7 +344,8 @@ impl FirstView {
 /// [`Pinhole`] in `f32`, for the turned first view's projection.
 #[derive(Debug, Clone, Copy, PartialEq)]
 struct CameraF32 {
-    focal: f32,
+    /// `1 / focal`.
+    inv_focal: f32,
     principal: [f32; 2],
 }
 
@@ -334,7 +355,7 @@ const MIN_DEPTH_FACTOR: f32 = 0.05;
 impl From<&Pinhole> for CameraF32 {
     fn from(c: &Pinhole) -> Self {
         Self {
-            focal: c.focal as f32,
+            inv_focal: (1.0 / c.focal) as f32,
             principal: [c.principal.x as f32, c.principal.y as f32],
         }
     }
@@ -345,9 +366,13 @@ impl CameraF32 {
     /// pixels at the centre's depth (`z` away from the camera): `pp + ((c − pp) + y_xy) / g`,
     /// `g = max(1 + y_z / focal, MIN_DEPTH_FACTOR)`.
     fn project(&self, c: [f32; 2], y: [f32; 3]) -> [f32; 2] {
-        let g = (1.0 + y[2] / self.focal).max(MIN_DEPTH_FACTOR);
+        // One division per point: this runs for every grid point of every particle.
+        let inv_g = 1.0 / (1.0 + y[2] * self.inv_focal).max(MIN_DEPTH_FACTOR);
         let [px, py] = self.principal;
-        [px + ((c[0] - px) + y[0]) / g, py + ((c[1] - py) + y[1]) / g]
+        [
+            px + ((c[0] - px) + y[0]) * inv_g,
+            py + ((c[1] - py) + y[1]) * inv_g,
+        ]
     }
 }
 
@@ -642,6 +667,44 @@ mod tests {
         assert!(out[1] < 0.9, "{out:?}");
         t.correlate(&r, &[unturned], std::f32::consts::FRAC_PI_2, &mut out);
         assert!(out[0] > 0.999, "{out:?}");
+    }
+
+    #[test]
+    fn the_one_pass_correlation_equals_normalising_then_the_dot_product() {
+        // Grey levels with an offset far above their spread, where a one-pass variance
+        // loses the most to cancellation.
+        let mut state = 12345u32;
+        let mut next = || {
+            state = state.wrapping_mul(1664525).wrapping_add(1013904223);
+            (state >> 8) as f32 / (1u32 << 24) as f32
+        };
+        for (offset, spread) in [(0.0, 1.0), (0.5, 0.1), (0.9, 0.001)] {
+            let b: Vec<f32> = (0..201).map(|_| offset + spread * next()).collect();
+            let mut t: Vec<f32> = b.iter().map(|&v| v + 0.3 * spread * next()).collect();
+            assert!(normalise(&mut t));
+            let (st, stt) = t.iter().fold((0.0, 0.0), |(s, ss), &v| {
+                (s + v as f64, ss + v as f64 * v as f64)
+            });
+            let mut unit = b.clone();
+            assert!(normalise(&mut unit));
+            let dot: f64 = unit
+                .iter()
+                .zip(&t)
+                .map(|(&x, &y)| x as f64 * y as f64)
+                .sum();
+            let one_pass = correlate_raw(&b, &t, st, stt);
+            assert!(
+                (one_pass as f64 - dot).abs() < 1e-5,
+                "offset {offset} spread {spread}: {one_pass} against {dot}"
+            );
+            assert!(dot > 0.5, "the test's samples should correlate: {dot}");
+        }
+        // Flat samples score 0, as `normalise` calls them flat.
+        let flat = vec![0.25f32; 201];
+        let t: Vec<f32> = (0..201)
+            .map(|i| if i % 2 == 0 { 0.07 } else { -0.07 })
+            .collect();
+        assert_eq!(correlate_raw(&flat, &t, 0.0, 1.0), 0.0);
     }
 
     #[test]
