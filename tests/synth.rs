@@ -1000,6 +1000,50 @@ fn cli_track_rejects_bad_lost_and_reacquisition_settings() {
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
+/// `--sift-upsample-below` reaches the tracker: a size below the target's changes the
+/// track, `--sift-always-upsample` leaves a small target's as it is, and a size that is not
+/// positive is one clear error.
+#[test]
+fn cli_track_sift_upsample_size() {
+    let dir = synth_dir("track-sift-size", 6, "96x72");
+    let d = dir.to_str().unwrap();
+    let csv = dir.join("poses.csv");
+    let c = csv.to_str().unwrap();
+    let mut tracks = Vec::new();
+    for extra in [
+        &[][..],
+        &["--sift-always-upsample"][..],
+        &["--sift-upsample-below", "10"][..],
+    ] {
+        let mut args = vec!["track", d, "--backend", "cpu", "--out", c];
+        args.extend_from_slice(extra);
+        pftrack_ok(&args);
+        tracks.push(std::fs::read(&csv).unwrap());
+    }
+    assert_eq!(
+        tracks[0], tracks[1],
+        "a small target keeps the doubled octave"
+    );
+    assert_ne!(tracks[0], tracks[2], "the doubled octave dropped");
+    std::fs::remove_file(&csv).unwrap();
+    for value in ["0", "-3", "NaN"] {
+        let args = [
+            "track",
+            d,
+            "--backend",
+            "cpu",
+            "--sift-upsample-below",
+            value,
+        ];
+        assert_one_line_error(
+            &[&args[..], &["--out", c]].concat(),
+            "sift_upsample_below",
+            &csv,
+        );
+    }
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
 /// `track` takes the camera from the init file `synth` writes, `--hfov` overrides it and
 /// `--weak-perspective` sets it aside; a bad camera line is one clear error and no poses.
 #[test]

@@ -89,6 +89,21 @@ pub struct TrackerConfig {
     /// edge: the blurs reflect at the crop's border, and at the coarse octaves that
     /// reflection reaches tens of pixels in, onto the target's own large-scale keypoints.
     pub sift: SiftParams,
+    /// Targets at least this large (the previous ellipse's equal-area diameter `2·sqrt(a b)`,
+    /// pixels) are searched for SIFT features without the doubled first octave
+    /// ([`SiftParams::upsample`]); smaller ones, and every target with `None`, as `sift`
+    /// says. 120 by default.
+    ///
+    /// The doubled octave finds the finest features, which a small target needs (a head of
+    /// 40 px at 160x120), and holds three quarters of the pyramid's pixels. Measured
+    /// 2026-12-04 on `nod`, `pan` and `combo` (scenario seeds 0-2, filter seed 0, the
+    /// camera), the nine tracks' per-axis RMSE summed, with and without the doubled octave:
+    /// at 640x480 (heads 171 px) 35.9° and 35.3° in 42.1 s and 24.8 s; at 480x360 (128 px)
+    /// 35.6° and 34.1° in 33.8 s and 15.8 s; at 320x240 (86 px) 37.7° and 39.8° in 25.5 s
+    /// and 11.9 s, and `car` (seeds 0-2) 63.4° and 71.6°. So large targets do without it,
+    /// at half the time, and the 160x120 scenarios, girl and car4 (cars of 44-97 px) are as
+    /// before.
+    pub sift_upsample_below: Option<f64>,
     /// Feature matching.
     pub matching: MatchParams,
     /// Adaptive block matching.
@@ -1071,6 +1086,7 @@ impl Default for TrackerConfig {
             filter: FilterParams::default(),
             likelihood: LikelihoodParams::default(),
             sift: SiftParams::default(),
+            sift_upsample_below: Some(120.0),
             matching: MatchParams::default(),
             abm: AbmParams::default(),
             lost_below: 0.25,

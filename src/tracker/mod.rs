@@ -140,6 +140,9 @@ pub struct Tracker {
     cfg: TrackerConfig,
     engine: Box<dyn LikelihoodEngine + Send>,
     sift: Sift,
+    /// SIFT without the doubled first octave, for targets of at least
+    /// [`TrackerConfig::sift_upsample_below`]; `None` when every target gets `sift`.
+    sift_large: Option<Sift>,
     filter: ParticleFilter,
     size: (u32, u32),
     theta0: f64,
@@ -255,6 +258,14 @@ fn check_config(cfg: &TrackerConfig) -> Result<(), TrackError> {
                 prior.pixel_sigma, cfg.filter.dynamics.rotation, cfg.fit_centre_sigma
             ))
         })?;
+    }
+    if let Some(d) = cfg.sift_upsample_below
+        && !(d.is_finite() && d > 0.0)
+    {
+        return Err(TrackError::BadConfig(format!(
+            "sift_upsample_below {d} must be a positive size in pixels; set it to None to \
+             keep the SIFT settings for every target size"
+        )));
     }
     if let Some(r) = &cfg.anchor_refit {
         r.check().map_err(|e| {
@@ -416,6 +427,12 @@ impl Tracker {
             cfg.likelihood.colour_bins = COLOUR_LUMA;
         }
         let sift = Sift::new(cfg.sift.clone());
+        let sift_large = (cfg.sift.upsample && cfg.sift_upsample_below.is_some()).then(|| {
+            Sift::new(crate::features::SiftParams {
+                upsample: false,
+                ..cfg.sift.clone()
+            })
+        });
         let filter = ParticleFilter::new(
             cfg.filter,
             cfg.seed,
@@ -425,6 +442,7 @@ impl Tracker {
             cfg,
             engine,
             sift,
+            sift_large,
             filter,
             size: first_frame.dimensions(),
             theta0: 0.0,
@@ -512,7 +530,9 @@ impl Tracker {
         };
         self.anchor_correlations.clear();
         let region = search_region(&init.ellipse, w, h);
-        self.prev_features = self.sift.detect(&self.prev_gray, Some(region))?;
+        self.prev_features = self
+            .sift_for(&init.ellipse)
+            .detect(&self.prev_gray, Some(region))?;
         self.reference = init.ellipse;
         let model = self.model(&hyp.rot, &init.ellipse);
         self.keyframes
@@ -599,8 +619,9 @@ impl Tracker {
         // not depend on each other: on two cores they run side by side.
         let region = search_region(&prev_ellipse, w, h);
         let abm = crate::motion::AbmParams::for_target(&prev_ellipse);
+        let sift = self.sift_for(&prev_ellipse);
         let (features, abm_result) = rayon::join(
-            || self.sift.detect(&gray, Some(region)),
+            || sift.detect(&gray, Some(region)),
             || block_match(&self.prev_gray, &gray, &prev_ellipse, &abm),
         );
         let features = features?;
@@ -868,6 +889,15 @@ impl Tracker {
         let rate = cfg.rate;
         if confidence >= cfg.min_confidence && rate > 0.0 {
             t.blend_towards(gray, &est.to_particle(), self.theta0 as f32, rate as f32);
+        }
+    }
+
+    /// The SIFT detector for a target the size of `e`: without the doubled first octave from
+    /// [`TrackerConfig::sift_upsample_below`] on.
+    fn sift_for(&self, e: &Ellipse) -> &Sift {
+        match (&self.sift_large, self.cfg.sift_upsample_below) {
+            (Some(large), Some(min)) if 2.0 * (e.a * e.b).sqrt() >= min => large,
+            _ => &self.sift,
         }
     }
 
@@ -1434,7 +1464,7 @@ impl Tracker {
         // by both templates (above).
         let e = found.to_state().ellipse(self.theta0);
         let region = search_region(&e, w, h);
-        let features = self.sift.detect(gray, Some(region))?;
+        let features = self.sift_for(&e).detect(gray, Some(region))?;
         let camera = self.camera();
         let ctx = FitContext {
             // Any pose, with no prior: the candidate's rotation is unknown.
@@ -1863,6 +1893,52 @@ mod tests {
             );
         }
         assert!(check_config(&TrackerConfig::default()).is_ok());
+    }
+
+    #[test]
+    fn large_targets_get_sift_without_the_doubled_octave() {
+        for bad in [0.0, -5.0, f64::NAN, f64::INFINITY] {
+            let cfg = TrackerConfig {
+                sift_upsample_below: Some(bad),
+                ..TrackerConfig::default()
+            };
+            assert!(matches!(check_config(&cfg), Err(TrackError::BadConfig(_))));
+        }
+        let (t, gray, init) = nod_tracker(TrackerConfig::default());
+        // The nod's head at 160x120 is about 43 px across: the doubled octave.
+        assert!(2.0 * (init.a * init.b).sqrt() < 120.0);
+        assert!(t.sift_for(&init).params().upsample);
+        let wide = Ellipse {
+            a: 3.0 * init.a,
+            b: 3.0 * init.b,
+            ..init
+        };
+        assert!(2.0 * (wide.a * wide.b).sqrt() >= 120.0);
+        assert!(!t.sift_for(&wide).params().upsample);
+        // Both detectors find the frame's features; the plain one fewer, at coarser scales.
+        let region = search_region(&init, gray.width, gray.height);
+        let fine = t.sift_for(&init).detect(&gray, Some(region)).unwrap();
+        let coarse = t.sift_for(&wide).detect(&gray, Some(region)).unwrap();
+        assert!(!coarse.is_empty() && coarse.len() < fine.len());
+        // Off, or with the doubled octave off in the SIFT settings, one detector serves all.
+        for cfg in [
+            TrackerConfig {
+                sift_upsample_below: None,
+                ..TrackerConfig::default()
+            },
+            TrackerConfig {
+                sift: crate::features::SiftParams {
+                    upsample: false,
+                    ..Default::default()
+                },
+                ..TrackerConfig::default()
+            },
+        ] {
+            let want = cfg.sift.upsample;
+            let (t, _, _) = nod_tracker(cfg);
+            assert!(t.sift_large.is_none());
+            assert_eq!(t.sift_for(&wide).params().upsample, want);
+        }
     }
 
     /// A tracker on the first frame of the synthetic `nod`, with that frame's grey image

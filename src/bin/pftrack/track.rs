@@ -188,6 +188,19 @@ pub struct TrackArgs {
     /// Leave the estimate to the filter: no re-anchoring on the first view.
     #[arg(long)]
     pub no_reanchor: bool,
+    /// Search targets at least this large (equal-area diameter `2·sqrt(a b)`, pixels) for SIFT
+    /// features without the doubled first octave: about half the time on large targets,
+    /// with the same accuracy (see `TrackerConfig::sift_upsample_below`).
+    #[arg(
+        long,
+        value_name = "PX",
+        default_value_t = 120.0,
+        conflicts_with = "sift_always_upsample"
+    )]
+    pub sift_upsample_below: f64,
+    /// Double the first SIFT octave whatever the target's size, as Lowe's SIFT does.
+    #[arg(long)]
+    pub sift_always_upsample: bool,
     /// Estimate the rotation between successive frames from any 3 or more matches, as the
     /// paper does, instead of from at least 5 that one affine map carries to within 1 px
     /// (see `pose::Consensus`).
@@ -489,6 +502,7 @@ pub fn run(a: TrackArgs) -> anyhow::Result<()> {
         min_ncc: a.reanchor_ncc,
         ..Default::default()
     });
+    cfg.sift_upsample_below = (!a.sift_always_upsample).then_some(a.sift_upsample_below);
     cfg.motion_scale = a.motion_scale;
     if a.no_interframe_consensus {
         cfg.interframe_consensus = None;
