@@ -1044,6 +1044,44 @@ fn cli_track_sift_upsample_size() {
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
+/// `--refine-init` moves a start drawn a few pixels off the head back onto it, and row 0 of
+/// the poses gives the ellipse the track started from.
+#[test]
+fn cli_track_refine_init() {
+    let dir = synth_dir("track-refine", 3, "160x120");
+    let d = dir.to_str().unwrap();
+    let init = std::fs::read_to_string(dir.join("init.txt")).unwrap();
+    let v: Vec<f64> = init
+        .lines()
+        .next()
+        .unwrap()
+        .split(',')
+        .map(|x| x.parse().unwrap())
+        .collect();
+    let high = format!("{},{},{},{}", v[0], v[1] - 3.0, v[2], v[3]);
+    let csv = dir.join("poses.csv");
+    let c = csv.to_str().unwrap();
+    let row0_cy = |extra: &[&str]| -> f64 {
+        let mut args = vec!["track", d, "--backend", "cpu", "--init-ellipse", &high];
+        args.extend_from_slice(extra);
+        args.extend_from_slice(&["--out", c]);
+        pftrack_ok(&args);
+        let text = std::fs::read_to_string(&csv).unwrap();
+        text.lines()
+            .nth(1)
+            .unwrap()
+            .split(',')
+            .nth(2)
+            .unwrap()
+            .parse()
+            .unwrap()
+    };
+    assert!((row0_cy(&[]) - (v[1] - 3.0)).abs() < 1e-6);
+    let refined = row0_cy(&["--refine-init"]);
+    assert!((refined - v[1]).abs() < 0.5, "{refined} against {}", v[1]);
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
 /// `track` takes the camera from the init file `synth` writes, `--hfov` overrides it and
 /// `--weak-perspective` sets it aside; a bad camera line is one clear error and no poses.
 #[test]

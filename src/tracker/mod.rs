@@ -30,11 +30,13 @@
 //! for over the whole frame by colour and taken back where its features fit a keyframe.
 
 mod config;
+mod init_refine;
 mod keyframe;
 
 pub use config::{
     AnchorRefit, ColourUpdate, Contrast, Init, Mode, Reanchor, TemplateTerm, TrackerConfig,
 };
+pub use init_refine::{InitRefine, refine_ellipse};
 
 use nalgebra::Matrix3;
 
@@ -256,6 +258,13 @@ fn check_config(cfg: &TrackerConfig) -> Result<(), TrackError> {
                  {:?}: {e}; set fit_pixel_sigma to None to fit without the prior, \
                  fit_centre_sigma to None to leave the centre free",
                 prior.pixel_sigma, cfg.filter.dynamics.rotation, cfg.fit_centre_sigma
+            ))
+        })?;
+    }
+    if let Some(r) = &cfg.init_refine {
+        r.check().map_err(|e| {
+            TrackError::BadConfig(format!(
+                "{e}; set init_refine to None to keep the given ellipse"
             ))
         })?;
     }
@@ -481,10 +490,18 @@ impl Tracker {
 
     /// Starts over on `frame` from `init`: a new colour model, new reference features, the
     /// filter reset. The frame becomes frame 0 of what follows only for the model: frame
-    /// numbering continues.
+    /// numbering continues. With [`TrackerConfig::init_refine`] the ellipse is refined on
+    /// `frame` first ([`refine_ellipse`]); [`Tracker::initial_estimate`] gives the one used.
     pub fn reinit(&mut self, frame: &image::RgbImage, init: Init) -> crate::Result<()> {
         let (w, h) = frame.dimensions();
         check_init(&init, w, h).map_err(track_err)?;
+        let init = match &self.cfg.init_refine {
+            Some(r) => Init {
+                ellipse: init_refine::refine_ellipse(frame, &init.ellipse, &self.cfg.likelihood, r),
+                ..init
+            },
+            None => init,
+        };
         self.size = (w, h);
         self.theta0 = init.ellipse.theta;
         let model =
@@ -1893,6 +1910,52 @@ mod tests {
             );
         }
         assert!(check_config(&TrackerConfig::default()).is_ok());
+    }
+
+    #[test]
+    fn a_refined_start_is_the_one_the_tracker_uses() {
+        let bad = TrackerConfig {
+            init_refine: Some(InitRefine {
+                ring: 0.5,
+                ..Default::default()
+            }),
+            ..TrackerConfig::default()
+        };
+        assert!(matches!(check_config(&bad), Err(TrackError::BadConfig(_))));
+        let r = crate::synth::Renderer::new(&crate::synth::SynthConfig::new(
+            crate::synth::Scenario::Nod,
+        ))
+        .unwrap();
+        let (first, _) = r.render(0);
+        let truth = r.init_ellipse();
+        let high = Ellipse {
+            cy: truth.cy - 3.0,
+            ..truth
+        };
+        let cfg = TrackerConfig {
+            init_refine: Some(InitRefine::default()),
+            ..TrackerConfig::default()
+        };
+        let mut t = Tracker::new(cfg, &first, Init::frontal(high)).unwrap();
+        let used = t.initial_estimate().ellipse;
+        assert!(
+            (used.cy - truth.cy).abs() < 0.5,
+            "{used:?} against {truth:?}"
+        );
+        // Again on reinit, from a start off the other way.
+        let left = Ellipse {
+            cx: truth.cx - 3.0,
+            ..truth
+        };
+        t.reinit(&first, Init::frontal(left)).unwrap();
+        let used = t.initial_estimate().ellipse;
+        assert!(
+            (used.cx - truth.cx).abs() < 0.5,
+            "{used:?} against {truth:?}"
+        );
+        // Off by default: the given ellipse as it is.
+        let (t, _, _) = nod_tracker(TrackerConfig::default());
+        assert_eq!(t.initial_estimate().ellipse, truth);
     }
 
     #[test]

@@ -188,6 +188,12 @@ pub struct TrackArgs {
     /// Leave the estimate to the filter: no re-anchoring on the first view.
     #[arg(long)]
     pub no_reanchor: bool,
+    /// Refine the initial ellipse on the first frame onto the nearest edges and colour
+    /// boundary before anything is learnt from it: for a start drawn by hand, a few pixels
+    /// off the object (see `TrackerConfig::init_refine`). Row 0 of the poses gives the
+    /// ellipse used.
+    #[arg(long)]
+    pub refine_init: bool,
     /// Search targets at least this large (equal-area diameter `2·sqrt(a b)`, pixels) for SIFT
     /// features without the doubled first octave: about half the time on large targets,
     /// with the same accuracy (see `TrackerConfig::sift_upsample_below`).
@@ -503,6 +509,7 @@ pub fn run(a: TrackArgs) -> anyhow::Result<()> {
         ..Default::default()
     });
     cfg.sift_upsample_below = (!a.sift_always_upsample).then_some(a.sift_upsample_below);
+    cfg.init_refine = a.refine_init.then(pftrack::tracker::InitRefine::default);
     cfg.motion_scale = a.motion_scale;
     if a.no_interframe_consensus {
         cfg.interframe_consensus = None;
