@@ -102,19 +102,20 @@ impl Scorer<'_> {
             b: e.b * self.cfg.ring,
             ..*e
         };
-        let (inner, n_in) = colour::histogram(self.frame, &EllipseF32::from_ellipse(e), bins);
-        let (all, n_all) = colour::histogram(self.frame, &EllipseF32::from_ellipse(&outer), bins);
-        let n_ring = n_all.saturating_sub(n_in);
+        let ((inner, n_in), ring) = colour::inside_and_ring(
+            self.frame,
+            &EllipseF32::from_ellipse(e),
+            &EllipseF32::from_ellipse(&outer),
+            bins,
+        );
+        let n_ring: u32 = ring.iter().sum();
         if n_in == 0 || n_ring == 0 {
             return 0.0;
         }
         let bc: f64 = inner
             .iter()
-            .zip(&all)
-            .map(|(&i, &a)| {
-                let r = a.saturating_sub(i);
-                ((i as f64 / n_in as f64) * (r as f64 / n_ring as f64)).sqrt()
-            })
+            .zip(&ring)
+            .map(|(&i, &r)| ((i as f64 / n_in as f64) * (r as f64 / n_ring as f64)).sqrt())
             .sum();
         (1.0 - bc).max(0.0)
     }

@@ -372,11 +372,12 @@ fn ring_histogram(
         b: e.b * c.ring,
         ..*e
     };
-    let (inner, _) = colour::histogram(frame, &EllipseF32::from_ellipse(e), colour_bins);
-    let (mut ring, _) = colour::histogram(frame, &EllipseF32::from_ellipse(&outer), colour_bins);
-    for (r, i) in ring.iter_mut().zip(inner) {
-        *r = r.saturating_sub(i);
-    }
+    let (_, ring) = colour::inside_and_ring(
+        frame,
+        &EllipseF32::from_ellipse(e),
+        &EllipseF32::from_ellipse(&outer),
+        colour_bins,
+    );
     let total: u32 = ring.iter().sum();
     (total > 0).then(|| ColourHistogram(colour::normalise(&ring, total)))
 }
@@ -1922,12 +1923,7 @@ mod tests {
             ..TrackerConfig::default()
         };
         assert!(matches!(check_config(&bad), Err(TrackError::BadConfig(_))));
-        let r = crate::synth::Renderer::new(&crate::synth::SynthConfig::new(
-            crate::synth::Scenario::Nod,
-        ))
-        .unwrap();
-        let (first, _) = r.render(0);
-        let truth = r.init_ellipse();
+        let (first, truth) = nod_first();
         let high = Ellipse {
             cy: truth.cy - 3.0,
             ..truth
@@ -2004,15 +2000,19 @@ mod tests {
         }
     }
 
-    /// A tracker on the first frame of the synthetic `nod`, with that frame's grey image
-    /// and the initial ellipse.
-    fn nod_tracker(cfg: TrackerConfig) -> (Tracker, GrayF32, Ellipse) {
+    /// The first frame of the synthetic `nod` and its true ellipse.
+    fn nod_first() -> (image::RgbImage, Ellipse) {
         let r = crate::synth::Renderer::new(&crate::synth::SynthConfig::new(
             crate::synth::Scenario::Nod,
         ))
         .unwrap();
-        let (first, _) = r.render(0);
-        let init = r.init_ellipse();
+        (r.render(0).0, r.init_ellipse())
+    }
+
+    /// A tracker on the first frame of the synthetic `nod`, with that frame's grey image
+    /// and the initial ellipse.
+    fn nod_tracker(cfg: TrackerConfig) -> (Tracker, GrayF32, Ellipse) {
+        let (first, init) = nod_first();
         let t = Tracker::new(cfg, &first, Init::frontal(init)).unwrap();
         (t, GrayF32::from_rgb(&first), init)
     }

@@ -239,6 +239,22 @@ pub fn histogram(image: &RgbImage, e: &EllipseF32, colour_bins: u32) -> ([u32; H
     (counts, total)
 }
 
+/// The counts inside `e` ([`histogram`]) and in the ring between `e` and `outer` (an ellipse
+/// containing it): the counts inside `outer` less those inside `e`, bin by bin.
+pub fn inside_and_ring(
+    image: &RgbImage,
+    e: &EllipseF32,
+    outer: &EllipseF32,
+    colour_bins: u32,
+) -> (([u32; HIST_BINS], u32), [u32; HIST_BINS]) {
+    let (inner, n) = histogram(image, e, colour_bins);
+    let (mut ring, _) = histogram(image, outer, colour_bins);
+    for (r, i) in ring.iter_mut().zip(inner) {
+        *r = r.saturating_sub(i);
+    }
+    ((inner, n), ring)
+}
+
 /// [`histogram`] from a precomputed [`BinImage`] (same result, faster).
 ///
 /// Neighbouring pixels often fall in one bin, and counting them into one array makes each
