@@ -17,8 +17,10 @@ use pftrack::tracker::{Init, Tracker, TrackerConfig};
 #[derive(Debug, Args)]
 #[command(allow_negative_numbers = true)]
 pub struct BenchArgs {
-    /// Particle counts, comma separated.
-    #[arg(long, value_delimiter = ',', default_value = "200,1000,10000,100000")]
+    /// Particle counts, comma separated [default: 200,1000,10000,100000; with `--step`,
+    /// 200,1000,10000, as a whole step with 100000 particles on one thread takes seconds and
+    /// the sequence has 59 of them per pass].
+    #[arg(long, value_delimiter = ',')]
     pub particles: Vec<usize>,
     /// Frame size `WxH`.
     #[arg(long, default_value = "160x120", value_parser = parse_size)]
@@ -107,7 +109,7 @@ fn median_stages(runs: &[StageTimes]) -> StageTimes {
 
 /// Runs the command.
 pub fn run(args: BenchArgs) -> anyhow::Result<()> {
-    if args.particles.is_empty() || args.particles.contains(&0) {
+    if args.particles.contains(&0) {
         anyhow::bail!("--particles needs positive counts");
     }
     if args.step {
@@ -170,7 +172,7 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
     }
     let mut stage_names: Vec<&str> = Vec::new();
     let mut rows = Vec::new();
-    for &n in &args.particles {
+    for &n in &counts(&args.particles, false) {
         let ps = particles(&w.target, n, 7);
         let mut row = vec![n.to_string()];
         let mut best_cpu = None;
@@ -279,9 +281,10 @@ fn run_step(args: &BenchArgs) -> anyhow::Result<()> {
             .chain(columns.iter().map(|c| c.0.clone()))
             .collect::<Vec<_>>(),
     ];
-    for &n in &args.particles {
+    let progress = std::io::IsTerminal::is_terminal(&std::io::stderr());
+    for &n in &counts(&args.particles, true) {
         let mut row = vec![n.to_string()];
-        for (_, threads, on_gpu) in &columns {
+        for (label, threads, on_gpu) in &columns {
             let pool = rayon::ThreadPoolBuilder::new()
                 .num_threads(*threads)
                 .build()
@@ -299,11 +302,24 @@ fn run_step(args: &BenchArgs) -> anyhow::Result<()> {
             })?;
             let secs = per_step.as_secs_f64();
             row.push(format!("{:.3} ({:.0}/s)", secs * 1e3, 1.0 / secs));
+            if progress {
+                eprintln!("bench: {n} particles, {label}: {:.3} ms a step", secs * 1e3);
+            }
         }
         rows.push(row);
     }
     print_table(&rows);
     Ok(())
+}
+
+/// The particle counts asked for, or the defaults of the likelihood pass (`step` false) or
+/// of the whole step.
+fn counts(asked: &[usize], step: bool) -> Vec<usize> {
+    match (asked.is_empty(), step) {
+        (false, _) => asked.to_vec(),
+        (true, false) => vec![200, 1000, 10_000, 100_000],
+        (true, true) => vec![200, 1000, 10_000],
+    }
 }
 
 /// The median wall time of one step over `passes` passes through `frames` after a warm-up
@@ -363,6 +379,14 @@ mod tests {
         assert!(parse_size("640").is_err());
         assert!(parse_size("0x10").is_err());
         assert!(parse_size("ax10").is_err());
+    }
+
+    #[test]
+    fn the_whole_step_defaults_to_fewer_particles() {
+        assert_eq!(counts(&[], false), vec![200, 1000, 10_000, 100_000]);
+        assert_eq!(counts(&[], true), vec![200, 1000, 10_000]);
+        assert_eq!(counts(&[50, 7], true), vec![50, 7]);
+        assert_eq!(counts(&[50], false), vec![50]);
     }
 
     #[test]
