@@ -32,7 +32,7 @@ use pftrack::features::{MatchParams, Sift, SiftParams, match_features};
 use pftrack::filter::rotation_mean::log_so3;
 use pftrack::frames::GrayF32;
 use pftrack::geometry::angle_between;
-use pftrack::pose::prior::{Ellipsoid, FitStart, Pinhole, fit_points, lift};
+use pftrack::pose::prior::{Ellipsoid, FitStart, Pinhole, fit_points, lift, view_of};
 use pftrack::synth::{Renderer, Scenario, SynthConfig};
 
 const USAGE: &str = "usage: structure_bias [--scenario NAME] [--seed S] [--learn-until K] \
@@ -47,9 +47,7 @@ struct Pose {
 }
 
 fn project(x: &Vector3<f64>, pose: &Pose, cam: &Pinhole) -> Vector2<f64> {
-    let y = pose.rot * x;
-    let g = 1.0 + pose.scale * y.z / cam.focal;
-    cam.principal + (pose.centre - cam.principal + pose.scale * Vector2::new(y.x, y.y)) / g
+    view_of(x, &pose.rot, pose.scale, &pose.centre, Some(cam))
 }
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
