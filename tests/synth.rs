@@ -1050,15 +1050,8 @@ fn cli_track_sift_upsample_size() {
 fn cli_track_refine_init() {
     let dir = synth_dir("track-refine", 3, "160x120");
     let d = dir.to_str().unwrap();
-    let init = std::fs::read_to_string(dir.join("init.txt")).unwrap();
-    let v: Vec<f64> = init
-        .lines()
-        .next()
-        .unwrap()
-        .split(',')
-        .map(|x| x.parse().unwrap())
-        .collect();
-    let high = format!("{},{},{},{}", v[0], v[1] - 3.0, v[2], v[3]);
+    let e = read_init(&dir.join("init.txt")).unwrap().ellipse;
+    let high = format!("{},{},{},{}", e.cx, e.cy - 3.0, e.a, e.b);
     let csv = dir.join("poses.csv");
     let c = csv.to_str().unwrap();
     let row0_cy = |extra: &[&str]| -> f64 {
@@ -1066,19 +1059,11 @@ fn cli_track_refine_init() {
         args.extend_from_slice(extra);
         args.extend_from_slice(&["--out", c]);
         pftrack_ok(&args);
-        let text = std::fs::read_to_string(&csv).unwrap();
-        text.lines()
-            .nth(1)
-            .unwrap()
-            .split(',')
-            .nth(2)
-            .unwrap()
-            .parse()
-            .unwrap()
+        read_pose_csv(&csv).unwrap()[0].state.cy
     };
-    assert!((row0_cy(&[]) - (v[1] - 3.0)).abs() < 1e-6);
+    assert!((row0_cy(&[]) - (e.cy - 3.0)).abs() < 1e-6);
     let refined = row0_cy(&["--refine-init"]);
-    assert!((refined - v[1]).abs() < 0.5, "{refined} against {}", v[1]);
+    assert!((refined - e.cy).abs() < 0.5, "{refined} against {}", e.cy);
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
