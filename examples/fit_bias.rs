@@ -29,6 +29,9 @@
 
 use std::path::PathBuf;
 
+#[path = "common/gain.rs"]
+mod gain;
+
 use nalgebra::{Matrix3, Vector2};
 use pftrack::features::{MatchParams, Sift, SiftParams, match_features};
 use pftrack::filter::rotation_mean::log_so3;
@@ -87,7 +90,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let sift = Sift::new(SiftParams::default());
     let matching = MatchParams::default();
 
-    let mut gain = [(0.0f64, 0.0f64); 3];
+    let mut gain = gain::AxisGain::default();
     let (mut err_sum, mut pairs) = (0.0, 0usize);
     println!("pair        matches inliers  resid   true    fit    err  scale");
     for k in (0..truth.len().saturating_sub(gap)).step_by(every) {
@@ -126,10 +129,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             continue;
         };
         let (wf, wt) = (log_so3(&fit.rot), log_so3(&rel));
-        for (axis, g) in gain.iter_mut().enumerate() {
-            g.0 += wf[axis] * wt[axis];
-            g.1 += wt[axis] * wt[axis];
-        }
+        gain.add(&wf, &wt);
         let err = angle_between(&fit.rot, &rel).to_degrees();
         err_sum += err;
         pairs += 1;
@@ -146,19 +146,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     if pairs == 0 {
         return Err("no pair could be fitted".into());
     }
-    // An axis the sequence never turns about has no gain to speak of.
-    let g = gain.map(|(num, den)| {
-        if den > (1f64.to_radians()).powi(2) {
-            format!("{:.3}", num / den)
-        } else {
-            "-".to_string()
-        }
-    });
     println!(
-        "gain about x {} y {} z {}  mean error {:.2} deg over {pairs} pairs",
-        g[0],
-        g[1],
-        g[2],
+        "{}  mean error {:.2} deg over {pairs} pairs",
+        gain.describe(),
         err_sum / pairs as f64
     );
     Ok(())

@@ -27,6 +27,9 @@
 
 use std::collections::HashMap;
 
+#[path = "common/gain.rs"]
+mod gain;
+
 use nalgebra::{Matrix3, Vector2, Vector3};
 use pftrack::features::{MatchParams, Sift, SiftParams, match_features};
 use pftrack::filter::rotation_mean::log_so3;
@@ -171,7 +174,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         "frame matches   true | ellipsoid: fit    err  resid | triangulated: fit    err  resid"
     );
     let mut errors = [Vec::new(), Vec::new()];
-    let mut gain = [[(0.0f64, 0.0f64); 3]; 2];
+    let mut gain = [gain::AxisGain::default(); 2];
     for k in (from..to).step_by(every) {
         let fk = sift.detect(&gray(k), None)?;
         let (mut q, mut sets) = (Vec::new(), [Vec::new(), Vec::new()]);
@@ -195,10 +198,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             match fit_points(x, &q, Some(&cam), &start, None) {
                 Ok(f) => {
                     let wf = log_so3(&f.rot);
-                    for (axis, g) in gain[v].iter_mut().enumerate() {
-                        g.0 += wf[axis] * wt[axis];
-                        g.1 += wt[axis] * wt[axis];
-                    }
+                    gain[v].add(&wf, &wt);
                     let err = angle_between(&f.rot, &truth.rot).to_degrees();
                     errors[v].push(err);
                     line += &format!(
@@ -219,20 +219,11 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             continue;
         }
         e.sort_by(f64::total_cmp);
-        let g = gain[v].map(|(num, den)| {
-            if den > (1f64.to_radians()).powi(2) {
-                format!("{:.3}", num / den)
-            } else {
-                "-".to_string()
-            }
-        });
         println!(
-            "{name}: median error {:.2} deg over {} frames, gain about x {} y {} z {}",
+            "{name}: median error {:.2} deg over {} frames, {}",
             e[e.len() / 2],
             e.len(),
-            g[0],
-            g[1],
-            g[2]
+            gain[v].describe()
         );
     }
     Ok(())
