@@ -112,12 +112,8 @@ impl Scorer<'_> {
         if n_in == 0 || n_ring == 0 {
             return 0.0;
         }
-        let bc: f64 = inner
-            .iter()
-            .zip(&ring)
-            .map(|(&i, &r)| ((i as f64 / n_in as f64) * (r as f64 / n_ring as f64)).sqrt())
-            .sum();
-        (1.0 - bc).max(0.0)
+        let around = colour::Model::new(&colour::normalise(&ring, n_ring));
+        (1.0 - f64::from(colour::bhattacharyya(&inner, n_in, &around))).max(0.0)
     }
 }
 
