@@ -1264,6 +1264,36 @@ fn cli_a_failed_track_leaves_no_render() {
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
+/// A one-frame sequence is a whole track: the initial row, a summary that counts one frame,
+/// and its rendering.
+#[test]
+fn cli_tracks_a_one_frame_sequence() {
+    let dir = synth_dir("one-frame", 1, "64x48");
+    let d = dir.to_str().unwrap();
+    let csv = dir.join("poses.csv");
+    let render = dir.join("render");
+    let out = pftrack_ok(&[
+        "track",
+        d,
+        "--backend",
+        "cpu",
+        "--out",
+        csv.to_str().unwrap(),
+        "--render",
+        render.to_str().unwrap(),
+    ]);
+    let rows = read_pose_csv(&csv).unwrap();
+    assert_eq!(rows.len(), 1);
+    let init = read_init(&dir.join("init.txt")).unwrap().ellipse;
+    let s = rows[0].state;
+    assert_eq!((s.cx, s.cy, s.a, s.b), (init.cx, init.cy, init.a, init.b));
+    assert_eq!((s.rx, s.ry, s.rz), (0.0, 0.0, 0.0));
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(stderr.contains("tracked 1 frame with"), "{stderr}");
+    assert_eq!(std::fs::read_dir(&render).unwrap().count(), 1);
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
 /// `bench --step` times the whole tracker step: a row per particle count with a positive
 /// time and its frames per second, for one thread (and all, where there are more).
 #[test]

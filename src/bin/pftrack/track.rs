@@ -574,7 +574,8 @@ pub fn run(a: TrackArgs) -> anyhow::Result<()> {
         }
     };
     eprintln!(
-        "pftrack: tracked {written} frames with {} ({}, {}){}",
+        "pftrack: tracked {written} frame{} with {} ({}, {}){}",
+        if written == 1 { "" } else { "s" },
         tracker.engine_name(),
         a.mode,
         camera,
