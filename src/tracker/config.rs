@@ -549,7 +549,8 @@ pub struct TrackerConfig {
     /// view correlated 0.2 at the estimate and 0.77 at the truth. The step's lower bound
     /// keeps small turns to the filter: near the estimate a small turn looks much like a
     /// small shift (on car4 seed 7 a turn of 2.5° in tilt and pan at frame 3, which lifted
-    /// the correlation from 0.40 to 0.76, lost the car; the figures are in the README).
+    /// the correlation from 0.40 to 0.76, lost the car; the figures are in
+    /// `docs/measurements.md`).
     pub reanchor: Option<Reanchor>,
     /// How the colour model follows the target's appearance; `None` keeps the first frame's
     /// histogram throughout, as the paper does. On by default ([`ColourUpdate::default`]):
