@@ -13,11 +13,14 @@
 //! * [`ransac::Rls`]: RANSAC on the matches, then least squares on the inliers.
 //! * [`kabsch`](mod@kabsch): the 3D-3D case (SVD and SEA's equation in 3D).
 //! * [`essential`]: the essential-matrix (8-point) baseline on calibrated perspective points.
+//! * [`prior`]: the tracker's keyframe fit with an ellipsoid depth prior, and [`bundle`] the
+//!   adjustment of a keyframe's depths with its views' poses.
 //!
 //! A block determines the rotation up to the Necker pair ([`complete`]); inter-frame rotations
 //! are chained by [`accumulate::PoseAccumulator`]; [`noise`] reproduces the paper's Fig. 3.
 
 pub mod accumulate;
+pub mod bundle;
 pub mod complete;
 pub mod essential;
 pub mod kabsch;
