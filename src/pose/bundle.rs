@@ -16,7 +16,9 @@
 //! term the tracker's own random-walk prior on the rotation between successive views
 //! (`R_{−1} = I`, the keyframe's pose, at the keyframe's frame). The keyframe's own
 //! observations hold exactly by construction (each point stays on its ray), which fixes the
-//! gauge. Gauss-Newton with the depths eliminated (Schur complement), Levenberg damping.
+//! gauge but for a common shift of the depths (with each view's centre moved to match,
+//! exactly so under weak perspective), which the depth prior holds. Gauss-Newton with the
+//! depths eliminated (Schur complement), Levenberg damping.
 
 use nalgebra::{DMatrix, DVector, Matrix3, SMatrix, Vector2, Vector3};
 
