@@ -24,8 +24,8 @@
 //! ellipsoid is, it helps where the single fits over-read and hurts where they were right
 //! (`--min-seen 8`, every frame): `nod` seed 0, frames 0-40, 10.0 -> 4.7 (gain about x 1.40
 //! -> 1.13); `combo` seed 0, frames 0-40, 5.2 -> 3.4; `pan` seed 0, frames 0-30, 2.0 -> 2.1;
-//! `pan` seed 1, frames 30-60, 2.0 -> 12.5 (gain about y 0.95 -> 2.23). See
-//! [`pftrack::pose::prior`] for what a tracker build made of it.
+//! `pan` seed 1, frames 30-60, 2.0 -> 12.5 (gain about y 0.95 -> 2.23). The tracker adjusts
+//! only keyframes with 7 views or more ([`pftrack::tracker::TrackerConfig::bundle`]).
 
 #[path = "common/gain.rs"]
 mod gain;

@@ -2,9 +2,10 @@
 //! and its rotation, deterministically for a seed, and reject bad input without panicking.
 
 use pftrack::geometry::{Ellipse, angle_between, rot_x};
+use pftrack::pose::bundle::BundleParams;
 use pftrack::synth::{Renderer, Scenario, SynthConfig};
 use pftrack::tracker::{
-    AnchorRefit, ColourUpdate, Contrast, Init, TemplateTerm, Tracker, TrackerConfig,
+    AnchorRefit, BundleAdjust, ColourUpdate, Contrast, Init, TemplateTerm, Tracker, TrackerConfig,
 };
 
 type Track = (
@@ -159,6 +160,52 @@ fn bad_input_is_an_error() {
         };
         let err = Tracker::new(cfg, &img, Init::frontal(r.init_ellipse())).unwrap_err();
         assert!(err.to_string().contains("anchor refit"), "{err}");
+    }
+    // The bundle adjustment: positive sigmas, enough views, at least one iteration.
+    let good = BundleAdjust::default();
+    let bad = [
+        BundleAdjust {
+            params: BundleParams {
+                depth_sigma: 0.0,
+                ..good.params
+            },
+            ..good
+        },
+        BundleAdjust {
+            params: BundleParams {
+                rotation_sigma: [0.07, f64::NAN, 0.07],
+                ..good.params
+            },
+            ..good
+        },
+        BundleAdjust {
+            params: BundleParams {
+                iterations: 0,
+                ..good.params
+            },
+            ..good
+        },
+        BundleAdjust {
+            min_views: 1,
+            ..good
+        },
+        BundleAdjust {
+            max_views: 6,
+            ..good
+        },
+        BundleAdjust { every: 0, ..good },
+        BundleAdjust {
+            min_turn: -0.1,
+            ..good
+        },
+    ];
+    for b in bad {
+        let cfg = TrackerConfig {
+            bundle: Some(b),
+            ..TrackerConfig::default()
+        };
+        let err = Tracker::new(cfg, &img, Init::frontal(r.init_ellipse())).unwrap_err();
+        assert!(err.to_string().contains("bundle"), "{b:?}: {err}");
     }
     // The colour update's gate is a similarity.
     for max_ring_similarity in [-0.1, 1.5, f64::NAN] {

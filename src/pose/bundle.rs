@@ -18,7 +18,8 @@
 //! observations hold exactly by construction (each point stays on its ray), which fixes the
 //! gauge but for a common shift of the depths (with each view's centre moved to match,
 //! exactly so under weak perspective), which the depth prior holds. Gauss-Newton with the
-//! depths eliminated (Schur complement), Levenberg damping.
+//! depths eliminated (Schur complement), Levenberg damping. The tracker adjusts its keyframes
+//! with it ([`crate::tracker::TrackerConfig::bundle`]).
 
 use nalgebra::{DMatrix, DVector, Matrix3, SMatrix, Vector2, Vector3};
 
@@ -40,6 +41,19 @@ pub struct BundleView {
     pub centre: Vector2<f64>,
     /// `(feature index in the keyframe, image position)` of each feature seen.
     pub seen: Vec<(usize, [f64; 2])>,
+}
+
+/// What [`refine`] returns.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Adjusted {
+    /// The refined points, one per keyframe point.
+    pub points: Vec<Vector3<f64>>,
+    /// The objective at the start (the views as given, the points as lifted).
+    pub start_cost: f64,
+    /// The objective at the end.
+    pub cost: f64,
+    /// Feature observations in the views.
+    pub observations: usize,
 }
 
 /// Settings of [`refine`].
@@ -94,7 +108,8 @@ fn on_ray(
 
 /// Refines the depths of the keyframe points `x0` (lifted, in the keyframe's model frame,
 /// whose centre projects to `key_centre`) and the poses of `views` (sorted by frame, the
-/// keyframe taken at `key_frame`). Returns the refined points; `views` get the refined poses.
+/// keyframe taken at `key_frame`). Returns the refined points and the objective before and
+/// after; `views` get the refined poses.
 ///
 /// Errors: non-finite input, a feature index out of range, or a singular system.
 pub fn refine(
@@ -104,7 +119,7 @@ pub fn refine(
     camera: Option<&Pinhole>,
     views: &mut [BundleView],
     params: &BundleParams,
-) -> Result<Vec<Vector3<f64>>, PoseError> {
+) -> Result<Adjusted, PoseError> {
     let (nv, np) = (views.len(), x0.len());
     if views.iter().any(|v| {
         v.seen
@@ -147,6 +162,7 @@ pub fn refine(
         c
     };
     let mut current = cost(views, &z);
+    let start_cost = current;
     let mut lambda = 1e-3;
     for _ in 0..params.iterations {
         // Normal equations: pose block (6 per view), depth diagonal, and their coupling.
@@ -256,9 +272,14 @@ pub fn refine(
     if !current.is_finite() {
         return Err(PoseError::NonFinite);
     }
-    Ok((0..np)
-        .map(|j| on_ray(&x0[j], z[j], camera, key_centre))
-        .collect())
+    Ok(Adjusted {
+        points: (0..np)
+            .map(|j| on_ray(&x0[j], z[j], camera, key_centre))
+            .collect(),
+        start_cost,
+        cost: current,
+        observations: views.iter().map(|v| v.seen.len()).sum(),
+    })
 }
 
 #[cfg(test)]
@@ -347,7 +368,9 @@ mod tests {
             iterations: 50,
             ..BundleParams::default()
         };
-        let points = refine(&x0, &centre, 0, Some(&cam), &mut views, &params).unwrap();
+        let points = refine(&x0, &centre, 0, Some(&cam), &mut views, &params)
+            .unwrap()
+            .points;
         for (v, t) in views.iter().zip(&truth) {
             let e = angle_between(&v.rot, &t.rot).to_degrees();
             assert!(e < 0.02, "frame {}: {e}° off", v.frame);
@@ -386,13 +409,16 @@ mod tests {
             &mut views,
             &BundleParams::default(),
         )
-        .unwrap();
+        .unwrap()
+        .points;
         for (xj, pj) in points.iter().zip(&p) {
             let q = view_of(xj, &Matrix3::identity(), 1.0, &centre, Some(&cam));
             assert!((q.x - pj[0]).abs() < 1e-9 && (q.y - pj[1]).abs() < 1e-9);
         }
         // Under weak perspective a ray is a line along z.
-        let flat = refine(&x, &centre, 0, None, &mut views, &BundleParams::default()).unwrap();
+        let flat = refine(&x, &centre, 0, None, &mut views, &BundleParams::default())
+            .unwrap()
+            .points;
         for (a, b) in flat.iter().zip(&x) {
             assert_eq!((a.x, a.y), (b.x, b.y));
         }

@@ -111,33 +111,18 @@
 //!     10.0 to 4.7°) and hurts where they were right (`pan` seed 1, 2.0 to 12.5°, gain 2.2):
 //!     a pan's features leave the view within 20-30° and the few views left do not pin the
 //!     depths down.
-//!   - In a throwaway tracker build each accepted keyframe fit was recorded as a view of its
-//!     keyframe (at most 12, the closest in rotation thinned out), every third view the
-//!     keyframe was adjusted once its views spanned 3°, and later fits against it used the
-//!     adjusted points. Scenario seeds 0-11, filter seed 0, against 3.07 / 16.3 / 3.92 on
-//!     `car`, 1.41 / 1.07 / 1.09 on `nod` and 2.17 / 2.33 / 2.22 on `pan`: `car` 4.89 / 14.3
-//!     / 4.14 (centre 1.88 px) and `nod` 3.39 about x; without adjusting the anchor, `car`
-//!     3.58 / 14.8 / 4.35, `nod` as before, `pan` 1.98 / 2.83 / 2.14; from a span of 8.6°,
-//!     `car` 3.90 / 14.8 / 3.97, `pan` 2.09 / 2.93 / 2.33. Not kept. The anchor's fits read
-//!     1-8° of tilt during the car's translation and up to 14° as it starts to turn, which the
-//!     adjustment keeps (its views there hardly turn); each fit is still held to the previous, biased estimate by the
-//!     rotation prior; and the feature term and the turned first view still see the
-//!     ellipsoid.
-//!   - A second build adjusted before the filter step, with the frame's own fit as the newest
-//!     view, and handed the filter the adjusted pose of that view in place of the fit (no
-//!     prior hold, no step bound). Without adjusting the anchor, the rotation's random walk
-//!     at 0.07 a frame (0.05 under-read the heads' pans: `pan` 3.33° about y, gain 0.94; 0.1
-//!     cost the car's tilt and roll): `car` 4.27 / 9.22 / 4.51 and its centre 1.44 px, `nod`
-//!     1.58 / 1.19 / 1.12, `pan` 2.22 / 2.32 / 2.09, `roll` 1.28 / 1.38 / 0.94, `depth`
-//!     1.48 / 1.34 / 0.97, but `combo` 3.16 / 3.58 / 3.00 against 2.49 / 2.74 / 1.99, and on
-//!     real footage (filter seeds 0-15) girl 0.648 ± 0.010 against 0.653 and car4 0.757 ±
-//!     0.043 against 0.798, one seed losing the car (0.12). Adjusting the anchor too gave
-//!     `car` 5.28 / 9.84 / 4.70; adjusting only once the views span 8.6°, 3.88 / 12.6 / 4.19.
-//!     The car's pan fell from 16.3° to 9.2° and its centre met the 2 px target, so this is
-//!     the lead to follow; what it needs is a test that tells when a keyframe's views pin its
-//!     depths down (the heads' fast turns and car4's background matches do not).
-//!
-//!   A shape model that the tracker can trust over a whole turn remains to be built.
+//!   - A tracker build that only let later fits use the adjusted points (each accepted fit a
+//!     view of its keyframe, at most 12, adjusted every third view once they spanned 3°)
+//!     moved the car's pan from 16.3° to 14.3° and cost `nod` 2° of tilt: each fit was still
+//!     held to the previous, under-read estimate by the rotation prior, and the anchor's views
+//!     read 1-8° of tilt during the car's translation, which the adjustment keeps.
+//!   - The tracker now adjusts before the filter step, with the frame's own fit as the newest
+//!     view, and hands the filter the adjusted pose of that view in place of the fit; never
+//!     the anchor, and only keyframes with 7 views or more
+//!     ([`crate::tracker::TrackerConfig::bundle`], which gives the figures and the settings
+//!     tried). The car's pan went from 16.3° to 8.9° and its centre error from 2.08 to
+//!     1.44 px; `combo`'s pan lost 0.2-0.6°. The rest of the car's turn is what the filter's
+//!     other cues, which still see the ellipsoid, hold back.
 
 use nalgebra::{Matrix3, SMatrix, SVector, Vector2, Vector3};
 

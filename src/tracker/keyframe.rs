@@ -9,16 +9,17 @@
 //! wins, so a target that turns back is measured against the older, better-anchored views
 //! again instead of the error of every view taken in between.
 
-use nalgebra::{Matrix3, Vector2};
+use nalgebra::{Matrix3, Vector2, Vector3};
 
 use crate::features::{Features, MatchParams, match_features};
 use crate::filter::Hypothesis;
 use crate::geometry::{Ellipse, angle_between};
 use crate::likelihood::FeaturePair;
+use crate::pose::bundle::{BundleView, refine};
 use crate::pose::prior::{
-    Ellipsoid, FitStart, MotionPrior, Pinhole, PriorFit, fit_with_depth_prior,
+    Ellipsoid, FitStart, MotionPrior, Pinhole, PriorFit, fit_points, fit_with_depth_prior, lift,
 };
-use crate::tracker::AnchorRefit;
+use crate::tracker::{AnchorRefit, BundleAdjust};
 
 /// One reference view.
 #[derive(Debug, Clone)]
@@ -31,6 +32,14 @@ struct Keyframe {
     model: Ellipsoid,
     /// Inlier matches found against it on the first frame after it was taken.
     initial_inliers: Option<usize>,
+    /// The frame it was taken in.
+    frame: usize,
+    /// Later views of it, their poses and what they saw (for the bundle adjustment).
+    views: Vec<BundleView>,
+    /// Its features' 3D points refined by bundle adjustment; `None`: lifted onto `model`.
+    points: Option<Vec<Vector3<f64>>>,
+    /// Views added since the last adjustment.
+    since_adjusted: usize,
 }
 
 /// What a fit against a keyframe needs from the tracker.
@@ -68,6 +77,8 @@ pub(crate) struct KeyFit {
     pub prev_scale: f64,
     /// The inlier matches, keyframe → current frame.
     pub pairs: Vec<FeaturePair>,
+    /// The keyframe feature of each inlier match.
+    query: Vec<usize>,
     /// Which keyframe.
     index: usize,
 }
@@ -98,6 +109,19 @@ pub(crate) fn accepted_fit(
     rot0: &Matrix3<f64>,
     scale0: f64,
 ) -> Option<(PriorFit, Vec<FeaturePair>)> {
+    accepted_fit_on(pairs, None, model, ctx, rot0, scale0).map(|(f, p, _)| (f, p))
+}
+
+/// [`accepted_fit`] on the given 3D points of the matches' first positions, when there are
+/// some, instead of their lift onto `model`; also returns the inliers' positions in `pairs`.
+fn accepted_fit_on(
+    pairs: &[FeaturePair],
+    points: Option<&[Vector3<f64>]>,
+    model: &Ellipsoid,
+    ctx: &FitContext<'_>,
+    rot0: &Matrix3<f64>,
+    scale0: f64,
+) -> Option<(PriorFit, Vec<FeaturePair>, Vec<usize>)> {
     let (p, q) = FeaturePair::split(pairs);
     let start = FitStart {
         rot: *rot0,
@@ -106,18 +130,18 @@ pub(crate) fn accepted_fit(
     };
     // The prior's mean is the start: the previous estimate, seen from the keyframe.
     let prior = ctx.prior.map(|pr| MotionPrior { mean: *rot0, ..pr });
-    let fit = fit_with_depth_prior(&p, &q, model, ctx.camera, &start, prior.as_ref()).ok()?;
-    let inliers: Vec<FeaturePair> = pairs
-        .iter()
-        .zip(&fit.inliers)
-        .filter(|(_, k)| **k)
-        .map(|(p, _)| *p)
-        .collect();
+    let fit = match points {
+        Some(x) => fit_points(x, &q, ctx.camera, &start, prior.as_ref()),
+        None => fit_with_depth_prior(&p, &q, model, ctx.camera, &start, prior.as_ref()),
+    }
+    .ok()?;
+    let which: Vec<usize> = (0..pairs.len()).filter(|&j| fit.inliers[j]).collect();
+    let inliers: Vec<FeaturePair> = which.iter().map(|&j| pairs[j]).collect();
     let step = angle_between(&fit.rot, rot0);
     if inliers.len() < ctx.min_inliers || fit.residual > ctx.max_residual || step > ctx.max_step {
         return None;
     }
-    Some((fit, inliers))
+    Some((fit, inliers, which))
 }
 
 /// The pool of keyframes.
@@ -125,6 +149,8 @@ pub(crate) fn accepted_fit(
 pub(crate) struct KeyframePool {
     frames: Vec<Keyframe>,
     capacity: usize,
+    /// The frame being tracked (for the keyframes taken and the views recorded).
+    now: usize,
 }
 
 impl KeyframePool {
@@ -133,14 +159,93 @@ impl KeyframePool {
         Self {
             frames: Vec::new(),
             capacity: capacity.max(1),
+            now: 0,
         }
+    }
+
+    /// Sets the frame being tracked.
+    pub fn tick(&mut self, frame: usize) {
+        self.now = frame;
+    }
+
+    /// Records the view `fit` gave of its keyframe and, every [`BundleAdjust::every`] views
+    /// once there are [`BundleAdjust::min_views`] spanning [`BundleAdjust::min_turn`],
+    /// adjusts the keyframe's feature depths and its views' poses together
+    /// ([`crate::pose::bundle`]). Later fits against the keyframe use the adjusted points.
+    /// Returns the adjusted pose of this view when the keyframe was adjusted.
+    ///
+    /// The anchor is never adjusted: its views span the whole track, and where the target
+    /// only moved they read a few degrees of turn the adjustment cannot take back (see
+    /// [`crate::tracker::TrackerConfig::bundle`]).
+    pub fn observe(
+        &mut self,
+        fit: &KeyFit,
+        camera: Option<&Pinhole>,
+        cfg: &BundleAdjust,
+    ) -> Option<BundleView> {
+        if fit.index == 0 {
+            return None;
+        }
+        let key = self.frames.get_mut(fit.index)?;
+        let seen = fit
+            .query
+            .iter()
+            .zip(&fit.pairs)
+            .map(|(&j, p)| (j, [f64::from(p.q[0]), f64::from(p.q[1])]))
+            .collect();
+        key.views.push(BundleView {
+            frame: self.now,
+            rot: fit.fit.rot,
+            scale: fit.fit.scale,
+            centre: fit.fit.centre,
+            seen,
+        });
+        if key.views.len() > cfg.max_views.max(2) {
+            // Thin out the view closest in rotation to the one before it (never the newest).
+            let n = key.views.len();
+            let gap = |i: usize| angle_between(&key.views[i].rot, &key.views[i - 1].rot);
+            if let Some(drop) = (1..n - 1).min_by(|&a, &b| gap(a).total_cmp(&gap(b))) {
+                key.views.remove(drop);
+            }
+        }
+        key.since_adjusted += 1;
+        let turn = key
+            .views
+            .iter()
+            .map(|v| angle_between(&v.rot, &Matrix3::identity()))
+            .fold(0.0, f64::max);
+        if key.views.len() < cfg.min_views || key.since_adjusted < cfg.every || turn < cfg.min_turn
+        {
+            return None;
+        }
+        key.since_adjusted = 0;
+        let p: Vec<[f64; 2]> = key
+            .features
+            .keypoints
+            .iter()
+            .map(|k| [f64::from(k.x), f64::from(k.y)])
+            .collect();
+        let x0 = lift(&p, &key.model, camera);
+        let mut views = key.views.clone();
+        let adjusted = refine(
+            &x0,
+            &key.model.centre,
+            key.frame,
+            camera,
+            &mut views,
+            &cfg.params,
+        )
+        .ok()?;
+        key.points = Some(adjusted.points);
+        key.views = views;
+        key.views.last().cloned()
     }
 
     /// Empties the pool and makes `features` (inside `e`, at `hyp`, object `model`) the
     /// anchor view.
     pub fn reset(&mut self, features: &Features, e: &Ellipse, hyp: Hypothesis, model: Ellipsoid) {
         self.frames.clear();
-        self.frames.push(make(features, e, hyp, model));
+        self.frames.push(make(features, e, hyp, model, self.now));
     }
 
     /// Number of keyframes held.
@@ -224,36 +329,56 @@ impl KeyframePool {
         best
     }
 
-    /// The matches of keyframe `i` with the current features, keyframe → current frame.
-    fn pairs(&self, i: usize, cur: &Features, ctx: &FitContext<'_>) -> Vec<FeaturePair> {
+    /// The matches of keyframe `i` with the current features, keyframe → current frame, with
+    /// the keyframe feature of each.
+    fn pairs(
+        &self,
+        i: usize,
+        cur: &Features,
+        ctx: &FitContext<'_>,
+    ) -> (Vec<FeaturePair>, Vec<usize>) {
         let key = &self.frames[i];
         match_features(&key.features, cur, ctx.matching)
             .iter()
             .map(|m| {
                 let (a, b) = (&key.features.keypoints[m.query], &cur.keypoints[m.train]);
-                FeaturePair {
-                    p: [a.x, a.y],
-                    q: [b.x, b.y],
-                }
+                (
+                    FeaturePair {
+                        p: [a.x, a.y],
+                        q: [b.x, b.y],
+                    },
+                    m.query,
+                )
             })
-            .collect()
+            .unzip()
     }
 
     /// The accepted fit of keyframe `i` to its matches `pairs`, from the previous estimate;
     /// `None` with fewer than `ctx.min_inliers` matches.
-    fn fit_pairs(&self, i: usize, pairs: &[FeaturePair], ctx: &FitContext<'_>) -> Option<KeyFit> {
+    fn fit_pairs(
+        &self,
+        i: usize,
+        (pairs, query): &(Vec<FeaturePair>, Vec<usize>),
+        ctx: &FitContext<'_>,
+    ) -> Option<KeyFit> {
         if pairs.len() < ctx.min_inliers {
             return None;
         }
         let key = &self.frames[i];
         let rot0: Matrix3<f64> = ctx.prev.rot * key.hyp.rot.transpose();
         let s0 = ((ctx.prev.a * ctx.prev.b) / (key.hyp.a * key.hyp.b)).sqrt();
-        let (fit, pairs) = accepted_fit(pairs, &key.model, ctx, &rot0, s0)?;
+        let points: Option<Vec<Vector3<f64>>> = key
+            .points
+            .as_ref()
+            .map(|x| query.iter().map(|&j| x[j]).collect());
+        let (fit, pairs, which) =
+            accepted_fit_on(pairs, points.as_deref(), &key.model, ctx, &rot0, s0)?;
         Some(KeyFit {
             key: key.hyp,
             fit,
             prev_scale: s0,
             pairs,
+            query: which.iter().map(|&j| query[j]).collect(),
             index: i,
         })
     }
@@ -279,7 +404,7 @@ impl KeyframePool {
     /// Adds a keyframe; when the pool is full, the non-anchor keyframe nearest the new one in
     /// rotation gives way (the anchor, the first view, is never dropped).
     pub fn add(&mut self, features: &Features, e: &Ellipse, hyp: Hypothesis, model: Ellipsoid) {
-        let k = make(features, e, hyp, model);
+        let k = make(features, e, hyp, model, self.now);
         if self.frames.len() >= self.capacity {
             let victim = self
                 .frames
@@ -302,7 +427,13 @@ impl KeyframePool {
 }
 
 /// A keyframe from a frame's features, keeping those inside the ellipse.
-fn make(features: &Features, e: &Ellipse, hyp: Hypothesis, model: Ellipsoid) -> Keyframe {
+fn make(
+    features: &Features,
+    e: &Ellipse,
+    hyp: Hypothesis,
+    model: Ellipsoid,
+    frame: usize,
+) -> Keyframe {
     let keep: Vec<usize> = (0..features.keypoints.len())
         .filter(|&i| {
             e.contains(
@@ -319,6 +450,10 @@ fn make(features: &Features, e: &Ellipse, hyp: Hypothesis, model: Ellipsoid) -> 
         hyp,
         model,
         initial_inliers: None,
+        frame,
+        views: Vec::new(),
+        points: None,
+        since_adjusted: 0,
     }
 }
 
@@ -397,6 +532,7 @@ mod tests {
             &Ellipse::new(50.0, 40.0, 10.0, 12.0),
             hyp(Euler::default()),
             model(),
+            0,
         );
         assert_eq!(k.features.keypoints.len(), 2);
         assert_eq!(k.features.descriptors.len(), 2);
@@ -420,6 +556,7 @@ mod tests {
             },
             prev_scale: 1.0,
             pairs: vec![FeaturePair::default(); n],
+            query: (0..n).collect(),
             index: 0,
         };
         assert!(!pool.record(Some(&fit(30)), 10, 50));
@@ -511,5 +648,105 @@ mod tests {
                 angle_between(&f.placed().rot, &turn).to_degrees()
             });
         assert_eq!(kept, held);
+    }
+
+    #[test]
+    fn a_keyframe_is_adjusted_once_it_has_enough_turned_views_and_the_anchor_never() {
+        // A keyframe of an object half as deep as its ellipsoid, seen through a camera while
+        // it turns 4 degrees a frame about the vertical; each fit reads half the turn (the
+        // shallower object's parallax on the deeper model), as the tracker's fits of the box
+        // `car` did.
+        let e = Ellipse::new(80.0, 60.0, 30.0, 24.0);
+        let cam = Pinhole {
+            focal: 100.0,
+            principal: Vector2::new(79.5, 59.5),
+        };
+        let p: Vec<[f64; 2]> = (0..42)
+            .map(|i| {
+                let (u, v) = ((i % 7) as f64 / 6.0 - 0.5, (i / 7) as f64 / 5.0 - 0.5);
+                [80.0 + 40.0 * u + 2.0 * v, 60.0 + 30.0 * v]
+            })
+            .collect();
+        let feats = Features {
+            keypoints: p
+                .iter()
+                .map(|p| Keypoint {
+                    x: p[0] as f32,
+                    y: p[1] as f32,
+                    ..Keypoint::default()
+                })
+                .collect(),
+            descriptors: (0..p.len()).map(|i| [(6 * i) as u8; 128]).collect(),
+        };
+        let m = Ellipsoid::facing(&e, 1.0);
+        let key = Hypothesis {
+            cx: 80.0,
+            cy: 60.0,
+            a: 30.0,
+            b: 24.0,
+            rot: Matrix3::identity(),
+        };
+        // Each lifted point moved along its ray to half its depth.
+        let origin = Vector3::new(
+            cam.principal.x - m.centre.x,
+            cam.principal.y - m.centre.y,
+            -cam.focal,
+        );
+        let truth: Vec<Vector3<f64>> = crate::pose::prior::lift(&p, &m, Some(&cam))
+            .iter()
+            .map(|x| origin + (0.5 * x.z - origin.z) / (x.z - origin.z) * (x - origin))
+            .collect();
+        let mut pool = KeyframePool::new(4);
+        pool.reset(&feats, &e, key, m);
+        pool.add(&feats, &e, key, m);
+        let cfg = BundleAdjust::default();
+        let view = |k: usize, index: usize| {
+            let turn = Euler::from_degrees(0.0, 4.0 * k as f64, 0.0).matrix();
+            let pairs: Vec<FeaturePair> = truth
+                .iter()
+                .zip(&p)
+                .map(|(x, p)| {
+                    let q = crate::pose::prior::view_of(x, &turn, 1.0, &m.centre, Some(&cam));
+                    FeaturePair {
+                        p: [p[0] as f32, p[1] as f32],
+                        q: [q.x as f32, q.y as f32],
+                    }
+                })
+                .collect();
+            let fit = PriorFit {
+                rot: Euler::from_degrees(0.0, 2.0 * k as f64, 0.0).matrix(),
+                scale: 1.0,
+                centre: m.centre,
+                inliers: vec![true; pairs.len()],
+                residual: 0.5,
+            };
+            let fit = KeyFit {
+                key,
+                fit,
+                prev_scale: 1.0,
+                query: (0..pairs.len()).collect(),
+                pairs,
+                index,
+            };
+            (fit, turn)
+        };
+        for k in 1..=cfg.min_views {
+            pool.tick(k);
+            let (anchor_fit, _) = view(k, 0);
+            assert!(pool.observe(&anchor_fit, Some(&cam), &cfg).is_none());
+            let (fit, turn) = view(k, 1);
+            let adjusted = pool.observe(&fit, Some(&cam), &cfg);
+            if k < cfg.min_views {
+                assert!(adjusted.is_none(), "adjusted after {k} views");
+                continue;
+            }
+            let adjusted = adjusted.expect("adjusted at the seventh view");
+            let before = angle_between(&fit.fit.rot, &turn).to_degrees();
+            let after = angle_between(&adjusted.rot, &turn).to_degrees();
+            assert!(after < 0.5 * before, "{before} -> {after}");
+        }
+        assert!(pool.frames[0].views.is_empty() && pool.frames[0].points.is_none());
+        assert_eq!(pool.frames[1].views.len(), cfg.min_views);
+        assert!(pool.frames[1].points.is_some());
     }
 }

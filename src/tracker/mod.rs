@@ -34,7 +34,8 @@ mod init_refine;
 mod keyframe;
 
 pub use config::{
-    AnchorRefit, ColourUpdate, Contrast, Init, Mode, Reanchor, TemplateTerm, TrackerConfig,
+    AnchorRefit, BundleAdjust, ColourUpdate, Contrast, Init, Mode, Reanchor, TemplateTerm,
+    TrackerConfig,
 };
 pub use init_refine::{InitRefine, refine_ellipse};
 
@@ -275,6 +276,13 @@ fn check_config(cfg: &TrackerConfig) -> Result<(), TrackError> {
             "sift_upsample_below {d} must be a positive size in pixels; set it to None to \
              keep the SIFT settings for every target size"
         )));
+    }
+    if let Some(b) = &cfg.bundle {
+        b.check().map_err(|e| {
+            TrackError::BadConfig(format!(
+                "{e}; set bundle to None to fit every keyframe on its ellipsoid alone"
+            ))
+        })?;
     }
     if let Some(r) = &cfg.anchor_refit {
         r.check().map_err(|e| {
@@ -619,6 +627,7 @@ impl Tracker {
     fn step_in_pool(&mut self, frame: &image::RgbImage) -> crate::Result<Estimate> {
         let (w, h) = frame.dimensions();
         let index = self.frame + 1;
+        self.keyframes.tick(index);
         if (w, h) != self.size {
             return Err(track_err(TrackError::FrameSize {
                 frame: index,
@@ -711,6 +720,17 @@ impl Tracker {
                 inter_pairs = inl;
                 prior_prev = Some(f);
             }
+        }
+        // The keyframe's depths adjusted with its views, this one included: the adjusted pose
+        // of this view replaces the fit's.
+        let mut key_fit = key_fit;
+        if let (Some(k), Some(b)) = (key_fit.as_mut(), &self.cfg.bundle)
+            && !self.lost
+            && let Some(v) = self.keyframes.observe(k, camera.as_ref(), b)
+        {
+            k.fit.rot = v.rot;
+            k.fit.scale = v.scale;
+            k.fit.centre = v.centre;
         }
         let (lik_pairs, lik_prev) = match &key_fit {
             Some(k) => (&k.pairs, k.key),

@@ -117,6 +117,10 @@ pub struct TrackArgs {
     /// (see `TrackerConfig::anchor_refit`).
     #[arg(long)]
     pub no_anchor_refit: bool,
+    /// Fit every keyframe on the ellipsoid alone, without adjusting its features' depths
+    /// with the views that matched it (see `TrackerConfig::bundle`).
+    #[arg(long)]
+    pub no_bundle: bool,
     /// How the colour model adapts: after each confident frame it moves this share (0.1 is a
     /// memory of about ten frames) towards the colours inside the estimate, for targets whose
     /// colours change as they turn or the light changes (see `TrackerConfig::colour_update`).
@@ -499,6 +503,9 @@ pub fn run(a: TrackArgs) -> anyhow::Result<()> {
     cfg.fit_centre_sigma = (!a.no_fit_centre_prior).then_some(a.fit_centre_sigma);
     if a.no_anchor_refit {
         cfg.anchor_refit = None;
+    }
+    if a.no_bundle {
+        cfg.bundle = None;
     }
     cfg.aspect_slack = (!a.no_aspect_bound).then_some(a.aspect_slack);
     cfg.size_hold = (!a.no_size_hold).then_some(a.size_hold);
