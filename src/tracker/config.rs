@@ -522,7 +522,11 @@ pub struct TrackerConfig {
     ///   its place: `car` 3.71 / 14.3 / 4.11, the likelihoods, which see the ellipsoid,
     ///   preferring the fit's;
     /// - the feature term's matches lifted to the adjusted depths as well: `car` 5.58 / 10.1 /
-    ///   4.91, `combo` 2.78 / 3.65 / 2.54.
+    ///   4.91, `combo` 2.78 / 3.65 / 2.54;
+    /// - the adjusted pose taken only within 3 or 8 degrees of the frame's fit: `car` pan 14.0
+    ///   and 13.8, `combo` 2.97 / 3.13 / 2.27 and 2.83 / 2.97 / 2.48 (with each scenario's
+    ///   seed 2.73 / 2.98 / 2.04 and 2.76 / 2.98 / 2.46): the car's correction comes a few
+    ///   degrees at a time, and bounding it takes most of it away.
     pub bundle: Option<BundleAdjust>,
     /// Loop closure on appearance: on a confident frame the first view's template is looked
     /// for, unturned, beside the estimate; when it is found there clearly better than the
