@@ -106,6 +106,23 @@ fn on_ray(
     }
 }
 
+/// Each view's rotation step from the view before it (from the keyframe's own pose, the
+/// identity, for the first) and the frames the step spans (at least 1): what the rotation
+/// prior weighs.
+fn rotation_steps(
+    views: &[BundleView],
+    key_frame: usize,
+) -> impl Iterator<Item = (Vector3<f64>, f64)> + '_ {
+    let before = std::iter::once((Matrix3::identity(), key_frame))
+        .chain(views.iter().map(|v| (v.rot, v.frame)));
+    views.iter().zip(before).map(|(v, (rot, frame))| {
+        (
+            log_so3(&(v.rot * rot.transpose())),
+            v.frame.saturating_sub(frame).max(1) as f64,
+        )
+    })
+}
+
 /// Refines the depths of the keyframe points `x0` (lifted, in the keyframe's model frame,
 /// whose centre projects to `key_centre`) and the poses of `views` (sorted by frame, the
 /// keyframe taken at `key_frame`). Returns the refined points and the objective before and
@@ -150,14 +167,10 @@ pub fn refine(
         for j in 0..z.len() {
             c += wz * (z[j] - z0[j]).powi(2);
         }
-        let mut prev = (Matrix3::identity(), key_frame);
-        for v in views {
-            let e = log_so3(&(v.rot * prev.0.transpose()));
-            let df = v.frame.saturating_sub(prev.1).max(1) as f64;
+        for (e, df) in rotation_steps(views, key_frame) {
             for k in 0..3 {
                 c += (e[k] / params.rotation_sigma[k]).powi(2) / df;
             }
-            prev = (v.rot, v.frame);
         }
         c
     };
@@ -201,14 +214,10 @@ pub fn refine(
             }
         }
         // The rotation prior between successive views (first order in the updates).
-        let mut prev: Option<usize> = None;
-        let mut prev_rot = (Matrix3::identity(), key_frame);
-        for (i, v) in views.iter().enumerate() {
-            let e = log_so3(&(v.rot * prev_rot.0.transpose()));
-            let df = v.frame.saturating_sub(prev_rot.1).max(1) as f64;
+        for (i, (e, df)) in rotation_steps(views, key_frame).enumerate() {
             for k in 0..3 {
                 let w = 1.0 / (params.rotation_sigma[k].powi(2) * df);
-                let (a, b) = (6 * i + k, prev.map(|p| 6 * p + k));
+                let (a, b) = (6 * i + k, i.checked_sub(1).map(|p| 6 * p + k));
                 hpp[(a, a)] += w;
                 bp[a] -= w * e[k];
                 if let Some(b) = b {
@@ -218,8 +227,6 @@ pub fn refine(
                     bp[b] += w * e[k];
                 }
             }
-            prev = Some(i);
-            prev_rot = (v.rot, v.frame);
         }
         let mut improved = false;
         for _ in 0..6 {
