@@ -57,15 +57,14 @@ use pftrack::synth::{Renderer, Scenario, SynthConfig};
 const USAGE: &str =
     "usage: solver_pairs [--scenario NAME|all] [--seed S] [--gap N] [--every K] [--consensus]";
 
-/// The scenarios `all` stands for: those the seed evaluation scores.
-const SCORED: [Scenario; 6] = [
-    Scenario::Nod,
-    Scenario::Pan,
-    Scenario::Roll,
-    Scenario::Combo,
-    Scenario::Depth,
-    Scenario::Car,
-];
+/// The scenarios `all` stands for: those the seed evaluation scores, every one but `long`.
+fn scored() -> Vec<Scenario> {
+    Scenario::all()
+        .iter()
+        .copied()
+        .filter(|s| *s != Scenario::Long)
+        .collect()
+}
 
 /// The errors (degrees) of one estimator over a scenario's pairs, and how many it refused.
 #[derive(Default)]
@@ -104,7 +103,7 @@ impl Tally {
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let mut args = std::env::args().skip(1);
-    let (mut scenarios, mut seed) = (SCORED.to_vec(), 0u64);
+    let (mut scenarios, mut seed) = (scored(), 0u64);
     let (mut gap, mut every, mut consensus) = (1usize, 1usize, None);
     while let Some(a) = args.next() {
         let mut value = || args.next().ok_or(USAGE);
@@ -112,7 +111,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             "--scenario" => {
                 let v = value()?;
                 scenarios = if v == "all" {
-                    SCORED.to_vec()
+                    scored()
                 } else {
                     vec![Scenario::from_name(&v)?]
                 };

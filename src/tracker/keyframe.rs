@@ -584,7 +584,12 @@ mod tests {
                 [m.centre.x + y.x, m.centre.y + y.y]
             })
             .collect();
-        let feats = |pts: &[[f64; 2]]| Features {
+        (features_at(&p, 8), features_at(&q, 8))
+    }
+
+    /// Keypoints at `pts`, the `i`-th with every descriptor entry `step · i`.
+    fn features_at(pts: &[[f64; 2]], step: usize) -> Features {
+        Features {
             keypoints: pts
                 .iter()
                 .map(|p| Keypoint {
@@ -593,9 +598,8 @@ mod tests {
                     ..Keypoint::default()
                 })
                 .collect(),
-            descriptors: (0..pts.len()).map(|i| [(8 * i) as u8; 128]).collect(),
-        };
-        (feats(&p), feats(&q))
+            descriptors: (0..pts.len()).map(|i| [(step * i) as u8; 128]).collect(),
+        }
     }
 
     #[test]
@@ -667,17 +671,7 @@ mod tests {
                 [80.0 + 40.0 * u + 2.0 * v, 60.0 + 30.0 * v]
             })
             .collect();
-        let feats = Features {
-            keypoints: p
-                .iter()
-                .map(|p| Keypoint {
-                    x: p[0] as f32,
-                    y: p[1] as f32,
-                    ..Keypoint::default()
-                })
-                .collect(),
-            descriptors: (0..p.len()).map(|i| [(6 * i) as u8; 128]).collect(),
-        };
+        let feats = features_at(&p, 6);
         let m = Ellipsoid::facing(&e, 1.0);
         let key = Hypothesis {
             cx: 80.0,
