@@ -527,6 +527,32 @@ pub struct TrackerConfig {
     ///   and 13.8, `combo` 2.97 / 3.13 / 2.27 and 2.83 / 2.97 / 2.48 (with each scenario's
     ///   seed 2.73 / 2.98 / 2.04 and 2.76 / 2.98 / 2.46): the car's correction comes a few
     ///   degrees at a time, and bounding it takes most of it away.
+    ///
+    /// Where the car's remaining lag comes from (seed 0, frames 110-150, 2026-12-05): each
+    /// adjustment moves the newest view's pan 4-11 degrees towards the truth, and the next
+    /// frame's fit, on the adjusted points, falls back by 3-6 degrees. The single fit holds
+    /// its centre to block matching's prediction ([`TrackerConfig::fit_centre_sigma`]) and
+    /// its rotation to the lagging estimate; the adjustment leaves both free, and also reads
+    /// 3-7 degrees of tilt the truth does not have. Tried then and not kept (sum over the six
+    /// scenarios 43.5 at the time):
+    /// - adjusting at every view: sum 49.0, `car` 7.10 / 6.26 / 5.48, `combo` 3.62 / 3.79 /
+    ///   2.84;
+    /// - the depth prior at 24 or 48 px: `car` 4.93 / 9.58 / 4.73 and 4.26 / 10.9 / 4.45,
+    ///   `combo` pan 3.44 and 4.30;
+    /// - a new keyframe inheriting the adjusted depths of the features it shares with the
+    ///   keyframe of the frame's fit (placed on its own rays, the rest lifted): sum 43.5,
+    ///   `car` 4.13 / 9.05 / 4.56. The handed-over depths did differ from the lift (a slanted
+    ///   plane across the box's side where the ellipsoid has a dome, 5-8 px apart at the
+    ///   ends), but the lag comes from the fits, not from the depths;
+    /// - the fits' prior centred on the previous frame's fit instead of the estimate: its
+    ///   rotation, sum 47.7 (`car` 5.85 / 9.59 / 5.30); its centre, 50.2 (`car` 7.69 / 6.00 /
+    ///   5.81); both, 66.3 (`combo` 9.01 / 9.49 / 8.21: the chain ran away on one seed).
+    /// - Without the centre prior altogether (`--no-fit-centre-prior`) `car` reads 5.94 /
+    ///   5.76 / 4.98 and `combo` 3.14 / 3.56 / 2.57, sum 44.3; without it only on adjusted
+    ///   keyframes, 44.6 (`car` 4.89 / 7.49 / 4.86, `combo` pan 4.09).
+    /// - The filter's other cues are not what holds the car back: with the feature term, the
+    ///   turned first view, both, or the template off, `car` reads 6.48 / 9.91 / 5.24,
+    ///   3.32 / 8.99 / 4.49, 6.14 / 8.86 / 5.49 and 4.05 / 7.48 / 5.61.
     pub bundle: Option<BundleAdjust>,
     /// Loop closure on appearance: on a confident frame the first view's template is looked
     /// for, unturned, beside the estimate; when it is found there clearly better than the
