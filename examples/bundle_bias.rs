@@ -36,7 +36,7 @@ use pftrack::filter::rotation_mean::log_so3;
 use pftrack::frames::GrayF32;
 use pftrack::geometry::angle_between;
 use pftrack::pose::bundle::{BundleParams, BundleView, refine};
-use pftrack::pose::prior::{Ellipsoid, FitStart, Pinhole, fit_points, lift};
+use pftrack::pose::prior::{Ellipsoid, FitStart, fit_points, lift};
 use pftrack::synth::{Renderer, Scenario, SynthConfig};
 
 const USAGE: &str = "usage: bundle_bias [--scenario NAME] [--seed S] [--key K] [--to T] \
@@ -76,10 +76,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         .into());
     }
     let c = ren.camera();
-    let cam = Pinhole {
-        focal: c.focal,
-        principal: Vector2::new(c.pu, c.pv),
-    };
+    let cam = c.pinhole();
     let gray = |k: usize| GrayF32::from_rgb(&ren.render_image(k));
     // The rotation from the keyframe's pose to frame k's.
     let truth = |k: usize| ren.pose(k).rotation * ren.pose(key).rotation.transpose();

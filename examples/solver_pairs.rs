@@ -50,7 +50,7 @@ use pftrack::features::{
 };
 use pftrack::frames::GrayF32;
 use pftrack::geometry::angle_between;
-use pftrack::pose::prior::{Ellipsoid, FitStart, Pinhole, fit_with_depth_prior};
+use pftrack::pose::prior::{Ellipsoid, FitStart, fit_with_depth_prior};
 use pftrack::pose::{Consensus, Intrinsics, SolverKind, essential_rotation, interframe_consensus};
 use pftrack::synth::{Renderer, Scenario, SynthConfig};
 
@@ -156,10 +156,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             cx: c.pu,
             cy: c.pv,
         };
-        let camera = Pinhole {
-            focal: c.focal,
-            principal: Vector2::new(c.pu, c.pv),
-        };
+        let camera = c.pinhole();
         let reference = ren.truth(0).ellipse(0.0);
         let mut features: Vec<Option<Features>> = vec![None; n];
         let mut detect = |k: usize| -> Result<Features, Box<dyn std::error::Error>> {

@@ -85,10 +85,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         .into());
     }
     let c = ren.camera();
-    let cam = Pinhole {
-        focal: c.focal,
-        principal: Vector2::new(c.pu, c.pv),
-    };
+    let cam = c.pinhole();
     let gray = |k: usize| GrayF32::from_rgb(&ren.render_image(k));
     let pose = |k: usize| {
         let t = ren.truth(k);

@@ -1,6 +1,8 @@
 //! The pinhole camera of the synthetic scenes.
 
-use nalgebra::Vector3;
+use nalgebra::{Vector2, Vector3};
+
+use crate::pose::prior::Pinhole;
 
 /// Horizontal field of view of the synthetic camera (degrees): a typical webcam.
 pub const HFOV_DEG: f64 = 50.0;
@@ -46,6 +48,15 @@ impl Camera {
         )
     }
 
+    /// The same camera as the keyframe fits take it ([`Pinhole`]): what the tracker's
+    /// `--hfov` gives it for a rendered sequence.
+    pub fn pinhole(&self) -> Pinhole {
+        Pinhole {
+            focal: self.focal,
+            principal: Vector2::new(self.pu, self.pv),
+        }
+    }
+
     /// Direction (camera coordinates, `z = 1`) of the ray through pixel position `(u, v)`.
     pub fn ray(&self, u: f64, v: f64) -> Vector3<f64> {
         Vector3::new((u - self.pu) / self.focal, (v - self.pv) / self.focal, 1.0)
@@ -55,6 +66,14 @@ impl Camera {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_pinhole_is_the_one_the_field_of_view_gives() {
+        let c = Camera::new(160, 120);
+        let p = c.pinhole();
+        let q = Pinhole::from_hfov(160, 120, HFOV_DEG).unwrap();
+        assert!((p.focal - q.focal).abs() < 1e-9 && (p.principal - q.principal).norm() < 1e-9);
+    }
 
     #[test]
     fn ray_and_projection_are_inverse() {
