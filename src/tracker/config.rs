@@ -302,7 +302,12 @@ pub struct TrackerConfig {
     /// over 16-31; girl 0.525 → 0.526 and 0.523 → 0.518), so it was not kept. With that
     /// bound on, taking a new keyframe only after two, three or five frames in a row without
     /// an accepted fit, instead of after one, gave `combo` (RMSE summed over its axes, filter
-    /// seed 0) 13.6, 16.0 and 17.8 against 15.0: no trend beyond seed noise.
+    /// seed 0) 13.6, 16.0 and 17.8 against 15.0: no trend beyond seed noise. Bounding it at
+    /// 10 degrees (2026-12-05, with the keyframes' bundle adjustment): on fresh `combo` seed
+    /// 16 a 19-degree rotation from 5 matches (frame 162, the head turning 1.5 degrees a
+    /// frame) no longer carried the track away (its RMSE 5.10 / 6.85 / 1.43 -> 3.28 / 4.71 /
+    /// 2.10), but the means stayed where they were: the six scenarios' sum 43.5 either way,
+    /// `combo` over seeds 12-23 2.84 / 3.71 / 2.17 -> 2.89 / 3.70 / 2.34.
     pub max_rotation_step: f64,
     /// Largest RMS reprojection error (pixels) of an accepted depth-prior fit (the ellipsoid
     /// is only a prior, so the residual grows with the angle).
@@ -428,6 +433,11 @@ pub struct TrackerConfig {
     /// exponentially (a third of each new step), the three scenarios summed 22.3 against
     /// 22.4 without the camera. Real footage was unchanged (girl 0.659 ± 0.011, car4
     /// 0.798 ± 0.003 over filter seeds 0-15).
+    ///
+    /// Nor is the prior too sure of the previous estimate: widening its σ by the particles'
+    /// own spread about the estimate, as a Kalman prediction would (`sqrt(σ_P² +
+    /// σ_post²)`), changed nothing (2026-12-05: sum 43.5 -> 43.6), the spread being about
+    /// 0.015 rad per axis against σ_P's 0.05.
     pub fit_pixel_sigma: Option<f64>,
     /// σ (pixels, per image axis) of the keyframe fits' centre about the centre predicted for
     /// the frame (the previous estimate moved by block matching), in the fits' motion prior
