@@ -554,6 +554,8 @@ pub struct TrackerConfig {
     ///   `car` 4.13 / 9.05 / 4.56. The handed-over depths did differ from the lift (a slanted
     ///   plane across the box's side where the ellipsoid has a dome, 5-8 px apart at the
     ///   ends), but the lag comes from the fits, not from the depths;
+    /// - a new keyframe taking its rotation from the frame's fit instead of the filter's
+    ///   estimate (which lags the fit): `car` 5.61 / 9.71 / 4.42;
     /// - the fits' prior centred on the previous frame's fit instead of the estimate: its
     ///   rotation, sum 47.7 (`car` 5.85 / 9.59 / 5.30); its centre, 50.2 (`car` 7.69 / 6.00 /
     ///   5.81); both, 66.3 (`combo` 9.01 / 9.49 / 8.21: the chain ran away on one seed).
