@@ -272,8 +272,8 @@ impl KeyframePool {
     /// 0-63); girl was unchanged. Averaging the accepted fits (rotation, centre and size) was
     /// within seed noise on both. So the rule stays. Measured again with the keyframes'
     /// bundle adjustment (2026-12-05, filter seed 0), the farthest view raised the sum from
-    /// 43.5 to 45.3 (`car` 4.36 / 8.91 / 4.60 -> 3.69 / 11.2 / 3.95): the older the view,
-    /// the longer its ellipsoid depths stand unadjusted against the turn.
+    /// 43.5 to 45.3 (`car` 4.36 / 8.91 / 4.60 -> 3.69 / 11.2 / 3.95): across a larger turn
+    /// the ellipsoid's wrong depths cost the box more of it (see [`crate::pose::prior`]).
     pub fn best_fit(
         &self,
         cur: &Features,
