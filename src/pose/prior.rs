@@ -132,8 +132,10 @@
 //!     the anchor, and only keyframes with 7 views or more
 //!     ([`crate::tracker::TrackerConfig::bundle`], which gives the figures and the settings
 //!     tried). The car's pan went from 16.3° to 8.9° and its centre error from 2.08 to
-//!     1.44 px; `combo`'s pan lost 0.2-0.6°. The rest of the car's turn is what the filter's
-//!     other cues, which still see the ellipsoid, hold back.
+//!     1.44 px; `combo`'s pan lost 0.2-0.6°. The rest of the car's turn is lost between
+//!     adjustments: the single fits on the adjusted points, held to block matching's centre
+//!     and to the lagging estimate, fall back by 3-6° after each adjustment (measured on seed
+//!     0; the filter's other cues turned off did not help, see the same place).
 
 use nalgebra::{Matrix3, SMatrix, SVector, Vector2, Vector3};
 
