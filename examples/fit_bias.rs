@@ -37,7 +37,7 @@ use pftrack::features::{MatchParams, Sift, SiftParams, match_features};
 use pftrack::filter::rotation_mean::log_so3;
 use pftrack::frames::GrayF32;
 use pftrack::frames::dir::decode_rgb;
-use pftrack::geometry::{Ellipse, angle_between};
+use pftrack::geometry::Ellipse;
 use pftrack::io::pose_csv::read_pose_csv;
 use pftrack::pose::prior::{Ellipsoid, FitStart, Pinhole, fit_with_depth_prior};
 
@@ -90,8 +90,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let sift = Sift::new(SiftParams::default());
     let matching = MatchParams::default();
 
-    let mut gain = gain::AxisGain::default();
-    let (mut err_sum, mut pairs) = (0.0, 0usize);
+    let mut tally = gain::PairTally::default();
     println!("pair        matches inliers  resid   true    fit    err  scale");
     for k in (0..truth.len().saturating_sub(gap)).step_by(every) {
         let j = k + gap;
@@ -128,11 +127,8 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             println!("{k:4}->{j:<4} {:7}  no fit", p.len());
             continue;
         };
+        let err = tally.add(&fit.rot, &rel);
         let (wf, wt) = (log_so3(&fit.rot), log_so3(&rel));
-        gain.add(&wf, &wt);
-        let err = angle_between(&fit.rot, &rel).to_degrees();
-        err_sum += err;
-        pairs += 1;
         println!(
             "{k:4}->{j:<4} {:7} {:7} {:6.2} {:6.2} {:6.2} {err:6.2} {:6.3}",
             p.len(),
@@ -143,13 +139,6 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             fit.scale,
         );
     }
-    if pairs == 0 {
-        return Err("no pair could be fitted".into());
-    }
-    println!(
-        "{}  mean error {:.2} deg over {pairs} pairs",
-        gain.describe(),
-        err_sum / pairs as f64
-    );
+    println!("{}", tally.summary()?);
     Ok(())
 }

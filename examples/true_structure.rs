@@ -30,7 +30,6 @@ use nalgebra::{Vector2, Vector3};
 use pftrack::features::{MatchParams, Sift, SiftParams, match_features};
 use pftrack::filter::rotation_mean::log_so3;
 use pftrack::frames::GrayF32;
-use pftrack::geometry::angle_between;
 use pftrack::pose::prior::{FitStart, fit_points};
 use pftrack::synth::{Renderer, Scenario, SynthConfig};
 use rand::{SeedableRng, rngs::StdRng};
@@ -84,8 +83,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let mut rng = StdRng::seed_from_u64(seed);
     let normal = Normal::new(0.0, noise)?;
 
-    let mut gain = gain::AxisGain::default();
-    let (mut err_sum, mut pairs) = (0.0, 0usize);
+    let mut tally = gain::PairTally::default();
     println!(
         "pair       matches  resid   true (x, y, z)            fit (x, y, z)              err"
     );
@@ -128,11 +126,8 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             println!("{key:4}->{k:<4} {:7}  no fit", x.len());
             continue;
         };
+        let err = tally.add(&fit.rot, &truth);
         let (wf, wt) = (log_so3(&fit.rot), log_so3(&truth));
-        gain.add(&wf, &wt);
-        let err = angle_between(&fit.rot, &truth).to_degrees();
-        err_sum += err;
-        pairs += 1;
         let deg = |w: &Vector3<f64>| w.map(f64::to_degrees);
         let (t, f) = (deg(&wt), deg(&wf));
         println!(
@@ -147,13 +142,6 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             f.z
         );
     }
-    if pairs == 0 {
-        return Err("no pair could be fitted".into());
-    }
-    println!(
-        "{}  mean error {:.2} deg over {pairs} pairs",
-        gain.describe(),
-        err_sum / pairs as f64
-    );
+    println!("{}", tally.summary()?);
     Ok(())
 }
