@@ -573,6 +573,22 @@ pub struct TrackerConfig {
     /// - The filter's other cues are not what holds the car back: with the feature term, the
     ///   turned first view, both, or the template off, `car` reads 6.48 / 9.91 / 5.24,
     ///   3.32 / 8.99 / 4.49, 6.14 / 8.86 / 5.49 and 4.05 / 7.48 / 5.61.
+    ///
+    /// On seed 0 one keyframe (frame 109) carried the fits from frame 110 to 138 while the
+    /// truth turned from -8 to -32 degrees about y. Its single fits stayed at -12 to -17
+    /// throughout, the adjustments every third view read -16 to -25, and the keyframe taken
+    /// at frame 138 inherited the estimate's -16: the turn each keyframe's fits miss is
+    /// passed on, and after the turn ends (frame 175) the estimate holds at -40 against -57.
+    /// Tried on 2026-12-05 (second session) against that, not kept:
+    /// - the adjustment's rotation prior on the change of angular velocity between views
+    ///   (σ 0.003-0.03 rad a frame), with its random walk loosened to 1 or 0.15 rad a frame
+    ///   or kept at 0.07, since a random walk from the keyframe holds a steady turn back:
+    ///   `car` pan 8.08-8.42, but the sum 44.1-48.0 (at 0.07 and 0.01: `car` 3.76 / 8.36 /
+    ///   4.26, `combo` 3.20 / 3.69 / 2.75; loosened, the heads over-read, `combo` tilt's gain
+    ///   1.09-1.12);
+    /// - features no view saw given the mean depth correction of their seen neighbours
+    ///   (Gaussian weights, 4, 8 or 16 px) rather than the lift's: `car` 4.87 / 9.11 / 4.61,
+    ///   4.08 / 10.0 / 4.52, 4.45 / 9.59 / 4.58.
     pub bundle: Option<BundleAdjust>,
     /// Loop closure on appearance: on a confident frame the first view's template is looked
     /// for, unturned, beside the estimate; when it is found there clearly better than the
