@@ -61,7 +61,8 @@
 //! (seeds 0-3), about a tenth less, with some matches moved the wrong way; patches of 3-6
 //! or 6-12 px did no better. The adjustment's gain about y at depth σ 100 went 0.38 / 0.90 /
 //! 0.84 / 0.80 -> 0.49 / 0.90 / 0.83 / 1.06, at σ 12 0.77 / 1.06 / 0.70 / 1.19 -> 0.80 /
-//! 1.07 / 0.72 / 1.24: too little for about 5 ms a frame of alignments in the tracker.
+//! 1.07 / 0.72 / 1.24: too little for what 40 alignments a frame would cost the tracker
+//! (not measured there; each samples a few hundred points a dozen times).
 
 #[path = "common/gain.rs"]
 mod gain;

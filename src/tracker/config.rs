@@ -588,7 +588,14 @@ pub struct TrackerConfig {
     ///   1.09-1.12);
     /// - features no view saw given the mean depth correction of their seen neighbours
     ///   (Gaussian weights, 4, 8 or 16 px) rather than the lift's: `car` 4.87 / 9.11 / 4.61,
-    ///   4.08 / 10.0 / 4.52, 4.45 / 9.59 / 4.58.
+    ///   4.08 / 10.0 / 4.52, 4.45 / 9.59 / 4.58;
+    /// - a new keyframe taking its rotation from an adjustment of the old keyframe run on
+    ///   that frame (the view it was last seen in included) instead of from the estimate:
+    ///   `car` 5.61 / 6.76 / 4.52, but sum 43.8 (`pan` 2.47 / 2.69 / 2.15, `combo` 2.83 /
+    ///   3.04 / 2.34), and with each scenario's own filter seed 46.7 against 44.1 (`car`
+    ///   7.01 / 6.29 / 5.22). A keyframe is replaced when its features are leaving, which is
+    ///   when its adjustment has the fewest of them (`examples/bundle_bias.rs` gives what
+    ///   limits it).
     pub bundle: Option<BundleAdjust>,
     /// Loop closure on appearance: on a confident frame the first view's template is looked
     /// for, unturned, beside the estimate; when it is found there clearly better than the
