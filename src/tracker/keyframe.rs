@@ -248,6 +248,13 @@ impl KeyframePool {
         self.frames.push(make(features, e, hyp, model, self.now));
     }
 
+    /// Features of the anchor, the first view (0 before there is one).
+    pub fn anchor_features(&self) -> usize {
+        self.frames
+            .first()
+            .map_or(0, |k| k.features.keypoints.len())
+    }
+
     /// Number of keyframes held.
     #[cfg(test)]
     pub fn len(&self) -> usize {

@@ -813,11 +813,14 @@ impl Tracker {
         );
         let mut confidence = self.confidence(&lp, &weights, inter.is_some() || key_inter);
         // Loop closure on appearance: the first view found again beside the estimate, and
-        // clearly better there than the estimate's own pose and place explain it.
+        // clearly better there than the estimate's own pose and place explain it. Its pose
+        // counts as measured only when the first view had the features to show a turn: a
+        // target without texture correlates with its first view at any pose.
         if !self.lost
             && let Some(found) = self.reanchor(&gray, &est, confidence)
         {
-            let (_, c) = self.own_confidence(&input, lp, &found)?;
+            let textured = self.keyframes.anchor_features() >= self.cfg.min_fit_inliers;
+            let (_, c) = self.own_confidence(&input, lp, &found, textured)?;
             if c >= self.cfg.lost_below {
                 self.filter.reset(&found);
                 est = found;
@@ -1404,13 +1407,14 @@ impl Tracker {
     }
 
     /// The colour similarity and confidence of one hypothesis on this frame's `input`, as
-    /// the frame reports it: from the colour and contour terms of `lp` alone, as if its
-    /// features had measured the rotation.
+    /// the frame reports it: from the colour and contour terms of `lp` alone, discounted as
+    /// [`Self::confidence`] does unless `rotation_measured`.
     fn own_confidence(
         &mut self,
         input: &FrameInput<'_>,
         mut lp: LikelihoodParams,
         h: &Hypothesis,
+        rotation_measured: bool,
     ) -> crate::Result<(f64, f64)> {
         let mut shown = self.cfg.likelihood;
         shown.terms &= TERM_COLOUR | TERM_GRADIENT;
@@ -1421,7 +1425,7 @@ impl Tracker {
             .terms
             .first()
             .map_or(0.0, |t| rho_from_log(t.colour, lp.sigma_colour));
-        Ok((rho, self.confidence(&shown, &[1.0], true)))
+        Ok((rho, self.confidence(&shown, &[1.0], rotation_measured)))
     }
 
     /// Looks for the target over the whole frame: by colour first, ellipses at
@@ -1531,7 +1535,7 @@ impl Tracker {
         // The frame will report the target found, so its confidence is the found target's
         // own (its features measured the rotation), not the lost track's; one evaluation
         // gives the colour test and the confidence.
-        let (rho, c) = self.own_confidence(&input, lp, &placed)?;
+        let (rho, c) = self.own_confidence(&input, lp, &placed, true)?;
         Ok(reacquired(&self.cfg, rho, c).then_some((placed, c)))
     }
 }
