@@ -39,9 +39,10 @@ pub use config::{
 };
 pub use init_refine::{InitRefine, refine_ellipse};
 
-use nalgebra::Matrix3;
+use nalgebra::{Matrix3, Vector3};
 
 use crate::features::{Features, Sift, keep_slope_length, match_features};
+use crate::filter::rotation_mean::{exp_so3, log_so3};
 use crate::filter::{AspectRange, Hypothesis, Motion, ParticleFilter, SizeRange};
 use crate::frames::GrayF32;
 use crate::geometry::{BoxRect, Ellipse, Euler, PoseState, deg};
@@ -156,6 +157,9 @@ pub struct Tracker {
     keyframes: KeyframePool,
     prev: Hypothesis,
     prev_euler: Euler,
+    /// The estimate's rotation per frame, smoothed ([`TrackerConfig::coast_rate`]): a
+    /// rotation vector about the camera's axes (radians a frame).
+    spin: Vector3<f64>,
     low_count: usize,
     lost: bool,
     /// The semi-axes of the last trusted estimate (confidence at least
@@ -226,6 +230,51 @@ fn check_init(init: &Init, w: u32, h: u32) -> Result<(), TrackError> {
     Ok(())
 }
 
+/// Largest rotation (radians) between two frames' estimates that counts as the target's
+/// motion in its smoothed spin ([`TrackerConfig::coast_rate`]): 0.1 (5.7°), several times the
+/// fastest synthetic turn (1.6° a frame). A larger step is a jump (a mismatched fit), which
+/// the spin ignores.
+const SPIN_MAX_STEP: f64 = 0.1;
+
+/// How the estimate moved into a frame, for its smoothed spin ([`smoothed_spin`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Moved {
+    /// Tracked, with the rotation measured (a keyframe fit, a fit against the previous
+    /// frame, or the rotation between the two frames): the step is the target's motion.
+    Tracked,
+    /// Tracked with nothing measuring the rotation: the step is the spin's own proposal and
+    /// the filter's noise, so the spin keeps its last measured value instead of feeding on
+    /// itself.
+    Unmeasured,
+    /// Reset to where the target was found again (re-anchored, re-posed, re-acquired): the
+    /// step corrects the estimate and says nothing of the target's motion.
+    Reset,
+    /// Lost: no motion is known.
+    Lost,
+}
+
+/// The estimate's smoothed rotation per frame after a frame whose estimate turned by `step`
+/// (a rotation vector) from the previous one: moved by `rate` of the way towards `step` when
+/// the frame was tracked and its rotation measured; unchanged when the estimate was reset or
+/// the step exceeds [`SPIN_MAX_STEP`] (a correction or a jump, not the target's motion), or
+/// when nothing measured the rotation (a gap is bridged at the last measured turn, and a
+/// target without texture, never measured, is never turned on by its own noise); at rest
+/// when lost.
+fn smoothed_spin(
+    spin: &Vector3<f64>,
+    step: &Vector3<f64>,
+    rate: f64,
+    moved: Moved,
+) -> Vector3<f64> {
+    match moved {
+        Moved::Lost => Vector3::zeros(),
+        Moved::Reset => *spin,
+        Moved::Unmeasured => *spin,
+        Moved::Tracked if step.norm().is_nan() || step.norm() > SPIN_MAX_STEP => *spin,
+        Moved::Tracked => spin + (step - spin) * rate,
+    }
+}
+
 /// The keyframe fits' motion prior from the configuration (its mean is each fit's start):
 /// the filter's rotation walk, [`TrackerConfig::fit_pixel_sigma`] and
 /// [`TrackerConfig::fit_centre_sigma`]; `None` without a pixel σ.
@@ -261,6 +310,14 @@ fn check_config(cfg: &TrackerConfig) -> Result<(), TrackError> {
                 prior.pixel_sigma, cfg.filter.dynamics.rotation, cfg.fit_centre_sigma
             ))
         })?;
+    }
+    if let Some(rate) = cfg.coast_rate
+        && !(rate > 0.0 && rate <= 1.0)
+    {
+        return Err(TrackError::BadConfig(format!(
+            "coast_rate {rate} must lie in (0, 1]; set it to None to hold the rotation still \
+             where nothing measured it"
+        )));
     }
     if let Some(r) = &cfg.init_refine {
         r.check().map_err(|e| {
@@ -471,6 +528,7 @@ impl Tracker {
             keyframes: KeyframePool::new(KEYFRAMES),
             prev: Hypothesis::from_state(&PoseState::default()),
             prev_euler: Euler::default(),
+            spin: Vector3::zeros(),
             low_count: 0,
             lost: false,
             held_axes: (1.0, 1.0),
@@ -534,6 +592,7 @@ impl Tracker {
         self.filter.reset(&hyp);
         self.prev = hyp;
         self.prev_euler = init.pose;
+        self.spin = Vector3::zeros();
         self.prev_gray = GrayF32::from_rgb(frame);
         self.template = self.cfg.template.map(|t| {
             crate::likelihood::template::Template::new(
@@ -756,7 +815,8 @@ impl Tracker {
                 vec![(1.0, f.rot)],
             ),
             (None, None, Some(i), _) => (dx, dy, scale, vec![(0.5, i.pair.a), (0.5, i.pair.b)]),
-            (None, None, None, _) => (dx, dy, scale, vec![(1.0, Matrix3::identity())]),
+            // Nothing measured the rotation: the turn carries on as it went.
+            (None, None, None, _) => (dx, dy, scale, vec![(1.0, exp_so3(&self.spin))]),
         };
         let motion = Motion {
             dx,
@@ -811,7 +871,10 @@ impl Tracker {
         let weights = crate::filter::resample::normalise_log_weights(
             &totals.iter().map(|&t| t as f64).collect::<Vec<_>>(),
         );
-        let mut confidence = self.confidence(&lp, &weights, inter.is_some() || key_inter);
+        let rotation_measured = inter.is_some() || key_inter;
+        let mut confidence = self.confidence(&lp, &weights, rotation_measured);
+        // Whether the estimate was moved by a reset rather than tracked (for the spin).
+        let mut jumped = false;
         // Loop closure on appearance: the first view found again beside the estimate, and
         // clearly better there than the estimate's own pose and place explain it. Its pose
         // counts as measured only when the first view had the features to show a turn: a
@@ -825,6 +888,7 @@ impl Tracker {
                 self.filter.reset(&found);
                 est = found;
                 confidence = c;
+                jumped = true;
             }
         }
         // Loop closure on the pose: the first view, turned, explained clearly better by
@@ -834,6 +898,7 @@ impl Tracker {
         {
             self.filter.reset(&found);
             est = found;
+            jumped = true;
         }
         (self.low_count, self.lost) = lost_state(&self.cfg, self.low_count, self.lost, confidence);
         if self.low_count >= self.cfg.lost_after
@@ -844,6 +909,7 @@ impl Tracker {
             confidence = c;
             self.low_count = 0;
             self.lost = false;
+            jumped = true;
         }
 
         if !self.lost {
@@ -870,6 +936,16 @@ impl Tracker {
             self.held_axes = (est.a, est.b);
         }
         self.prev_confidence = confidence;
+        self.spin = self.cfg.coast_rate.map_or_else(Vector3::zeros, |rate| {
+            let step = log_so3(&(est.rot * self.prev.rot.transpose()));
+            let moved = match (self.lost, jumped, rotation_measured) {
+                (true, _, _) => Moved::Lost,
+                (false, true, _) => Moved::Reset,
+                (false, false, false) => Moved::Unmeasured,
+                (false, false, true) => Moved::Tracked,
+            };
+            smoothed_spin(&self.spin, &step, rate, moved)
+        });
         self.prev = est;
         self.prev_euler = euler;
         self.prev_gray = gray;
@@ -2195,6 +2271,64 @@ mod tests {
             ..on
         };
         assert!(t.reanchor(&gray, &near, 1.0).is_none());
+    }
+
+    #[test]
+    fn the_spin_follows_a_steady_turn_and_ignores_resets_and_jumps() {
+        let step = Vector3::new(0.0, 0.02, 0.0);
+        let mut spin = Vector3::zeros();
+        for _ in 0..30 {
+            spin = smoothed_spin(&spin, &step, 1.0 / 3.0, Moved::Tracked);
+        }
+        assert!((spin - step).norm() < 1e-6, "{spin:?}");
+        // One frame's step moves it a third of the way.
+        let half = smoothed_spin(&Vector3::zeros(), &step, 1.0 / 3.0, Moved::Tracked);
+        assert!((half.y - 0.02 / 3.0).abs() < 1e-12);
+        // A reset's correction and a jump beyond the bound are not motion; a lost frame
+        // knows none.
+        let big = Vector3::new(0.3, 0.0, 0.0);
+        assert_eq!(smoothed_spin(&spin, &big, 1.0 / 3.0, Moved::Reset), spin);
+        assert_eq!(smoothed_spin(&spin, &big, 1.0 / 3.0, Moved::Tracked), spin);
+        let nan = Vector3::new(f64::NAN, 0.0, 0.0);
+        assert_eq!(smoothed_spin(&spin, &nan, 1.0 / 3.0, Moved::Tracked), spin);
+        assert_eq!(
+            smoothed_spin(&spin, &step, 1.0 / 3.0, Moved::Lost),
+            Vector3::zeros()
+        );
+        // Unmeasured frames keep the last measured spin, whatever their own step (the spin's
+        // proposal plus the filter's noise): it does not feed on itself.
+        assert_eq!(
+            smoothed_spin(&spin, &big, 1.0 / 3.0, Moved::Unmeasured),
+            spin
+        );
+        assert_eq!(
+            smoothed_spin(&Vector3::zeros(), &step, 1.0 / 3.0, Moved::Unmeasured),
+            Vector3::zeros()
+        );
+        // At rate 1 the spin is the last step.
+        let s = smoothed_spin(&spin, &(step * 2.0), 1.0, Moved::Tracked);
+        assert!((s - step * 2.0).norm() < 1e-15);
+    }
+
+    #[test]
+    fn coast_rate_is_checked() {
+        for rate in [0.0, -0.1, 1.5, f64::NAN] {
+            let cfg = TrackerConfig {
+                coast_rate: Some(rate),
+                ..TrackerConfig::default()
+            };
+            assert!(
+                matches!(check_config(&cfg), Err(TrackError::BadConfig(_))),
+                "{rate}"
+            );
+        }
+        for rate in [Some(1.0), Some(0.01), None] {
+            let cfg = TrackerConfig {
+                coast_rate: rate,
+                ..TrackerConfig::default()
+            };
+            assert!(check_config(&cfg).is_ok(), "{rate:?}");
+        }
     }
 
     #[test]

@@ -121,6 +121,11 @@ pub struct TrackArgs {
     /// with the views that matched it (see `TrackerConfig::bundle`).
     #[arg(long)]
     pub no_bundle: bool,
+    /// Hold the rotation still on frames where nothing measured it, as the paper's random
+    /// walk does, instead of carrying on the estimate's recent turn (see
+    /// `TrackerConfig::coast_rate`).
+    #[arg(long)]
+    pub no_coast: bool,
     /// How the colour model adapts: after each confident frame it moves this share (0.1 is a
     /// memory of about ten frames) towards the colours inside the estimate, for targets whose
     /// colours change as they turn or the light changes (see `TrackerConfig::colour_update`).
@@ -506,6 +511,9 @@ pub fn run(a: TrackArgs) -> anyhow::Result<()> {
     }
     if a.no_bundle {
         cfg.bundle = None;
+    }
+    if a.no_coast {
+        cfg.coast_rate = None;
     }
     cfg.aspect_slack = (!a.no_aspect_bound).then_some(a.aspect_slack);
     cfg.size_hold = (!a.no_size_hold).then_some(a.size_hold);
