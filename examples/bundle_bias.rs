@@ -66,6 +66,8 @@
 
 #[path = "common/gain.rs"]
 mod gain;
+#[path = "common/positions.rs"]
+mod positions;
 
 use nalgebra::Vector2;
 use pftrack::features::{MatchParams, Sift, SiftParams, match_features};
@@ -99,13 +101,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             "--min-seen" => min_seen = value()?.parse()?,
             "--depth-sigma" => params.depth_sigma = value()?.parse()?,
             "--rotation-sigma" => params.rotation_sigma = [value()?.parse()?; 3],
-            "--positions" => {
-                exact = match value()?.as_str() {
-                    "sift" => false,
-                    "exact" => true,
-                    other => return Err(format!("--positions sift|exact, not '{other}'").into()),
-                }
-            }
+            "--positions" => exact = positions::exact_positions(&value()?)?,
             "--noise" => noise = value()?.parse()?,
             "--from-truth" => from_truth = true,
             "--iterations" => params.iterations = value()?.parse()?,

@@ -25,6 +25,8 @@
 
 #[path = "common/gain.rs"]
 mod gain;
+#[path = "common/positions.rs"]
+mod positions;
 
 use nalgebra::{Vector2, Vector3};
 use pftrack::features::{MatchParams, Sift, SiftParams, match_features};
@@ -53,13 +55,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             "--to" => to = Some(value()?.parse()?),
             "--every" => every = value()?.parse()?,
             "--gap" => gap = value()?.parse()?,
-            "--positions" => {
-                exact = match value()?.as_str() {
-                    "sift" => false,
-                    "exact" => true,
-                    other => return Err(format!("--positions sift|exact, not '{other}'").into()),
-                }
-            }
+            "--positions" => exact = positions::exact_positions(&value()?)?,
             "--noise" => noise = value()?.parse()?,
             "--max-error" => max_error = Some(value()?.parse()?),
             _ => return Err(format!("unknown argument '{a}'; {USAGE}").into()),
