@@ -831,24 +831,35 @@ fn plain_target_frame(w: u32, h: u32, cx: f64, cy: f64) -> image::RgbImage {
     })
 }
 
+/// The plain target of [`plain_target_frame`] (semi-axes 18 and 14) moving 1.5 px right
+/// and 0.5 px down a frame for 30 frames, tracked with `cfg`: each frame's estimate and the
+/// target's true centre.
+fn track_plain_target(cfg: TrackerConfig) -> Vec<(pftrack::tracker::Estimate, (f64, f64))> {
+    let (w, h) = (160, 120);
+    let at = |k: usize| (50.0 + 1.5 * k as f64, 50.0 + 0.5 * k as f64);
+    let first = plain_target_frame(w, h, at(0).0, at(0).1);
+    let init = Ellipse::new(at(0).0, at(0).1, 18.0, 14.0);
+    let mut t = Tracker::new(cfg, &first, Init::frontal(init)).unwrap();
+    (1..30)
+        .map(|k| {
+            let (cx, cy) = at(k);
+            (t.step(&plain_target_frame(w, h, cx, cy)).unwrap(), (cx, cy))
+        })
+        .collect()
+}
+
 #[test]
 fn a_target_without_texture_is_followed_by_colour_and_contour_and_its_score_says_so() {
     // No texture on the target: SIFT has nothing to match there, so no rotation can be
     // measured. The ellipse must still follow it (colour and contour), and the confidence
     // must carry the missing rotation (at most 0.8 of the colour and contour support).
     // Re-anchoring on the first view is off here (the next test has it on).
-    let (w, h) = (160, 120);
-    let at = |k: usize| (50.0 + 1.5 * k as f64, 50.0 + 0.5 * k as f64);
-    let first = plain_target_frame(w, h, at(0).0, at(0).1);
-    let init = Ellipse::new(at(0).0, at(0).1, 18.0, 14.0);
     let cfg = TrackerConfig {
         reanchor: None,
         ..TrackerConfig::default()
     };
-    let mut t = Tracker::new(cfg, &first, Init::frontal(init)).unwrap();
-    for k in 1..30 {
-        let (cx, cy) = at(k);
-        let e = t.step(&plain_target_frame(w, h, cx, cy)).unwrap();
+    for (e, (cx, cy)) in track_plain_target(cfg) {
+        let k = e.frame;
         let off = (e.state.cx - cx).hypot(e.state.cy - cy);
         assert!(off < 2.0, "frame {k}: {off:.2} px off");
         assert!((e.state.a - 18.0).abs() < 2.0 && (e.state.b - 14.0).abs() < 2.0);
@@ -869,20 +880,14 @@ fn re_anchoring_a_target_without_texture_does_not_claim_its_pose_measured() {
     // on most frames, at the first view's pose. Without features in that view the pose is
     // no better measured than before: the confidence keeps its discount (at most 0.8).
     // Before the first view's features were counted, 9 of 10 filter seeds reported 0.83-0.99.
-    let (w, h) = (160, 120);
-    let at = |k: usize| (50.0 + 1.5 * k as f64, 50.0 + 0.5 * k as f64);
-    let first = plain_target_frame(w, h, at(0).0, at(0).1);
-    let init = Ellipse::new(at(0).0, at(0).1, 18.0, 14.0);
     for seed in 0..4 {
         let cfg = TrackerConfig {
             seed,
             ..TrackerConfig::default()
         };
         assert!(cfg.reanchor.is_some());
-        let mut t = Tracker::new(cfg, &first, Init::frontal(init)).unwrap();
-        for k in 1..30 {
-            let (cx, cy) = at(k);
-            let e = t.step(&plain_target_frame(w, h, cx, cy)).unwrap();
+        for (e, (cx, cy)) in track_plain_target(cfg) {
+            let k = e.frame;
             let off = (e.state.cx - cx).hypot(e.state.cy - cy);
             assert!(off < 2.0, "seed {seed}, frame {k}: {off:.2} px off");
             assert!(!e.lost, "seed {seed}, frame {k}");
