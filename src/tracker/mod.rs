@@ -268,8 +268,7 @@ fn smoothed_spin(
 ) -> Vector3<f64> {
     match moved {
         Moved::Lost => Vector3::zeros(),
-        Moved::Reset => *spin,
-        Moved::Unmeasured => *spin,
+        Moved::Reset | Moved::Unmeasured => *spin,
         Moved::Tracked if step.norm().is_nan() || step.norm() > SPIN_MAX_STEP => *spin,
         Moved::Tracked => spin + (step - spin) * rate,
     }
@@ -2282,8 +2281,8 @@ mod tests {
         }
         assert!((spin - step).norm() < 1e-6, "{spin:?}");
         // One frame's step moves it a third of the way.
-        let half = smoothed_spin(&Vector3::zeros(), &step, 1.0 / 3.0, Moved::Tracked);
-        assert!((half.y - 0.02 / 3.0).abs() < 1e-12);
+        let first = smoothed_spin(&Vector3::zeros(), &step, 1.0 / 3.0, Moved::Tracked);
+        assert!((first.y - 0.02 / 3.0).abs() < 1e-12);
         // A reset's correction and a jump beyond the bound are not motion; a lost frame
         // knows none.
         let big = Vector3::new(0.3, 0.0, 0.0);
