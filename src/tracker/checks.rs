@@ -1,0 +1,293 @@
+//! Checks of a tracker's settings and start, before anything is built from them: each bad
+//! value is a [`TrackError`] naming it and saying what to do instead.
+
+use nalgebra::Matrix3;
+
+use super::{Init, TrackError, TrackerConfig};
+
+impl Init {
+    /// Checks the start against a `w x h` frame, as [`super::Tracker::new`] and
+    /// [`super::Tracker::reinit`] do: a valid ellipse of semi-axes at least 2 px whose centre
+    /// lies in the frame, and finite angles ([`TrackError::BadInit`]).
+    pub fn check(&self, w: u32, h: u32) -> Result<(), TrackError> {
+        let e = &self.ellipse;
+        if !e.is_valid() {
+            return Err(TrackError::BadInit(format!(
+                "cx {}, cy {}, a {}, b {}: values must be finite and the semi-axes positive",
+                e.cx, e.cy, e.a, e.b
+            )));
+        }
+        if e.a < 2.0 || e.b < 2.0 {
+            return Err(TrackError::BadInit(format!(
+                "semi-axes {:.1} x {:.1} px: at least 2 px each",
+                e.a, e.b
+            )));
+        }
+        if !e.centre_inside(w, h) {
+            return Err(TrackError::BadInit(format!(
+                "centre ({:.1}, {:.1}) lies outside the {w}x{h} frame",
+                e.cx, e.cy
+            )));
+        }
+        let p = &self.pose;
+        if ![p.rx, p.ry, p.rz].iter().all(|v| v.is_finite()) {
+            return Err(TrackError::BadInit(
+                "initial pose angles must be finite".into(),
+            ));
+        }
+        Ok(())
+    }
+}
+
+impl TrackerConfig {
+    /// Checks the settings the tracker itself uses, as [`super::Tracker::new`] does before
+    /// anything else, with a [`TrackError::BadConfig`] that names the setting and what `None`
+    /// would do instead (the filter, SIFT and the likelihood check
+    /// theirs): the feature weight, the keyframe fits' motion prior by the rule of the fit
+    /// itself ([`crate::pose::prior::MotionPrior::check`]), and each optional part's own
+    /// `check` (anchor refit, colour update, contrast, inter-frame consensus, template) and
+    /// widening factors (size hold, aspect slack).
+    pub fn check(&self) -> Result<(), TrackError> {
+        if !(self.feature_weight.is_finite() && self.feature_weight >= 0.0) {
+            return Err(TrackError::BadConfig(format!(
+                "feature_weight {} must be finite and at least 0 (0 leaves the rotation to the \
+                 motion alone)",
+                self.feature_weight
+            )));
+        }
+        if let Some(prior) = self.fit_prior() {
+            prior.check().map_err(|e| {
+                TrackError::BadConfig(format!(
+                    "fit_pixel_sigma {} with the filter's rotation walk {:?} and fit_centre_sigma \
+                     {:?}: {e}; set fit_pixel_sigma to None to fit without the prior, \
+                     fit_centre_sigma to None to leave the centre free",
+                    prior.pixel_sigma, self.filter.dynamics.rotation, self.fit_centre_sigma
+                ))
+            })?;
+        }
+        if let Some(rate) = self.coast_rate
+            && !(rate > 0.0 && rate <= 1.0)
+        {
+            return Err(TrackError::BadConfig(format!(
+                "coast_rate {rate} must lie in (0, 1]; set it to None to hold the rotation still \
+                 where nothing measured it"
+            )));
+        }
+        if let Some(r) = &self.init_refine {
+            r.check().map_err(|e| {
+                TrackError::BadConfig(format!(
+                    "{e}; set init_refine to None to keep the given ellipse"
+                ))
+            })?;
+        }
+        if let Some(d) = self.sift_upsample_below
+            && !(d.is_finite() && d > 0.0)
+        {
+            return Err(TrackError::BadConfig(format!(
+                "sift_upsample_below {d} must be a positive size in pixels; set it to None to \
+                 keep the SIFT settings for every target size"
+            )));
+        }
+        if let Some(b) = &self.bundle {
+            b.check().map_err(|e| {
+                TrackError::BadConfig(format!(
+                    "{e}; set bundle to None to fit every keyframe on its ellipsoid alone"
+                ))
+            })?;
+        }
+        if let Some(r) = &self.anchor_refit {
+            r.check().map_err(|e| {
+                TrackError::BadConfig(format!(
+                    "{e}; set anchor_refit to None to measure against the nearest views alone"
+                ))
+            })?;
+        }
+        if let Some(u) = &self.colour_update {
+            u.check().map_err(|e| {
+                TrackError::BadConfig(format!(
+                    "{e}; set colour_update to None for a fixed colour model"
+                ))
+            })?;
+        }
+        if let Some(c) = &self.contrast {
+            c.check().map_err(|e| {
+                TrackError::BadConfig(format!(
+                    "{e}; set contrast to None for the paper's three terms alone"
+                ))
+            })?;
+        }
+        if let Some(c) = &self.interframe_consensus {
+            c.check().map_err(|e| {
+                TrackError::BadConfig(format!(
+                    "{e}; set interframe_consensus to None to estimate the rotation from any 3 matches"
+                ))
+            })?;
+        }
+        if let Some(r) = &self.reanchor {
+            r.check().map_err(|e| {
+                TrackError::BadConfig(format!(
+                    "{e}; set reanchor to None to leave the estimate to the filter"
+                ))
+            })?;
+        }
+        if let Some(t) = &self.template {
+            t.check().map_err(|e| {
+                TrackError::BadConfig(format!(
+                    "{e}; set template to None to weigh the particles without a template"
+                ))
+            })?;
+        }
+        if !(0.0..=1.0).contains(&self.lost_below)
+            || !(self.lost_below..=1.0).contains(&self.found_above)
+        {
+            return Err(TrackError::BadConfig(format!(
+                "lost_below {} and found_above {} must satisfy 0 <= lost_below <= found_above <= 1",
+                self.lost_below, self.found_above
+            )));
+        }
+        if let Some(n) = self.reacquire_ncc
+            && !(-1.0..=1.0).contains(&n)
+        {
+            return Err(TrackError::BadConfig(format!(
+                "reacquire_ncc {n} is not in [-1, 1]; set it to None to recognise a re-acquired \
+                 target by its features alone"
+            )));
+        }
+        check_factor(
+            "size_hold",
+            self.size_hold,
+            "leave the ellipse's size free while the target is uncertain",
+        )?;
+        check_factor(
+            "aspect_slack",
+            self.aspect_slack,
+            "leave the ellipse's aspect free",
+        )?;
+        Ok(())
+    }
+
+    /// The keyframe fits' motion prior from the configuration (its mean is each fit's start):
+    /// the filter's rotation walk, [`TrackerConfig::fit_pixel_sigma`] and
+    /// [`TrackerConfig::fit_centre_sigma`]; `None` without a pixel σ.
+    pub(crate) fn fit_prior(&self) -> Option<crate::pose::prior::MotionPrior> {
+        self.fit_pixel_sigma
+            .map(|px| crate::pose::prior::MotionPrior {
+                mean: Matrix3::identity(),
+                sigma: self.filter.dynamics.rotation,
+                pixel_sigma: px,
+                centre_sigma: self.fit_centre_sigma,
+            })
+    }
+}
+
+/// A widening factor of the configuration, `name`, must be finite and at least 1; the
+/// error says what setting it to `None` does instead (`none_does`).
+fn check_factor(name: &str, k: Option<f64>, none_does: &str) -> Result<(), TrackError> {
+    match k {
+        Some(k) if !(k.is_finite() && k >= 1.0) => Err(TrackError::BadConfig(format!(
+            "{name} {k} is not a finite factor of at least 1; set {name} to None to {none_does}"
+        ))),
+        _ => Ok(()),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geometry::Ellipse;
+    use crate::tracker::Reanchor;
+
+    #[test]
+    fn found_above_and_reacquire_ncc_are_checked() {
+        let bad = [
+            TrackerConfig {
+                found_above: 0.2,
+                ..TrackerConfig::default()
+            },
+            TrackerConfig {
+                found_above: 1.5,
+                ..TrackerConfig::default()
+            },
+            TrackerConfig {
+                reacquire_ncc: Some(f64::NAN),
+                ..TrackerConfig::default()
+            },
+            TrackerConfig {
+                reacquire_ncc: Some(1.1),
+                ..TrackerConfig::default()
+            },
+        ];
+        for cfg in bad {
+            assert!(
+                matches!(cfg.check(), Err(TrackError::BadConfig(_))),
+                "{cfg:?}"
+            );
+        }
+        assert!(TrackerConfig::default().check().is_ok());
+    }
+
+    #[test]
+    fn coast_rate_is_checked() {
+        for rate in [0.0, -0.1, 1.5, f64::NAN] {
+            let cfg = TrackerConfig {
+                coast_rate: Some(rate),
+                ..TrackerConfig::default()
+            };
+            assert!(
+                matches!(cfg.check(), Err(TrackError::BadConfig(_))),
+                "{rate}"
+            );
+        }
+        for rate in [Some(1.0), Some(0.01), None] {
+            let cfg = TrackerConfig {
+                coast_rate: rate,
+                ..TrackerConfig::default()
+            };
+            assert!(cfg.check().is_ok(), "{rate:?}");
+        }
+    }
+
+    #[test]
+    fn reanchor_settings_are_checked() {
+        let bad = [
+            Reanchor {
+                min_ncc: 1.5,
+                ..Reanchor::default()
+            },
+            Reanchor {
+                min_ncc: f64::NAN,
+                ..Reanchor::default()
+            },
+            Reanchor {
+                margin: -0.1,
+                ..Reanchor::default()
+            },
+            Reanchor {
+                min_confidence: 2.0,
+                ..Reanchor::default()
+            },
+        ];
+        for r in bad {
+            let cfg = TrackerConfig {
+                reanchor: Some(r),
+                ..TrackerConfig::default()
+            };
+            assert!(
+                matches!(cfg.check(), Err(TrackError::BadConfig(_))),
+                "{r:?}"
+            );
+        }
+    }
+
+    #[test]
+    fn init_checks() {
+        let ok = Init::frontal(Ellipse::new(50.0, 40.0, 10.0, 12.0));
+        assert!(ok.check(100, 80).is_ok());
+        let outside = Init::frontal(Ellipse::new(150.0, 40.0, 10.0, 12.0));
+        assert!(outside.check(100, 80).is_err());
+        let zero = Init::frontal(Ellipse::new(50.0, 40.0, 0.0, 12.0));
+        assert!(zero.check(100, 80).is_err());
+        let nan = Init::frontal(Ellipse::new(f64::NAN, 40.0, 10.0, 12.0));
+        assert!(nan.check(100, 80).is_err());
+    }
+}
