@@ -643,6 +643,16 @@ pub struct TrackerConfig {
     ///   7.01 / 6.29 / 5.22). A keyframe is replaced when its features are leaving, which is
     ///   when its adjustment has the fewest of them (`examples/bundle_bias.rs` gives what
     ///   limits it).
+    ///
+    /// Tried on 2026-12-05 (fourth session) and not kept: the single fits' scale held by a
+    /// log-normal prior, since the box's turn shows in part as a horizontal stretch that the
+    /// fit's free, isotropic scale absorbs ([`crate::pose::prior`]). Held to the previous
+    /// view's scale when that view was the frame before (else the ellipse's size ratio, the
+    /// fit's start) at σ 0.02 a frame: `car` 4.48 / 8.17 / 4.52, but `combo` 2.86 / 3.20 /
+    /// 2.54 and the sum 43.7 against 43.6; at σ 0.005, `car` 4.97 / 8.16 / 4.83; held to the
+    /// ellipse's size ratio alone at σ 0.02, `car` 4.25 / 9.98 / 4.65 (the outline of a
+    /// turning box changes its area, its projection's scale does not). The scale takes up
+    /// less of the missing turn than the depths do.
     pub bundle: Option<BundleAdjust>,
     /// Loop closure on appearance: on a confident frame the first view's template is looked
     /// for, unturned, beside the estimate; when it is found there clearly better than the
