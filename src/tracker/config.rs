@@ -355,6 +355,20 @@ pub struct TrackerConfig {
     /// taking a new keyframe only after two frames in a row without a fit (instead of one)
     /// gave 44.4 and, on the fresh seeds, 45.2 (`combo`'s pan 3.12 there), so the rule
     /// stays.
+    ///
+    /// The rotation between successive frames (Sylvester's, both members of its Necker pair)
+    /// still comes before the spin where no keyframe fit passed, as in the paper, though
+    /// between frames it errs by more than no rotation at all (README): on fresh `combo` seed
+    /// 16 at frame 162, from 5 matches, it moved the estimate 7° in tilt and 6° back in pan
+    /// while the head panned on, and the keyframe taken there kept the error (see
+    /// [`TrackerConfig::max_rotation_step`] for bounding it). The spin in its place, measured
+    /// 2026-12-05 (fourth session) on the same three evaluations: 43.8 / 42.9 / 43.7 against
+    /// 43.6 / 43.1 / 44.0 (`combo`'s pan 2.98 / 3.18 / 3.05 against 2.96 / 3.04 / 3.52,
+    /// `pan`'s 2.52 / 2.45 / 2.73 against 2.28 / 2.47 / 2.67); with such frames also left
+    /// out of the spin's updates, 43.8 / 43.0 / 43.4; half the particles turned by the spin
+    /// and a quarter by each member of the pair, `combo` over the fresh seeds 2.67 / 3.00 /
+    /// 2.03 (against 2.38 / 3.52 / 2.09). Within the runs' noise, so the paper's proposal
+    /// stays.
     pub coast_rate: Option<f64>,
     /// Largest RMS reprojection error (pixels) of an accepted depth-prior fit (the ellipsoid
     /// is only a prior, so the residual grows with the angle).
