@@ -113,6 +113,39 @@ fn deterministic_for_a_seed() {
 }
 
 #[test]
+fn the_checks_an_embedder_can_run_first_are_the_ones_new_runs() {
+    use pftrack::tracker::TrackError;
+    let r = Renderer::new(&SynthConfig {
+        frames: 1,
+        ..SynthConfig::new(Scenario::Nod)
+    })
+    .unwrap();
+    let (img, _) = r.render(0);
+    let (w, h) = img.dimensions();
+    let good = Init::frontal(r.init_ellipse());
+    assert!(good.check(w, h).is_ok());
+    assert!(TrackerConfig::default().check().is_ok());
+    for e in [
+        Ellipse::new(500.0, 50.0, 10.0, 10.0),
+        Ellipse::new(50.0, 50.0, 1.5, 10.0),
+        Ellipse::new(f64::NAN, 5.0, 5.0, 5.0),
+    ] {
+        let init = Init::frontal(e);
+        assert!(matches!(init.check(w, h), Err(TrackError::BadInit(_))));
+        assert!(Tracker::new(TrackerConfig::default(), &img, init).is_err());
+    }
+    let bad = TrackerConfig {
+        coast_rate: Some(1.5),
+        ..TrackerConfig::default()
+    };
+    let Err(TrackError::BadConfig(why)) = bad.check() else {
+        panic!("coast_rate 1.5 passed the check");
+    };
+    assert!(why.contains("coast_rate"), "{why}");
+    assert!(Tracker::new(bad, &img, good).is_err());
+}
+
+#[test]
 fn bad_input_is_an_error() {
     let r = Renderer::new(&SynthConfig {
         frames: 2,
