@@ -666,7 +666,12 @@ pub struct TrackerConfig {
     /// 2.54 and the sum 43.7 against 43.6; at σ 0.005, `car` 4.97 / 8.16 / 4.83; held to the
     /// ellipse's size ratio alone at σ 0.02, `car` 4.25 / 9.98 / 4.65 (the outline of a
     /// turning box changes its area, its projection's scale does not). The scale takes up
-    /// less of the missing turn than the depths do.
+    /// less of the missing turn than the depths do. Nor, the same day, the later fits on an
+    /// adjusted keyframe held to block matching's centre moved by the offset the adjustment
+    /// found between it and the adjusted view's centre (about 1 px on the car during its
+    /// turn, the fits' centres left of the prediction): `car` 6.62 / 7.16 / 5.17 and `combo`
+    /// 3.50 / 3.60 / 2.67; half the offset, 6.50 / 7.33 / 5.28 and 3.00 / 3.53 / 2.38. The
+    /// pan gained what the tilt lost.
     pub bundle: Option<BundleAdjust>,
     /// Loop closure on appearance: on a confident frame the first view's template is looked
     /// for, unturned, beside the estimate; when it is found there clearly better than the
