@@ -5,7 +5,8 @@ use pftrack::geometry::{Ellipse, angle_between, rot_x};
 use pftrack::pose::bundle::BundleParams;
 use pftrack::synth::{Renderer, Scenario, SynthConfig};
 use pftrack::tracker::{
-    AnchorRefit, BundleAdjust, ColourUpdate, Contrast, Init, TemplateTerm, Tracker, TrackerConfig,
+    AnchorRefit, BundleAdjust, ColourUpdate, Contrast, Init, TemplateTerm, TrackError, Tracker,
+    TrackerConfig,
 };
 
 type Track = (
@@ -113,39 +114,6 @@ fn deterministic_for_a_seed() {
 }
 
 #[test]
-fn the_checks_an_embedder_can_run_first_are_the_ones_new_runs() {
-    use pftrack::tracker::TrackError;
-    let r = Renderer::new(&SynthConfig {
-        frames: 1,
-        ..SynthConfig::new(Scenario::Nod)
-    })
-    .unwrap();
-    let (img, _) = r.render(0);
-    let (w, h) = img.dimensions();
-    let good = Init::frontal(r.init_ellipse());
-    assert!(good.check(w, h).is_ok());
-    assert!(TrackerConfig::default().check().is_ok());
-    for e in [
-        Ellipse::new(500.0, 50.0, 10.0, 10.0),
-        Ellipse::new(50.0, 50.0, 1.5, 10.0),
-        Ellipse::new(f64::NAN, 5.0, 5.0, 5.0),
-    ] {
-        let init = Init::frontal(e);
-        assert!(matches!(init.check(w, h), Err(TrackError::BadInit(_))));
-        assert!(Tracker::new(TrackerConfig::default(), &img, init).is_err());
-    }
-    let bad = TrackerConfig {
-        coast_rate: Some(1.5),
-        ..TrackerConfig::default()
-    };
-    let Err(TrackError::BadConfig(why)) = bad.check() else {
-        panic!("coast_rate 1.5 passed the check");
-    };
-    assert!(why.contains("coast_rate"), "{why}");
-    assert!(Tracker::new(bad, &img, good).is_err());
-}
-
-#[test]
 fn bad_input_is_an_error() {
     let r = Renderer::new(&SynthConfig {
         frames: 2,
@@ -153,12 +121,20 @@ fn bad_input_is_an_error() {
     })
     .unwrap();
     let (img, _) = r.render(0);
+    let (w, h) = img.dimensions();
+    // Each start and setting refused here is refused as well by the public checks an
+    // embedder can run before building a tracker (`Init::check`, `TrackerConfig::check`).
+    assert!(Init::frontal(r.init_ellipse()).check(w, h).is_ok());
+    assert!(TrackerConfig::default().check().is_ok());
     for e in [
         Ellipse::new(500.0, 50.0, 10.0, 10.0),
         Ellipse::new(50.0, 50.0, 0.0, 10.0),
+        Ellipse::new(50.0, 50.0, 1.5, 10.0),
         Ellipse::new(f64::NAN, 5.0, 5.0, 5.0),
     ] {
-        assert!(Tracker::new(TrackerConfig::default(), &img, Init::frontal(e)).is_err());
+        let init = Init::frontal(e);
+        assert!(matches!(init.check(w, h), Err(TrackError::BadInit(_))));
+        assert!(Tracker::new(TrackerConfig::default(), &img, init).is_err());
     }
     // The keyframe fits' rotation prior needs positive sigmas.
     for px in [0.0, -1.0, f64::NAN] {
@@ -166,6 +142,10 @@ fn bad_input_is_an_error() {
             fit_pixel_sigma: Some(px),
             ..TrackerConfig::default()
         };
+        let Err(TrackError::BadConfig(why)) = cfg.check() else {
+            panic!("fit_pixel_sigma {px} passed the check");
+        };
+        assert!(why.contains("fit_pixel_sigma"), "{why}");
         let err = Tracker::new(cfg, &img, Init::frontal(r.init_ellipse())).unwrap_err();
         assert!(err.to_string().contains("fit_pixel_sigma"), "{err}");
     }
