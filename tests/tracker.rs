@@ -2,6 +2,7 @@
 //! and its rotation, deterministically for a seed, and reject bad input without panicking.
 
 use pftrack::geometry::{Ellipse, angle_between, rot_x};
+use pftrack::motion::AbmParams;
 use pftrack::pose::bundle::BundleParams;
 use pftrack::synth::{Renderer, Scenario, SynthConfig};
 use pftrack::tracker::{
@@ -111,6 +112,30 @@ fn deterministic_for_a_seed() {
     let (a, _) = run(Scenario::Roll, 12, 5);
     let (b, _) = run(Scenario::Roll, 12, 5);
     assert_eq!(a, b);
+}
+
+#[test]
+fn the_block_matching_settings_given_are_the_ones_used() {
+    // Blocks flatter than a full luma range everywhere: block matching finds nothing, and
+    // the features' median motion moves the region instead. Until 2026-12-05 the tracker
+    // built its block matching from the defaults and this setting did nothing.
+    let flat = TrackerConfig {
+        abm: AbmParams {
+            min_texture: 1.0,
+            ..AbmParams::default()
+        },
+        ..TrackerConfig::default()
+    };
+    let cfg = SynthConfig::new(Scenario::Pan);
+    let (given, truth) = run_with(cfg, 8, flat);
+    let (default, _) = run_with(cfg, 8, TrackerConfig::default());
+    assert!(given.iter().zip(&default).any(|(g, d)| g.state != d.state));
+    for (e, t) in given.iter().zip(&truth) {
+        assert!(
+            !e.lost && (e.state.cx - t.cx).hypot(e.state.cy - t.cy) < 3.0,
+            "{e:?}"
+        );
+    }
 }
 
 #[test]

@@ -103,26 +103,47 @@ impl Default for AbmParams {
 }
 
 impl AbmParams {
-    /// The defaults with block sizes and search radius scaled by the target's mean diameter
-    /// `a + b` relative to 40 px: block `8k` (even, 4..=32), smallest block `max(4, block/4)`
-    /// (when that is below the block), search radius `10k` (4..=48).
+    /// The defaults scaled to the target `region` ([`AbmParams::scaled_to`]): block `8k`
+    /// (even, 4..=32), smallest block `max(4, block/4)` (when that is below the block),
+    /// search radius `10k` (4..=48), with `k` the target's mean diameter `a + b` over 40 px.
     pub fn for_target(region: &Ellipse) -> Self {
+        Self::default().scaled_to(region)
+    }
+
+    /// These settings, whose sizes are for a target 40 px across, scaled to the target
+    /// `region` by `k`, its mean diameter `a + b` over 40 px (1 for a degenerate region): the
+    /// block side `block_size · k` rounded to an even number and kept from
+    /// `max(min_block, block_size / 2)` to `4 · block_size`; the smallest block a quarter of
+    /// that, but not below `min_block` nor above the block; the search radius
+    /// `search_radius · k` kept from 2/5 to 24/5 of `search_radius` (at least 1); every size
+    /// at most 256. The thresholds are per pixel and carried over as they are. The defaults
+    /// give blocks of 4-32 px, split down to 4 px, and a search of ±4-48 px.
+    pub fn scaled_to(&self, region: &Ellipse) -> Self {
         let d = region.a.abs() + region.b.abs();
         let k = if d.is_finite() && d > 0.0 {
             d / 40.0
         } else {
             1.0
         };
-        let block = ((8.0 * k / 2.0).round() as u32 * 2).clamp(4, 32);
+        let lo = self.min_block.max(self.block_size / 2);
+        let hi = self.block_size.saturating_mul(4).clamp(lo, 256.max(lo));
+        let block = ((f64::from(self.block_size) * k / 2.0).round() as u32 * 2).clamp(lo, hi);
+        let r = self.search_radius;
+        let radius = ((f64::from(r) * k).round() as u32)
+            .clamp((r * 2 / 5).max(1), (r.saturating_mul(24) / 5).clamp(1, 256));
         Self {
             block_size: block,
-            min_block: (block / 4).max(4).min(block),
-            search_radius: ((10.0 * k).round() as u32).clamp(4, 48),
-            ..Self::default()
+            min_block: (block / 4).max(self.min_block).min(block),
+            search_radius: radius,
+            ..*self
         }
     }
 
-    fn validate(&self) -> Result<(), MotionError> {
+    /// Checks the settings, as [`block_match`] does: `2 <= min_block <= block_size <= 256`,
+    /// a search radius of at most 256, finite thresholds with `ambiguity_ratio` in `(0, 1]`,
+    /// `max_scale_change >= 1` and `max_centre_disagreement >= 0`, and at least 5 blocks for
+    /// the ellipse fit.
+    pub fn check(&self) -> Result<(), MotionError> {
         if self.min_block < 2 || self.block_size < self.min_block {
             return Err(MotionError::InvalidParams(
                 "need 2 <= min_block <= block_size",
@@ -564,7 +585,7 @@ pub fn block_match(
     region: &Ellipse,
     params: &AbmParams,
 ) -> Result<AbmResult, MotionError> {
-    params.validate()?;
+    params.check()?;
     if prev.width != cur.width
         || prev.height != cur.height
         || prev.width == 0
@@ -966,11 +987,45 @@ mod tests {
         assert_eq!((p.block_size, p.min_block, p.search_radius), (16, 4, 20));
         let p = AbmParams::for_target(&Ellipse::new(0.0, 0.0, 2.0, 2.0));
         assert_eq!((p.block_size, p.min_block, p.search_radius), (4, 4, 4));
-        assert!(AbmParams::default().validate().is_ok());
+        assert!(AbmParams::default().check().is_ok());
         let bad = AbmParams {
             min_block: 16,
             ..AbmParams::default()
         };
-        assert!(bad.validate().is_err());
+        assert!(bad.check().is_err());
+    }
+
+    #[test]
+    fn given_settings_scale_their_sizes_and_keep_their_thresholds() {
+        let d = AbmParams::default();
+        for r in [1.0, 7.0, 20.0, 33.0, 40.0, 500.0] {
+            let e = Ellipse::new(0.0, 0.0, r, r);
+            assert_eq!(d.scaled_to(&e), AbmParams::for_target(&e));
+        }
+        let base = AbmParams {
+            block_size: 12,
+            min_block: 6,
+            search_radius: 5,
+            max_sad: 0.2,
+            min_fit_blocks: 9,
+            ..d
+        };
+        // Twice the 40 px reference: block 24 (its quarter 6, the floor), radius 10.
+        let p = base.scaled_to(&Ellipse::new(0.0, 0.0, 40.0, 40.0));
+        assert_eq!((p.block_size, p.min_block, p.search_radius), (24, 6, 10));
+        assert_eq!((p.max_sad, p.min_fit_blocks), (0.2, 9));
+        // Tiny and huge targets stay within the bounds of `check`.
+        let widest = AbmParams {
+            block_size: 256,
+            min_block: 2,
+            search_radius: 256,
+            ..d
+        };
+        for b in [base, widest, d] {
+            for r in [0.5, 1e4, f64::NAN] {
+                let p = b.scaled_to(&Ellipse::new(0.0, 0.0, r, r));
+                assert!(p.check().is_ok(), "{b:?} at {r}: {p:?}");
+            }
+        }
     }
 }

@@ -126,7 +126,8 @@ pub struct TrackerConfig {
     pub init_refine: Option<super::InitRefine>,
     /// Feature matching.
     pub matching: MatchParams,
-    /// Adaptive block matching.
+    /// Adaptive block matching, its sizes for a target 40 px across: each frame scales them
+    /// to the previous estimate's ellipse ([`AbmParams::scaled_to`]).
     pub abm: AbmParams,
     /// Below this confidence a frame counts towards declaring the target lost.
     pub lost_below: f64,

@@ -475,7 +475,7 @@ impl Tracker {
         // SIFT around the previous ellipse and block matching for the translation do
         // not depend on each other: on two cores they run side by side.
         let region = search_region(&prev_ellipse, w, h);
-        let abm = crate::motion::AbmParams::for_target(&prev_ellipse);
+        let abm = self.cfg.abm.scaled_to(&prev_ellipse);
         let sift = self.sift_for(&prev_ellipse);
         let (features, abm_result) = rayon::join(
             || sift.detect(&gray, Some(region)),
