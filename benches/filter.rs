@@ -46,7 +46,7 @@ fn bench_filter(c: &mut Criterion) {
             particles: n,
             ..FilterParams::default()
         };
-        let mut f = ParticleFilter::new(params, 1, &start());
+        let mut f = ParticleFilter::new(params, 1, &start()).expect("valid filter settings");
         let mut rng = StdRng::seed_from_u64(2);
         let lik: Vec<f32> = (0..n).map(|_| rng.random_range(-40.0f32..0.0)).collect();
         let motion = Motion {

@@ -24,6 +24,9 @@ pub enum Error {
     /// Block matching and ellipse fitting.
     #[error(transparent)]
     Motion(#[from] crate::motion::MotionError),
+    /// The particle filter's settings.
+    #[error(transparent)]
+    Filter(#[from] crate::filter::FilterError),
     /// Likelihood engines (CPU or GPU).
     #[error(transparent)]
     Likelihood(#[from] crate::likelihood::LikelihoodError),

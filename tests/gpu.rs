@@ -982,7 +982,7 @@ fn draw_on_both(
         resample_below: 2.0,
         ..FilterParams::default()
     };
-    let mut fc = ParticleFilter::new(fp, seed, init);
+    let mut fc = ParticleFilter::new(fp, seed, init).unwrap();
     fc.propose(&Motion::still(), spread);
     let mut ps = Vec::new();
     fc.particles_f32(&mut ps);

@@ -27,6 +27,20 @@ use crate::geometry::{Euler, PoseState};
 use crate::likelihood::Particle;
 use rotation_mean::{exp_so3, log_so3, weighted_mean};
 
+/// The most particles a filter takes. Each costs the tracker about 300 bytes on the host
+/// (the filter's particles, parents and weights, the engines' layout and the per-term
+/// results), so this bound is about 3 GB: beyond it a count is a typo more likely than a
+/// plan, and is refused with an error instead of failing to allocate.
+pub const MAX_PARTICLES: usize = 10_000_000;
+
+/// Errors of the particle filter.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum FilterError {
+    /// A setting is out of range; the message names it.
+    #[error("invalid filter settings: {0}")]
+    BadParams(String),
+}
+
 /// One particle: the ellipse centre and semi-axes (pixels) and the rotation relative to the
 /// reference pose.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -98,6 +112,25 @@ pub struct StateSigma {
 }
 
 impl StateSigma {
+    /// Checks that every σ is finite and at least 0; `what` names the set in the error.
+    fn check(&self, what: &str) -> Result<(), FilterError> {
+        let [rx, ry, rz] = self.rotation;
+        for (name, v) in [
+            ("centre", self.centre),
+            ("axes", self.axes),
+            ("rotation[0]", rx),
+            ("rotation[1]", ry),
+            ("rotation[2]", rz),
+        ] {
+            if !(v.is_finite() && v >= 0.0) {
+                return Err(FilterError::BadParams(format!(
+                    "{what}.{name} {v} must be finite and at least 0"
+                )));
+            }
+        }
+        Ok(())
+    }
+
     fn scaled(&self, k: f64) -> Self {
         Self {
             centre: self.centre * k,
@@ -149,6 +182,38 @@ impl Default for FilterParams {
             min_axis: 2.0,
             max_axis: f64::INFINITY,
         }
+    }
+}
+
+impl FilterParams {
+    /// Checks the settings, as [`ParticleFilter::new`] does: from 1 to [`MAX_PARTICLES`]
+    /// particles, finite σ of at least 0 ([`FilterParams::proposal`],
+    /// [`FilterParams::dynamics`]), a finite `resample_below` of at least 0 (above 1 the
+    /// filter resamples on every update), and semi-axis bounds with
+    /// `0 < min_axis <= max_axis` (`max_axis` may be infinite).
+    pub fn check(&self) -> Result<(), FilterError> {
+        if !(1..=MAX_PARTICLES).contains(&self.particles) {
+            return Err(FilterError::BadParams(format!(
+                "particles {} must lie in 1..={MAX_PARTICLES}",
+                self.particles
+            )));
+        }
+        self.proposal.check("proposal")?;
+        self.dynamics.check("dynamics")?;
+        if !(self.resample_below.is_finite() && self.resample_below >= 0.0) {
+            return Err(FilterError::BadParams(format!(
+                "resample_below {} must be finite and at least 0",
+                self.resample_below
+            )));
+        }
+        if !(self.min_axis.is_finite() && self.min_axis > 0.0 && self.max_axis >= self.min_axis) {
+            return Err(FilterError::BadParams(format!(
+                "min_axis {} and max_axis {} must satisfy 0 < min_axis <= max_axis (min_axis \
+                 finite)",
+                self.min_axis, self.max_axis
+            )));
+        }
+        Ok(())
     }
 }
 
@@ -336,10 +401,12 @@ fn log_sum_exp(xs: &[f64]) -> f64 {
 }
 
 impl ParticleFilter {
-    /// N copies of the initial hypothesis with equal weights.
-    pub fn new(params: FilterParams, seed: u64, init: &Hypothesis) -> Self {
-        let n = params.particles.max(1);
-        Self {
+    /// N copies of the initial hypothesis with equal weights; a [`FilterError`] when the
+    /// settings fail [`FilterParams::check`].
+    pub fn new(params: FilterParams, seed: u64, init: &Hypothesis) -> Result<Self, FilterError> {
+        params.check()?;
+        let n = params.particles;
+        Ok(Self {
             params,
             rng: StdRng::seed_from_u64(seed),
             particles: vec![*init; n],
@@ -352,7 +419,7 @@ impl ParticleFilter {
             frame: None,
             aspect: None,
             size: None,
-        }
+        })
     }
 
     /// The settings.
@@ -617,6 +684,86 @@ mod tests {
         }
     }
 
+    #[test]
+    fn settings_out_of_range_are_refused_by_name() {
+        let d = FilterParams::default();
+        assert!(d.check().is_ok());
+        let at_most = FilterParams {
+            particles: MAX_PARTICLES,
+            ..d
+        };
+        assert!(at_most.check().is_ok());
+        // A σ of 0 holds its component fixed, and above 1 the filter resamples every time.
+        let fixed = FilterParams {
+            proposal: StateSigma {
+                rotation: [0.0; 3],
+                ..d.proposal
+            },
+            resample_below: 2.0,
+            ..d
+        };
+        assert!(fixed.check().is_ok());
+        let sigma = |centre: f64, rz: f64| StateSigma {
+            centre,
+            rotation: [0.05, 0.05, rz],
+            ..d.dynamics
+        };
+        let cases = [
+            (FilterParams { particles: 0, ..d }, "particles 0"),
+            (
+                FilterParams {
+                    particles: MAX_PARTICLES + 1,
+                    ..d
+                },
+                "particles",
+            ),
+            (
+                FilterParams {
+                    proposal: sigma(f64::NAN, 0.05),
+                    ..d
+                },
+                "proposal.centre NaN",
+            ),
+            (
+                FilterParams {
+                    dynamics: sigma(8.0, -0.1),
+                    ..d
+                },
+                "dynamics.rotation[2] -0.1",
+            ),
+            (
+                FilterParams {
+                    resample_below: f64::NAN,
+                    ..d
+                },
+                "resample_below",
+            ),
+            // A NaN bound made every proposal's clamp panic.
+            (
+                FilterParams {
+                    min_axis: f64::NAN,
+                    ..d
+                },
+                "min_axis NaN",
+            ),
+            (FilterParams { min_axis: 0.0, ..d }, "min_axis 0"),
+            (FilterParams { max_axis: 1.0, ..d }, "max_axis 1"),
+            (
+                FilterParams {
+                    max_axis: f64::NAN,
+                    ..d
+                },
+                "max_axis NaN",
+            ),
+        ];
+        for (p, name) in cases {
+            let Some(FilterError::BadParams(why)) = ParticleFilter::new(p, 1, &init()).err() else {
+                panic!("{p:?} was accepted");
+            };
+            assert!(why.contains(name), "{why} does not name {name}");
+        }
+    }
+
     /// A likelihood peaked at `t`: what an ideal measurement gives.
     fn loglik(f: &ParticleFilter, t: &Hypothesis) -> Vec<f32> {
         f.particles()
@@ -642,7 +789,7 @@ mod tests {
             scale: 50.0,
             rotations: vec![(1.0, Matrix3::identity())],
         };
-        let mut f = ParticleFilter::new(FilterParams::default(), 3, &init());
+        let mut f = ParticleFilter::new(FilterParams::default(), 3, &init()).unwrap();
         f.set_frame(100, 80);
         f.propose(&m, 1.0);
         for p in f.particles() {
@@ -652,7 +799,7 @@ mod tests {
             );
             assert!(p.a <= 100.0 && p.b <= 100.0, "{p:?}");
         }
-        let mut free = ParticleFilter::new(FilterParams::default(), 3, &init());
+        let mut free = ParticleFilter::new(FilterParams::default(), 3, &init()).unwrap();
         free.propose(&m, 1.0);
         assert!(free.particles().iter().all(|p| p.cx > 400.0 && p.a > 500.0));
     }
@@ -738,10 +885,10 @@ mod tests {
                 && p.b <= b0 * 1.2 * tol
                 && p.b >= b0 / 1.2 / tol
         };
-        let mut f = ParticleFilter::new(params, 5, &init());
+        let mut f = ParticleFilter::new(params, 5, &init()).unwrap();
         f.set_size_range(Some(size));
         f.set_aspect_range(Some(aspect));
-        let mut free = ParticleFilter::new(params, 5, &init());
+        let mut free = ParticleFilter::new(params, 5, &init()).unwrap();
         for _ in 0..3 {
             f.propose(&still, 1.0);
             free.propose(&still, 1.0);
@@ -769,9 +916,9 @@ mod tests {
         let params = wide_axis_walk();
         let still = Motion::still();
         let range = AspectRange::new(0.75, 4.0 / 3.0).unwrap();
-        let mut f = ParticleFilter::new(params, 5, &init());
+        let mut f = ParticleFilter::new(params, 5, &init()).unwrap();
         f.set_aspect_range(Some(range));
-        let mut free = ParticleFilter::new(params, 5, &init());
+        let mut free = ParticleFilter::new(params, 5, &init()).unwrap();
         for _ in 0..3 {
             f.propose(&still, 1.0);
             free.propose(&still, 1.0);
@@ -798,7 +945,7 @@ mod tests {
 
     #[test]
     fn follows_a_moving_target_with_the_right_motion() {
-        let mut f = ParticleFilter::new(FilterParams::default(), 7, &init());
+        let mut f = ParticleFilter::new(FilterParams::default(), 7, &init()).unwrap();
         let mut t = init();
         let step = rot_x(0.03);
         for _ in 0..30 {
@@ -825,7 +972,7 @@ mod tests {
 
     #[test]
     fn the_likelihood_picks_the_right_member_of_a_necker_pair() {
-        let mut f = ParticleFilter::new(FilterParams::default(), 3, &init());
+        let mut f = ParticleFilter::new(FilterParams::default(), 3, &init()).unwrap();
         let mut t = init();
         let good = rot_x(0.05);
         let mirror = rot_x(-0.05);
@@ -847,7 +994,7 @@ mod tests {
     #[test]
     fn deterministic_for_a_seed() {
         let run = |seed| {
-            let mut f = ParticleFilter::new(FilterParams::default(), seed, &init());
+            let mut f = ParticleFilter::new(FilterParams::default(), seed, &init()).unwrap();
             let t = Hypothesis { cx: 53.0, ..init() };
             for _ in 0..5 {
                 f.propose(&Motion::still(), 1.0);
@@ -864,7 +1011,7 @@ mod tests {
     fn proposal_ratio_vanishes_when_dynamics_equal_proposal_and_no_motion() {
         let mut p = FilterParams::default();
         p.dynamics = p.proposal;
-        let mut f = ParticleFilter::new(p, 5, &init());
+        let mut f = ParticleFilter::new(p, 5, &init()).unwrap();
         f.propose(&Motion::still(), 1.0);
         assert!(f.log_ratio.iter().all(|r| r.abs() < 1e-9));
         // then the weights are the normalised likelihoods
@@ -886,7 +1033,8 @@ mod tests {
             },
             1,
             &init(),
-        );
+        )
+        .unwrap();
         f.particles[1].cx = 60.0;
         f.log_ratio = vec![0.0, 0.0];
         f.params.resample_below = 0.0;
@@ -896,7 +1044,7 @@ mod tests {
 
     #[test]
     fn last_resampling_records_the_draw_it_made() {
-        let mut f = ParticleFilter::new(FilterParams::default(), 9, &init());
+        let mut f = ParticleFilter::new(FilterParams::default(), 9, &init()).unwrap();
         f.propose(&Motion::still(), 1.0);
         let before = f.particles().to_vec();
         let t = Hypothesis { cx: 52.0, ..init() };

@@ -283,7 +283,8 @@ impl Tracker {
             cfg.filter,
             cfg.seed,
             &Hypothesis::from_state(&PoseState::default()),
-        );
+        )
+        .map_err(|e| track_err(TrackError::BadConfig(e.to_string())))?;
         let mut t = Self {
             cfg,
             engine,

@@ -109,8 +109,9 @@ fn median_stages(runs: &[StageTimes]) -> StageTimes {
 
 /// Runs the command.
 pub fn run(args: BenchArgs) -> anyhow::Result<()> {
-    if args.particles.contains(&0) {
-        anyhow::bail!("--particles needs positive counts");
+    let max = pftrack::filter::MAX_PARTICLES;
+    if let Some(n) = args.particles.iter().find(|&&n| n == 0 || n > max) {
+        anyhow::bail!("--particles: {n} is not a count from 1 to {max}");
     }
     if args.step {
         return run_step(&args);

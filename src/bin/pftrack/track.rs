@@ -370,8 +370,9 @@ fn given_init(a: &TrackArgs) -> anyhow::Result<Option<InitFile>> {
 pub fn config(mode: &str, particles: usize, seed: u64) -> anyhow::Result<TrackerConfig> {
     let mode = Mode::from_name(mode)
         .with_context(|| format!("unknown --mode '{mode}' (sea, optimal, tpe, rls)"))?;
-    if particles == 0 {
-        bail!("--particles must be at least 1");
+    let max = pftrack::filter::MAX_PARTICLES;
+    if !(1..=max).contains(&particles) {
+        bail!("--particles must lie in 1..={max}, got {particles}");
     }
     let mut cfg = TrackerConfig {
         mode,
