@@ -422,8 +422,35 @@ fn degenerate_images_do_not_panic() {
     });
     assert!(matches!(
         odd.detect(&g, None),
-        Err(FeatureError::BadParams(_))
+        Err(FeatureError::BadParams(ref why)) if why.contains("sigma -1")
     ));
+    for (bad, name) in [
+        (
+            SiftParams {
+                n_octave_layers: 0,
+                ..SiftParams::default()
+            },
+            "n_octave_layers",
+        ),
+        (
+            SiftParams {
+                region_margin: -1.0,
+                ..SiftParams::default()
+            },
+            "region_margin",
+        ),
+        (
+            SiftParams {
+                max_octaves: Some(0),
+                ..SiftParams::default()
+            },
+            "max_octaves",
+        ),
+    ] {
+        let err = bad.check().unwrap_err().to_string();
+        assert!(err.contains(name), "{err}");
+    }
+    assert!(SiftParams::default().check().is_ok());
 }
 
 /// OpenCV's default doubling samples the input a quarter pixel back and does not undo it, so

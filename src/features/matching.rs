@@ -1,7 +1,7 @@
 //! Descriptor matching (nearest neighbour, Lowe's ratio test, mutual check) and the paper's
 //! slope/length outlier rejection of matched displacements (SPEC section 2).
 
-use super::{DESCRIPTOR_LEN, Features};
+use super::{DESCRIPTOR_LEN, FeatureError, Features};
 
 /// Parameters of [`match_features`].
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -12,6 +12,21 @@ pub struct MatchParams {
     /// Keep a match only when the query is also the train descriptor's nearest neighbour
     /// (cross check). On by default.
     pub mutual: bool,
+}
+
+impl MatchParams {
+    /// Checks the settings: a finite, positive `ratio` (a NaN or one of 0 would silently
+    /// reject every match).
+    pub fn check(&self) -> Result<(), FeatureError> {
+        if self.ratio.is_finite() && self.ratio > 0.0 {
+            Ok(())
+        } else {
+            Err(FeatureError::BadMatching(format!(
+                "ratio {} must be finite and positive (1 or more disables the ratio test)",
+                self.ratio
+            )))
+        }
+    }
 }
 
 impl Default for MatchParams {
@@ -339,6 +354,26 @@ mod tests {
             d[i] = v;
         }
         d
+    }
+
+    #[test]
+    fn the_ratio_must_be_a_positive_number() {
+        assert!(MatchParams::default().check().is_ok());
+        let off = MatchParams {
+            ratio: 1.5,
+            ..MatchParams::default()
+        };
+        assert!(off.check().is_ok());
+        for ratio in [0.0, -0.5, f32::NAN, f32::INFINITY] {
+            let p = MatchParams {
+                ratio,
+                ..MatchParams::default()
+            };
+            assert!(
+                matches!(p.check(), Err(FeatureError::BadMatching(_))),
+                "{ratio}"
+            );
+        }
     }
 
     #[test]

@@ -73,7 +73,10 @@ pub enum FeatureError {
     /// A detection region that is not finite or has a negative size.
     #[error("bad region {0} (want finite x,y,w,h with w, h >= 0)")]
     BadRegion(String),
-    /// Parameters out of range.
+    /// SIFT parameters out of range ([`SiftParams::check`]).
     #[error("bad SIFT parameters: {0}")]
     BadParams(String),
+    /// Matching parameters out of range ([`MatchParams::check`]).
+    #[error("bad matching parameters: {0}")]
+    BadMatching(String),
 }

@@ -118,6 +118,39 @@ pub struct SiftParams {
     pub region_margin: f32,
 }
 
+impl SiftParams {
+    /// Checks the settings, as [`Sift::detect`] does, naming the first one out of range:
+    /// 1 to 16 layers per octave, a positive finite `sigma` and `edge_threshold`, a finite
+    /// `contrast_threshold`, `input_sigma` and `region_margin` of at least 0, and at least one
+    /// octave when `max_octaves` caps them.
+    pub fn check(&self) -> Result<(), FeatureError> {
+        let bad = |what: String| Err(FeatureError::BadParams(what));
+        if !(1..=16).contains(&self.n_octave_layers) {
+            return bad(format!(
+                "n_octave_layers {} must lie in 1..=16",
+                self.n_octave_layers
+            ));
+        }
+        for (name, v, zero_ok) in [
+            ("sigma", self.sigma, false),
+            ("edge_threshold", self.edge_threshold, false),
+            ("contrast_threshold", self.contrast_threshold, true),
+            ("input_sigma", self.input_sigma, true),
+            ("region_margin", self.region_margin, true),
+        ] {
+            let ok = v.is_finite() && (v > 0.0 || (zero_ok && v == 0.0));
+            if !ok {
+                let want = if zero_ok { "at least 0" } else { "positive" };
+                return bad(format!("{name} {v} must be finite and {want}"));
+            }
+        }
+        if self.max_octaves == Some(0) {
+            return bad("max_octaves Some(0) leaves no octave (None: as many as fit)".into());
+        }
+        Ok(())
+    }
+}
+
 impl Default for SiftParams {
     fn default() -> Self {
         Self {
@@ -368,23 +401,7 @@ impl Sift {
     }
 
     fn check_params(&self) -> Result<(), FeatureError> {
-        let p = &self.params;
-        let ok = p.n_octave_layers >= 1
-            && p.n_octave_layers <= 16
-            && p.sigma.is_finite()
-            && p.sigma > 0.0
-            && p.contrast_threshold.is_finite()
-            && p.contrast_threshold >= 0.0
-            && p.edge_threshold.is_finite()
-            && p.edge_threshold > 0.0
-            && p.input_sigma.is_finite()
-            && p.input_sigma >= 0.0
-            && p.region_margin.is_finite();
-        if ok {
-            Ok(())
-        } else {
-            Err(FeatureError::BadParams(format!("{p:?}")))
-        }
+        self.params.check()
     }
 
     /// Runs SIFT on a `w x h` window whose top-left pixel is `origin` in the full image,

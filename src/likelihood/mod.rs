@@ -249,6 +249,59 @@ pub struct LikelihoodParams {
     pub contrast_scale: f32,
 }
 
+impl LikelihoodParams {
+    /// Checks the settings of the enabled terms, as every evaluation does: known term flags
+    /// and colour binning, a finite `contrast_scale` (contrast), a positive finite
+    /// `sigma_colour` (colour), positive finite `sigma_z`, `p_no_contour` and
+    /// `clutter_density` whose clutter gain does not overflow, a finite `edge_threshold`,
+    /// `line_half_length` in `[0, 4096]` and at most 4096 lines (gradient), and a positive
+    /// finite `feature_eps` with a finite `depth_ratio` of at least 0 (feature).
+    pub fn check(&self) -> Result<(), LikelihoodError> {
+        let bad = |what: &str| Err(LikelihoodError::Invalid(what.to_string()));
+        let pos = |v: f32| v.is_finite() && v > 0.0;
+        if self.terms & !TERM_ALL != 0 {
+            return bad("unknown bits in the likelihood terms flags");
+        }
+        if self.terms & TERM_CONTRAST != 0 && !self.contrast_scale.is_finite() {
+            return bad("contrast_scale is not finite");
+        }
+        if self.terms & TERM_COLOUR != 0 && !pos(self.sigma_colour) {
+            return bad("sigma_colour must be positive and finite");
+        }
+        if self.colour_bins > COLOUR_LUMA {
+            return bad("colour_bins must be COLOUR_RGB (0) or COLOUR_LUMA (1)");
+        }
+        if self.terms & TERM_GRADIENT != 0 {
+            if !(pos(self.sigma_z) && pos(self.p_no_contour) && pos(self.clutter_density)) {
+                return bad(
+                    "sigma_z, p_no_contour and clutter_density must be positive and finite",
+                );
+            }
+            if !cpu::gradient::clutter_gain(self).is_finite() {
+                return bad("1 / (sqrt(2 pi) sigma_z p0 gamma) overflows");
+            }
+            if !self.edge_threshold.is_finite() {
+                return bad("edge_threshold is not finite");
+            }
+            if !(self.line_half_length >= 0.0 && self.line_half_length <= 4096.0) {
+                return bad("line_half_length must be in [0, 4096]");
+            }
+            if self.num_lines > 4096 {
+                return bad("num_lines must be at most 4096");
+            }
+        }
+        if self.terms & TERM_FEATURE != 0 {
+            if !pos(self.feature_eps) {
+                return bad("feature_eps must be positive and finite");
+            }
+            if !(self.depth_ratio.is_finite() && self.depth_ratio >= 0.0) {
+                return bad("depth_ratio must be finite and non-negative");
+            }
+        }
+        Ok(())
+    }
+}
+
 /// [`LikelihoodParams::colour_bins`]: bin `(r >> 5) * 64 + (g >> 5) * 8 + (b >> 5)` of 512.
 pub const COLOUR_RGB: u32 = 0;
 /// [`LikelihoodParams::colour_bins`]: bin `luma >> 2` (64 of the 512 bins used), luma the

@@ -40,14 +40,70 @@ impl Init {
 }
 
 impl TrackerConfig {
-    /// Checks the settings the tracker itself uses, as [`super::Tracker::new`] does before
-    /// anything else, with a [`TrackError::BadConfig`] that names the setting and what `None`
-    /// would do instead (the filter, SIFT and the likelihood check
-    /// theirs): the feature weight, the keyframe fits' motion prior by the rule of the fit
-    /// itself ([`crate::pose::prior::MotionPrior::check`]), and each optional part's own
-    /// `check` (anchor refit, colour update, contrast, inter-frame consensus, template) and
-    /// widening factors (size hold, aspect slack).
+    /// Checks every setting, as [`super::Tracker::new`] does before anything else, with a
+    /// [`TrackError::BadConfig`] that names the setting (and, for an optional part, what
+    /// `None` would do instead): the filter's ([`crate::filter::FilterParams::check`]), the
+    /// likelihood's with the colour term included, which re-acquisition always uses
+    /// ([`crate::likelihood::LikelihoodParams::check`]), SIFT's, matching's and block
+    /// matching's own checks; the lost and re-acquisition thresholds; the keyframe fits'
+    /// bounds, their motion prior by the rule of the fit itself
+    /// ([`crate::pose::prior::MotionPrior::check`]) and the camera; and each optional part's
+    /// own `check` (anchor refit, bundle adjustment, colour update, contrast, inter-frame
+    /// consensus, re-anchoring, template) and widening factors (size hold, aspect slack).
     pub fn check(&self) -> Result<(), TrackError> {
+        let bad = |e: String| TrackError::BadConfig(e);
+        self.filter.check().map_err(|e| bad(e.to_string()))?;
+        // Re-acquisition weighs its candidates by colour whatever the terms, and the tracker
+        // sets the contrast term's scale itself every frame.
+        let likelihood = crate::likelihood::LikelihoodParams {
+            terms: self.likelihood.terms | crate::likelihood::TERM_COLOUR,
+            contrast_scale: 0.0,
+            ..self.likelihood
+        };
+        likelihood.check().map_err(|e| bad(e.to_string()))?;
+        self.sift.check().map_err(|e| bad(e.to_string()))?;
+        self.matching.check().map_err(|e| bad(e.to_string()))?;
+        self.abm.check().map_err(|e| bad(e.to_string()))?;
+        if self.lost_after == 0 {
+            return Err(bad(
+                "lost_after 0: at least 1 low frame must come before the target is declared lost"
+                    .into(),
+            ));
+        }
+        if !(0.0..=1.0).contains(&self.reacquire_rho) {
+            return Err(bad(format!(
+                "reacquire_rho {} is not a colour similarity in [0, 1]",
+                self.reacquire_rho
+            )));
+        }
+        for (name, v) in [
+            ("max_rotation_step", self.max_rotation_step),
+            ("max_fit_residual", self.max_fit_residual),
+        ] {
+            if !(v.is_finite() && v > 0.0) {
+                return Err(bad(format!("{name} {v} must be finite and positive")));
+            }
+        }
+        if self.min_fit_inliers < 3 {
+            return Err(bad(format!(
+                "min_fit_inliers {}: a fit of 6 parameters needs at least 3 matches",
+                self.min_fit_inliers
+            )));
+        }
+        if self.keyframe_refresh_percent > 100 {
+            return Err(bad(format!(
+                "keyframe_refresh_percent {} is a share of at most 100",
+                self.keyframe_refresh_percent
+            )));
+        }
+        if let Some(h) = self.camera_hfov_deg
+            && !(h > 0.0 && h < 180.0)
+        {
+            return Err(bad(format!(
+                "camera_hfov_deg {h} must lie strictly between 0 and 180 degrees; set it to \
+                 None for weak perspective"
+            )));
+        }
         if !(self.feature_weight.is_finite() && self.feature_weight >= 0.0) {
             return Err(TrackError::BadConfig(format!(
                 "feature_weight {} must be finite and at least 0 (0 leaves the rotation to the \
@@ -224,6 +280,63 @@ mod tests {
             );
         }
         assert!(TrackerConfig::default().check().is_ok());
+    }
+
+    #[test]
+    fn every_part_of_the_settings_is_checked_by_name() {
+        let d = TrackerConfig::default;
+        let mut cases: Vec<(TrackerConfig, &str)> = Vec::new();
+        let mut c = d();
+        c.filter.particles = 0;
+        cases.push((c, "particles 0"));
+        let mut c = d();
+        c.filter.min_axis = f64::NAN;
+        cases.push((c, "min_axis NaN"));
+        // Re-acquisition weighs by colour even when the filter's weights do not.
+        let mut c = d();
+        c.likelihood.terms = crate::likelihood::TERM_GRADIENT;
+        c.likelihood.sigma_colour = f32::NAN;
+        cases.push((c, "sigma_colour"));
+        let mut c = d();
+        c.sift.sigma = -1.0;
+        cases.push((c, "sigma -1"));
+        let mut c = d();
+        c.matching.ratio = f32::NAN;
+        cases.push((c, "ratio NaN"));
+        let mut c = d();
+        c.abm.min_block = 0;
+        cases.push((c, "min_block"));
+        let mut c = d();
+        c.lost_after = 0;
+        cases.push((c, "lost_after 0"));
+        let mut c = d();
+        c.reacquire_rho = 1.5;
+        cases.push((c, "reacquire_rho 1.5"));
+        let mut c = d();
+        c.max_rotation_step = f64::INFINITY;
+        cases.push((c, "max_rotation_step inf"));
+        let mut c = d();
+        c.max_fit_residual = 0.0;
+        cases.push((c, "max_fit_residual 0"));
+        let mut c = d();
+        c.min_fit_inliers = 2;
+        cases.push((c, "min_fit_inliers 2"));
+        let mut c = d();
+        c.keyframe_refresh_percent = 101;
+        cases.push((c, "keyframe_refresh_percent 101"));
+        let mut c = d();
+        c.camera_hfov_deg = Some(180.0);
+        cases.push((c, "camera_hfov_deg 180"));
+        for (cfg, name) in cases {
+            let Err(TrackError::BadConfig(why)) = cfg.check() else {
+                panic!("{name}: accepted");
+            };
+            assert!(why.contains(name), "{why} does not name {name}");
+        }
+        // The contrast term's scale is the tracker's to set each frame, not a setting.
+        let mut c = d();
+        c.likelihood.contrast_scale = f32::NAN;
+        assert!(c.check().is_ok());
     }
 
     #[test]

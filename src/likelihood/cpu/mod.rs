@@ -22,8 +22,8 @@ use rayon::prelude::*;
 
 use super::{
     COLOUR_LUMA, ColourHistogram, ContrastTable, FrameInput, HIST_BINS, LikelihoodEngine,
-    LikelihoodError, LikelihoodParams, Particle, TERM_ALL, TERM_COLOUR, TERM_CONTRAST,
-    TERM_FEATURE, TERM_GRADIENT, TermLogs,
+    LikelihoodError, LikelihoodParams, Particle, TERM_COLOUR, TERM_CONTRAST, TERM_FEATURE,
+    TERM_GRADIENT, TermLogs,
 };
 use crate::geometry::Ellipse;
 
@@ -296,49 +296,15 @@ impl CpuEngine {
     }
 }
 
-/// Checks what a frame's evaluation depends on besides the particles.
+/// Checks what a frame's evaluation depends on besides the particles: the settings
+/// ([`LikelihoodParams::check`]) and the frame's own inputs.
 pub fn validate(frame: &FrameInput<'_>, params: &LikelihoodParams) -> Result<(), LikelihoodError> {
     let bad = |what: &str| Err(LikelihoodError::Invalid(what.to_string()));
-    let pos = |v: f32| v.is_finite() && v > 0.0;
-    if params.terms & !TERM_ALL != 0 {
-        return bad("unknown bits in the likelihood terms flags");
-    }
-    if params.terms & TERM_CONTRAST != 0 && !params.contrast_scale.is_finite() {
-        return bad("contrast_scale is not finite");
-    }
+    params.check()?;
     if !frame.theta0.is_finite() {
         return bad("theta0 is not finite");
     }
-    if params.terms & TERM_COLOUR != 0 && !pos(params.sigma_colour) {
-        return bad("sigma_colour must be positive and finite");
-    }
-    if params.colour_bins > COLOUR_LUMA {
-        return bad("colour_bins must be COLOUR_RGB (0) or COLOUR_LUMA (1)");
-    }
-    if params.terms & TERM_GRADIENT != 0 {
-        if !(pos(params.sigma_z) && pos(params.p_no_contour) && pos(params.clutter_density)) {
-            return bad("sigma_z, p_no_contour and clutter_density must be positive and finite");
-        }
-        if !gradient::clutter_gain(params).is_finite() {
-            return bad("1 / (sqrt(2 pi) sigma_z p0 gamma) overflows");
-        }
-        if !params.edge_threshold.is_finite() {
-            return bad("edge_threshold is not finite");
-        }
-        if !(params.line_half_length >= 0.0 && params.line_half_length <= 4096.0) {
-            return bad("line_half_length must be in [0, 4096]");
-        }
-        if params.num_lines > 4096 {
-            return bad("num_lines must be at most 4096");
-        }
-    }
     if params.terms & TERM_FEATURE != 0 && !frame.features.is_empty() {
-        if !pos(params.feature_eps) {
-            return bad("feature_eps must be positive and finite");
-        }
-        if !(params.depth_ratio.is_finite() && params.depth_ratio >= 0.0) {
-            return bad("depth_ratio must be finite and non-negative");
-        }
         if is_degenerate(&frame.prev) {
             return bad("the previous estimate is degenerate");
         }
