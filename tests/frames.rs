@@ -352,6 +352,78 @@ fn y4m_round_trip_420_and_444() {
     std::fs::remove_dir_all(&d).unwrap();
 }
 
+/// Textured frames, the pattern moving a pixel right each frame.
+fn moving_noise(w: u32, h: u32, n: usize) -> Vec<Vec<u8>> {
+    (0..n)
+        .map(|k| {
+            let f = move |x: f64, y: f64| {
+                let v = (((x - k as f64) * 12.9898 + y * 78.233).sin() * 43758.5453)
+                    .fract()
+                    .abs();
+                [255.0 * v, 200.0 * v, 120.0 + 100.0 * v]
+            };
+            planes(w, h, "444", &f)
+        })
+        .collect()
+}
+
+#[test]
+fn a_y4m_stream_reads_as_its_file_does() {
+    let d = scratch("y4mstream");
+    let p = d.join("clip.y4m");
+    write_y4m(&p, 64, 48, "444", &moving_noise(64, 48, 4));
+    let opts = SourceOptions::default();
+    let from_file = collect(frames::open(&p, &opts).unwrap()).unwrap();
+    let bytes = std::fs::read(&p).unwrap();
+    let stream =
+        FrameSource::from_y4m_reader(Box::new(std::io::Cursor::new(bytes.clone())), "pipe", &opts)
+            .unwrap();
+    assert_eq!(stream.size(), (64, 48));
+    assert_eq!(stream.len_hint(), None);
+    assert!(stream.describe().contains("pipe"), "{}", stream.describe());
+    assert_eq!(collect(stream).unwrap(), from_file);
+    // Cut inside the last frame: the stream says so, as the file would.
+    let cut = bytes[..bytes.len() - 10].to_vec();
+    let stream =
+        FrameSource::from_y4m_reader(Box::new(std::io::Cursor::new(cut)), "pipe", &opts).unwrap();
+    let e = collect(stream).unwrap_err();
+    assert!(e.to_string().contains("pipe"), "{e}");
+
+    // `pftrack track -` reads standard input: the same poses as from the file.
+    let track = |input: &str, out: &Path, stdin: std::process::Stdio| {
+        let run = std::process::Command::new(env!("CARGO_BIN_EXE_pftrack"))
+            .args([
+                "track",
+                input,
+                "--init-ellipse",
+                "32,24,12,10",
+                "--backend",
+                "cpu",
+            ])
+            .arg("--out")
+            .arg(out)
+            .stdin(stdin)
+            .output()
+            .unwrap();
+        assert!(
+            run.status.success(),
+            "{}",
+            String::from_utf8_lossy(&run.stderr)
+        );
+        std::fs::read_to_string(out).unwrap()
+    };
+    let file_poses = track(
+        p.to_str().unwrap(),
+        &d.join("file.csv"),
+        std::process::Stdio::null(),
+    );
+    let piped = std::fs::File::open(&p).unwrap();
+    let stdin_poses = track("-", &d.join("stdin.csv"), piped.into());
+    assert_eq!(stdin_poses.lines().count(), 5);
+    assert_eq!(stdin_poses, file_poses);
+    std::fs::remove_dir_all(&d).unwrap();
+}
+
 #[test]
 fn y4m_errors() {
     let d = scratch("y4merr");

@@ -26,7 +26,7 @@ pub mod resize;
 pub mod y4m;
 
 use std::fs::File;
-use std::io::BufReader;
+use std::io::{BufRead, BufReader};
 use std::path::Path;
 
 pub use ffmpeg::FfmpegTools;
@@ -175,11 +175,25 @@ pub fn parse_size(s: &str) -> Result<(u32, u32), FrameError> {
 }
 
 /// The kind of source behind a [`FrameSource`].
-#[derive(Debug)]
 enum Inner {
     Dir(dir::DirSource),
-    Y4m(Box<Y4mReader<BufReader<File>>>, Option<usize>),
+    Y4m(Box<Y4mReader<Box<dyn BufRead + Send>>>, Option<usize>),
     Ffmpeg(Box<ffmpeg::FfmpegSource>),
+}
+
+impl std::fmt::Debug for Inner {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Inner::Dir(d) => f.debug_tuple("Dir").field(d).finish(),
+            Inner::Y4m(r, hint) => f
+                .debug_struct("Y4m")
+                .field("header", r.header())
+                .field("frames_read", &r.frames_read())
+                .field("len_hint", hint)
+                .finish(),
+            Inner::Ffmpeg(x) => f.debug_tuple("Ffmpeg").field(x).finish(),
+        }
+    }
 }
 
 /// A stream of frames (see the module docs). Iterate it for `Result<Frame, FrameError>`.
@@ -193,10 +207,19 @@ pub struct FrameSource {
     done: bool,
 }
 
+/// The path [`open`] reads as standard input, a y4m stream (`ffmpeg ... -f yuv4mpegpipe - |
+/// pftrack track - ...`).
+pub const STDIN: &str = "-";
+
 /// Opens a frame source: a directory → image sequence; a `.y4m` file (extension
-/// case-insensitive) → the y4m parser; anything else → ffmpeg.
+/// case-insensitive) → the y4m parser; [`STDIN`] (`-`) → the y4m parser on standard input;
+/// anything else → ffmpeg.
 pub fn open(path: &Path, opts: &SourceOptions) -> Result<FrameSource, FrameError> {
-    if path.is_dir() {
+    if path == Path::new(STDIN) {
+        let stdin: Box<dyn BufRead + Send> =
+            Box::new(BufReader::with_capacity(1 << 16, std::io::stdin()));
+        FrameSource::from_y4m_reader(stdin, "standard input", opts)
+    } else if path.is_dir() {
         FrameSource::from_dir(path, opts)
     } else if path
         .extension()
@@ -241,17 +264,36 @@ impl FrameSource {
             }
         })?;
         let file_len = file.metadata().map(|m| m.len()).ok();
-        let r = Y4mReader::new(
-            BufReader::with_capacity(1 << 16, file),
-            &path.display().to_string(),
-        )?;
+        let reader: Box<dyn BufRead + Send> = Box::new(BufReader::with_capacity(1 << 16, file));
+        let mut src = Self::from_y4m_reader(reader, &path.display().to_string(), opts)?;
+        if let Inner::Y4m(r, hint) = &mut src.inner {
+            // A hint: assumes bare `FRAME\n` headers.
+            let h = r.header();
+            *hint = file_len.map(|n| {
+                (n as usize).saturating_sub(r.header_len()) / (h.frame_bytes() + "FRAME\n".len())
+            });
+        }
+        Ok(src)
+    }
+
+    /// A y4m stream from any reader (a pipe, a socket, standard input), read as it comes;
+    /// `name` labels the source in errors and in [`FrameSource::describe`]. Its length is
+    /// not known in advance.
+    pub fn from_y4m_reader(
+        reader: Box<dyn BufRead + Send>,
+        name: &str,
+        opts: &SourceOptions,
+    ) -> Result<Self, FrameError> {
+        check_resize(opts)?;
+        let r = Y4mReader::new(reader, name)?;
         let h = r.header();
         let size = (h.width, h.height);
-        // A hint: assumes bare `FRAME\n` headers.
-        let hint = file_len.map(|n| {
-            (n as usize).saturating_sub(r.header_len()) / (h.frame_bytes() + "FRAME\n".len())
-        });
-        Ok(Self::new(Inner::Y4m(Box::new(r), hint), path, size, opts))
+        Ok(Self::new(
+            Inner::Y4m(Box::new(r), None),
+            Path::new(name),
+            size,
+            opts,
+        ))
     }
 
     /// Any video ffmpeg reads, with the given programs (see [`ffmpeg`]).

@@ -16,8 +16,9 @@ use pftrack::tracker::{ColourUpdate, Estimate, Init, Mode, Tracker, TrackerConfi
 #[derive(Debug, Args)]
 #[command(allow_negative_numbers = true)]
 pub struct TrackArgs {
-    /// A directory of frames, a .y4m file, or any video ffmpeg reads. A directory written by
-    /// `pftrack synth` (with frames/ and init.txt) is accepted as is.
+    /// A directory of frames, a .y4m file, `-` for a y4m stream on standard input, or any
+    /// video ffmpeg reads. A directory written by `pftrack synth` (with frames/ and init.txt)
+    /// is accepted as is.
     pub input: PathBuf,
     /// Initial ellipse `cx,cy,a,b[,angle_deg]` in pixels.
     #[arg(
