@@ -115,6 +115,42 @@ fn deterministic_for_a_seed() {
 }
 
 #[test]
+fn a_reinitialised_tracker_tracks_as_a_new_one_would() {
+    // A tracker that has followed the head for a while and is then started over on frame 8
+    // gives the track a tracker built on frame 8 gives, frame for frame (only the frame
+    // numbers go on counting).
+    let r = Renderer::new(&SynthConfig::new(Scenario::Combo)).unwrap();
+    let cfg = TrackerConfig {
+        seed: 3,
+        ..TrackerConfig::default()
+    };
+    let (first, _) = r.render(0);
+    let mut reused = Tracker::new(cfg.clone(), &first, Init::frontal(r.init_ellipse())).unwrap();
+    for k in 1..8 {
+        reused.step(&r.render(k).0).unwrap();
+    }
+    let (restart, truth) = r.render(8);
+    let init = Init {
+        ellipse: truth.ellipse(r.init_ellipse().theta),
+        pose: truth.euler(),
+    };
+    reused.reinit(&restart, init).unwrap();
+    let mut fresh = Tracker::new(cfg, &restart, init).unwrap();
+    let same = |a: &pftrack::tracker::Estimate, b: &pftrack::tracker::Estimate| {
+        (a.state, a.confidence, a.lost, a.matches, a.ess)
+            == (b.state, b.confidence, b.lost, b.matches, b.ess)
+    };
+    assert!(same(&reused.initial_estimate(), &fresh.initial_estimate()));
+    for k in 9..40 {
+        let img = r.render(k).0;
+        let (a, b) = (reused.step(&img).unwrap(), fresh.step(&img).unwrap());
+        assert_eq!(a.frame, k);
+        assert_eq!(b.frame, k - 8);
+        assert!(same(&a, &b), "frame {k}: {a:?} against {b:?}");
+    }
+}
+
+#[test]
 fn the_block_matching_settings_given_are_the_ones_used() {
     // Blocks flatter than a full luma range everywhere: block matching finds nothing, and
     // the features' median motion moves the region instead. Until 2026-12-05 the tracker

@@ -437,6 +437,11 @@ impl ParticleFilter {
         &self.weights
     }
 
+    /// Restarts the filter's random draws from `seed`, as [`ParticleFilter::new`] seeds them.
+    pub fn reseed(&mut self, seed: u64) {
+        self.rng = StdRng::seed_from_u64(seed);
+    }
+
     /// Restarts the filter around a hypothesis: N copies, equal weights.
     pub fn reset(&mut self, h: &Hypothesis) {
         let n = self.particles.len();

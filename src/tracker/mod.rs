@@ -323,15 +323,25 @@ impl Tracker {
                 ess: 0.0,
             },
         };
-        t.reinit(first_frame, init)?;
+        t.start(first_frame, init, 0)?;
         Ok(t)
     }
 
-    /// Starts over on `frame` from `init`: a new colour model, new reference features, the
-    /// filter reset. The frame becomes frame 0 of what follows only for the model: frame
-    /// numbering continues. With [`TrackerConfig::init_refine`] the ellipse is refined on
-    /// `frame` first ([`refine_ellipse`]); [`Tracker::initial_estimate`] gives the one used.
+    /// Starts over on `frame`, the next frame of the stream, from `init`: a new colour model,
+    /// new reference features and keyframes, the filter reset and its random draws seeded
+    /// again from [`TrackerConfig::seed`]. What follows is the track a tracker built on
+    /// `frame` with [`Tracker::new`] gives (tested), but for the frame numbers, which go on
+    /// counting: `frame` is numbered one after the last frame stepped. With
+    /// [`TrackerConfig::init_refine`] the ellipse is refined on `frame` first
+    /// ([`refine_ellipse`]); [`Tracker::initial_estimate`] gives the one used. On an error
+    /// the frame is not counted.
     pub fn reinit(&mut self, frame: &image::RgbImage, init: Init) -> crate::Result<()> {
+        self.start(frame, init, self.frame + 1)
+    }
+
+    /// The common start of [`Tracker::new`] and [`Tracker::reinit`] on `frame`, numbered
+    /// `index`.
+    fn start(&mut self, frame: &image::RgbImage, init: Init, index: usize) -> crate::Result<()> {
         let (w, h) = frame.dimensions();
         init.check(w, h).map_err(track_err)?;
         let init = match &self.cfg.init_refine {
@@ -362,6 +372,7 @@ impl Tracker {
             self.cfg.aspect_slack,
         ));
         self.filter.reset(&hyp);
+        self.filter.reseed(self.cfg.seed);
         self.prev = hyp;
         self.prev_euler = init.pose;
         self.spin = Vector3::zeros();
@@ -392,14 +403,16 @@ impl Tracker {
             .detect(&self.prev_gray, Some(region))?;
         self.reference = init.ellipse;
         let model = self.model(&hyp.rot, &init.ellipse);
+        self.keyframes.tick(index);
         self.keyframes
             .reset(&self.prev_features, &init.ellipse, hyp, model);
         self.low_count = 0;
         self.lost = false;
         self.held_axes = (hyp.a, hyp.b);
         self.prev_confidence = 1.0;
+        self.frame = index;
         self.first = Estimate {
-            frame: self.frame,
+            frame: index,
             state,
             ellipse: state.ellipse(self.theta0),
             confidence: 1.0,
