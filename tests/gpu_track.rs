@@ -39,12 +39,12 @@ use pftrack::filter::Resampling;
 use pftrack::filter::resample::{max_cumulative_difference, systematic_margin};
 use pftrack::likelihood::cpu::CpuEngine;
 use pftrack::likelihood::gpu::GpuEngine;
-use pftrack::likelihood::{FallbackEngine, LikelihoodEngine};
+use pftrack::likelihood::{FallbackEngine, LikelihoodEngine, LikelihoodError};
 use pftrack::synth::{Renderer, Scenario, SynthConfig};
 use pftrack::tracker::{Estimate, Init, Tracker, TrackerConfig};
 
 mod common;
-use common::{engine, engine_alone};
+use common::{engine, engine_alone, skip};
 
 /// Frames tracked per scenario: short, so CI stays cheap (one 160x120 frame takes a few ms of
 /// likelihood and ~20 ms of SIFT and matching).
@@ -431,6 +431,42 @@ fn a_tracker_whose_gpu_device_is_lost_goes_on_on_the_cpu_with_one_notice() {
         assert!(!est.lost);
         assert!((est.state.cx - truth.cx).hypot(est.state.cy - truth.cy) < 5.0);
     }
+}
+
+#[test]
+fn more_particles_than_the_gpu_buffers_hold_are_refused_when_the_tracker_is_built() {
+    let Some(gpu) = engine() else { return };
+    let (r, frames) = scenario_frames(Scenario::Nod, 1);
+    let params = TrackerConfig::default().likelihood;
+    let (w, h) = frames[0].dimensions();
+    assert!(gpu.engine.check_capacity(200, w, h, &params).is_ok());
+    // Beyond what one dispatch can index, on any adapter.
+    let n = 5_000_000_000;
+    let Some(err) = gpu.engine.check_capacity(n, w, h, &params).err() else {
+        panic!("{n} particles accepted");
+    };
+    assert!(
+        matches!(err, LikelihoodError::TooManyParticles { .. }),
+        "{err}"
+    );
+    // The most the filter takes, 32 bytes each (320 MB), is beyond lavapipe's 128 MiB binding: the tracker
+    // refuses it before its filter allocates anything, with the error the first frame gave.
+    let n = pftrack::filter::MAX_PARTICLES;
+    if gpu.engine.check_capacity(n, w, h, &params).is_ok() {
+        skip(&format!("{} holds {n} particles", gpu.engine.name()));
+        return;
+    }
+    let mut cfg = TrackerConfig::default();
+    cfg.filter.particles = n;
+    let Err(err) = Tracker::with_engine(
+        cfg,
+        Box::new(FallbackEngine::new(Box::new(gpu.engine))),
+        &frames[0],
+        Init::frontal(r.init_ellipse()),
+    ) else {
+        panic!("{n} particles accepted by the tracker");
+    };
+    assert!(err.to_string().contains("particles need"), "{err}");
 }
 
 /// With the Vulkan loader pointed at no driver, `--backend gpu` fails with the fix named and

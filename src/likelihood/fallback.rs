@@ -117,6 +117,16 @@ impl LikelihoodEngine for FallbackEngine {
     fn take_notice(&mut self) -> Option<String> {
         self.notice.take()
     }
+
+    fn check_capacity(
+        &self,
+        particles: usize,
+        width: u32,
+        height: u32,
+        params: &LikelihoodParams,
+    ) -> Result<(), LikelihoodError> {
+        self.active.check_capacity(particles, width, height, params)
+    }
 }
 
 #[cfg(test)]

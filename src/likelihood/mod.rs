@@ -569,6 +569,22 @@ pub trait LikelihoodEngine {
     fn take_notice(&mut self) -> Option<String> {
         None
     }
+
+    /// Whether the engine can evaluate `particles` particles on `width x height` frames with
+    /// `params`, checked before anything is allocated: the error its
+    /// [`LikelihoodEngine::evaluate`] would give on the first frame, for an engine whose
+    /// buffers are bounded (the GPU's, [`LikelihoodError::TooManyParticles`] and
+    /// [`LikelihoodError::FrameTooLarge`]). Always `Ok` by default.
+    fn check_capacity(
+        &self,
+        particles: usize,
+        width: u32,
+        height: u32,
+        params: &LikelihoodParams,
+    ) -> Result<(), LikelihoodError> {
+        let _ = (particles, width, height, params);
+        Ok(())
+    }
 }
 
 /// The log-likelihood given to a degenerate particle (non-positive semi-axes or a non-finite

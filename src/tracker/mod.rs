@@ -268,6 +268,9 @@ impl Tracker {
         init: Init,
     ) -> crate::Result<Self> {
         cfg.check().map_err(track_err)?;
+        // The engine's own bounds (the GPU's buffers), before the filter allocates anything.
+        let (w, h) = first_frame.dimensions();
+        engine.check_capacity(cfg.filter.particles, w, h, &cfg.likelihood)?;
         let mut cfg = cfg;
         if cfg.grey_luma && is_grey(first_frame) {
             cfg.likelihood.colour_bins = COLOUR_LUMA;

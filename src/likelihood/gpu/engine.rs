@@ -752,6 +752,19 @@ impl LikelihoodEngine for GpuEngine {
     ) -> Result<(), LikelihoodError> {
         self.run(frame, params, particles, out, None, None)
     }
+
+    fn check_capacity(
+        &self,
+        particles: usize,
+        width: u32,
+        height: u32,
+        params: &LikelihoodParams,
+    ) -> Result<(), LikelihoodError> {
+        self.check_frame_size(width, height)?;
+        let grad_on = params.terms & TERM_GRADIENT != 0 && params.num_lines > 0;
+        let num_lines = if grad_on { params.num_lines } else { 0 };
+        self.check_particles(particles, num_lines, false)
+    }
 }
 
 #[cfg(test)]
