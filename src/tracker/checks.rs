@@ -129,13 +129,11 @@ impl TrackerConfig {
                  where nothing measured it"
             )));
         }
-        if let Some(r) = &self.init_refine {
-            r.check().map_err(|e| {
-                TrackError::BadConfig(format!(
-                    "{e}; set init_refine to None to keep the given ellipse"
-                ))
-            })?;
-        }
+        check_part(
+            "init_refine",
+            self.init_refine.as_ref().map(|p| p.check()),
+            "to keep the given ellipse",
+        )?;
         if let Some(d) = self.sift_upsample_below
             && !(d.is_finite() && d > 0.0)
         {
@@ -144,55 +142,41 @@ impl TrackerConfig {
                  keep the SIFT settings for every target size"
             )));
         }
-        if let Some(b) = &self.bundle {
-            b.check().map_err(|e| {
-                TrackError::BadConfig(format!(
-                    "{e}; set bundle to None to fit every keyframe on its ellipsoid alone"
-                ))
-            })?;
-        }
-        if let Some(r) = &self.anchor_refit {
-            r.check().map_err(|e| {
-                TrackError::BadConfig(format!(
-                    "{e}; set anchor_refit to None to measure against the nearest views alone"
-                ))
-            })?;
-        }
-        if let Some(u) = &self.colour_update {
-            u.check().map_err(|e| {
-                TrackError::BadConfig(format!(
-                    "{e}; set colour_update to None for a fixed colour model"
-                ))
-            })?;
-        }
-        if let Some(c) = &self.contrast {
-            c.check().map_err(|e| {
-                TrackError::BadConfig(format!(
-                    "{e}; set contrast to None for the paper's three terms alone"
-                ))
-            })?;
-        }
-        if let Some(c) = &self.interframe_consensus {
-            c.check().map_err(|e| {
-                TrackError::BadConfig(format!(
-                    "{e}; set interframe_consensus to None to estimate the rotation from any 3 matches"
-                ))
-            })?;
-        }
-        if let Some(r) = &self.reanchor {
-            r.check().map_err(|e| {
-                TrackError::BadConfig(format!(
-                    "{e}; set reanchor to None to leave the estimate to the filter"
-                ))
-            })?;
-        }
-        if let Some(t) = &self.template {
-            t.check().map_err(|e| {
-                TrackError::BadConfig(format!(
-                    "{e}; set template to None to weigh the particles without a template"
-                ))
-            })?;
-        }
+        check_part(
+            "bundle",
+            self.bundle.as_ref().map(|p| p.check()),
+            "to fit every keyframe on its ellipsoid alone",
+        )?;
+        check_part(
+            "anchor_refit",
+            self.anchor_refit.as_ref().map(|p| p.check()),
+            "to measure against the nearest views alone",
+        )?;
+        check_part(
+            "colour_update",
+            self.colour_update.as_ref().map(|p| p.check()),
+            "for a fixed colour model",
+        )?;
+        check_part(
+            "contrast",
+            self.contrast.as_ref().map(|p| p.check()),
+            "for the paper's three terms alone",
+        )?;
+        check_part(
+            "interframe_consensus",
+            self.interframe_consensus.as_ref().map(|p| p.check()),
+            "to estimate the rotation from any 3 matches",
+        )?;
+        check_part(
+            "reanchor",
+            self.reanchor.as_ref().map(|p| p.check()),
+            "to leave the estimate to the filter",
+        )?;
+        check_part(
+            "template",
+            self.template.as_ref().map(|p| p.check()),
+            "to weigh the particles without a template",
+        )?;
         if !(0.0..=1.0).contains(&self.lost_below)
             || !(self.lost_below..=1.0).contains(&self.found_above)
         {
@@ -233,6 +217,21 @@ impl TrackerConfig {
                 pixel_sigma: px,
                 centre_sigma: self.fit_centre_sigma,
             })
+    }
+}
+
+/// An optional part of the configuration, `name`, passes its own `check` (`None` when the
+/// part is off); the error says what setting it to `None` does instead (`instead`).
+fn check_part(
+    name: &str,
+    check: Option<Result<(), String>>,
+    instead: &str,
+) -> Result<(), TrackError> {
+    match check {
+        Some(Err(e)) => Err(TrackError::BadConfig(format!(
+            "{e}; set {name} to None {instead}"
+        ))),
+        _ => Ok(()),
     }
 }
 
