@@ -125,12 +125,16 @@ impl AbmParams {
         } else {
             1.0
         };
+        // Every bound is kept `lo <= hi` whatever the settings, so that settings `check`
+        // refuses scale without a panic too (`check` then names what is wrong).
         let lo = self.min_block.max(self.block_size / 2);
         let hi = self.block_size.saturating_mul(4).clamp(lo, 256.max(lo));
-        let block = ((f64::from(self.block_size) * k / 2.0).round() as u32 * 2).clamp(lo, hi);
+        let half = (f64::from(self.block_size) * k / 2.0).round() as u32;
+        let block = half.saturating_mul(2).clamp(lo, hi);
         let r = self.search_radius;
-        let radius = ((f64::from(r) * k).round() as u32)
-            .clamp((r * 2 / 5).max(1), (r.saturating_mul(24) / 5).clamp(1, 256));
+        let r_hi = (r.saturating_mul(24) / 5).clamp(1, 256);
+        let r_lo = (r.saturating_mul(2) / 5).clamp(1, r_hi);
+        let radius = ((f64::from(r) * k).round() as u32).clamp(r_lo, r_hi);
         Self {
             block_size: block,
             min_block: (block / 4).max(self.min_block).min(block),
@@ -1022,10 +1026,23 @@ mod tests {
             ..d
         };
         for b in [base, widest, d] {
-            for r in [0.5, 1e4, f64::NAN] {
+            for r in [0.5, 1e4, 1e12, f64::NAN] {
                 let p = b.scaled_to(&Ellipse::new(0.0, 0.0, r, r));
                 assert!(p.check().is_ok(), "{b:?} at {r}: {p:?}");
             }
         }
+        // Settings `check` refuses still scale (to settings it refuses) without a panic.
+        let bad = AbmParams {
+            block_size: 1000,
+            min_block: 900,
+            search_radius: 100_000,
+            ..d
+        };
+        assert!(bad.check().is_err());
+        assert!(
+            bad.scaled_to(&Ellipse::new(0.0, 0.0, 1e12, 1e12))
+                .check()
+                .is_err()
+        );
     }
 }
