@@ -265,15 +265,7 @@ impl FrameSource {
         })?;
         let file_len = file.metadata().map(|m| m.len()).ok();
         let reader: Box<dyn BufRead + Send> = Box::new(BufReader::with_capacity(1 << 16, file));
-        let mut src = Self::from_y4m_reader(reader, &path.display().to_string(), opts)?;
-        if let Inner::Y4m(r, hint) = &mut src.inner {
-            // A hint: assumes bare `FRAME\n` headers.
-            let h = r.header();
-            *hint = file_len.map(|n| {
-                (n as usize).saturating_sub(r.header_len()) / (h.frame_bytes() + "FRAME\n".len())
-            });
-        }
-        Ok(src)
+        Self::y4m(reader, &path.display().to_string(), opts, file_len)
     }
 
     /// A y4m stream from any reader (a pipe, a socket, standard input), read as it comes;
@@ -285,11 +277,25 @@ impl FrameSource {
         opts: &SourceOptions,
     ) -> Result<Self, FrameError> {
         check_resize(opts)?;
+        Self::y4m(reader, name, opts, None)
+    }
+
+    /// A y4m stream whose size in bytes, when known (`len`), hints at its frame count.
+    fn y4m(
+        reader: Box<dyn BufRead + Send>,
+        name: &str,
+        opts: &SourceOptions,
+        len: Option<u64>,
+    ) -> Result<Self, FrameError> {
         let r = Y4mReader::new(reader, name)?;
         let h = r.header();
         let size = (h.width, h.height);
+        // A hint: assumes bare `FRAME\n` headers.
+        let hint = len.map(|n| {
+            (n as usize).saturating_sub(r.header_len()) / (h.frame_bytes() + "FRAME\n".len())
+        });
         Ok(Self::new(
-            Inner::Y4m(Box::new(r), None),
+            Inner::Y4m(Box::new(r), hint),
             Path::new(name),
             size,
             opts,
