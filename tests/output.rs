@@ -293,7 +293,7 @@ fn png_round_trip_and_errors() {
     let bad = path.parent().unwrap().join("no/such/dir/f.png");
     assert!(matches!(
         write_png(&bad, &img),
-        Err(pftrack::output::OutputError::Io { .. })
+        Err(pftrack::output::OutputError::File(_))
     ));
     assert!(!bad.exists());
     assert!(write_png(Path::new("/"), &img).is_err());

@@ -1,6 +1,18 @@
-//! Files that appear under their name only once complete: written to `NAME.partial` beside
-//! the target and renamed on [`AtomicFile::commit`]; dropped without a commit, the partial
-//! file is removed. A crash or an error never leaves a truncated file that looks finished.
+//! Files that appear under their name only once complete: written to `.NAME.partial` beside
+//! the target and renamed on [`AtomicFile::commit`]; dropped without a commit, or when the
+//! commit fails, the partial file is removed. A crash or an error never leaves a truncated
+//! file that looks finished, and never a stray partial file beside it.
+//!
+//! What the target already is decides how it is written:
+//! - nothing, or a regular file: written beside it and renamed over it, as above;
+//! - a symbolic link: the file it points to is written (the link stays a link), by the same
+//!   rules;
+//! - a directory: refused before anything is written;
+//! - anything else (a terminal, a pipe, `/dev/stdout`, a device): written to directly, since
+//!   such a target cannot be replaced by a rename and is read as a stream anyway. A write
+//!   error there (`/dev/full`) is reported as for any file.
+//!
+//! Every error names the target, never the partial file.
 
 use std::fs::File;
 use std::io::{BufWriter, Write};
@@ -11,21 +23,63 @@ use super::FormatError;
 /// A buffered file that becomes visible under its final name only on [`AtomicFile::commit`].
 #[derive(Debug)]
 pub struct AtomicFile {
+    /// The name the caller gave (for messages).
     target: PathBuf,
-    partial: PathBuf,
+    /// Where the data goes on commit: `None` when it is written in place (a stream).
+    rename: Option<Rename>,
     writer: Option<BufWriter<File>>,
 }
 
+/// The partial file and the regular file it replaces.
+#[derive(Debug)]
+struct Rename {
+    partial: PathBuf,
+    to: PathBuf,
+}
+
 impl AtomicFile {
-    /// Creates `path.partial` for writing.
+    /// Opens `path` for writing as the module says: a partial file beside it (or beside the
+    /// file it links to), or the target itself when it is a stream or device.
     pub fn create(path: &Path) -> Result<Self, FormatError> {
-        let mut name = path.file_name().unwrap_or_default().to_os_string();
-        name.push(".partial");
-        let partial = path.with_file_name(name);
-        let file = File::create(&partial).map_err(|e| FormatError::io(&partial, e))?;
+        let err = |e: std::io::Error| FormatError::io(path, e);
+        if path.file_name().is_none() {
+            return Err(err(std::io::Error::other("not a file name")));
+        }
+        // What the path names, through its links (the kernel's view: a link in /proc to a
+        // pipe names the pipe).
+        match std::fs::metadata(path) {
+            Ok(m) if m.is_dir() => {
+                return Err(err(std::io::Error::new(
+                    std::io::ErrorKind::IsADirectory,
+                    "is a directory",
+                )));
+            }
+            Ok(m) if !m.is_file() => {
+                // A stream or device: no partial file can be renamed over it.
+                let file = std::fs::OpenOptions::new()
+                    .write(true)
+                    .truncate(true)
+                    .open(path)
+                    .map_err(err)?;
+                return Ok(Self {
+                    target: path.to_path_buf(),
+                    rename: None,
+                    writer: Some(BufWriter::new(file)),
+                });
+            }
+            _ => {}
+        }
+        // A regular file or nothing yet: the partial file goes beside the file the links end
+        // at (a dangling link: the file it would name).
+        let resolved = resolve_links(path).map_err(err)?;
+        let partial = partial_path(&resolved);
+        let file = File::create(&partial).map_err(err)?;
         Ok(Self {
             target: path.to_path_buf(),
-            partial,
+            rename: Some(Rename {
+                partial,
+                to: resolved,
+            }),
             writer: Some(BufWriter::new(file)),
         })
     }
@@ -35,17 +89,58 @@ impl AtomicFile {
         &self.target
     }
 
-    /// Flushes, syncs and renames the file to its final name.
+    /// Flushes, syncs and renames the file to its final name (a stream is flushed only). On
+    /// an error the partial file is removed.
     pub fn commit(mut self) -> Result<(), FormatError> {
-        if let Some(w) = self.writer.take() {
-            let file = w
-                .into_inner()
-                .map_err(|e| FormatError::io(&self.partial, e.into_error()))?;
-            file.sync_all()
-                .map_err(|e| FormatError::io(&self.partial, e))?;
+        let err = |e: std::io::Error| FormatError::io(&self.target, e);
+        let result = match self.writer.take() {
+            Some(w) => {
+                w.into_inner()
+                    .map_err(|e| e.into_error())
+                    .and_then(|file| match &self.rename {
+                        Some(r) => file
+                            .sync_all()
+                            .and_then(|()| std::fs::rename(&r.partial, &r.to)),
+                        None => Ok(()),
+                    })
+            }
+            None => Ok(()),
+        };
+        if result.is_err()
+            && let Some(r) = &self.rename
+        {
+            let _ = std::fs::remove_file(&r.partial);
         }
-        std::fs::rename(&self.partial, &self.target).map_err(|e| FormatError::io(&self.target, e))
+        result.map_err(err)
     }
+}
+
+/// `.NAME.partial` beside `path`: hidden, and named after what it will become.
+pub(crate) fn partial_path(path: &Path) -> PathBuf {
+    let mut name = std::ffi::OsString::from(".");
+    name.push(path.file_name().unwrap_or_default());
+    name.push(".partial");
+    path.with_file_name(name)
+}
+
+/// `path` with its symbolic links followed, however many (`path` itself when it is none);
+/// a link to nothing gives the path it names. A loop of links is an error.
+fn resolve_links(path: &Path) -> std::io::Result<PathBuf> {
+    let mut p = path.to_path_buf();
+    // The kernel's own bound on a chain of links.
+    for _ in 0..40 {
+        match std::fs::symlink_metadata(&p) {
+            Ok(m) if m.file_type().is_symlink() => {
+                let to = std::fs::read_link(&p)?;
+                p = match p.parent() {
+                    Some(dir) if to.is_relative() => dir.join(to),
+                    _ => to,
+                };
+            }
+            _ => return Ok(p),
+        }
+    }
+    Err(std::io::Error::other("too many levels of symbolic links"))
 }
 
 impl Write for AtomicFile {
@@ -66,8 +161,10 @@ impl Write for AtomicFile {
 
 impl Drop for AtomicFile {
     fn drop(&mut self) {
-        if self.writer.take().is_some() {
-            let _ = std::fs::remove_file(&self.partial);
+        if self.writer.take().is_some()
+            && let Some(r) = &self.rename
+        {
+            let _ = std::fs::remove_file(&r.partial);
         }
     }
 }
@@ -76,22 +173,132 @@ impl Drop for AtomicFile {
 mod tests {
     use super::*;
 
+    fn dir(name: &str) -> PathBuf {
+        let d = std::env::temp_dir().join(format!("pftrack-atomic-{name}-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&d);
+        std::fs::create_dir_all(&d).unwrap();
+        d
+    }
+
+    fn entries(d: &Path) -> Vec<String> {
+        let mut v: Vec<String> = std::fs::read_dir(d)
+            .unwrap()
+            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+            .collect();
+        v.sort();
+        v
+    }
+
     #[test]
     fn appears_only_on_commit() {
-        let dir = std::env::temp_dir().join(format!("pftrack-atomic-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
-        let p = dir.join("out.csv");
+        let d = dir("commit");
+        let p = d.join("out.csv");
         {
             let mut f = AtomicFile::create(&p).unwrap();
             writeln!(f, "half").unwrap();
+            assert_eq!(entries(&d), [".out.csv.partial"]);
             // dropped without commit
         }
-        assert!(!p.exists());
-        assert!(!dir.join("out.csv.partial").exists());
+        assert!(entries(&d).is_empty());
         let mut f = AtomicFile::create(&p).unwrap();
         writeln!(f, "whole").unwrap();
         f.commit().unwrap();
         assert_eq!(std::fs::read_to_string(&p).unwrap(), "whole\n");
-        std::fs::remove_dir_all(&dir).unwrap();
+        assert_eq!(entries(&d), ["out.csv"]);
+        std::fs::remove_dir_all(&d).unwrap();
+    }
+
+    #[test]
+    fn a_directory_is_refused_before_anything_is_written() {
+        let d = dir("isdir");
+        std::fs::create_dir(d.join("out.csv")).unwrap();
+        let e = AtomicFile::create(&d.join("out.csv"))
+            .unwrap_err()
+            .to_string();
+        assert!(e.ends_with("out.csv: is a directory"), "{e}");
+        assert_eq!(entries(&d), ["out.csv"]);
+        std::fs::remove_dir_all(&d).unwrap();
+    }
+
+    #[test]
+    fn errors_name_the_target_not_the_partial_file() {
+        let d = dir("noparent");
+        let p = d.join("missing/out.csv");
+        let e = AtomicFile::create(&p).unwrap_err().to_string();
+        assert!(e.starts_with(&format!("{}: ", p.display())), "{e}");
+        assert!(!e.contains("partial"), "{e}");
+        std::fs::remove_dir_all(&d).unwrap();
+    }
+
+    #[test]
+    fn a_failed_rename_leaves_no_partial_file() {
+        let d = dir("rename");
+        let p = d.join("out.csv");
+        let mut f = AtomicFile::create(&p).unwrap();
+        writeln!(f, "whole").unwrap();
+        // A directory appears where the file was to go, after it was opened.
+        std::fs::create_dir(&p).unwrap();
+        std::fs::write(p.join("keep"), b"x").unwrap();
+        let e = f.commit().unwrap_err().to_string();
+        assert!(e.starts_with(&format!("{}: ", p.display())), "{e}");
+        assert_eq!(entries(&d), ["out.csv"]);
+        std::fs::remove_dir_all(&d).unwrap();
+    }
+
+    #[cfg(unix)]
+    #[test]
+    fn a_link_is_written_through_and_stays_a_link() {
+        let d = dir("link");
+        std::fs::write(d.join("real.csv"), b"old\n").unwrap();
+        std::os::unix::fs::symlink("real.csv", d.join("link.csv")).unwrap();
+        let mut f = AtomicFile::create(&d.join("link.csv")).unwrap();
+        writeln!(f, "new").unwrap();
+        f.commit().unwrap();
+        assert!(
+            std::fs::symlink_metadata(d.join("link.csv"))
+                .unwrap()
+                .file_type()
+                .is_symlink()
+        );
+        assert_eq!(
+            std::fs::read_to_string(d.join("real.csv")).unwrap(),
+            "new\n"
+        );
+        // A dangling link: the file it names is created.
+        std::os::unix::fs::symlink("made.csv", d.join("dangling.csv")).unwrap();
+        let mut f = AtomicFile::create(&d.join("dangling.csv")).unwrap();
+        writeln!(f, "made").unwrap();
+        f.commit().unwrap();
+        assert_eq!(
+            std::fs::read_to_string(d.join("made.csv")).unwrap(),
+            "made\n"
+        );
+        assert_eq!(
+            entries(&d),
+            ["dangling.csv", "link.csv", "made.csv", "real.csv"]
+        );
+        std::fs::remove_dir_all(&d).unwrap();
+    }
+
+    #[cfg(unix)]
+    #[test]
+    fn a_device_is_written_in_place_and_its_errors_reported() {
+        // /dev/null takes the data and stays a device.
+        let mut f = AtomicFile::create(Path::new("/dev/null")).unwrap();
+        writeln!(f, "gone").unwrap();
+        f.commit().unwrap();
+        let m = std::fs::metadata("/dev/null").unwrap();
+        assert!(!m.is_file() && !m.is_dir());
+        // /dev/full refuses it, and the error names it.
+        if Path::new("/dev/full").exists() {
+            let mut f = AtomicFile::create(Path::new("/dev/full")).unwrap();
+            let wrote = writeln!(f, "{}", "x".repeat(1 << 16));
+            let e = match wrote {
+                Err(e) => e.to_string(),
+                Ok(()) => f.commit().unwrap_err().to_string(),
+            };
+            assert!(!e.is_empty());
+            assert!(!std::fs::metadata("/dev/full").unwrap().is_file());
+        }
     }
 }

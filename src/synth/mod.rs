@@ -356,30 +356,12 @@ pub fn write_sequence(
     })
 }
 
-/// Writes a PNG under a temporary name, then renames it into place.
+/// Writes a frame as PNG, complete or not at all ([`crate::output::write_png`]).
 fn write_png(img: &image::RgbImage, path: &Path) -> Result<(), SynthError> {
-    let mut tmp_name = std::ffi::OsString::from(".");
-    tmp_name.push(path.file_name().unwrap_or_default());
-    tmp_name.push(".partial");
-    let tmp = path.with_file_name(tmp_name);
-    let result = (|| {
-        let file = std::fs::File::create(&tmp).map_err(|e| SynthError::io(&tmp, e))?;
-        let mut w = std::io::BufWriter::new(file);
-        img.write_to(&mut w, image::ImageFormat::Png)
-            .map_err(|e| SynthError::Image {
-                path: tmp.display().to_string(),
-                source: e,
-            })?;
-        let file = w
-            .into_inner()
-            .map_err(|e| SynthError::io(&tmp, e.into_error()))?;
-        drop(file);
-        std::fs::rename(&tmp, path).map_err(|e| SynthError::io(path, e))
-    })();
-    if result.is_err() {
-        let _ = std::fs::remove_file(&tmp);
-    }
-    result
+    crate::output::write_png(path, img).map_err(|e| match e {
+        crate::output::OutputError::File(f) => SynthError::Format(f),
+        crate::output::OutputError::Encode { path, source } => SynthError::Image { path, source },
+    })
 }
 
 /// Removes `NNNNN.png` frames with an index of `frames` or more (from an earlier, longer render)

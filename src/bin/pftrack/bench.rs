@@ -134,7 +134,7 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
         Backend::Auto => match GpuEngine::new() {
             Ok(g) => Some(g),
             Err(e) => {
-                println!("note: no GPU timings ({e})");
+                outln!("note: no GPU timings ({e})")?;
                 None
             }
         },
@@ -149,13 +149,13 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
         g.set_colour_model(&w.model)?;
     }
 
-    println!(
+    outln!(
         "likelihood pass: {width}x{height} frame, {} normal lines, {} features, median of {repeats} runs (ms)",
         w.params.num_lines,
         w.features.len()
-    );
+    )?;
     if want_cpu {
-        println!("cpu: {} thread(s) available", cpu_all.threads());
+        outln!("cpu: {} thread(s) available", cpu_all.threads())?;
     }
     if let Some(g) = &gpu {
         let how = if g.has_timestamps() {
@@ -163,7 +163,7 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
         } else {
             "no timestamp queries: kernels timed by the wall clock, one submission each"
         };
-        println!("gpu: {} ({how})", g.name());
+        outln!("gpu: {} ({how})", g.name())?;
     }
 
     let mut header = vec!["N".to_string()];
@@ -222,12 +222,12 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
         header.push("readback".into());
     }
     let table: Vec<Vec<String>> = std::iter::once(header).chain(rows).collect();
-    print_table(&table);
+    print_table(&table)?;
     if gpu.is_some() {
-        println!(
+        outln!(
             "gpu = one plain evaluate (upload, all kernels, readback); gpu/cpu = gpu over the faster CPU column; \
              upload and readback are host wall-clock, kernels from timestamps"
-        );
+        )?;
     }
     Ok(())
 }
@@ -256,7 +256,7 @@ fn run_step(args: &BenchArgs) -> anyhow::Result<()> {
         Backend::Auto => match create_engine(Backend::Gpu) {
             Ok(_) => true,
             Err(e) => {
-                println!("note: no GPU row ({e})");
+                outln!("note: no GPU row ({e})")?;
                 false
             }
         },
@@ -272,11 +272,11 @@ fn run_step(args: &BenchArgs) -> anyhow::Result<()> {
     if want_gpu {
         columns.push((format!("gpu {all}t"), all, true));
     }
-    println!(
+    outln!(
         "whole tracker step: `nod` at {width}x{height}, {} steps x {passes} passes, median ms per \
          step (frames/s)",
         cfg.frames - 1
-    );
+    )?;
     let mut rows = vec![
         std::iter::once("N".to_string())
             .chain(columns.iter().map(|c| c.0.clone()))
@@ -304,12 +304,12 @@ fn run_step(args: &BenchArgs) -> anyhow::Result<()> {
             let secs = per_step.as_secs_f64();
             row.push(format!("{:.3} ({:.0}/s)", secs * 1e3, 1.0 / secs));
             if progress {
-                eprintln!("bench: {n} particles, {label}: {:.3} ms a step", secs * 1e3);
+                errln!("bench: {n} particles, {label}: {:.3} ms a step", secs * 1e3);
             }
         }
         rows.push(row);
     }
-    print_table(&rows);
+    print_table(&rows)?;
     Ok(())
 }
 
@@ -348,7 +348,7 @@ fn time_steps(
 }
 
 /// Prints rows right-aligned in columns, the first row the header.
-fn print_table(rows: &[Vec<String>]) {
+fn print_table(rows: &[Vec<String>]) -> anyhow::Result<()> {
     let cols = rows.iter().map(|r| r.len()).max().unwrap_or(0);
     let widths: Vec<usize> = (0..cols)
         .map(|i| {
@@ -365,8 +365,9 @@ fn print_table(rows: &[Vec<String>]) {
             .zip(&widths)
             .map(|(s, w)| format!("{s:>w$}"))
             .collect();
-        println!("{}", line.join("  "));
+        outln!("{}", line.join("  "))?;
     }
+    Ok(())
 }
 
 #[cfg(test)]

@@ -59,7 +59,7 @@ pub fn run(a: DemoArgs) -> anyhow::Result<()> {
         .map_err(|e| anyhow::anyhow!("--backend: {e}"))?;
     let (engine, notice) = create_engine(backend)?;
     if let Some(n) = notice {
-        eprintln!("pftrack: {n}");
+        errln!("pftrack: {n}");
     }
     let init_file = read_init(&seq_dir.join("init.txt"))?;
     let init = Init::frontal(init_file.ellipse);
@@ -87,8 +87,8 @@ pub fn run(a: DemoArgs) -> anyhow::Result<()> {
 
     let truth = Truth::Poses(read_pose_csv(&summary.truth)?);
     let report = evaluate(&truth, &read_pose_csv(&poses)?)?;
-    println!("{}", report.to_table());
-    println!(
+    outln!("{}", report.to_table())?;
+    outln!(
         "scenario {} ({} frames {}x{}): rendered in {render_s:.1} s, tracked in {track_s:.1} s ({:.0} frames/s) with {}",
         scenario.name(),
         cfg.frames,
@@ -96,12 +96,12 @@ pub fn run(a: DemoArgs) -> anyhow::Result<()> {
         cfg.height,
         cfg.frames as f64 / track_s.max(1e-9),
         tracker.engine_name()
-    );
-    println!(
+    )?;
+    outln!(
         "frames {}\ntruth  {}\nposes  {}",
         summary.frames_dir.display(),
         summary.truth.display(),
         poses.display()
-    );
+    )?;
     Ok(())
 }

@@ -27,15 +27,15 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
     let est = read_pose_csv(&args.est).context("reading the estimate")?;
     let report = evaluate(&truth, &est)?;
     if args.json {
-        println!("{}", serde_json::to_string(&report)?);
+        outln!("{}", serde_json::to_string(&report)?)?;
     } else {
-        println!("truth             {}", args.truth.display());
-        println!(
+        outln!("truth             {}", args.truth.display())?;
+        outln!(
             "estimate          {} ({} rows)",
             args.est.display(),
             est.len()
-        );
-        print!("{}", report.to_table());
+        )?;
+        out!("{}", report.to_table())?;
     }
     Ok(())
 }

@@ -1,5 +1,32 @@
 //! The `pftrack` command line. Each subcommand lives in its own module; errors are printed as
 //! one line (with their context chain) and exit with status 1.
+//!
+//! Output goes through [`outln!`] and [`out!`], which return an error where `println!` would
+//! panic (standard output on a full disk, `> /dev/full`); a reader that closed the pipe
+//! (`pftrack eval ... | head -1`) ends the command quietly, as it does `cat`. Notes on
+//! standard error go through [`errln!`], which cannot fail the command.
+
+/// `println!` that returns `anyhow::Result<()>`: an error writing standard output is returned.
+macro_rules! outln {
+    ($($arg:tt)*) => {
+        $crate::write_stdout(format_args!("{}\n", format_args!($($arg)*)))
+    };
+}
+
+/// `print!` that returns `anyhow::Result<()>` (see [`outln!`]).
+macro_rules! out {
+    ($($arg:tt)*) => {
+        $crate::write_stdout(format_args!($($arg)*))
+    };
+}
+
+/// `eprintln!` that ignores a failure to write standard error instead of panicking.
+macro_rules! errln {
+    ($($arg:tt)*) => {{
+        use std::io::Write as _;
+        let _ = writeln!(std::io::stderr(), $($arg)*);
+    }};
+}
 
 mod bench;
 mod demo;
@@ -10,8 +37,23 @@ mod sift;
 mod synth;
 mod track;
 
+use std::io::Write as _;
+
 use clap::error::ErrorKind;
 use clap::{Parser, Subcommand};
+
+/// Writing standard output failed.
+#[derive(Debug, thiserror::Error)]
+#[error("writing to standard output: {0}")]
+struct StdoutError(std::io::Error);
+
+/// Writes to standard output (for [`outln!`] and [`out!`]).
+fn write_stdout(args: std::fmt::Arguments<'_>) -> anyhow::Result<()> {
+    std::io::stdout()
+        .lock()
+        .write_fmt(args)
+        .map_err(|e| StdoutError(e).into())
+}
 
 /// Joint video tracking and 3D pose estimation of a rigid object.
 #[derive(Debug, Parser)]
@@ -64,10 +106,20 @@ fn main() {
         Command::PoseNoise(a) => pose_noise::run(a),
         Command::Bench(a) => bench::run(a),
     };
+    // What is still buffered is written now, where its error can be reported.
+    let result = result.and_then(|()| std::io::stdout().flush().map_err(|e| StdoutError(e).into()));
     if let Err(e) = result {
+        let closed = e.chain().any(|c| {
+            c.downcast_ref::<StdoutError>()
+                .is_some_and(|s| s.0.kind() == std::io::ErrorKind::BrokenPipe)
+        });
+        if closed {
+            // The reader stopped reading: it has what it wanted.
+            std::process::exit(0);
+        }
         // One line: the error and its causes joined.
         let msg = one_line_chain(e.chain().map(|c| c.to_string()));
-        eprintln!("pftrack: error: {msg}");
+        errln!("pftrack: error: {msg}");
         std::process::exit(1);
     }
 }
@@ -97,7 +149,7 @@ fn usage_error(e: clap::Error) -> ! {
         | ErrorKind::DisplayVersion
         | ErrorKind::DisplayHelpOnMissingArgumentOrSubcommand => e.exit(),
         _ => {
-            eprintln!("pftrack: error: {}", one_line(&e.render().to_string()));
+            errln!("pftrack: error: {}", one_line(&e.render().to_string()));
             std::process::exit(2);
         }
     }

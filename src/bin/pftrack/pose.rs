@@ -116,19 +116,19 @@ pub fn run(a: PoseArgs) -> anyhow::Result<()> {
         }
     }
     let (p, q) = keep_slope_length(&p, &q, 0.2, 0.3);
-    println!(
+    outln!(
         "matches inside the ellipse after outlier rejection: {}",
         p.len()
-    );
+    )?;
     let show = |name: &str, r: &nalgebra::Matrix3<f64>| {
         let [x, y, z] = Euler::from_matrix(r).to_degrees();
-        println!("{name}: tilt {x:.2} pan {y:.2} roll {z:.2} (degrees)");
+        outln!("{name}: tilt {x:.2} pan {y:.2} roll {z:.2} (degrees)")
     };
     if let Some(kind) = solver {
         let i = interframe(&p, &q, [e.cx, e.cy], kind)?;
-        println!("residual {:.3} px", i.block.residual);
-        show("rotation", &i.pair.a);
-        show("its Necker mirror", &i.pair.b);
+        outln!("residual {:.3} px", i.block.residual)?;
+        show("rotation", &i.pair.a)?;
+        show("its Necker mirror", &i.pair.b)?;
     } else {
         let w = ia.width() as f64;
         let k = pftrack::pose::Intrinsics {
@@ -138,7 +138,7 @@ pub fn run(a: PoseArgs) -> anyhow::Result<()> {
             cy: (ia.height() as f64 - 1.0) / 2.0,
         };
         let r = essential_rotation(&p, &q, &k)?;
-        show("essential (focal = image width assumed)", &r.rotation);
+        show("essential (focal = image width assumed)", &r.rotation)?;
     }
     if let Some(path) = &a.draw {
         let mut img = ib.clone();
@@ -146,7 +146,7 @@ pub fn run(a: PoseArgs) -> anyhow::Result<()> {
             arrow(&mut img, *p, *q, Rgb([255, 40, 40]));
         }
         pftrack::output::write_png(path, &img)?;
-        println!("matches drawn in {}", path.display());
+        outln!("matches drawn in {}", path.display())?;
     }
     Ok(())
 }

@@ -90,35 +90,101 @@ pub fn lambda_path(p: &Path) -> PathBuf {
     p.with_file_name(name)
 }
 
+/// The SNRs (dB) accepted: beyond them the noise or the signal vanishes in rounding.
+const SNR_RANGE: std::ops::RangeInclusive<f64> = -50.0..=150.0;
+
+/// Most points per trial (each trial holds its points; the paper uses 20).
+const MAX_POINTS: usize = 10_000;
+
 fn check_list(name: &str, v: &[f64]) -> anyhow::Result<()> {
     if v.is_empty() {
         anyhow::bail!("--{name} is empty");
     }
-    if let Some(x) = v.iter().find(|x| !x.is_finite()) {
-        anyhow::bail!("--{name}: {x} is not a finite number");
+    if let Some(x) = v.iter().find(|x| !SNR_RANGE.contains(x)) {
+        anyhow::bail!(
+            "--{name}: {x} dB is outside {} to {} dB",
+            SNR_RANGE.start(),
+            SNR_RANGE.end()
+        );
     }
     Ok(())
 }
 
-/// Runs the command.
-pub fn run(args: PoseNoiseArgs) -> anyhow::Result<()> {
-    if args.points < 3 {
-        anyhow::bail!("--points must be at least 3 (got {})", args.points);
+/// Checks the numeric arguments, each against its range.
+fn check_args(args: &PoseNoiseArgs) -> anyhow::Result<()> {
+    if !(3..=MAX_POINTS).contains(&args.points) {
+        anyhow::bail!(
+            "--points must be between 3 and {MAX_POINTS} (got {})",
+            args.points
+        );
     }
     if args.trials == 0 {
         anyhow::bail!("--trials must be positive");
     }
     check_list("snr", &args.snr)?;
     check_list("lambda-snr", &args.lambda_snr)?;
-    for (n, v) in [
-        ("lambda-input-snr", args.lambda_input_snr),
-        ("max-angle", args.max_angle),
-        ("depth-spread", args.depth_spread),
-    ] {
-        if !v.is_finite() || (n != "lambda-input-snr" && v < 0.0) {
-            anyhow::bail!("--{n}: {v} is not a valid value");
-        }
+    check_list("lambda-input-snr", &[args.lambda_input_snr])?;
+    if !(0.0..=180.0).contains(&args.max_angle) {
+        anyhow::bail!(
+            "--max-angle must be between 0 and 180 degrees (got {})",
+            args.max_angle
+        );
     }
+    if !(0.0..=100.0).contains(&args.depth_spread) {
+        anyhow::bail!(
+            "--depth-spread must be between 0 and 100 (got {})",
+            args.depth_spread
+        );
+    }
+    Ok(())
+}
+
+/// The files the command will write, opened before the experiment runs so that a bad path
+/// fails at once; each appears only once complete ([`AtomicFile`]).
+struct Outputs {
+    csv: Option<(AtomicFile, AtomicFile)>,
+    plot: Option<AtomicFile>,
+}
+
+impl Outputs {
+    fn open(args: &PoseNoiseArgs) -> anyhow::Result<Self> {
+        let mut names: Vec<PathBuf> = Vec::new();
+        if let Some(p) = &args.csv {
+            names.push(p.clone());
+            names.push(lambda_path(p));
+        }
+        if let Some(p) = &args.plot {
+            let png = p.extension().is_some_and(|e| e.eq_ignore_ascii_case("png"));
+            if !png {
+                anyhow::bail!(
+                    "--plot {}: the plot is a PNG; give a .png name",
+                    p.display()
+                );
+            }
+            names.push(p.clone());
+        }
+        for (i, a) in names.iter().enumerate() {
+            if names[..i].contains(a) {
+                anyhow::bail!(
+                    "{} is named for two outputs (--csv writes its name and the name with \
+                     _lambda, --plot its own)",
+                    a.display()
+                );
+            }
+        }
+        let csv = match &args.csv {
+            Some(p) => Some((AtomicFile::create(p)?, AtomicFile::create(&lambda_path(p))?)),
+            None => None,
+        };
+        let plot = args.plot.as_deref().map(AtomicFile::create).transpose()?;
+        Ok(Self { csv, plot })
+    }
+}
+
+/// Runs the command.
+pub fn run(args: PoseNoiseArgs) -> anyhow::Result<()> {
+    check_args(&args)?;
+    let outputs = Outputs::open(&args)?;
     let cfg = NoiseConfig {
         noise_on: match args.noise_on {
             NoiseFrames::Next => NoiseOn::Next,
@@ -136,17 +202,24 @@ pub fn run(args: PoseNoiseArgs) -> anyhow::Result<()> {
     };
     let b = fig3b(&cfg);
     let a = fig3a(&cfg);
-    println!(
+    outln!(
         "Fig. 3b: mean rotation error (deg), {} points, {} trials per SNR",
-        cfg.points, cfg.trials
-    );
-    println!(
+        cfg.points,
+        cfg.trials
+    )?;
+    outln!(
         "{:>7} {:>9} {:>9} {:>9} {:>9}   {:>22} {:>9}",
-        "snr_db", "sea", "optimal", "lsm", "rls", "optimal-sea (paired)", "differing"
-    );
+        "snr_db",
+        "sea",
+        "optimal",
+        "lsm",
+        "rls",
+        "optimal-sea (paired)",
+        "differing"
+    )?;
     for r in &b {
         let d = &r.optimal_minus_sea;
-        println!(
+        outln!(
             "{:>7.1} {:>9.4} {:>9.4} {:>9.4} {:>9.4}   {:>+10.5} ± {:<9.5} {:>9}",
             r.snr_db,
             r.mean_deg[0],
@@ -156,54 +229,82 @@ pub fn run(args: PoseNoiseArgs) -> anyhow::Result<()> {
             d.mean,
             d.std_error,
             format!("{}/{}", d.differing, d.trials)
-        );
+        )?;
         if r.failures.iter().any(|f| *f > 0) {
-            eprintln!(
+            errln!(
                 "  failures at {} dB (sea, optimal, lsm, rls): {:?}",
-                r.snr_db, r.failures
+                r.snr_db,
+                r.failures
             );
         }
     }
-    println!(
+    outln!(
         "Fig. 3a: SEA error (deg) with perturbed Λ, input SNR {} dB",
         cfg.lambda_input_snr_db
-    );
-    println!("{:>14} {:>9}", "lambda_snr_db", "sea");
+    )?;
+    outln!("{:>14} {:>9}", "lambda_snr_db", "sea")?;
     for r in &a {
-        println!("{:>14.1} {:>9.4}", r.lambda_snr_db, r.sea_deg);
+        outln!("{:>14.1} {:>9.4}", r.lambda_snr_db, r.sea_deg)?;
         if r.failures > 0 {
-            eprintln!("  failures at Λ-SNR {} dB: {}", r.lambda_snr_db, r.failures);
+            errln!("  failures at Λ-SNR {} dB: {}", r.lambda_snr_db, r.failures);
         }
     }
-    if let Some(path) = &args.csv {
-        write_csv(path, &b, &a)?;
+    // Everything is written before anything is committed: a failure leaves no output.
+    let Outputs {
+        csv,
+        plot: plot_file,
+    } = outputs;
+    let csv = match csv {
+        Some((mut fb, mut fa)) => {
+            write_csv(&mut fb, &mut fa, &b, &a)?;
+            Some((fb, fa))
+        }
+        None => None,
+    };
+    let plot_file = match plot_file {
+        Some(mut f) => {
+            let img =
+                plot(&b, &a, &cfg).with_context(|| format!("drawing {}", f.path().display()))?;
+            let path = f.path().to_path_buf();
+            img.write_with_encoder(image::codecs::png::PngEncoder::new(&mut f))
+                .with_context(|| format!("writing {}", path.display()))?;
+            Some(f)
+        }
+        None => None,
+    };
+    if let Some((fb, fa)) = csv {
+        fb.commit()?;
+        fa.commit()?;
     }
-    if let Some(path) = &args.plot {
-        plot(path, &b, &a, &cfg).with_context(|| format!("writing {}", path.display()))?;
+    if let Some(f) = plot_file {
+        f.commit()?;
     }
     Ok(())
 }
 
-fn write_csv(path: &Path, b: &[SnrRow], a: &[LambdaRow]) -> anyhow::Result<()> {
-    let mut f = AtomicFile::create(path).with_context(|| format!("creating {}", path.display()))?;
-    writeln!(f, "snr_db,sea,optimal,lsm,rls")?;
+/// Fig. 3b's rows into `fb`, Fig. 3a's into `fa`.
+fn write_csv(
+    fb: &mut AtomicFile,
+    fa: &mut AtomicFile,
+    b: &[SnrRow],
+    a: &[LambdaRow],
+) -> anyhow::Result<()> {
+    let err = |p: &Path| format!("writing {}", p.display());
+    let pb = fb.path().to_path_buf();
+    let pa = fa.path().to_path_buf();
+    writeln!(fb, "snr_db,sea,optimal,lsm,rls").with_context(|| err(&pb))?;
     for r in b {
         writeln!(
-            f,
+            fb,
             "{},{},{},{},{}",
             r.snr_db, r.mean_deg[0], r.mean_deg[1], r.mean_deg[2], r.mean_deg[3]
-        )?;
+        )
+        .with_context(|| err(&pb))?;
     }
-    f.commit()
-        .with_context(|| format!("writing {}", path.display()))?;
-    let lp = lambda_path(path);
-    let mut f = AtomicFile::create(&lp).with_context(|| format!("creating {}", lp.display()))?;
-    writeln!(f, "lambda_snr_db,sea")?;
+    writeln!(fa, "lambda_snr_db,sea").with_context(|| err(&pa))?;
     for r in a {
-        writeln!(f, "{},{}", r.lambda_snr_db, r.sea_deg)?;
+        writeln!(fa, "{},{}", r.lambda_snr_db, r.sea_deg).with_context(|| err(&pa))?;
     }
-    f.commit()
-        .with_context(|| format!("writing {}", lp.display()))?;
     Ok(())
 }
 
@@ -225,10 +326,21 @@ fn register_font() -> bool {
     false
 }
 
-fn plot(path: &Path, b: &[SnrRow], a: &[LambdaRow], cfg: &NoiseConfig) -> anyhow::Result<()> {
+/// Plot size in pixels.
+const PLOT_SIZE: (u32, u32) = (1400, 560);
+
+/// Both panels drawn into an image.
+fn plot(b: &[SnrRow], a: &[LambdaRow], cfg: &NoiseConfig) -> anyhow::Result<image::RgbImage> {
+    let mut buf = vec![0u8; (PLOT_SIZE.0 * PLOT_SIZE.1 * 3) as usize];
+    draw(&mut buf, b, a, cfg)?;
+    image::RgbImage::from_raw(PLOT_SIZE.0, PLOT_SIZE.1, buf)
+        .ok_or_else(|| anyhow::anyhow!("the plot's buffer has the wrong size"))
+}
+
+fn draw(buf: &mut [u8], b: &[SnrRow], a: &[LambdaRow], cfg: &NoiseConfig) -> anyhow::Result<()> {
     use plotters::prelude::*;
     let text = register_font();
-    let root = BitMapBackend::new(path, (1400, 560)).into_drawing_area();
+    let root = BitMapBackend::with_buffer(buf, PLOT_SIZE).into_drawing_area();
     root.fill(&WHITE).map_err(|e| anyhow::anyhow!("{e}"))?;
     let (left, right) = root.split_horizontally(700);
     let colours = [RED, BLUE, GREEN, MAGENTA];

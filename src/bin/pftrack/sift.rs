@@ -95,14 +95,14 @@ pub fn run(args: SiftArgs) -> anyhow::Result<()> {
     let median = times.get(times.len() / 2).copied().unwrap_or(f64::NAN);
     match &args.out {
         None => {
-            println!(
+            outln!(
                 "{}: {}x{}, {} keypoints in {median:.3} ms (median of {}, fastest {fastest:.3} ms)",
                 args.image.display(),
                 gray.width,
                 gray.height,
                 feats.len(),
                 args.repeat,
-            );
+            )?;
         }
         Some(path) => {
             let file = std::fs::File::create(path)
@@ -131,7 +131,7 @@ pub fn run(args: SiftArgs) -> anyhow::Result<()> {
             }
             w.flush()
                 .with_context(|| format!("cannot write {}", path.display()))?;
-            eprintln!(
+            errln!(
                 "{} keypoints in {median:.3} ms (median of {}, fastest {fastest:.3} ms) → {}",
                 feats.len(),
                 args.repeat,

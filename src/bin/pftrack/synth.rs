@@ -42,7 +42,7 @@ pub fn run(args: SynthArgs) -> anyhow::Result<()> {
     let summary = write_sequence(&cfg, &args.dir, std::io::stderr().is_terminal())
         .with_context(|| format!("rendering {} into {}", scenario, args.dir.display()))?;
     let e = summary.init;
-    println!(
+    outln!(
         "wrote {} frames of '{}' ({}x{}, seed {}) to {}; truth {}; init {:.2},{:.2},{:.2},{:.2}",
         cfg.frames,
         scenario,
@@ -55,6 +55,6 @@ pub fn run(args: SynthArgs) -> anyhow::Result<()> {
         e.cy,
         e.a,
         e.b
-    );
+    )?;
     Ok(())
 }

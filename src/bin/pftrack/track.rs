@@ -263,8 +263,10 @@ pub struct TrackArgs {
     /// Pose CSV to write (`frame,cx,cy,a,b,rx,ry,rz,score,lost`); standard output if absent.
     #[arg(long, short)]
     pub out: Option<PathBuf>,
-    /// Write each frame with the ellipse, pan/tilt bars and angles drawn, as PNG, here; a run
-    /// that fails removes the frames it drew, as it writes no pose CSV.
+    /// Write each frame with the ellipse, pan/tilt bars and angles drawn, as PNG (NNNNN.png),
+    /// here. The frames are drawn into a hidden folder inside and moved into place when the
+    /// whole track is done: a run that fails leaves the folder as it found it, as it writes no
+    /// pose CSV.
     #[arg(long, value_name = "DIR")]
     pub render: Option<PathBuf>,
 }
@@ -567,30 +569,22 @@ pub fn run(a: TrackArgs) -> anyhow::Result<()> {
         .with_context(|| format!("opening {}", frames_path.display()))?;
     let (engine, notice) = create_engine(backend)?;
     if let Some(n) = notice {
-        eprintln!("pftrack: {n}");
+        errln!("pftrack: {n}");
     }
-    if let Some(dir) = &a.render {
-        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
-    }
+    let staging = a.render.as_deref().map(RenderStaging::create).transpose()?;
     let first = source.next().context("the input has no frames")??;
     let camera = match cfg.camera_hfov_deg {
         Some(h) => format!("camera hfov {h}°"),
         None => "weak perspective".to_string(),
     };
     let mut tracker = Tracker::with_engine(cfg, engine, &first, init)?;
-    let mut rendered = Vec::new();
-    let written = match run_loop(&a, &mut source, &mut tracker, &first, &mut rendered) {
-        Ok(n) => n,
-        Err(e) => {
-            // The frames drawn before the failure would read as a whole track's: remove them,
-            // as the pose CSV is never moved into place.
-            for f in &rendered {
-                let _ = std::fs::remove_file(f);
-            }
-            return Err(e);
-        }
-    };
-    eprintln!(
+    // On an error the staging folder is dropped with the frames drawn so far, which would
+    // read as a whole track's, as the pose CSV is never moved into place.
+    let written = run_loop(&a, &mut source, &mut tracker, &first, staging.as_ref())?;
+    if let Some(s) = staging {
+        s.finish()?;
+    }
+    errln!(
         "pftrack: tracked {written} frame{} with {} ({}, {}){}",
         if written == 1 { "" } else { "s" },
         tracker.engine_name(),
@@ -604,12 +598,64 @@ pub fn run(a: TrackArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// Where `--render` draws its frames until the track is done: a hidden folder inside the
+/// render folder, removed when dropped.
+struct RenderStaging {
+    /// The render folder.
+    dir: PathBuf,
+    /// The hidden folder inside it.
+    staging: PathBuf,
+}
+
+impl RenderStaging {
+    /// Creates the render folder (if need be) and an empty staging folder inside it.
+    fn create(dir: &Path) -> anyhow::Result<Self> {
+        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+        let staging = dir.join(format!(".pftrack-render-{}.partial", std::process::id()));
+        // One left by an interrupted run of a process with the same id.
+        let _ = std::fs::remove_dir_all(&staging);
+        std::fs::create_dir(&staging).with_context(|| format!("creating {}", staging.display()))?;
+        Ok(Self {
+            dir: dir.to_path_buf(),
+            staging,
+        })
+    }
+
+    /// Where frame `n` is drawn.
+    fn frame(&self, n: usize) -> PathBuf {
+        self.staging.join(frame_name(n))
+    }
+
+    /// Moves the frames drawn into the render folder, replacing those of the same names.
+    fn finish(self) -> anyhow::Result<()> {
+        let listing = || format!("listing {}", self.staging.display());
+        for entry in std::fs::read_dir(&self.staging).with_context(listing)? {
+            let entry = entry.with_context(listing)?;
+            let to = self.dir.join(entry.file_name());
+            std::fs::rename(entry.path(), &to)
+                .with_context(|| format!("moving the rendered frame to {}", to.display()))?;
+        }
+        Ok(())
+    }
+}
+
+impl Drop for RenderStaging {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.staging);
+    }
+}
+
+/// The file name of rendered frame `n`.
+fn frame_name(n: usize) -> String {
+    format!("{n:05}.png")
+}
+
 fn run_loop(
     a: &TrackArgs,
     source: &mut frames::FrameSource,
     tracker: &mut Tracker,
     first: &image::RgbImage,
-    rendered: &mut Vec<PathBuf>,
+    render: Option<&RenderStaging>,
 ) -> anyhow::Result<usize> {
     let limit = a.max_frames.unwrap_or(usize::MAX);
     let pb = progress(source.len_hint().map(|n| n.min(limit)));
@@ -624,7 +670,7 @@ fn run_loop(
             Some(w) => w.write(&r)?,
             None => stdout_rows.push(r),
         }
-        if let Some(dir) = &a.render {
+        if let Some(dir) = render {
             let o = Overlay {
                 frame_index: e.frame,
                 ellipse: e.ellipse,
@@ -633,9 +679,7 @@ fn run_loop(
                 lost: e.lost,
             };
             let scale = if frame.width() < 320 { 3 } else { 1 };
-            let path = dir.join(format!("{:05}.png", e.frame));
-            rendered.push(path.clone());
-            write_png(&path, &render_overlay(frame, &o, scale))?;
+            write_png(&dir.frame(e.frame), &render_overlay(frame, &o, scale))?;
         }
         pb.inc(1);
         Ok(())
@@ -649,7 +693,7 @@ fn run_loop(
             .step(&frame)
             .with_context(|| format!("tracking frame {n}"))?;
         if let Some(notice) = tracker.take_engine_notice() {
-            pb.suspend(|| eprintln!("pftrack: frame {n}: {notice}"));
+            pb.suspend(|| errln!("pftrack: frame {n}: {notice}"));
         }
         emit(&est, &frame)?;
         n += 1;
@@ -657,7 +701,7 @@ fn run_loop(
     pb.finish_and_clear();
     match csv_out {
         Some(w) => w.finish()?,
-        None => print!("{}", pftrack::io::format_pose_csv(&stdout_rows, true)),
+        None => out!("{}", pftrack::io::format_pose_csv(&stdout_rows, true))?,
     }
     Ok(n)
 }

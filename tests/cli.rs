@@ -1,0 +1,678 @@
+//! Tests of the `pftrack` command line: what each command writes, and how it refuses bad
+//! input (one line on standard error, a non-zero exit, no panic, and no output that looks
+//! complete when it is not).
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Stdio};
+
+use pftrack::io::{read_init, read_pose_csv};
+use pftrack::synth::{Renderer, Scenario, SynthConfig};
+
+/// A fresh temporary directory path `name` (not created).
+fn tmp_dir(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("pftrack-cli-{}-{name}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    d
+}
+
+fn pftrack(args: &[&str]) -> std::process::Output {
+    Command::new(env!("CARGO_BIN_EXE_pftrack"))
+        .args(args)
+        .output()
+        .expect("run pftrack")
+}
+
+/// Runs `pftrack args` and checks it succeeded (naming the arguments and the error if not).
+fn pftrack_ok(args: &[&str]) -> std::process::Output {
+    let out = pftrack(args);
+    assert!(
+        out.status.success(),
+        "{args:?}: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    out
+}
+
+#[test]
+fn cli_writes_frames_truth_and_init() {
+    let dir = tmp_dir("cli");
+    let d = dir.to_str().unwrap();
+    pftrack_ok(&[
+        "synth",
+        d,
+        "--scenario",
+        "nod",
+        "--frames",
+        "5",
+        "--size",
+        "80x60",
+        "--seed",
+        "3",
+    ]);
+    let frames: Vec<_> = std::fs::read_dir(dir.join("frames")).unwrap().collect();
+    assert_eq!(frames.len(), 5);
+    let img = image::open(dir.join("frames/00004.png")).unwrap();
+    assert_eq!((img.width(), img.height()), (80, 60));
+    let truth = read_pose_csv(&dir.join("truth.csv")).unwrap();
+    assert_eq!(truth.len(), 5);
+    assert_eq!(
+        truth.iter().map(|r| r.frame).collect::<Vec<_>>(),
+        [0, 1, 2, 3, 4]
+    );
+    let t0 = truth[0].state;
+    assert_eq!((t0.rx, t0.ry, t0.rz), (0.0, 0.0, 0.0));
+    assert!(truth[1].state.rx > 0.5, "nods: {:?}", truth[1].state);
+    let file = read_init(&dir.join("init.txt")).unwrap();
+    // the camera the frames were rendered with
+    assert_eq!(file.hfov_deg, Some(pftrack::synth::HFOV_DEG));
+    let init = file.ellipse;
+    assert!((init.cx - t0.cx).abs() < 1e-5 && (init.a - t0.a).abs() < 1e-5);
+    assert!((init.cy - t0.cy).abs() < 1e-5 && (init.b - t0.b).abs() < 1e-5);
+    // the same as the library's render of that configuration
+    let r = Renderer::new(&SynthConfig {
+        scenario: Scenario::Nod,
+        frames: 5,
+        width: 80,
+        height: 60,
+        seed: 3,
+    })
+    .unwrap();
+    assert_eq!(img.to_rgb8().as_raw(), r.render_image(4).as_raw());
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// A fresh temporary directory `name` holding a synthetic sequence of the default scenario
+/// (`pftrack synth`), `frames` long at `size`.
+fn synth_dir(name: &str, frames: usize, size: &str) -> PathBuf {
+    let dir = tmp_dir(name);
+    let frames = frames.to_string();
+    pftrack_ok(&[
+        "synth",
+        dir.to_str().unwrap(),
+        "--frames",
+        &frames,
+        "--size",
+        size,
+    ]);
+    dir
+}
+
+/// Runs `pftrack args` and checks it fails with one line naming `needle`, without a panic,
+/// leaving no `unwritten` file (the output a complete run would have written).
+fn assert_one_line_error(args: &[&str], needle: &str, unwritten: &Path) {
+    let out = pftrack(args);
+    assert!(!out.status.success(), "{args:?} succeeded");
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(err.trim_end().lines().count(), 1, "{args:?}: {err}");
+    assert!(err.contains(needle), "{args:?}: {err}");
+    assert!(!err.contains("panicked"), "{err}");
+    assert!(!unwritten.exists(), "{args:?} left {}", unwritten.display());
+}
+
+#[test]
+fn cli_bad_input_is_a_one_line_error() {
+    let dir = tmp_dir("bad");
+    let d = dir.to_str().unwrap();
+    let truth = dir.join("truth.csv");
+    assert_one_line_error(
+        &["synth", d, "--scenario", "spin"],
+        "unknown scenario 'spin'",
+        &truth,
+    );
+    assert_one_line_error(
+        &["synth", d, "--scenario", "spin"],
+        "nod, pan, roll, combo, depth, car, long",
+        &truth,
+    );
+    assert_one_line_error(&["synth", d, "--frames", "0"], "at least 1", &truth);
+    for size in ["10x", "0x120", "abc", "160x120x3", "100000x100"] {
+        assert_one_line_error(&["synth", d, "--size", size], "size", &truth);
+    }
+    // a directory that cannot be created: its parent is a file
+    std::fs::create_dir_all(&dir).unwrap();
+    let file = dir.join("plain-file");
+    std::fs::write(&file, "x").unwrap();
+    let under = file.join("seq");
+    assert_one_line_error(
+        &["synth", under.to_str().unwrap(), "--frames", "2"],
+        "plain-file",
+        &under.join("truth.csv"),
+    );
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// The lost-state and re-acquisition settings of `track` are checked before anything is
+/// tracked: one line naming the setting, a non-zero exit and no pose CSV.
+#[test]
+fn cli_track_rejects_bad_lost_and_reacquisition_settings() {
+    let dir = synth_dir("track-bad", 2, "64x48");
+    let d = dir.to_str().unwrap();
+    let csv = dir.join("poses.csv");
+    let c = csv.to_str().unwrap();
+    for (flag, value, needle) in [
+        ("--found-above", "0.1", "found_above"),
+        ("--found-above", "2", "found_above"),
+        ("--reacquire-ncc", "1.5", "reacquire_ncc"),
+        ("--reacquire-ncc", "NaN", "reacquire_ncc"),
+        ("--reanchor-ncc", "1.5", "reanchor min_ncc"),
+        ("--reanchor-ncc", "NaN", "reanchor min_ncc"),
+    ] {
+        let args = ["track", d, "--backend", "cpu", flag, value, "--out", c];
+        assert_one_line_error(&args, needle, &csv);
+    }
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// `--sift-upsample-below` reaches the tracker: a size below the target's changes the
+/// track, `--sift-always-upsample` leaves a small target's as it is, and a size that is not
+/// positive is one clear error.
+#[test]
+fn cli_track_sift_upsample_size() {
+    let dir = synth_dir("track-sift-size", 6, "96x72");
+    let d = dir.to_str().unwrap();
+    let csv = dir.join("poses.csv");
+    let c = csv.to_str().unwrap();
+    let mut tracks = Vec::new();
+    for extra in [
+        &[][..],
+        &["--sift-always-upsample"][..],
+        &["--sift-upsample-below", "10"][..],
+    ] {
+        let mut args = vec!["track", d, "--backend", "cpu", "--out", c];
+        args.extend_from_slice(extra);
+        pftrack_ok(&args);
+        tracks.push(std::fs::read(&csv).unwrap());
+    }
+    assert_eq!(
+        tracks[0], tracks[1],
+        "a small target keeps the doubled octave"
+    );
+    assert_ne!(tracks[0], tracks[2], "the doubled octave dropped");
+    std::fs::remove_file(&csv).unwrap();
+    for value in ["0", "-3", "NaN"] {
+        let args = [
+            "track",
+            d,
+            "--backend",
+            "cpu",
+            "--sift-upsample-below",
+            value,
+        ];
+        assert_one_line_error(
+            &[&args[..], &["--out", c]].concat(),
+            "sift_upsample_below",
+            &csv,
+        );
+    }
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// `--refine-init` moves a start drawn a few pixels off the head back onto it, and row 0 of
+/// the poses gives the ellipse the track started from.
+#[test]
+fn cli_track_refine_init() {
+    let dir = synth_dir("track-refine", 3, "160x120");
+    let d = dir.to_str().unwrap();
+    let e = read_init(&dir.join("init.txt")).unwrap().ellipse;
+    let high = format!("{},{},{},{}", e.cx, e.cy - 3.0, e.a, e.b);
+    let csv = dir.join("poses.csv");
+    let c = csv.to_str().unwrap();
+    let row0_cy = |extra: &[&str]| -> f64 {
+        let mut args = vec!["track", d, "--backend", "cpu", "--init-ellipse", &high];
+        args.extend_from_slice(extra);
+        args.extend_from_slice(&["--out", c]);
+        pftrack_ok(&args);
+        read_pose_csv(&csv).unwrap()[0].state.cy
+    };
+    assert!((row0_cy(&[]) - (e.cy - 3.0)).abs() < 1e-6);
+    let refined = row0_cy(&["--refine-init"]);
+    assert!((refined - e.cy).abs() < 0.5, "{refined} against {}", e.cy);
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// `track` takes the camera from the init file `synth` writes, `--hfov` overrides it and
+/// `--weak-perspective` sets it aside; a bad camera line is one clear error and no poses.
+#[test]
+fn cli_track_takes_the_camera_from_the_init_file() {
+    let dir = synth_dir("track-camera", 4, "64x48");
+    let d = dir.to_str().unwrap();
+    let init = std::fs::read_to_string(dir.join("init.txt")).unwrap();
+    assert!(init.lines().any(|l| l == "hfov,50.000000"), "{init}");
+    let csv = dir.join("poses.csv");
+    let c = csv.to_str().unwrap();
+    let mut tracks = Vec::new();
+    for (extra, said) in [
+        (&[][..], "camera hfov 50°"),
+        (&["--hfov", "60"][..], "camera hfov 60°"),
+        (&["--weak-perspective"][..], "weak perspective"),
+        // The camera belongs to the footage, however the target is initialised.
+        (&["--init-box", "20,14,24,20"][..], "camera hfov 50°"),
+        (
+            &["--init-box", "20,14,24,20", "--weak-perspective"][..],
+            "weak perspective",
+        ),
+    ] {
+        let mut args = vec!["track", d, "--backend", "cpu", "--out", c];
+        args.extend_from_slice(extra);
+        let out = pftrack_ok(&args);
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(err.contains(said), "{args:?}: {err}");
+        tracks.push(std::fs::read(&csv).unwrap());
+    }
+    // A flat model (no depth) through the camera: every lifted feature lies on the disc's
+    // plane, and the track is as complete as any other (at 64x48 too few features reach the
+    // lift; 96x72 failed at frame 3 when the flat model's lift divided by its zero depth).
+    let flat_dir = synth_dir("track-camera-flat", 4, "96x72");
+    let fd = flat_dir.to_str().unwrap();
+    pftrack_ok(&[
+        "track",
+        fd,
+        "--backend",
+        "cpu",
+        "--depth-ratio",
+        "0",
+        "--out",
+        c,
+    ]);
+    let flat = std::fs::read_to_string(&csv).unwrap();
+    assert_eq!(flat.lines().count(), 5, "{flat}");
+    assert!(!flat.contains("NaN") && !flat.contains("inf"), "{flat}");
+    std::fs::remove_dir_all(&flat_dir).unwrap();
+    // The camera reaches the tracker: the first three tracks differ, and so do the two
+    // started from a box.
+    assert!(tracks[0] != tracks[1] && tracks[0] != tracks[2] && tracks[1] != tracks[2]);
+    assert!(tracks[3] != tracks[4]);
+    let out = pftrack(&["track", d, "--hfov", "60", "--weak-perspective", "--out", c]);
+    assert!(!out.status.success());
+
+    // A camera line that is not one.
+    std::fs::remove_file(&csv).unwrap();
+    let ellipse_line = init.lines().next().unwrap();
+    std::fs::write(dir.join("init.txt"), format!("{ellipse_line}\nhfov,200\n")).unwrap();
+    assert_one_line_error(&["track", d, "--backend", "cpu", "--out", c], "hfov", &csv);
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// Negative numbers are values (a box reaching past the left edge, a negative SNR, a depth
+/// ratio the tracker then rejects itself), and a usage error is one line like any other.
+#[test]
+fn cli_takes_negative_values_and_reports_usage_errors_on_one_line() {
+    let dir = synth_dir("negative", 2, "64x48");
+    let d = dir.to_str().unwrap();
+    let csv = dir.join("poses.csv");
+    let c = csv.to_str().unwrap();
+    for args in [
+        &["--init-box", "-4,10,40,30"][..],
+        &["--init-pose", "-10,5,-3"][..],
+        &["--init-points", "-2,20;20,5;42,20;20,35;5,30"][..],
+    ] {
+        let mut all = vec!["track", d, "--backend", "cpu", "--out", c];
+        all.extend_from_slice(args);
+        pftrack_ok(&all);
+        std::fs::remove_file(&csv).unwrap();
+    }
+    let snr = dir.join("snr.csv");
+    pftrack_ok(&[
+        "pose-noise",
+        "--snr",
+        "-5,0",
+        "--lambda-snr",
+        "0",
+        "--trials",
+        "4",
+        "--csv",
+        snr.to_str().unwrap(),
+    ]);
+    let table = std::fs::read_to_string(&snr).unwrap();
+    assert!(table.lines().nth(1).unwrap().starts_with("-5"), "{table}");
+
+    let track = |extra: &[&'static str]| {
+        let mut v = vec!["track", d, "--backend", "cpu", "--out", c];
+        v.extend_from_slice(extra);
+        v
+    };
+    assert_one_line_error(
+        &track(&["--depth-ratio", "-1"]),
+        "--depth-ratio must lie",
+        &csv,
+    );
+    assert_one_line_error(&track(&["--max-frames", "0"]), "--max-frames", &csv);
+    assert_one_line_error(&track(&["--bogus"]), "unexpected argument '--bogus'", &csv);
+    assert_one_line_error(
+        &track(&["--particles", "many"]),
+        "invalid value 'many'",
+        &csv,
+    );
+    assert_one_line_error(&["track", "--out", c], "<INPUT>", &csv);
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// `sift` and `pose` check their input before any work: a region off the image, an image that
+/// is not one (its cause said once) and an unknown solver are each one line and no output.
+#[test]
+fn cli_sift_and_pose_reject_bad_input_in_one_line() {
+    let dir = synth_dir("sift-pose", 2, "96x72");
+    let f0 = dir.join("frames/00000.png");
+    let f1 = dir.join("frames/00001.png");
+    let (f0, f1) = (f0.to_str().unwrap(), f1.to_str().unwrap());
+    let kps = dir.join("kps.csv");
+    let k = kps.to_str().unwrap();
+    for region in ["-20,-20,10,10", "96,0,10,10", "0,72,5,5"] {
+        assert_one_line_error(
+            &["sift", f0, "--region", region, "--out", k],
+            "lies outside the 96x72 image",
+            &kps,
+        );
+    }
+    // A region reaching past the top-left corner is still inside.
+    pftrack_ok(&["sift", f0, "--region", "-10,-10,60,50", "--out", k]);
+    std::fs::remove_file(&kps).unwrap();
+
+    let junk = dir.join("junk.png");
+    std::fs::write(&junk, "not a png").unwrap();
+    assert_one_line_error(
+        &["sift", junk.to_str().unwrap(), "--out", k],
+        "junk.png",
+        &kps,
+    );
+    let err =
+        String::from_utf8_lossy(&pftrack(&["sift", junk.to_str().unwrap()]).stderr).to_string();
+    assert_eq!(err.matches("signature").count(), 1, "{err}");
+
+    let drawn = dir.join("drawn.png");
+    let args = [
+        "pose",
+        f0,
+        f1,
+        "--ellipse",
+        "48,36,14,18",
+        "--solver",
+        "foo",
+        "--draw",
+        drawn.to_str().unwrap(),
+    ];
+    assert_one_line_error(&args, "sea, optimal, lsm, rls or essential", &drawn);
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// A track that fails part-way (a frame of another size) leaves neither a pose CSV nor the
+/// frames it had drawn: nothing that reads as a whole track, and what the render folder held
+/// before (here a file of the name frame 0 would take) stays as it was.
+#[test]
+fn cli_a_failed_track_leaves_no_render() {
+    let dir = synth_dir("failed-render", 5, "64x48");
+    let d = dir.to_str().unwrap();
+    let render = dir.join("render");
+    let csv = dir.join("poses.csv");
+    let args = [
+        "track",
+        d,
+        "--backend",
+        "cpu",
+        "--render",
+        render.to_str().unwrap(),
+        "--out",
+        csv.to_str().unwrap(),
+    ];
+    // Whole, it draws every frame, and nothing else stays in the folder.
+    pftrack_ok(&args);
+    assert_eq!(
+        names(&render),
+        [
+            "00000.png",
+            "00001.png",
+            "00002.png",
+            "00003.png",
+            "00004.png"
+        ]
+    );
+    std::fs::remove_dir_all(&render).unwrap();
+    std::fs::remove_file(&csv).unwrap();
+    std::fs::create_dir(&render).unwrap();
+    std::fs::write(render.join("00000.png"), b"the user's").unwrap();
+    image::RgbImage::new(32, 24)
+        .save(dir.join("frames/00003.png"))
+        .unwrap();
+    assert_one_line_error(&args, "frame 3", &csv);
+    assert_eq!(names(&render), ["00000.png"]);
+    assert_eq!(
+        std::fs::read(render.join("00000.png")).unwrap(),
+        b"the user's"
+    );
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// The names in a folder, sorted, hidden ones included.
+fn names(dir: &Path) -> Vec<String> {
+    let mut v: Vec<String> = std::fs::read_dir(dir)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    v.sort();
+    v
+}
+
+/// Runs `pftrack args` with standard output sent to `stdout`.
+fn pftrack_to(args: &[&str], stdout: Stdio) -> std::process::Output {
+    Command::new(env!("CARGO_BIN_EXE_pftrack"))
+        .args(args)
+        .stdout(stdout)
+        .stderr(Stdio::piped())
+        .output()
+        .expect("run pftrack")
+}
+
+/// Standard output that cannot be written (a full disk: `/dev/full`) is a one-line error
+/// with a non-zero exit, for a command that prints a table and for one that prints its CSV,
+/// not the panic of `println!`.
+#[cfg(unix)]
+#[test]
+fn cli_a_full_standard_output_is_an_error() {
+    let full = Path::new("/dev/full");
+    if !full.exists() {
+        let _ = std::io::Write::write_all(&mut std::io::stderr(), b"SKIPPED: no /dev/full\n");
+        return;
+    }
+    let dir = synth_dir("full", 3, "64x48");
+    let truth = dir.join("truth.csv");
+    let d = dir.to_str().unwrap();
+    let t = truth.to_str().unwrap();
+    for args in [
+        vec!["eval", t, t],
+        vec!["track", d, "--backend", "cpu", "--particles", "20"],
+    ] {
+        let sink = std::fs::OpenOptions::new().write(true).open(full).unwrap();
+        let out = pftrack_to(&args, Stdio::from(sink));
+        assert_eq!(out.status.code(), Some(1), "{args:?}");
+        let err = String::from_utf8_lossy(&out.stderr);
+        let last = err.trim_end().lines().last().unwrap_or_default();
+        assert!(
+            last.starts_with("pftrack: error: writing to standard output"),
+            "{args:?}: {err}"
+        );
+        assert!(!err.contains("panicked"), "{err}");
+    }
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// A reader that stops reading (`| head -1`) ends the command quietly: exit 0, nothing on
+/// standard error. (Whether the command had written before the pipe closed or not, the
+/// outcome is the same.)
+#[test]
+fn cli_a_closed_pipe_ends_the_command_quietly() {
+    let mut child = Command::new(env!("CARGO_BIN_EXE_pftrack"))
+        .args([
+            "pose-noise",
+            "--trials",
+            "50",
+            "--snr",
+            "10",
+            "--lambda-snr",
+            "10",
+        ])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("run pftrack");
+    drop(child.stdout.take());
+    let out = child.wait_with_output().unwrap();
+    assert!(out.status.success(), "{out:?}");
+    assert!(
+        out.stderr.is_empty(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+}
+
+/// `--out` names a folder: refused at once by name, with no partial file left beside it;
+/// `--out` names a link: the file it links to gets the poses and the link stays a link.
+#[test]
+fn cli_out_refuses_a_folder_and_writes_through_a_link() {
+    let dir = synth_dir("out-kinds", 3, "64x48");
+    let d = dir.to_str().unwrap();
+    let out_dir = dir.join("out");
+    std::fs::create_dir(&out_dir).unwrap();
+    let before = names(&dir);
+    let args = ["track", d, "--backend", "cpu", "--particles", "20", "--out"];
+    let mut a = args.to_vec();
+    a.push(out_dir.to_str().unwrap());
+    assert_one_line_error(&a, "is a directory", &out_dir.join("x"));
+    assert_eq!(names(&dir), before);
+    #[cfg(unix)]
+    {
+        let real = dir.join("real.csv");
+        std::fs::write(&real, "old\n").unwrap();
+        let link = dir.join("link.csv");
+        std::os::unix::fs::symlink(&real, &link).unwrap();
+        let mut a = args.to_vec();
+        a.push(link.to_str().unwrap());
+        pftrack_ok(&a);
+        assert!(
+            std::fs::symlink_metadata(&link)
+                .unwrap()
+                .file_type()
+                .is_symlink()
+        );
+        assert_eq!(read_pose_csv(&real).unwrap().len(), 3);
+    }
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// `pose-noise` opens its outputs before it runs: a CSV whose `_lambda` twin cannot be
+/// written, or a plot named like the CSV, fails at once and leaves no file at all.
+#[test]
+fn cli_pose_noise_writes_all_its_outputs_or_none() {
+    let dir = tmp_dir("pose-noise-out");
+    std::fs::create_dir_all(dir.join("f_lambda.csv")).unwrap();
+    let csv = dir.join("f.csv");
+    let c = csv.to_str().unwrap();
+    let quick = [
+        "pose-noise",
+        "--trials",
+        "5",
+        "--snr",
+        "10",
+        "--lambda-snr",
+        "10",
+    ];
+    let mut a = quick.to_vec();
+    a.extend(["--csv", c]);
+    assert_one_line_error(&a, "f_lambda.csv: is a directory", &csv);
+    let mut a = quick.to_vec();
+    a.extend(["--csv", c, "--plot", c]);
+    assert_one_line_error(&a, ".png", &csv);
+    let plot = dir.join("f_lambda.png");
+    let png = dir.join("f.png");
+    let mut a = quick.to_vec();
+    a.extend([
+        "--csv",
+        png.to_str().unwrap(),
+        "--plot",
+        plot.to_str().unwrap(),
+    ]);
+    assert_one_line_error(&a, "named for two outputs", &png);
+    assert_eq!(names(&dir), ["f_lambda.csv"]);
+    // All of them, when all can be written.
+    let ok = tmp_dir("pose-noise-ok");
+    std::fs::create_dir_all(&ok).unwrap();
+    let mut a = quick.to_vec();
+    let (c, p) = (ok.join("g.csv"), ok.join("g.png"));
+    a.extend(["--csv", c.to_str().unwrap(), "--plot", p.to_str().unwrap()]);
+    pftrack_ok(&a);
+    assert_eq!(names(&ok), ["g.csv", "g.png", "g_lambda.csv"]);
+    assert_eq!(image::open(&p).unwrap().width(), 1400);
+    std::fs::remove_dir_all(&dir).unwrap();
+    std::fs::remove_dir_all(&ok).unwrap();
+}
+
+/// A one-frame sequence is a whole track: the initial row, a summary that counts one frame,
+/// and its rendering.
+#[test]
+fn cli_tracks_a_one_frame_sequence() {
+    let dir = synth_dir("one-frame", 1, "64x48");
+    let d = dir.to_str().unwrap();
+    let csv = dir.join("poses.csv");
+    let render = dir.join("render");
+    let out = pftrack_ok(&[
+        "track",
+        d,
+        "--backend",
+        "cpu",
+        "--out",
+        csv.to_str().unwrap(),
+        "--render",
+        render.to_str().unwrap(),
+    ]);
+    let rows = read_pose_csv(&csv).unwrap();
+    assert_eq!(rows.len(), 1);
+    let init = read_init(&dir.join("init.txt")).unwrap().ellipse;
+    let s = rows[0].state;
+    assert_eq!((s.cx, s.cy, s.a, s.b), (init.cx, init.cy, init.a, init.b));
+    assert_eq!((s.rx, s.ry, s.rz), (0.0, 0.0, 0.0));
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(stderr.contains("tracked 1 frame with"), "{stderr}");
+    assert_eq!(std::fs::read_dir(&render).unwrap().count(), 1);
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// `bench --step` times the whole tracker step: a row per particle count with a positive
+/// time and its frames per second, for one thread (and all, where there are more).
+#[test]
+fn cli_bench_step_times_the_whole_step() {
+    let out = pftrack_ok(&[
+        "bench",
+        "--step",
+        "--particles",
+        "20,40",
+        "--size",
+        "64x48",
+        "--repeats",
+        "1",
+        "--backend",
+        "cpu",
+    ]);
+    let text = String::from_utf8_lossy(&out.stdout).to_string();
+    assert!(
+        text.contains("whole tracker step: `nod` at 64x48"),
+        "{text}"
+    );
+    for n in ["20", "40"] {
+        let row = text
+            .lines()
+            .find(|l| l.split_whitespace().next() == Some(n))
+            .unwrap_or_else(|| panic!("no row for {n}: {text}"));
+        // "N  ms (fps/s)" per column
+        let cells: Vec<&str> = row.split_whitespace().skip(1).collect();
+        assert!(!cells.is_empty() && cells.len().is_multiple_of(2), "{row}");
+        for pair in cells.chunks(2) {
+            let ms: f64 = pair[0].parse().unwrap();
+            let fps: f64 = pair[1]
+                .trim_start_matches('(')
+                .trim_end_matches("/s)")
+                .parse()
+                .unwrap();
+            assert!(ms > 0.0 && fps > 0.0, "{row}");
+            assert!((ms * fps / 1000.0 - 1.0).abs() < 0.05, "{row}");
+        }
+    }
+}
