@@ -353,6 +353,15 @@ fn region_restriction_matches_the_full_run_inside() {
         .detect(&img, Some(BoxRect::new(500.0, 500.0, 20.0, 20.0)))
         .unwrap();
     assert!(out.is_empty());
+    // A region beyond any image is the whole image (its bounds once overflowed an i64: a
+    // 1e19 px region found nothing, and panicked in a debug build).
+    for huge in [
+        BoxRect::new(0.0, 0.0, 1e19, 1e19),
+        BoxRect::new(-1e30, -1e30, 1e31, 1e31),
+        BoxRect::new(-1e300, 0.0, 1e308, 1e308),
+    ] {
+        assert_eq!(sift.detect(&img, Some(huge)).unwrap(), full, "{huge:?}");
+    }
     // Results do not depend on the buffers left over from earlier calls.
     Sift::release_thread_buffers();
     assert_eq!(sift.detect(&img, Some(region)).unwrap(), part);

@@ -378,12 +378,15 @@ impl Sift {
         }
         let margin = f64::from(self.params.region_margin.max(0.0));
         const ALIGN: i64 = 8;
-        let x0 = ((region.x - margin).floor() as i64).max(0);
-        let y0 = ((region.y - margin).floor() as i64).max(0);
+        // Clamped to the image before the casts: a region of 1e19 px would saturate an i64
+        // and wrap the `+ 1`.
+        let (wf, hf) = (w as f64, h as f64);
+        let x0 = (region.x - margin).floor().clamp(0.0, wf) as i64;
+        let y0 = (region.y - margin).floor().clamp(0.0, hf) as i64;
         let x0 = x0 - x0 % ALIGN;
         let y0 = y0 - y0 % ALIGN;
-        let x1 = ((region.x + region.w + margin).ceil() as i64 + 1).min(w as i64);
-        let y1 = ((region.y + region.h + margin).ceil() as i64 + 1).min(h as i64);
+        let x1 = ((region.x + region.w + margin).ceil() + 1.0).clamp(0.0, wf) as i64;
+        let y1 = ((region.y + region.h + margin).ceil() + 1.0).clamp(0.0, hf) as i64;
         if x1 <= x0 || y1 <= y0 {
             return Ok(out);
         }

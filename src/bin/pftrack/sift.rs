@@ -105,14 +105,13 @@ pub fn run(args: SiftArgs) -> anyhow::Result<()> {
             )?;
         }
         Some(path) => {
-            let file = std::fs::File::create(path)
-                .with_context(|| format!("cannot write {}", path.display()))?;
-            let mut w = std::io::BufWriter::new(file);
+            let mut w = pftrack::io::AtomicFile::create(path)?;
+            let err = || format!("writing {}", path.display());
             let mut header = String::from("x,y,scale,angle_deg,response,octave");
             for i in 0..pftrack::features::DESCRIPTOR_LEN {
                 header.push_str(&format!(",d{i}"));
             }
-            writeln!(w, "{header}")?;
+            writeln!(w, "{header}").with_context(err)?;
             for (k, d) in feats.keypoints.iter().zip(&feats.descriptors) {
                 write!(
                     w,
@@ -123,14 +122,14 @@ pub fn run(args: SiftArgs) -> anyhow::Result<()> {
                     k.angle.to_degrees(),
                     k.response,
                     k.octave
-                )?;
+                )
+                .with_context(err)?;
                 for v in d {
-                    write!(w, ",{v}")?;
+                    write!(w, ",{v}").with_context(err)?;
                 }
-                writeln!(w)?;
+                writeln!(w).with_context(err)?;
             }
-            w.flush()
-                .with_context(|| format!("cannot write {}", path.display()))?;
+            w.commit()?;
             errln!(
                 "{} keypoints in {median:.3} ms (median of {}, fastest {fastest:.3} ms) → {}",
                 feats.len(),
