@@ -676,3 +676,35 @@ fn cli_bench_step_times_the_whole_step() {
         }
     }
 }
+
+/// A setting the tracker refuses is reported by the flag that set it, with the flag that
+/// turns the part off, not by the library's field and its `None`.
+#[test]
+fn cli_track_settings_errors_name_the_flag() {
+    let dir = synth_dir("flags", 2, "64x48");
+    let d = dir.to_str().unwrap();
+    let csv = dir.join("poses.csv");
+    let c = csv.to_str().unwrap();
+    for (flag, off) in [
+        ("--colour-rate=-1", "--colour-rate 0"),
+        ("--aspect-slack=0.5", "--no-aspect-bound"),
+        ("--size-hold=0.5", "--no-size-hold"),
+        ("--reacquire-ncc=2", "--no-template-reacquire"),
+        ("--reanchor-ncc=2", "--no-reanchor"),
+        ("--sift-upsample-below=-1", "--sift-always-upsample"),
+        ("--contrast-weight=-1", "--contrast-weight 0"),
+        ("--fit-centre-sigma=-1", "--no-fit-centre-prior"),
+        ("--found-above=2", "found_above 2"),
+    ] {
+        let name = flag.split('=').next().unwrap();
+        let args = ["track", d, "--backend", "cpu", flag, "--out", c];
+        assert_one_line_error(&args, &format!("error: {name}: "), &csv);
+        let err = String::from_utf8_lossy(&pftrack(&args).stderr).to_string();
+        assert!(err.contains(off), "{flag}: {err}");
+        assert!(
+            !err.contains("None") && !err.contains("Some("),
+            "{flag}: {err}"
+        );
+    }
+    std::fs::remove_dir_all(&dir).unwrap();
+}

@@ -113,11 +113,15 @@ impl TrackerConfig {
         }
         if let Some(prior) = self.fit_prior() {
             prior.check().map_err(|e| {
+                let centre = self
+                    .fit_centre_sigma
+                    .map_or_else(|| "None".to_string(), |c| c.to_string());
                 TrackError::BadConfig(format!(
-                    "fit_pixel_sigma {} with the filter's rotation walk {:?} and fit_centre_sigma \
-                     {:?}: {e}; set fit_pixel_sigma to None to fit without the prior, \
-                     fit_centre_sigma to None to leave the centre free",
-                    prior.pixel_sigma, self.filter.dynamics.rotation, self.fit_centre_sigma
+                    "the keyframe fits' motion prior (fit_pixel_sigma {}, fit_centre_sigma \
+                     {centre}, the filter's rotation walk {:?}): {e}; set fit_pixel_sigma to \
+                     None to fit without the prior, fit_centre_sigma to None to leave the \
+                     centre free",
+                    prior.pixel_sigma, self.filter.dynamics.rotation
                 ))
             })?;
         }

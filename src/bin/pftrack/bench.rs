@@ -22,7 +22,7 @@ pub struct BenchArgs {
     /// the sequence has 59 of them per pass].
     #[arg(long, value_delimiter = ',')]
     pub particles: Vec<usize>,
-    /// Frame size `WxH`.
+    /// Frame size `WxH`, 8 to 8192 pixels a side (with `--step`, 16 or more).
     #[arg(long, default_value = "160x120", value_parser = parse_size)]
     pub size: (u32, u32),
     /// Which engines to time: `auto` = CPU and, when an adapter exists, GPU.
@@ -51,8 +51,11 @@ fn parse_size(s: &str) -> Result<(u32, u32), String> {
         .trim()
         .parse()
         .map_err(|_| format!("bad height in {s:?}"))?;
-    if w < 8 || h < 8 {
-        return Err(format!("size {s:?}: at least 8x8"));
+    // The synthetic frames the step is timed on are bounded so; a larger frame would only
+    // time the allocator (40000x40000 ran for minutes, 100000x100000 aborted).
+    let max = pftrack::synth::MAX_SIDE;
+    if w < 8 || h < 8 || w > max || h > max {
+        return Err(format!("size {s:?}: each side from 8 to {max} pixels"));
     }
     Ok((w, h))
 }
@@ -109,6 +112,9 @@ fn median_stages(runs: &[StageTimes]) -> StageTimes {
 
 /// Runs the command.
 pub fn run(args: BenchArgs) -> anyhow::Result<()> {
+    if args.repeats == 0 {
+        anyhow::bail!("--repeats must be at least 1");
+    }
     let max = pftrack::filter::MAX_PARTICLES;
     if let Some(n) = args.particles.iter().find(|&&n| n == 0 || n > max) {
         anyhow::bail!("--particles: {n} is not a count from 1 to {max}");
@@ -381,6 +387,10 @@ mod tests {
         assert!(parse_size("640").is_err());
         assert!(parse_size("0x10").is_err());
         assert!(parse_size("ax10").is_err());
+        assert_eq!(parse_size("8192x8"), Ok((8192, 8)));
+        for big in ["8193x100", "100x8193", "100000x100000"] {
+            assert!(parse_size(big).unwrap_err().contains("8192"), "{big}");
+        }
     }
 
     #[test]

@@ -457,6 +457,78 @@ pub fn apply_edge_threshold(cfg: &mut TrackerConfig, t: Option<f64>) -> anyhow::
     Ok(())
 }
 
+/// The library settings the command line's flags set, each with its flag and what the
+/// command line offers where the library would take `None`; the first whose name a
+/// configuration error mentions is the one it is about.
+const FLAG_OF_SETTING: [(&str, &str, &str); 10] = [
+    (
+        "fit_centre_sigma",
+        "--fit-centre-sigma",
+        "--no-fit-centre-prior leaves the fits' centre free",
+    ),
+    (
+        "fit_pixel_sigma",
+        "--fit-centre-sigma",
+        "--no-fit-prior fits without the prior",
+    ),
+    (
+        "colour_update",
+        "--colour-rate",
+        "--colour-rate 0 keeps the first frame's colours",
+    ),
+    (
+        "aspect_slack",
+        "--aspect-slack",
+        "--no-aspect-bound leaves the ellipse's aspect free",
+    ),
+    (
+        "size_hold",
+        "--size-hold",
+        "--no-size-hold leaves the ellipse's size free",
+    ),
+    (
+        "reacquire_ncc",
+        "--reacquire-ncc",
+        "--no-template-reacquire recognises a re-acquired target by its features alone",
+    ),
+    (
+        "reanchor",
+        "--reanchor-ncc",
+        "--no-reanchor leaves the estimate to the filter",
+    ),
+    (
+        "sift_upsample_below",
+        "--sift-upsample-below",
+        "--sift-always-upsample keeps one SIFT setting for every size",
+    ),
+    (
+        "contrast weight",
+        "--contrast-weight",
+        "--contrast-weight 0 weighs without the contrast term",
+    ),
+    ("found_above", "--found-above", ""),
+];
+
+/// A configuration error in the command line's terms: the flag behind the setting first,
+/// and the flag that turns the part off in place of the library's "set it to None".
+fn flag_error(msg: &str) -> String {
+    let Some((_, flag, off)) = FLAG_OF_SETTING
+        .iter()
+        .find(|(setting, _, _)| msg.contains(setting))
+    else {
+        return msg.to_string();
+    };
+    let head = msg.split_once("; set ").map_or(msg, |(h, _)| h);
+    let head = head
+        .strip_prefix("invalid tracker configuration: ")
+        .unwrap_or(head);
+    if off.is_empty() {
+        format!("{flag}: {head}")
+    } else {
+        format!("{flag}: {head} ({off})")
+    }
+}
+
 /// The pose CSV record of an estimate.
 pub fn record(e: &Estimate) -> PoseRecord {
     PoseRecord {
@@ -560,6 +632,8 @@ pub fn run(a: TrackArgs) -> anyhow::Result<()> {
             ..Default::default()
         })
     };
+    cfg.check()
+        .map_err(|e| anyhow::anyhow!(flag_error(&e.to_string())))?;
     let backend: Backend = a
         .backend
         .parse()
