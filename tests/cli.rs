@@ -708,3 +708,47 @@ fn cli_track_settings_errors_name_the_flag() {
     }
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+/// `--init-truth` on a pose CSV starts from its first row's pose as well as its ellipse,
+/// unless `--init-pose` says otherwise; a start beyond the frame or a turn is refused.
+#[test]
+fn cli_init_truth_starts_from_the_first_rows_pose() {
+    let dir = synth_dir("init-truth", 2, "64x48");
+    let d = dir.to_str().unwrap();
+    let truth = dir.join("truth.csv");
+    let mut rows = read_pose_csv(&truth).unwrap();
+    rows[0].state.rx = 20f64.to_radians();
+    let turned = dir.join("turned.csv");
+    pftrack::io::write_pose_csv(&turned, &rows, false).unwrap();
+    let t = turned.to_str().unwrap();
+    let csv = dir.join("poses.csv");
+    let c = csv.to_str().unwrap();
+    let first_rx = |extra: &[&str]| {
+        let mut a = vec![
+            "track",
+            d,
+            "--backend",
+            "cpu",
+            "--init-truth",
+            t,
+            "--out",
+            c,
+        ];
+        a.extend(extra);
+        pftrack_ok(&a);
+        read_pose_csv(&csv).unwrap()[0].state.rx.to_degrees()
+    };
+    assert!((first_rx(&[]) - 20.0).abs() < 1e-4);
+    assert!(first_rx(&["--init-pose", "0,0,0"]).abs() < 1e-9);
+    std::fs::remove_file(&csv).unwrap();
+    for (bad, needle) in [
+        (["--init-pose", "1000,0,0"], "at most 360"),
+        (["--init-ellipse", "32,24,100,10"], "at most 64 px"),
+        (["--init-ellipse", "32,24,10,10,-1e30"], "at most 360"),
+    ] {
+        let mut a = vec!["track", d, "--backend", "cpu", "--out", c];
+        a.extend(bad);
+        assert_one_line_error(&a, needle, &csv);
+    }
+    std::fs::remove_dir_all(&dir).unwrap();
+}

@@ -1,7 +1,7 @@
 //! The whole tracker on short synthetic sequences with exact truth: it must follow the target
 //! and its rotation, deterministically for a seed, and reject bad input without panicking.
 
-use pftrack::geometry::{Ellipse, angle_between, rot_x};
+use pftrack::geometry::{Ellipse, Euler, angle_between, rot_x};
 use pftrack::motion::AbmParams;
 use pftrack::pose::bundle::BundleParams;
 use pftrack::synth::{Renderer, Scenario, SynthConfig};
@@ -192,10 +192,36 @@ fn bad_input_is_an_error() {
         Ellipse::new(50.0, 50.0, 0.0, 10.0),
         Ellipse::new(50.0, 50.0, 1.5, 10.0),
         Ellipse::new(f64::NAN, 5.0, 5.0, 5.0),
+        // Wider than twice the frame.
+        Ellipse::new(50.0, 50.0, f64::from(w.max(h)) + 1.0, 10.0),
+        // An angle of more than a turn (-1e30 degrees was taken, and changed the track).
+        Ellipse {
+            theta: -1e30f64.to_radians(),
+            ..r.init_ellipse()
+        },
     ] {
         let init = Init::frontal(e);
         assert!(matches!(init.check(w, h), Err(TrackError::BadInit(_))));
         assert!(Tracker::new(TrackerConfig::default(), &img, init).is_err());
+    }
+    // The largest ellipse and the widest angles allowed.
+    let side = f64::from(w.max(h));
+    let whole = Ellipse {
+        theta: -std::f64::consts::TAU,
+        ..Ellipse::new(f64::from(w) / 2.0, f64::from(h) / 2.0, side, side)
+    };
+    assert!(Init::frontal(whole).check(w, h).is_ok());
+    let turned = Init {
+        ellipse: r.init_ellipse(),
+        pose: Euler::from_degrees(360.0, -360.0, 0.0),
+    };
+    assert!(turned.check(w, h).is_ok());
+    for bad in [1000.0, f64::INFINITY, f64::NAN] {
+        let init = Init {
+            ellipse: r.init_ellipse(),
+            pose: Euler::from_degrees(0.0, bad, 0.0),
+        };
+        assert!(matches!(init.check(w, h), Err(TrackError::BadInit(_))));
     }
     // The keyframe fits' rotation prior needs positive sigmas.
     for px in [0.0, -1.0, f64::NAN] {

@@ -7,8 +7,9 @@ use super::{Init, TrackError, TrackerConfig};
 
 impl Init {
     /// Checks the start against a `w x h` frame, as [`super::Tracker::new`] and
-    /// [`super::Tracker::reinit`] do: a valid ellipse of semi-axes at least 2 px whose centre
-    /// lies in the frame, and finite angles ([`TrackError::BadInit`]).
+    /// [`super::Tracker::reinit`] do: a valid ellipse of semi-axes at least 2 px and at most
+    /// the frame's longer side, whose centre lies in the frame, and angles (the ellipse's and
+    /// the pose's) within a turn either way ([`TrackError::BadInit`]).
     pub fn check(&self, w: u32, h: u32) -> Result<(), TrackError> {
         let e = &self.ellipse;
         if !e.is_valid() {
@@ -23,6 +24,22 @@ impl Init {
                 e.a, e.b
             )));
         }
+        let side = f64::from(w.max(h));
+        if e.a > side || e.b > side {
+            return Err(TrackError::BadInit(format!(
+                "semi-axes {} x {} px: at most {side} px each, the {w}x{h} frame's longer side",
+                short(e.a),
+                short(e.b)
+            )));
+        }
+        // A turn either way, with room for rounding from degrees.
+        let turn = std::f64::consts::TAU * (1.0 + 1e-12);
+        if e.theta.abs() > turn {
+            return Err(TrackError::BadInit(format!(
+                "ellipse angle {} degrees: at most 360 either way",
+                short(e.theta.to_degrees())
+            )));
+        }
         if !e.centre_inside(w, h) {
             return Err(TrackError::BadInit(format!(
                 "centre ({:.1}, {:.1}) lies outside the {w}x{h} frame",
@@ -30,10 +47,13 @@ impl Init {
             )));
         }
         let p = &self.pose;
-        if ![p.rx, p.ry, p.rz].iter().all(|v| v.is_finite()) {
-            return Err(TrackError::BadInit(
-                "initial pose angles must be finite".into(),
-            ));
+        if ![p.rx, p.ry, p.rz].iter().all(|v| v.abs() <= turn) {
+            return Err(TrackError::BadInit(format!(
+                "initial pose {}, {}, {} degrees: each angle finite and at most 360 either way",
+                short(p.rx.to_degrees()),
+                short(p.ry.to_degrees()),
+                short(p.rz.to_degrees())
+            )));
         }
         Ok(())
     }
@@ -221,6 +241,15 @@ impl TrackerConfig {
                 pixel_sigma: px,
                 centre_sigma: self.fit_centre_sigma,
             })
+    }
+}
+
+/// `x` for a message: one decimal, or in exponent form when large.
+fn short(x: f64) -> String {
+    if x.abs() < 1e6 {
+        format!("{x:.1}")
+    } else {
+        format!("{x:.3e}")
     }
 }
 

@@ -70,8 +70,8 @@ use spin::{Moved, smoothed_spin};
 /// Errors of the tracker.
 #[derive(Debug, thiserror::Error)]
 pub enum TrackError {
-    /// The initial ellipse is unusable.
-    #[error("invalid initial ellipse ({0})")]
+    /// The start (its ellipse or pose) is unusable.
+    #[error("invalid start: {0}")]
     BadInit(String),
     /// A setting of the configuration is out of range.
     #[error("invalid tracker configuration: {0}")]

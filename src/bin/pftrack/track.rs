@@ -47,17 +47,14 @@ pub struct TrackArgs {
     /// An init file `cx,cy,a,b[,angle]` (what `pftrack synth` writes).
     #[arg(long, value_name = "FILE", group = "init")]
     pub init_file: Option<PathBuf>,
-    /// Ground truth to start from: the first row of a pose CSV or of an OTB box file.
+    /// Ground truth to start from: the first row of a pose CSV (its ellipse and pose) or of
+    /// an OTB box file (its box).
     #[arg(long, value_name = "FILE", group = "init")]
     pub init_truth: Option<PathBuf>,
-    /// Initial pose `rx,ry,rz` in degrees (frontal 0,0,0 by default).
-    #[arg(
-        long,
-        value_name = "RX,RY,RZ",
-        default_value = "0,0,0",
-        allow_hyphen_values = true
-    )]
-    pub init_pose: String,
+    /// Initial pose `rx,ry,rz` in degrees, each within 360 either way [default: frontal
+    /// 0,0,0, or the first row's with `--init-truth` on a pose CSV].
+    #[arg(long, value_name = "RX,RY,RZ", allow_hyphen_values = true)]
+    pub init_pose: Option<String>,
     /// Number of particles.
     #[arg(long, default_value_t = 200)]
     pub particles: usize,
@@ -369,6 +366,18 @@ fn given_init(a: &TrackArgs) -> anyhow::Result<Option<InitFile>> {
     Ok(None)
 }
 
+/// The pose of `--init-truth`'s first row when it is a pose CSV (`None` for a box file or
+/// without `--init-truth`).
+fn truth_pose(a: &TrackArgs) -> anyhow::Result<Option<Euler>> {
+    let Some(p) = &a.init_truth else {
+        return Ok(None);
+    };
+    Ok(match pftrack::eval::load_truth(p)? {
+        pftrack::eval::Truth::Poses(r) => Some(r[0].state.euler()),
+        pftrack::eval::Truth::Boxes(_) => None,
+    })
+}
+
 /// Builds the tracker configuration from the arguments.
 pub fn config(mode: &str, particles: usize, seed: u64) -> anyhow::Result<TrackerConfig> {
     let mode = Mode::from_name(mode)
@@ -562,10 +571,16 @@ pub fn run(a: TrackArgs) -> anyhow::Result<()> {
     }
     let (frames_path, synth_init) = resolve_input(&a.input);
     let init_file = initial_ellipse(&a, synth_init.as_deref())?;
-    let pose = parse_floats(&a.init_pose, &[3], "--init-pose")?;
+    let pose = match &a.init_pose {
+        Some(p) => {
+            let v = parse_floats(p, &[3], "--init-pose")?;
+            Euler::from_degrees(v[0], v[1], v[2])
+        }
+        None => truth_pose(&a)?.unwrap_or_default(),
+    };
     let init = Init {
         ellipse: init_file.ellipse,
-        pose: Euler::from_degrees(pose[0], pose[1], pose[2]),
+        pose,
     };
     let mut cfg = config(&a.mode, a.particles, a.seed)?;
     apply_hfov(
