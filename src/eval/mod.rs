@@ -456,7 +456,7 @@ impl Report {
         row(
             &mut s,
             "centre error",
-            format!("{:.3} px (mean)", self.mean_centre_error_px),
+            format!("{} px (mean)", fixed(self.mean_centre_error_px, 3)),
         );
         row(
             &mut s,
@@ -488,10 +488,20 @@ impl Report {
                 ("rz", r.rz, m.rz, g.rz),
             ] {
                 let g = g.map_or_else(|| "-".to_string(), |g| format!("{g:.3}"));
-                let _ = writeln!(s, "{name:<6}{a:>12.3}{b:>12.3}{g:>8}");
+                let _ = writeln!(s, "{name:<6}{:>12}{:>12}{g:>8}", fixed(a, 3), fixed(b, 3));
             }
         }
         s
+    }
+}
+
+/// `x` with `decimals` decimals, or in exponent form when too large for a table (an
+/// estimate a tracker threw 1e300 px away would print 300 digits).
+fn fixed(x: f64, decimals: usize) -> String {
+    if x.abs() < 1e9 || !x.is_finite() {
+        format!("{x:.decimals$}")
+    } else {
+        format!("{x:.decimals$e}")
     }
 }
 
@@ -499,6 +509,14 @@ impl Report {
 mod tests {
     use super::*;
     use crate::geometry::{PoseState, rad};
+
+    #[test]
+    fn huge_values_are_shown_in_exponent_form() {
+        assert_eq!(fixed(1.23456, 3), "1.235");
+        assert_eq!(fixed(-12345.0, 1), "-12345.0");
+        assert_eq!(fixed(1e300, 3), "1.000e300");
+        assert_eq!(fixed(f64::NAN, 3), "NaN");
+    }
 
     fn rec(frame: usize, cx: f64, rx_deg: f64) -> PoseRecord {
         PoseRecord {

@@ -51,6 +51,18 @@ pub fn parse_otb_boxes(text: &str, path: &Path) -> Result<Vec<BoxRect>, FormatEr
         for (k, name) in ["x", "y", "w", "h"].iter().enumerate() {
             v[k] = parse_f64(f[k], name).map_err(|m| FormatError::parse(path, i + 1, m))?;
         }
+        // A zero size is how some OTB sequences mark a frame without the target; a negative
+        // one is no box.
+        if let Some((name, x)) = [("w", v[2]), ("h", v[3])]
+            .into_iter()
+            .find(|(_, x)| *x < 0.0)
+        {
+            return Err(FormatError::parse(
+                path,
+                i + 1,
+                format!("{name} {x} is negative"),
+            ));
+        }
         out.push(otb_to_pixel(v[0], v[1], v[2], v[3]));
     }
     if out.is_empty() {
@@ -75,6 +87,9 @@ mod tests {
         assert!(parse_otb_boxes("1,2,3\n", Path::new("x")).is_err());
         assert!(parse_otb_boxes("1,2,3,x\n", Path::new("x")).is_err());
         assert!(parse_otb_boxes("\n\n", Path::new("x")).is_err());
+        let e = parse_otb_boxes("1,2,3,4\n60,40,-40,50\n", Path::new("n")).unwrap_err();
+        assert_eq!(e.to_string(), "n:2: w -40 is negative");
+        assert!(parse_otb_boxes("0,0,0,0\n", Path::new("z")).is_ok());
     }
 
     #[test]

@@ -31,6 +31,7 @@ macro_rules! errln {
 mod bench;
 mod demo;
 mod eval;
+mod paths;
 mod pose;
 mod pose_noise;
 mod sift;

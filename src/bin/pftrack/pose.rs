@@ -77,6 +77,9 @@ pub fn run(a: PoseArgs) -> anyhow::Result<()> {
     if !e.is_valid() {
         bail!("--ellipse: semi-axes must be positive");
     }
+    if let Some(d) = &a.draw {
+        crate::paths::not_an_input("--draw", d, &[&a.frame_a, &a.frame_b])?;
+    }
     // `None`: the essential-matrix baseline, which is not a block solver.
     let solver = match a.solver.as_str() {
         "essential" => None,

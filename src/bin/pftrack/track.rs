@@ -570,6 +570,7 @@ pub fn run(a: TrackArgs) -> anyhow::Result<()> {
         bail!("--max-frames must be at least 1 (the first frame is the initial estimate)");
     }
     let (frames_path, synth_init) = resolve_input(&a.input);
+    crate::paths::track_outputs(&frames_path, a.out.as_deref(), a.render.as_deref())?;
     let init_file = initial_ellipse(&a, synth_init.as_deref())?;
     let pose = match &a.init_pose {
         Some(p) => {
