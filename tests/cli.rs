@@ -124,7 +124,12 @@ fn cli_bad_input_is_a_one_line_error() {
         "nod, pan, roll, combo, depth, car, long",
         &truth,
     );
-    assert_one_line_error(&["synth", d, "--frames", "0"], "at least 1", &truth);
+    assert_one_line_error(&["synth", d, "--frames", "0"], "from 1 to 100000", &truth);
+    assert_one_line_error(
+        &["synth", d, "--frames", "1000000000"],
+        "from 1 to 100000",
+        &truth,
+    );
     for size in ["10x", "0x120", "abc", "160x120x3", "100000x100"] {
         assert_one_line_error(&["synth", d, "--size", size], "size", &truth);
     }
@@ -709,6 +714,24 @@ fn cli_track_settings_errors_name_the_flag() {
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
+/// `demo` checks its arguments before it renders anything: a bad one leaves no folder.
+#[test]
+fn cli_demo_checks_before_rendering() {
+    let dir = tmp_dir("demo-checks");
+    let out = dir.join("demo");
+    let o = out.to_str().unwrap();
+    for (bad, needle) in [
+        (["--particles", "0"], "--particles"),
+        (["--backend", "foo"], "--backend"),
+        (["--frames", "0"], "frames"),
+        (["--scenario", "spin"], "spin"),
+    ] {
+        let mut a = vec!["demo", "--out", o];
+        a.extend(bad);
+        assert_one_line_error(&a, needle, &out);
+    }
+}
+
 /// `--init-truth` on a pose CSV starts from its first row's pose as well as its ellipse,
 /// unless `--init-pose` says otherwise; a start beyond the frame or a turn is refused.
 #[test]
@@ -750,5 +773,29 @@ fn cli_init_truth_starts_from_the_first_rows_pose() {
         a.extend(bad);
         assert_one_line_error(&a, needle, &csv);
     }
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// An input of the wrong kind is named for what it is: a folder given as an image, a device
+/// given as a video.
+#[test]
+fn cli_inputs_of_the_wrong_kind_are_named() {
+    let dir = synth_dir("kinds", 2, "64x48");
+    let d = dir.to_str().unwrap();
+    let none = dir.join("none.csv");
+    assert_one_line_error(&["sift", d], "is a directory, not an image", &none);
+    let frame = dir.join("frames/00000.png");
+    let f = frame.to_str().unwrap();
+    assert_one_line_error(
+        &["pose", d, f, "--ellipse", "32,24,8,10"],
+        "is a directory, not an image",
+        &none,
+    );
+    #[cfg(unix)]
+    assert_one_line_error(
+        &["track", "/dev/null", "--init-ellipse", "5,5,3,3"],
+        "not a video file",
+        &none,
+    );
     std::fs::remove_dir_all(&dir).unwrap();
 }

@@ -82,11 +82,21 @@ pub fn list_images(dir: &Path) -> Result<Vec<PathBuf>, FrameError> {
 }
 
 /// Decodes one image file to RGB8 (format guessed from the content, then the extension).
+/// A folder is refused by name (the image crate would call it an unknown format).
 pub fn decode_rgb(p: &Path) -> Result<Frame, FrameError> {
     let dec = |e: image::ImageError| FrameError::Decode {
         path: p.display().to_string(),
         msg: e.to_string(),
     };
+    if p.is_dir() {
+        return Err(FrameError::io(
+            p,
+            std::io::Error::new(
+                std::io::ErrorKind::IsADirectory,
+                "is a directory, not an image",
+            ),
+        ));
+    }
     let reader = image::ImageReader::open(p)
         .map_err(|e| FrameError::io(p, e))?
         .with_guessed_format()

@@ -217,9 +217,19 @@ pub(crate) struct FfmpegSource {
 impl FfmpegSource {
     /// Probes the size, then starts the decode.
     pub(crate) fn open(path: &Path, tools: &FfmpegTools) -> Result<Self, FrameError> {
-        if !path.is_file() {
+        if !path.exists() {
             return Err(FrameError::NotFound {
                 path: path.display().to_string(),
+            });
+        }
+        if !path.is_file() {
+            // A device, a pipe or a socket (`/dev/null`): ffprobe would wait on or misread it.
+            return Err(FrameError::Io {
+                path: path.display().to_string(),
+                cause: std::io::Error::new(
+                    std::io::ErrorKind::InvalidInput,
+                    "not a video file, an image folder or a y4m stream (use - for standard input)",
+                ),
             });
         }
         let (w, h, n) = probe(tools, path)?;

@@ -192,13 +192,16 @@ impl std::fmt::Display for Scenario {
 pub const MAX_SIDE: u32 = 8192;
 /// Smallest accepted image side (pixels).
 pub const MIN_SIDE: u32 = 16;
+/// Most frames of one sequence: 100000 frames of 160x120 are about 4 GB of PNG files, an
+/// hour at 25 frames a second.
+pub const MAX_FRAMES: usize = 100_000;
 
 /// What to render.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct SynthConfig {
     /// The scenario.
     pub scenario: Scenario,
-    /// Number of frames (at least 1).
+    /// Number of frames (1 to [`MAX_FRAMES`]).
     pub frames: usize,
     /// Image width (pixels).
     pub width: u32,
@@ -222,10 +225,11 @@ impl SynthConfig {
 
     /// Checks the frame count and the size.
     pub fn validate(&self) -> Result<(), SynthError> {
-        if self.frames == 0 {
-            return Err(SynthError::InvalidConfig(
-                "the number of frames must be at least 1".into(),
-            ));
+        if !(1..=MAX_FRAMES).contains(&self.frames) {
+            return Err(SynthError::InvalidConfig(format!(
+                "{} frames: the number of frames must be from 1 to {MAX_FRAMES}",
+                self.frames
+            )));
         }
         for (what, v) in [("width", self.width), ("height", self.height)] {
             if !(MIN_SIDE..=MAX_SIDE).contains(&v) {

@@ -47,16 +47,19 @@ pub fn run(a: DemoArgs) -> anyhow::Result<()> {
     if let Some(n) = a.frames {
         cfg.frames = n;
     }
+    // Every argument checked before anything is rendered or written.
+    cfg.validate()?;
+    let backend: Backend = a
+        .backend
+        .parse()
+        .map_err(|e| anyhow::anyhow!("--backend: {e}"))?;
+    let mut tcfg = config("sea", a.particles, a.seed)?;
     let seq_dir = a.out.join("sequence");
     std::fs::create_dir_all(&seq_dir).with_context(|| format!("creating {}", seq_dir.display()))?;
     let t0 = std::time::Instant::now();
     let summary = write_sequence(&cfg, &seq_dir, std::io::stderr().is_terminal())?;
     let render_s = t0.elapsed().as_secs_f64();
 
-    let backend: Backend = a
-        .backend
-        .parse()
-        .map_err(|e| anyhow::anyhow!("--backend: {e}"))?;
     let (engine, notice) = create_engine(backend)?;
     if let Some(n) = notice {
         errln!("pftrack: {n}");
@@ -68,7 +71,6 @@ pub fn run(a: DemoArgs) -> anyhow::Result<()> {
         .next()
         .context("the rendered sequence has no frames")??;
     // The synthetic camera is known: the init file gives it.
-    let mut tcfg = config("sea", a.particles, a.seed)?;
     tcfg.camera_hfov_deg = init_file.hfov_deg;
     let mut tracker = Tracker::with_engine(tcfg, engine, &first, init)?;
     let poses = a.out.join("poses.csv");

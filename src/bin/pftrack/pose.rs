@@ -3,11 +3,12 @@
 
 use std::path::PathBuf;
 
-use anyhow::{Context, bail};
+use anyhow::bail;
 use clap::Args;
 use image::{Rgb, RgbImage};
 use pftrack::features::{MatchParams, Sift, SiftParams, keep_slope_length, match_features};
 use pftrack::frames::GrayF32;
+use pftrack::frames::dir::decode_rgb;
 use pftrack::geometry::{Ellipse, Euler};
 use pftrack::pose::{SolverKind, essential_rotation, interframe};
 
@@ -30,12 +31,6 @@ pub struct PoseArgs {
     /// Draw the matches as arrows (like the paper's Fig. 1) into this PNG.
     #[arg(long, value_name = "F.png")]
     pub draw: Option<PathBuf>,
-}
-
-fn load(p: &PathBuf) -> anyhow::Result<RgbImage> {
-    Ok(image::open(p)
-        .with_context(|| format!("reading {}", p.display()))?
-        .to_rgb8())
 }
 
 /// Draws a line with a small arrow head (nearest-pixel steps).
@@ -89,7 +84,7 @@ pub fn run(a: PoseArgs) -> anyhow::Result<()> {
             )
         })?),
     };
-    let (ia, ib) = (load(&a.frame_a)?, load(&a.frame_b)?);
+    let (ia, ib) = (decode_rgb(&a.frame_a)?, decode_rgb(&a.frame_b)?);
     if ia.dimensions() != ib.dimensions() {
         bail!(
             "the images differ in size: {:?} and {:?}",

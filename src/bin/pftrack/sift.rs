@@ -53,9 +53,7 @@ fn parse_region(s: &str) -> Result<BoxRect, String> {
 
 /// Runs the command.
 pub fn run(args: SiftArgs) -> anyhow::Result<()> {
-    let img = image::open(&args.image)
-        .with_context(|| format!("cannot read image {}", args.image.display()))?
-        .to_rgb8();
+    let img = pftrack::frames::dir::decode_rgb(&args.image)?;
     if let Some(r) = &args.region
         && (r.x >= img.width() as f64
             || r.y >= img.height() as f64
