@@ -101,6 +101,13 @@ pub fn decode_rgb(p: &Path) -> Result<Frame, FrameError> {
         .map_err(|e| FrameError::io(p, e))?
         .with_guessed_format()
         .map_err(|e| FrameError::io(p, e))?;
+    if reader.format().is_none() {
+        // Neither the content nor the extension names a format.
+        return Err(FrameError::Decode {
+            path: p.display().to_string(),
+            msg: "not an image (png, jpg, jpeg, bmp, pgm, ppm)".into(),
+        });
+    }
     Ok(reader.decode().map_err(dec)?.into_rgb8())
 }
 

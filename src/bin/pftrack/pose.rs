@@ -87,9 +87,11 @@ pub fn run(a: PoseArgs) -> anyhow::Result<()> {
     let (ia, ib) = (decode_rgb(&a.frame_a)?, decode_rgb(&a.frame_b)?);
     if ia.dimensions() != ib.dimensions() {
         bail!(
-            "the images differ in size: {:?} and {:?}",
-            ia.dimensions(),
-            ib.dimensions()
+            "the images differ in size: {}x{} and {}x{}",
+            ia.width(),
+            ia.height(),
+            ib.width(),
+            ib.height()
         );
     }
     if !e.centre_inside(ia.width(), ia.height()) {
