@@ -455,8 +455,34 @@ fn degenerate_images_do_not_panic() {
             },
             "max_octaves",
         ),
+        // A blur of 1e4 px took 37 s on a 48x40 image, 1e9 px aborted on its kernel's
+        // allocation and 1e20 px overflowed its size.
+        (
+            SiftParams {
+                sigma: 1e20,
+                ..SiftParams::default()
+            },
+            "sigma 100000000000000000000",
+        ),
+        (
+            SiftParams {
+                input_sigma: 1e4,
+                ..SiftParams::default()
+            },
+            "input_sigma",
+        ),
+        (
+            SiftParams {
+                n_octave_layers: usize::MAX,
+                ..SiftParams::default()
+            },
+            "n_octave_layers",
+        ),
     ] {
         let err = bad.check().unwrap_err().to_string();
+        assert!(err.contains(name), "{err}");
+        // Built anyway, the detector refuses to run with the same error, at once.
+        let err = Sift::new(bad).detect(&g, None).unwrap_err().to_string();
         assert!(err.contains(name), "{err}");
     }
     assert!(SiftParams::default().check().is_ok());

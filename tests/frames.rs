@@ -201,13 +201,22 @@ fn bad_resize_and_sizes() {
     assert!(e.to_string().contains("160by120"));
     let d = scratch("badresize");
     save_flat(&d.join("1.png"), 4, 3, 1);
-    let opts = SourceOptions {
-        resize: Some((0, 5)),
-    };
-    assert!(matches!(
-        frames::open(&d, &opts),
-        Err(FrameError::BadSize { .. })
-    ));
+    // Zero, and (as parse_size bounds them) more than 32768 a side: 100000x100000 once
+    // aborted on its allocation at the first frame, u32::MAX overflowed the buffer's size.
+    for resize in [
+        (0, 5),
+        (32769, 10),
+        (100_000, 100_000),
+        (u32::MAX, u32::MAX),
+    ] {
+        let opts = SourceOptions {
+            resize: Some(resize),
+        };
+        assert!(
+            matches!(frames::open(&d, &opts), Err(FrameError::BadSize { .. })),
+            "{resize:?}"
+        );
+    }
     std::fs::remove_dir_all(&d).unwrap();
 }
 

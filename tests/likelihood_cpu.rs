@@ -710,6 +710,9 @@ fn engine_terms_flags_and_errors() {
     let mut o = Vec::new();
     assert!(eng.evaluate(&nan_frame, &params, &[prev], &mut o).is_err());
     assert!(CpuEngine::with_threads(0).is_err());
+    let many = pftrack::likelihood::cpu::MAX_THREADS + 1;
+    assert!(CpuEngine::with_threads(many).is_err());
+    assert!(CpuEngine::with_threads(usize::MAX).is_err());
     assert!(
         eng.set_colour_model(&ColourHistogram(vec![0.0; 10]))
             .is_err()

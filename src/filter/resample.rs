@@ -34,10 +34,10 @@ pub fn effective_sample_size(w: &[f64]) -> f64 {
 /// Systematic resampling: `n` indices drawn with the comb `(u0 + k) / n`, `u0 ∈ [0, 1)`,
 /// against the cumulative weights. Each particle `i` is drawn `⌊n wᵢ⌋` or `⌈n wᵢ⌉` times.
 pub fn systematic(w: &[f64], n: usize, u0: f64) -> Vec<usize> {
-    let mut out = Vec::with_capacity(n);
     if w.is_empty() {
-        return out;
+        return Vec::new();
     }
+    let mut out = Vec::with_capacity(n);
     let mut cum = w[0];
     let mut i = 0;
     for k in 0..n {
@@ -74,7 +74,7 @@ pub fn systematic_margin(w: &[f64], n: usize, u0: f64) -> f64 {
     for &c in &cum {
         // Smallest k with (u0 + k) / n >= c, and the tooth just below it.
         let k = (c * n as f64 - u0).ceil().max(0.0) as usize;
-        for kk in [k.checked_sub(1), Some(k), Some(k + 1)]
+        for kk in [k.checked_sub(1), Some(k), k.checked_add(1)]
             .into_iter()
             .flatten()
         {
@@ -112,6 +112,17 @@ mod tests {
         assert_eq!(w[3], 0.0);
         let u = normalise_log_weights(&[f64::NEG_INFINITY; 4]);
         assert_eq!(u, vec![0.25; 4]);
+    }
+
+    #[test]
+    fn degenerate_inputs_do_not_panic() {
+        // No weights: nothing to draw, whatever the count (it was allocated first).
+        assert!(systematic(&[], usize::MAX, 0.0).is_empty());
+        // A boundary far beyond the comb (its tooth index saturates).
+        for (w, u0) in [([1e20, 1.0], 0.0), ([0.5, 0.5], f64::NEG_INFINITY)] {
+            let m = systematic_margin(&w, 1, u0);
+            assert!(!m.is_nan() || u0.is_infinite(), "{w:?} {u0}: {m}");
+        }
     }
 
     #[test]

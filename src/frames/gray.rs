@@ -40,12 +40,16 @@ impl GrayF32 {
         }
     }
 
-    /// Pixel at `(x, y)`, coordinates clamped to the image (edge replication).
+    /// Pixel at `(x, y)`, coordinates clamped to the image (edge replication); 0 for an
+    /// empty image, or where `data` is shorter than `width * height` (its fields are public).
     #[inline]
     pub fn get_clamped(&self, x: i64, y: i64) -> f32 {
-        let x = x.clamp(0, self.width as i64 - 1) as usize;
-        let y = y.clamp(0, self.height as i64 - 1) as usize;
-        self.data[y * self.width as usize + x]
+        let x = x.clamp(0, (i64::from(self.width) - 1).max(0)) as usize;
+        let y = y.clamp(0, (i64::from(self.height) - 1).max(0)) as usize;
+        self.data
+            .get(y * self.width as usize + x)
+            .copied()
+            .unwrap_or(0.0)
     }
 
     /// Bilinear sample at a sub-pixel position, edge replication outside.
@@ -213,6 +217,19 @@ mod tests {
         assert!((g.sample(0.5, 0.5) - 1.5).abs() < 1e-6);
         assert_eq!(g.sample(-3.0, -3.0), 0.0);
         assert_eq!(g.sample(5.0, 5.0), 3.0);
+        // An empty image, or data shorter than its size says: zeros, not a panic.
+        let empty = GrayF32::default();
+        assert_eq!(empty.sample(0.5, 0.5), 0.0);
+        assert_eq!(empty.get_clamped(3, -2), 0.0);
+        let short = GrayF32 {
+            width: 4,
+            height: 4,
+            data: vec![1.0; 3],
+        };
+        assert_eq!(short.sample(2.5, 2.5), 0.0);
+        let mut out = [9.0; 9];
+        short.sample_many(&[2.5; 9], &[2.5; 9], &mut out);
+        assert_eq!(out, [0.0; 9]);
     }
 
     #[test]

@@ -168,7 +168,7 @@ pub fn parse_size(s: &str) -> Result<(u32, u32), FrameError> {
     if w == 0 || h == 0 {
         return Err(bad("width and height must be positive"));
     }
-    if w > 1 << 15 || h > 1 << 15 {
+    if w > y4m::MAX_SIDE || h > y4m::MAX_SIDE {
         return Err(bad("larger than 32768 pixels"));
     }
     Ok((w, h))
@@ -377,11 +377,19 @@ impl FrameSource {
 }
 
 fn check_resize(opts: &SourceOptions) -> Result<(), FrameError> {
-    match opts.resize {
-        Some((w, h)) if w == 0 || h == 0 => Err(FrameError::BadSize {
+    let bad = |w: u32, h: u32, msg: &str| {
+        Err(FrameError::BadSize {
             input: format!("{w}x{h}"),
-            msg: "width and height must be positive".into(),
-        }),
+            msg: msg.into(),
+        })
+    };
+    match opts.resize {
+        Some((w, h)) if w == 0 || h == 0 => bad(w, h, "width and height must be positive"),
+        // As `parse_size` and the y4m reader bound them (a 100000x100000 frame aborted on
+        // its 30 GB allocation at the first frame).
+        Some((w, h)) if w > y4m::MAX_SIDE || h > y4m::MAX_SIDE => {
+            bad(w, h, "larger than 32768 pixels")
+        }
         _ => Ok(()),
     }
 }

@@ -265,7 +265,8 @@ pub fn estimate_from_block(
     }
 }
 
-/// RMS of `|q_j - R2 p_j - l|` over all matches (or over those with `mask[j]`).
+/// RMS of `|q_j - R2 p_j - l|` over all matches (or over those with `mask[j]`; a mask
+/// shorter than the matches leaves the rest out). 0 with no match counted.
 pub fn rms_residual(
     r2: &Matrix2<f64>,
     l: &Vector2<f64>,
@@ -276,7 +277,8 @@ pub fn rms_residual(
     let mut s = 0.0;
     let mut c = 0usize;
     for (j, (x, y)) in p.iter().zip(q).enumerate() {
-        if mask.is_some_and(|m| !m[j]) {
+        // A mask shorter than the points leaves the rest out.
+        if mask.is_some_and(|m| !m.get(j).copied().unwrap_or(false)) {
             continue;
         }
         let e = Vector2::new(y[0], y[1]) - r2 * Vector2::new(x[0], x[1]) - l;
@@ -445,6 +447,16 @@ mod tests {
 
     fn angle_deg(a: &nalgebra::Matrix3<f64>, b: &nalgebra::Matrix3<f64>) -> f64 {
         crate::geometry::rotation::angle_between(a, b).to_degrees()
+    }
+
+    #[test]
+    fn a_short_mask_leaves_the_rest_out() {
+        let (p, q, _) = turned_grid(8);
+        let r2 = Matrix2::identity();
+        let l = Vector2::zeros();
+        let first = rms_residual(&r2, &l, &p[..1], &q[..1], None);
+        assert_eq!(rms_residual(&r2, &l, &p, &q, Some(&[true])), first);
+        assert_eq!(rms_residual(&r2, &l, &p, &q, Some(&[])), 0.0);
     }
 
     #[test]

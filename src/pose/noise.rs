@@ -90,6 +90,27 @@ pub struct NoiseConfig {
     pub seed: u64,
 }
 
+impl NoiseConfig {
+    /// Checks the settings a trial is drawn from: `max_angle` in `[0, π]`, `depth_spread`
+    /// finite and at least 0, `scale_px` finite and positive, and 3 to 10000 points.
+    pub fn check(&self) -> Result<(), PoseError> {
+        let bad = |what| Err(PoseError::InvalidParameter(what));
+        if !(0.0..=std::f64::consts::PI).contains(&self.max_angle) {
+            return bad("max_angle must lie in [0, π]");
+        }
+        if !(self.depth_spread.is_finite() && self.depth_spread >= 0.0) {
+            return bad("depth_spread must be finite and at least 0");
+        }
+        if !(self.scale_px.is_finite() && self.scale_px > 0.0) {
+            return bad("scale_px must be finite and positive");
+        }
+        if !(3..=10_000).contains(&self.points) {
+            return bad("points must lie in 3..=10000");
+        }
+        Ok(())
+    }
+}
+
 impl Default for NoiseConfig {
     fn default() -> Self {
         Self {
@@ -130,8 +151,15 @@ pub fn trial_seed(seed: u64, series: u64, trial: u64) -> u64 {
     z ^ (z >> 31)
 }
 
-/// A random rotation: axis uniform on the sphere, angle uniform in `[0, max_angle]`.
+/// A random rotation: axis uniform on the sphere, angle uniform in `[0, max_angle]`, the
+/// bound taken within `[0, π]` (NaN as 0).
 pub fn random_rotation(rng: &mut StdRng, max_angle: f64) -> Matrix3<f64> {
+    // An empty or infinite range would panic in the sampler.
+    let max_angle = if max_angle.is_nan() {
+        0.0
+    } else {
+        max_angle.clamp(0.0, std::f64::consts::PI)
+    };
     let n = Normal::new(0.0, 1.0).expect("unit normal");
     let axis = loop {
         let v = Vector3::new(n.sample(rng), n.sample(rng), n.sample(rng));
@@ -143,12 +171,14 @@ pub fn random_rotation(rng: &mut StdRng, max_angle: f64) -> Matrix3<f64> {
     *nalgebra::Rotation3::from_axis_angle(&Unit::new_normalize(axis), angle).matrix()
 }
 
-/// Draws one trial (`snr_db = None`: noise-free). Errors on a non-finite SNR.
+/// Draws one trial (`snr_db = None`: noise-free). Errors on a non-finite SNR or settings
+/// [`NoiseConfig::check`] refuses.
 pub fn make_trial(
     cfg: &NoiseConfig,
     rng: &mut StdRng,
     snr_db: Option<f64>,
 ) -> Result<Trial, PoseError> {
+    cfg.check()?;
     let rotation = random_rotation(rng, cfg.max_angle);
     let centre = Vector2::new(160.0, 120.0);
     let shift = Vector2::new(rng.random_range(-5.0..5.0), rng.random_range(-5.0..5.0));
@@ -403,6 +433,19 @@ mod tests {
         let clean = make_trial(&cfg, &mut StdRng::seed_from_u64(3), None).unwrap();
         let noisy = make_trial(&cfg, &mut rng, Some(10.0)).unwrap();
         assert!(make_trial(&cfg, &mut rng, Some(f64::NAN)).is_err());
+        // Settings out of range are errors, not a panic in the sampler.
+        for max_angle in [-1.0, f64::NAN, f64::INFINITY, 4.0] {
+            let bad = NoiseConfig {
+                max_angle,
+                ..cfg.clone()
+            };
+            assert!(
+                make_trial(&bad, &mut rng, Some(10.0)).is_err(),
+                "{max_angle}"
+            );
+            let r = random_rotation(&mut rng, max_angle);
+            assert!((r.determinant() - 1.0).abs() < 1e-9);
+        }
         // same geometry, noise with the prescribed power
         assert_eq!(clean.rotation, noisy.rotation);
         let n = clean.p.len() as f64;

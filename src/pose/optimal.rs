@@ -58,6 +58,28 @@ pub struct Optimal {
     pub max_boxes: usize,
 }
 
+/// Most boxes [`Optimal::max_boxes`] may ask for: each holds about 100 bytes while it waits.
+pub const MAX_BOXES: usize = 10_000_000;
+
+impl Optimal {
+    /// Checks the settings, as every solve does: `eps_rel` finite and at least 0 (a negative
+    /// one never prunes a box, and with `max_boxes` at usize::MAX the search never ended),
+    /// `max_boxes` in `1..=MAX_BOXES`.
+    pub fn check(&self) -> Result<(), PoseError> {
+        if !(self.eps_rel.is_finite() && self.eps_rel >= 0.0) {
+            return Err(PoseError::InvalidParameter(
+                "optimal solver eps_rel must be finite and at least 0",
+            ));
+        }
+        if !(1..=MAX_BOXES).contains(&self.max_boxes) {
+            return Err(PoseError::InvalidParameter(
+                "optimal solver max_boxes must lie in 1..=10000000",
+            ));
+        }
+        Ok(())
+    }
+}
+
 impl Default for Optimal {
     fn default() -> Self {
         Self {
@@ -333,6 +355,7 @@ impl Ord for Node {
 impl Optimal {
     /// Global minimisation from the moments.
     pub fn solve_moments(&self, mo: &Moments) -> Result<OptimalSolution, PoseError> {
+        self.check()?;
         let t = Trig::new(mo);
         let scale = mo.a.trace();
         let eps = self.eps_rel * (t.k + t.n);
@@ -485,6 +508,31 @@ mod tests {
             .map(|_| [rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0)])
             .collect();
         moments(&p, &q, 3).unwrap()
+    }
+
+    #[test]
+    fn settings_that_would_never_stop_are_refused() {
+        let mo = sample_moments(3);
+        for bad in [
+            Optimal {
+                eps_rel: -1.0,
+                max_boxes: usize::MAX,
+            },
+            Optimal {
+                eps_rel: f64::NAN,
+                ..Optimal::default()
+            },
+            Optimal {
+                max_boxes: 0,
+                ..Optimal::default()
+            },
+        ] {
+            assert!(
+                matches!(bad.solve_moments(&mo), Err(PoseError::InvalidParameter(_))),
+                "{bad:?}"
+            );
+        }
+        assert!(Optimal::default().check().is_ok());
     }
 
     #[test]

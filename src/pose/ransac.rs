@@ -36,6 +36,9 @@ impl Default for Rls {
     }
 }
 
+/// Most RANSAC iterations [`affine_consensus`] accepts (`max_iter`).
+pub const MAX_ITER: usize = 1_000_000;
+
 fn affine3(p: &[[f64; 2]; 3], q: &[[f64; 2]; 3]) -> Option<(Matrix2<f64>, Vector2<f64>)> {
     let m = moments(p, q, 3).ok()?;
     let r2 = lsm_block(&m).ok()?;
@@ -59,6 +62,18 @@ pub fn affine_consensus(
     moments(p, q, 3)?;
     if threshold.is_nan() || threshold <= 0.0 {
         return Err(PoseError::NoSolution("RANSAC threshold must be positive"));
+    }
+    // A confidence of 1 or more asks for every sample there is (with `max_iter` at
+    // usize::MAX the loop never ended); NaN or 0 or less stopped after one sample.
+    if !(confidence > 0.0 && confidence < 1.0) {
+        return Err(PoseError::InvalidParameter(
+            "RANSAC confidence must lie strictly between 0 and 1",
+        ));
+    }
+    if max_iter == 0 || max_iter > MAX_ITER {
+        return Err(PoseError::InvalidParameter(
+            "RANSAC max_iter must lie in 1..=1000000",
+        ));
     }
     let n = p.len();
     let mut rng = StdRng::seed_from_u64(seed);
@@ -169,5 +184,32 @@ mod tests {
         assert_eq!(e.inliers.iter().filter(|b| !**b).count(), 4);
         assert!(!e.inliers[9]);
         assert_eq!(e, r.solve(&p, &q).unwrap());
+        // Settings that never stop (confidence 1 with no iteration bound) or stop after one
+        // sample (NaN, 0 or less, more than 1) are refused.
+        for bad in [
+            Rls {
+                confidence: 1.0,
+                max_iter: usize::MAX,
+                ..r
+            },
+            Rls {
+                confidence: f64::NAN,
+                ..r
+            },
+            Rls {
+                confidence: 1.5,
+                ..r
+            },
+            Rls {
+                confidence: -1.0,
+                ..r
+            },
+            Rls { max_iter: 0, ..r },
+        ] {
+            assert!(
+                matches!(bad.solve(&p, &q), Err(PoseError::InvalidParameter(_))),
+                "{bad:?}"
+            );
+        }
     }
 }

@@ -22,6 +22,7 @@ use crate::geometry::Ellipse;
 use crate::likelihood::LikelihoodParams;
 use crate::likelihood::cpu::gradient::{GradientImage, LineTables, log_likelihood_ellipse};
 use crate::likelihood::cpu::{EllipseF32, colour};
+use crate::tracker::TrackError;
 
 /// How the initial ellipse is refined ([`refine_ellipse`]).
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -121,13 +122,25 @@ impl Scorer<'_> {
 /// colour from its surroundings (see the module documentation): centre within
 /// `max_shift · min(a, b)` of the initial one, semi-axes within a factor `1 ± max_scale` of
 /// the initial ones, orientation unchanged. Deterministic; `init` itself when nothing scores
-/// higher.
+/// higher. Errors: settings their checks refuse ([`LikelihoodParams::check`],
+/// [`InitRefine::check`]; unchecked, 2^32 normal lines would allocate 34 GB), or an invalid
+/// `init`.
 pub fn refine_ellipse(
     frame: &RgbImage,
     init: &Ellipse,
     params: &LikelihoodParams,
     cfg: &InitRefine,
-) -> Ellipse {
+) -> Result<Ellipse, TrackError> {
+    params
+        .check()
+        .map_err(|e| TrackError::BadConfig(e.to_string()))?;
+    cfg.check().map_err(TrackError::BadConfig)?;
+    if !init.is_valid() {
+        return Err(TrackError::BadInit(format!(
+            "cx {}, cy {}, a {}, b {}: values must be finite and the semi-axes positive",
+            init.cx, init.cy, init.a, init.b
+        )));
+    }
     let scorer = Scorer {
         frame,
         grad: GradientImage::new(frame),
@@ -196,7 +209,7 @@ pub fn refine_ellipse(
         step_px *= 0.5;
         step_scale *= 0.5;
     }
-    best
+    Ok(best)
 }
 
 #[cfg(test)]
@@ -257,7 +270,7 @@ mod tests {
                 b: truth.b * k,
                 ..truth
             };
-            let e = refine_ellipse(&img, &start, &params, &cfg);
+            let e = refine_ellipse(&img, &start, &params, &cfg).unwrap();
             let shift = (e.cx - truth.cx).hypot(e.cy - truth.cy);
             assert!(shift < 0.75, "from {dx},{dy},{k}: {e:?}");
             assert!(
@@ -279,13 +292,27 @@ mod tests {
         let start = Ellipse::new(60.0, 45.0, 16.0, 22.0);
         // Nothing to refine onto: the start itself.
         let flat = RgbImage::from_pixel(120, 90, image::Rgb([90, 90, 90]));
-        assert_eq!(refine_ellipse(&flat, &start, &params, &cfg), start);
+        assert_eq!(refine_ellipse(&flat, &start, &params, &cfg).unwrap(), start);
+        // Settings their checks refuse, and a start that is no ellipse, are errors (2^32
+        // normal lines once went straight to a 34 GB allocation).
+        let lines = LikelihoodParams {
+            num_lines: u32::MAX,
+            ..params
+        };
+        let shift = InitRefine {
+            max_shift: f64::NAN,
+            ..cfg
+        };
+        let nan = Ellipse::new(f64::NAN, 45.0, 16.0, 22.0);
+        assert!(refine_ellipse(&flat, &start, &lines, &cfg).is_err());
+        assert!(refine_ellipse(&flat, &start, &params, &shift).is_err());
+        assert!(refine_ellipse(&flat, &nan, &params, &cfg).is_err());
         // The object well beyond the reach: the result stays within the bounds.
         let far = Ellipse {
             cx: 90.0,
             ..Ellipse::new(60.0, 45.0, 10.0, 14.0)
         };
-        let e = refine_ellipse(&scene(120, 90, &far), &start, &params, &cfg);
+        let e = refine_ellipse(&scene(120, 90, &far), &start, &params, &cfg).unwrap();
         let reach = cfg.max_shift * start.a.min(start.b);
         assert!(
             (e.cx - start.cx).hypot(e.cy - start.cy) <= reach + 1e-9,

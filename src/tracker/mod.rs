@@ -349,7 +349,8 @@ impl Tracker {
         init.check(w, h).map_err(track_err)?;
         let init = match &self.cfg.init_refine {
             Some(r) => Init {
-                ellipse: init_refine::refine_ellipse(frame, &init.ellipse, &self.cfg.likelihood, r),
+                ellipse: init_refine::refine_ellipse(frame, &init.ellipse, &self.cfg.likelihood, r)
+                    .map_err(track_err)?,
                 ..init
             },
             None => init,

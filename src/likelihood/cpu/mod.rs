@@ -168,6 +168,10 @@ impl Default for CpuEngine {
     }
 }
 
+/// Most threads [`CpuEngine::with_threads`] starts: a million were still being started after
+/// two minutes.
+pub const MAX_THREADS: usize = 1024;
+
 impl CpuEngine {
     /// An engine on rayon's global pool (all threads).
     pub fn new() -> Self {
@@ -175,12 +179,16 @@ impl CpuEngine {
     }
 
     /// An engine on its own pool of `threads` threads; `1` runs on the calling thread alone.
-    /// Errors when `threads` is 0 or the pool cannot be created.
+    /// Errors when `threads` is 0 or more than [`MAX_THREADS`], or the pool cannot be
+    /// created.
     pub fn with_threads(threads: usize) -> Result<Self, LikelihoodError> {
         match threads {
             0 => Err(LikelihoodError::Invalid(
                 "the CPU engine needs at least one thread".into(),
             )),
+            n if n > MAX_THREADS => Err(LikelihoodError::Invalid(format!(
+                "{n} threads for the CPU engine: at most {MAX_THREADS}"
+            ))),
             1 => Ok(Self::with_exec(Exec::Single)),
             n => rayon::ThreadPoolBuilder::new()
                 .num_threads(n)
