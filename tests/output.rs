@@ -95,6 +95,26 @@ fn ellipse_pixels_lie_on_the_contour_and_the_rest_is_untouched() {
     }
 }
 
+/// A scale that would make a render of gigabytes (160x120 at 1000 wanted 64 GB; u32::MAX
+/// overflowed the layout's sizes) is lowered so the frame part fits MAX_SCALED_SIDE.
+#[test]
+fn huge_scales_are_capped() {
+    use pftrack::output::{MAX_SCALED_SIDE, capped_scale};
+    assert_eq!(capped_scale(160, 120, 3), 3);
+    assert_eq!(capped_scale(160, 120, 0), 1);
+    assert_eq!(capped_scale(160, 120, 1000), MAX_SCALED_SIDE / 160);
+    assert_eq!(capped_scale(40000, 10, 2), 1);
+    assert_eq!(capped_scale(u32::MAX, u32::MAX, u32::MAX), 1);
+    let src = frame(16, 12);
+    let o = overlay(Ellipse::new(8.0, 6.0, 4.0, 3.0), [0.0; 3], false);
+    let img = render_overlay(&src, &o, u32::MAX);
+    let lay = layout(16, 12, u32::MAX, &o);
+    assert_eq!(img.dimensions(), (lay.width, lay.height));
+    assert_eq!(lay.frame.x1, i64::from(MAX_SCALED_SIDE));
+    let big = layout(u32::MAX, u32::MAX, u32::MAX, &o);
+    assert!(big.frame.x1 > 0);
+}
+
 #[test]
 fn ellipse_partly_outside_is_clipped_to_the_frame() {
     let src = frame(64, 48);
@@ -332,4 +352,31 @@ fn renders_a_real_frame() {
     if keep.is_none() {
         std::fs::remove_dir_all(out.parent().unwrap()).unwrap();
     }
+}
+
+/// Text and bars placed at the ends of the coordinate range draw what falls in the image
+/// (nothing) instead of overflowing; a font size beyond u32 saturates.
+#[test]
+fn extreme_placements_do_not_overflow() {
+    use pftrack::output::draw::{BarAxis, draw_bar};
+    let mut img = frame(16, 12);
+    let before = img.clone();
+    draw_text(&mut img, i64::MAX - 1, 0, "abc", Rgb([255, 0, 0]), 2);
+    draw_text(&mut img, 0, i64::MIN + 1, "abc", Rgb([255, 0, 0]), u32::MAX);
+    assert_eq!(img, before);
+    assert_eq!(text_size("abc", u32::MAX).1, u32::MAX);
+    let all = Rect {
+        x0: i64::MIN,
+        x1: i64::MAX,
+        y0: 0,
+        y1: 4,
+    };
+    draw_bar(
+        &mut img,
+        all,
+        BarAxis::Horizontal,
+        0.5,
+        Rgb([0, 255, 0]),
+        Rgb([9, 9, 9]),
+    );
 }

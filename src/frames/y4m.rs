@@ -174,10 +174,13 @@ impl Y4mHeader {
         }
     }
 
-    /// Bytes of pixel data per frame (after the `FRAME` line).
+    /// Bytes of pixel data per frame (after the `FRAME` line); saturates at `usize::MAX` for
+    /// sizes the reader refuses (its sides are at most [`MAX_SIDE`]).
     pub fn frame_bytes(&self) -> usize {
         let (cw, ch) = self.chroma_size();
-        self.width as usize * self.height as usize + 2 * cw * ch
+        (self.width as usize)
+            .saturating_mul(self.height as usize)
+            .saturating_add(cw.saturating_mul(ch).saturating_mul(2))
     }
 }
 
@@ -440,6 +443,15 @@ impl<R: BufRead> Y4mReader<R> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn frame_bytes_saturate_beyond_the_readers_sizes() {
+        let mut h = Y4mHeader::parse("YUV4MPEG2 W4 H2 C444").unwrap();
+        assert_eq!(h.frame_bytes(), 24);
+        h.width = u32::MAX;
+        h.height = u32::MAX;
+        assert_eq!(h.frame_bytes(), usize::MAX);
+    }
 
     #[test]
     fn header_tags() {

@@ -29,10 +29,14 @@ use crate::frames::GrayF32;
 use crate::likelihood::Particle;
 use crate::pose::prior::Pinhole;
 
+/// Most cells a side of [`disk_grid`]: a larger grid is taken as this (about 50 000 points;
+/// `usize::MAX` overflowed the allocation's size, 2^20 asked for 8.8 TB).
+pub const MAX_GRID: usize = 256;
+
 /// The sample grid in the ellipse's unit disk: `grid x grid` cell centres on `[-1, 1]²` that
-/// lie inside the unit circle, in row-major order.
+/// lie inside the unit circle, in row-major order (`grid` within `1..=MAX_GRID`).
 pub fn disk_grid(grid: usize) -> Vec<[f32; 2]> {
-    let g = grid.max(1);
+    let g = grid.clamp(1, MAX_GRID);
     let mut pts = Vec::with_capacity(g * g);
     for j in 0..g {
         let v = (2.0 * j as f32 + 1.0) / g as f32 - 1.0;
@@ -379,6 +383,12 @@ impl CameraF32 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_grid_is_bounded() {
+        assert_eq!(disk_grid(usize::MAX), disk_grid(MAX_GRID));
+        assert_eq!(disk_grid(0), disk_grid(1));
+    }
 
     fn particle(cx: f32, cy: f32, a: f32, b: f32, rz: f32) -> Particle {
         Particle {

@@ -36,12 +36,12 @@ impl Rect {
 
     /// Width in pixels.
     pub fn width(&self) -> i64 {
-        (self.x1 - self.x0).max(0)
+        self.x1.saturating_sub(self.x0).max(0)
     }
 
     /// Height in pixels.
     pub fn height(&self) -> i64 {
-        (self.y1 - self.y0).max(0)
+        self.y1.saturating_sub(self.y0).max(0)
     }
 
     /// The intersection with the image `img`.
@@ -55,9 +55,10 @@ impl Rect {
     }
 }
 
-/// Every pixel repeated `s × s` times (`s = 0` is treated as 1).
+/// Every pixel repeated `s × s` times (`s = 0` is treated as 1; capped as
+/// [`super::overlay::capped_scale`] caps it).
 pub fn upscale_nearest(img: &RgbImage, s: u32) -> RgbImage {
-    let s = s.max(1);
+    let s = super::overlay::capped_scale(img.width(), img.height(), s);
     RgbImage::from_fn(img.width() * s, img.height() * s, |x, y| {
         *img.get_pixel(x / s, y / s)
     })
@@ -182,16 +183,16 @@ pub fn draw_bar(
     let put = |img: &mut RgbImage, a0: i64, a1: i64, c0: i64, c1: i64, col: Rgb<u8>| {
         let rr = match axis {
             BarAxis::Horizontal => Rect {
-                x0: r.x0 + a0,
-                x1: r.x0 + a1,
-                y0: r.y0 + c0,
-                y1: r.y0 + c1,
+                x0: r.x0.saturating_add(a0),
+                x1: r.x0.saturating_add(a1),
+                y0: r.y0.saturating_add(c0),
+                y1: r.y0.saturating_add(c1),
             },
             BarAxis::Vertical => Rect {
-                x0: r.x0 + c0,
-                x1: r.x0 + c1,
-                y0: r.y0 + a0,
-                y1: r.y0 + a1,
+                x0: r.x0.saturating_add(c0),
+                x1: r.x0.saturating_add(c1),
+                y0: r.y0.saturating_add(a0),
+                y1: r.y0.saturating_add(a1),
             },
         };
         fill_rect(img, rr, col);

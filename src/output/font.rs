@@ -252,11 +252,17 @@ pub fn glyph(c: char) -> [u8; 8] {
 
 /// Size in pixels of `text` drawn at pixel size `px` (one line; width 0 for empty text).
 pub fn text_size(text: &str, px: u32) -> (u32, u32) {
-    let n = text.chars().count() as u32;
+    // Saturating: a size beyond u32 (a huge `px`) is no size to draw at anyway.
+    let n = u32::try_from(text.chars().count()).unwrap_or(u32::MAX);
+    let h = GLYPH_H.saturating_mul(px);
     if n == 0 {
-        return (0, GLYPH_H * px);
+        return (0, h);
     }
-    ((n * ADVANCE - (ADVANCE - GLYPH_W)) * px, GLYPH_H * px)
+    let w = n
+        .saturating_mul(ADVANCE)
+        .saturating_sub(ADVANCE - GLYPH_W)
+        .saturating_mul(px);
+    (w, h)
 }
 
 /// Draws `text` with its top-left corner at `(x, y)`, each font pixel a `px × px` square of
@@ -272,16 +278,17 @@ pub fn draw_text(img: &mut RgbImage, x: i64, y: i64, text: &str, colour: Rgb<u8>
                 if bits & (1 << (GLYPH_W as i64 - 1 - col)) == 0 {
                     continue;
                 }
-                let x0 = cx + col * px;
-                let y0 = y + row as i64 * px;
-                for yy in y0.max(0)..(y0 + px).min(h) {
-                    for xx in x0.max(0)..(x0 + px).min(w) {
+                // Saturating: text placed far off the image draws nothing, without overflow.
+                let x0 = cx.saturating_add(col * px);
+                let y0 = y.saturating_add(row as i64 * px);
+                for yy in y0.max(0)..y0.saturating_add(px).min(h) {
+                    for xx in x0.max(0)..x0.saturating_add(px).min(w) {
                         img.put_pixel(xx as u32, yy as u32, colour);
                     }
                 }
             }
         }
-        cx += ADVANCE as i64 * px;
+        cx = cx.saturating_add(ADVANCE as i64 * px);
     }
     cx
 }

@@ -13,7 +13,9 @@ use image::codecs::png::PngEncoder;
 
 use crate::io::{AtomicFile, FormatError};
 
-pub use overlay::{Layout, Overlay, default_scale, layout, render_overlay};
+pub use overlay::{
+    Layout, MAX_SCALED_SIDE, Overlay, capped_scale, default_scale, layout, render_overlay,
+};
 
 /// Errors writing output frames.
 #[derive(Debug, thiserror::Error)]

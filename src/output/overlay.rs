@@ -118,9 +118,20 @@ fn text_lines(o: &Overlay) -> (String, String) {
     (l1, l2)
 }
 
-/// The layout of an overlay on a `w × h` input at scale `s`.
+/// Largest side (pixels) of the upscaled frame in an overlay: a larger scale is lowered to
+/// fit (160x120 at scale 1000 wanted 64 GB), and a frame already larger renders at scale 1.
+pub const MAX_SCALED_SIDE: u32 = 16384;
+
+/// `scale` (0 counts as 1) lowered so that a `w × h` frame scaled by it has no side above
+/// [`MAX_SCALED_SIDE`]; at least 1.
+pub fn capped_scale(w: u32, h: u32, scale: u32) -> u32 {
+    let side = w.max(h).max(1);
+    scale.clamp(1, (MAX_SCALED_SIDE / side).max(1))
+}
+
+/// The layout of an overlay on a `w × h` input at scale `s` (capped, [`capped_scale`]).
 pub fn layout(w: u32, h: u32, scale: u32, o: &Overlay) -> Layout {
-    let s = scale.max(1) as i64;
+    let s = i64::from(capped_scale(w, h, scale));
     let (ws, hs) = (w as i64 * s, h as i64 * s);
     let pad = s.max(2);
     let bar = (4 * s).max(6);
@@ -157,11 +168,11 @@ pub fn layout(w: u32, h: u32, scale: u32, o: &Overlay) -> Layout {
     }
 }
 
-/// Renders one output frame: the input upscaled `scale` times (0 counts as 1; see
-/// [`default_scale`]), the ellipse, the pan and tilt bars and the text (see the module docs
-/// for the layout).
+/// Renders one output frame: the input upscaled `scale` times (0 counts as 1, capped by
+/// [`capped_scale`]; see [`default_scale`]), the ellipse, the pan and tilt bars and the text
+/// (see the module docs for the layout).
 pub fn render_overlay(frame: &RgbImage, o: &Overlay, scale: u32) -> RgbImage {
-    let s = scale.max(1);
+    let s = capped_scale(frame.width(), frame.height(), scale);
     let lay = layout(frame.width(), frame.height(), s, o);
     let mut img = RgbImage::from_pixel(lay.width, lay.height, BACKGROUND);
     let up = upscale_nearest(frame, s);

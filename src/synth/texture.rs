@@ -175,7 +175,8 @@ impl SolidTexture {
             ],
         );
         if unit(h) < 0.3 {
-            if (ix + iy + iz).rem_euclid(2) == 1 {
+            // Wrapping: far from the object the floors saturate, and only the parity counts.
+            if ix.wrapping_add(iy).wrapping_add(iz).rem_euclid(2) == 1 {
                 c = self.accent[((h >> 8) % self.accent.len() as u64) as usize];
             } else {
                 c = scale(c, 0.7);
@@ -237,8 +238,14 @@ struct Rect {
 }
 
 impl Background {
-    /// A background for a seed; `aspect` is height / width.
+    /// A background for a seed; `aspect` is height / width (one that is not finite and
+    /// positive counts as 1, where it panicked on an empty range).
     pub fn new(seed: u64, aspect: f64) -> Self {
+        let aspect = if aspect.is_finite() && aspect > 0.0 {
+            aspect
+        } else {
+            1.0
+        };
         let mut rng = StdRng::seed_from_u64(hash(seed, &[0x6267]));
         let palette = [
             rgb(90, 100, 120),
@@ -347,6 +354,16 @@ impl Background {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn far_points_and_odd_aspects_do_not_panic() {
+        let t = SolidTexture::new(1, Material::Head, 0.035);
+        let far = t.albedo(&Vector3::new(1e300, 1e300, 1e300));
+        assert!(far.iter().all(|c| c.is_finite()));
+        for aspect in [f64::NAN, 0.0, -1.0, f64::INFINITY] {
+            let _ = Background::new(3, aspect);
+        }
+    }
 
     #[test]
     fn noise_has_unit_variance_and_zero_mean() {
