@@ -937,3 +937,52 @@ fn given_feature_depths_replace_the_facing_prior() {
         }
     }
 }
+
+/// The stage functions are public for the GPU comparisons, with public fields: data shorter
+/// than the size says, extreme line lengths and unchecked settings give values, not panics
+/// or huge allocations (each of these panicked, overflowed or aborted in a debug build).
+#[test]
+fn stage_functions_take_inconsistent_inputs() {
+    let e = EllipseF32 {
+        cx: 10.0,
+        cy: 8.0,
+        a: 5.0,
+        b: 4.0,
+        theta: 0.3,
+    };
+    let bins = colour::BinImage {
+        width: 20,
+        height: 16,
+        bins: Vec::new(),
+    };
+    let mut counts = [0u32; pftrack::likelihood::HIST_BINS];
+    assert_eq!(colour::histogram_bins(&bins, &e, &mut counts), 0);
+    let grad = gradient::GradientImage {
+        width: 20,
+        height: 16,
+        g: Vec::new(),
+    };
+    assert_eq!(grad.at(5, 5), [0, 0]);
+    for h in [i32::MIN, -1, i32::MAX] {
+        let _ = gradient::line_edge_distance(&grad, 10.0, 8.0, 1.0, 0.0, h, 0.1);
+        let _ = gradient::line_edges(&grad, 10.0, 8.0, 1.0, 0.0, h, 0.1).count();
+    }
+    let params = LikelihoodParams {
+        num_lines: u32::MAX,
+        line_half_length: 1e30,
+        ..LikelihoodParams::default()
+    };
+    let tables = gradient::LineTables::new(&params);
+    assert!(tables.angles.len() <= 4096 && tables.logs.len() <= 4097);
+    let short = gradient::LineTables {
+        logs: Vec::new(),
+        ..gradient::LineTables::new(&LikelihoodParams::default())
+    };
+    let full = RgbImage::from_fn(20, 16, |x, y| {
+        let v = ((x * 37 + y * 91) % 255) as u8;
+        Rgb([v, v / 2, 255 - v])
+    });
+    let g = gradient::GradientImage::new(&full);
+    let v = gradient::log_likelihood_ellipse(&g, &e, &short, &LikelihoodParams::default());
+    assert!(v.is_finite());
+}

@@ -260,12 +260,15 @@ pub fn inside_and_ring(
 /// Neighbouring pixels often fall in one bin, and counting them into one array makes each
 /// increment wait for the store of the one before; pixels are counted into four partial
 /// histograms in turn and summed at the end (the same counts).
+///
+/// A `BinImage` whose `bins` are fewer than `width * height` (its fields are public) counts
+/// the pixels it holds.
 pub fn histogram_bins(bins: &BinImage, e: &EllipseF32, counts: &mut [u32; HIST_BINS]) -> u32 {
     let mut part = [[0u32; HIST_BINS]; 4];
     let mut total = 0u32;
     let w = bins.width as usize;
     for_each_span(e, bins.width, bins.height, |y, x0, x1| {
-        let row = &bins.bins[y * w + x0..=y * w + x1];
+        let row = bins.bins.get(y * w + x0..=y * w + x1).unwrap_or(&[]);
         let mut quads = row.chunks_exact(4);
         for q in &mut quads {
             // Bins are < 512 by construction; the mask only spares a bounds check.

@@ -113,10 +113,14 @@ impl GradientImage {
         }
     }
 
-    /// `(gx, gy)` at a pixel of the frame.
+    /// `(gx, gy)` at a pixel of the frame (`[0, 0]` where `g` holds no such pixel: its
+    /// fields are public).
     #[inline]
     pub fn at(&self, x: usize, y: usize) -> [i32; 2] {
-        self.g[y * self.width as usize + x]
+        self.g
+            .get(y * self.width as usize + x)
+            .copied()
+            .unwrap_or([0, 0])
     }
 }
 
@@ -133,8 +137,13 @@ pub fn line_angles(num_lines: u32) -> Vec<(f32, f32)> {
 
 /// `H = round(line_half_length)` (half away from zero), at least 0.
 pub fn half_samples(params: &LikelihoodParams) -> i32 {
-    params.line_half_length.round().max(0.0) as i32
+    (params.line_half_length.round().max(0.0) as i32).min(MAX_HALF_SAMPLES)
 }
+
+/// Most samples either side of a normal line's contour point the functions here take
+/// (`line_half_length` above it, which [`LikelihoodParams::check`] refuses, is taken as
+/// this: 1e30 px asked for 8 GB of tables, `h = i32::MAX` overflowed).
+pub const MAX_HALF_SAMPLES: i32 = 4096;
 
 /// Contour point and outward unit normal of the ellipse at `(cos phi, sin phi)`, given
 /// `(s, c) = sin_cos(theta)`: `(x, y, nx, ny)`.
@@ -180,7 +189,8 @@ fn line_strength(grad: &GradientImage, x: f32, y: f32, nx: f32, ny: f32, t: i32)
 const STACK_SAMPLES: usize = 61;
 
 /// Distance `d = min |t|` to the nearest edge on the line through `(x, y)` along `(nx, ny)`,
-/// samples `t = -h ..= h`; `None` when the line has no edge.
+/// samples `t = -h ..= h` (`h` taken within `0..=MAX_HALF_SAMPLES`); `None` when the line
+/// has no edge.
 pub fn line_edge_distance(
     grad: &GradientImage,
     x: f32,
@@ -191,6 +201,7 @@ pub fn line_edge_distance(
     threshold: f32,
 ) -> Option<u32> {
     let at = |t: i32| line_strength(grad, x, y, nx, ny, t);
+    let h = h.clamp(0, MAX_HALF_SAMPLES);
     let n = (2 * h + 1) as usize;
     if n <= STACK_SAMPLES {
         // Search outwards from the contour, d = 0, 1, 2, ..., and stop at the first edge:
@@ -243,7 +254,8 @@ fn scan_edge_distance(
         .min()
 }
 
-/// Every edge of the line through `(x, y)` along `(nx, ny)`, samples `t = -h ..= h`, as its
+/// Every edge of the line through `(x, y)` along `(nx, ny)`, samples `t = -h ..= h` (`h`
+/// taken within `0..=MAX_HALF_SAMPLES`), as its
 /// `t`, in increasing order: the definition of the module's semantics, one pass over the
 /// samples.
 pub fn line_edges(
@@ -256,6 +268,7 @@ pub fn line_edges(
     threshold: f32,
 ) -> impl Iterator<Item = i32> + '_ {
     let at = move |t: i32| line_strength(grad, x, y, nx, ny, t);
+    let h = h.clamp(0, MAX_HALF_SAMPLES);
     let mut t = -h;
     let mut prev = 0.0f32;
     let mut cur = at(-h);
@@ -338,7 +351,8 @@ impl LineTables {
         let h = half_samples(params);
         let k_gain = clutter_gain(params);
         Self {
-            angles: line_angles(params.num_lines),
+            // As many as `LikelihoodParams::check` allows (2^32 wanted 34 GB).
+            angles: line_angles(params.num_lines.min(4096)),
             logs: (0..=h as u32)
                 .map(|d| line_log(Some(d), k_gain, params.sigma_z))
                 .collect(),
@@ -359,7 +373,7 @@ pub fn log_likelihood_ellipse(
     for &(cp, sp) in &tables.angles {
         let (x, y, nx, ny) = contour_point(e, s, c, cp, sp);
         if let Some(d) = line_edge_distance(grad, x, y, nx, ny, tables.h, params.edge_threshold) {
-            sum += tables.logs[d as usize];
+            sum += tables.logs.get(d as usize).copied().unwrap_or(0.0);
         }
     }
     sum
