@@ -12,7 +12,7 @@ pub use matching::{
     Match, MatchParams, STILL_LENGTH_PX, STILL_RADIUS_PX, keep_slope_length, match_features,
     reject_slope_length,
 };
-pub use sift::{DESCRIPTOR_LEN, Sift, SiftParams, UpsampleGrid};
+pub use sift::{DESCRIPTOR_LEN, MAX_SIGMA, Sift, SiftParams, UpsampleGrid};
 
 /// A SIFT keypoint, in input-image pixels.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
