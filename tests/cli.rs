@@ -799,3 +799,94 @@ fn cli_inputs_of_the_wrong_kind_are_named() {
     );
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+/// The outputs of a track never overwrite what it reads, however they are spelled or
+/// linked: a frame (through a link), the init file, the truth it starts from; nor does
+/// `sift --out` overwrite its image.
+#[test]
+fn cli_outputs_never_overwrite_what_is_read() {
+    let dir = synth_dir("overwrite", 3, "64x48");
+    let d = dir.to_str().unwrap();
+    let frame = dir.join("frames/00000.png");
+    let init = dir.join("init.txt");
+    let truth = dir.join("truth.csv");
+    let keep: Vec<Vec<u8>> = [&frame, &init, &truth]
+        .iter()
+        .map(|p| std::fs::read(p).unwrap())
+        .collect();
+    let track = |extra: &[&str], out: &Path| {
+        let mut a = vec!["track", d, "--backend", "cpu", "--particles", "20", "--out"];
+        a.push(out.to_str().unwrap());
+        a.extend(extra);
+        pftrack(&a)
+    };
+    let mut refused = vec![
+        track(&[], &init),
+        track(&[], &dir.join("./frames/../init.txt")),
+        track(&["--init-truth", truth.to_str().unwrap()], &truth),
+    ];
+    #[cfg(unix)]
+    {
+        let link = dir.join("link.csv");
+        std::os::unix::fs::symlink(&frame, &link).unwrap();
+        refused.push(track(&[], &link));
+    }
+    let f = frame.to_str().unwrap();
+    refused.push(pftrack(&["sift", f, "--out", f]));
+    for out in refused {
+        assert!(!out.status.success());
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(
+            err.contains("overwritten") || err.contains("read as a frame"),
+            "{err}"
+        );
+    }
+    for (p, bytes) in [&frame, &init, &truth].iter().zip(&keep) {
+        assert_eq!(&std::fs::read(p).unwrap(), bytes, "{}", p.display());
+    }
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// A render whose frames cannot all be moved in (a folder stands where frame 2 goes) fails
+/// before anything is moved or the poses are written; a render folder the failed run made
+/// is removed.
+#[test]
+fn cli_a_render_that_cannot_be_moved_in_changes_nothing() {
+    let dir = synth_dir("render-blocked", 3, "64x48");
+    let d = dir.to_str().unwrap();
+    let render = dir.join("render");
+    std::fs::create_dir_all(render.join("00002.png")).unwrap();
+    std::fs::write(render.join("00000.png"), b"the user's").unwrap();
+    let csv = dir.join("poses.csv");
+    let r = render.to_str().unwrap();
+    let args = [
+        "track",
+        d,
+        "--backend",
+        "cpu",
+        "--render",
+        r,
+        "--out",
+        csv.to_str().unwrap(),
+    ];
+    assert_one_line_error(&args, "00002.png is a folder", &csv);
+    assert_eq!(names(&render), ["00000.png", "00002.png"]);
+    assert_eq!(
+        std::fs::read(render.join("00000.png")).unwrap(),
+        b"the user's"
+    );
+    // A render folder made by a run that fails is gone with it.
+    let fresh = dir.join("fresh/render");
+    std::fs::write(dir.join("frames/00002.png"), b"not a png").unwrap();
+    let args = [
+        "track",
+        d,
+        "--backend",
+        "cpu",
+        "--render",
+        fresh.to_str().unwrap(),
+    ];
+    assert_one_line_error(&args, "00002.png", &csv);
+    assert!(!fresh.exists());
+    std::fs::remove_dir_all(&dir).unwrap();
+}

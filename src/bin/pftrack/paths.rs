@@ -36,36 +36,52 @@ pub fn not_an_input(flag: &str, out: &Path, inputs: &[&Path]) -> anyhow::Result<
     Ok(())
 }
 
-/// Refuses outputs of a track of `input` that would overwrite or join its frames: the pose
-/// CSV (`-o`) as the input file itself or as an image in the input folder (it would be read
-/// as a frame), and the rendered frames (`--render`) into the input folder.
+/// The folder whose images a track of `input` reads: the input itself when it is a folder,
+/// the folder of an input image, `None` for a video or a stream.
+fn frames_folder(input: &Path) -> Option<PathBuf> {
+    if input.is_dir() {
+        resolved(input)
+    } else if pftrack::frames::dir::is_image_file(input) {
+        resolved(input).and_then(|p| p.parent().map(Path::to_path_buf))
+    } else {
+        None
+    }
+}
+
+/// Refuses outputs of a track of `input` (with the init or truth files it reads, `others`)
+/// that would overwrite or join what it reads: the pose CSV (`-o`) as any of them, or as an
+/// image in the frames' folder (it would be read as a frame), however it is spelled or
+/// linked; the rendered frames (`--render`) into the frames' folder.
 pub fn track_outputs(
     input: &Path,
+    others: &[&Path],
     out: Option<&Path>,
     render: Option<&Path>,
 ) -> anyhow::Result<()> {
+    let folder = frames_folder(input);
     if let Some(o) = out {
-        not_an_input("--out", o, &[input])?;
-        let in_folder = o.parent().is_some_and(|d| {
-            same(
-                if d.as_os_str().is_empty() {
-                    Path::new(".")
-                } else {
-                    d
-                },
-                input,
-            )
-        });
-        if in_folder && pftrack::frames::dir::is_image_file(o) {
+        let mut inputs = vec![input];
+        inputs.extend(others);
+        not_an_input("--out", o, &inputs)?;
+        // Where the file will land: through a link, the file it names.
+        let real = resolved(o);
+        let image = pftrack::frames::dir::is_image_file(o)
+            || real
+                .as_deref()
+                .is_some_and(pftrack::frames::dir::is_image_file);
+        if let (Some(real), Some(folder)) = (&real, &folder)
+            && real.parent() == Some(folder.as_path())
+            && image
+        {
             bail!(
                 "--out {} is an image in the input folder {}: it would be read as a frame",
                 o.display(),
-                input.display()
+                folder.display()
             );
         }
     }
-    if let Some(r) = render
-        && same(r, input)
+    if let (Some(r), Some(folder)) = (render, &folder)
+        && resolved(r).as_ref() == Some(folder)
     {
         bail!(
             "--render {} is the input folder: its frames would be overwritten",
@@ -93,13 +109,30 @@ mod tests {
             &d.join("frames/00001.png"),
             &frames.join("00000.png")
         ));
-        assert!(track_outputs(&frames, Some(&frames.join("00000.png")), None).is_err());
-        assert!(track_outputs(&frames, Some(&frames.join("new.png")), None).is_err());
-        assert!(track_outputs(&frames, Some(&frames.join("poses.csv")), None).is_ok());
-        assert!(track_outputs(&frames, None, Some(&d.join("frames/."))).is_err());
-        assert!(track_outputs(&frames, None, Some(&d.join("render"))).is_ok());
-        let video = frames.join("00000.png");
-        assert!(track_outputs(&video, Some(&video), None).is_err());
+        let first = frames.join("00000.png");
+        let out = |o: &Path| track_outputs(&frames, &[], Some(o), None);
+        assert!(out(&first).is_err());
+        assert!(out(&frames.join("new.png")).is_err());
+        assert!(out(&frames.join("poses.csv")).is_ok());
+        assert!(track_outputs(&frames, &[], None, Some(&d.join("frames/."))).is_err());
+        assert!(track_outputs(&frames, &[], None, Some(&d.join("render"))).is_ok());
+        // A single image: itself, and its folder for the rendered frames.
+        assert!(track_outputs(&first, &[], Some(&first), None).is_err());
+        assert!(track_outputs(&first, &[], None, Some(&frames)).is_err());
+        // The init or truth file read.
+        let init = d.join("init.txt");
+        std::fs::write(&init, b"1,2,3,4").unwrap();
+        assert!(track_outputs(&frames, &[&init], Some(&d.join("./init.txt")), None).is_err());
+        #[cfg(unix)]
+        {
+            // Through a link to a frame, or to the init file.
+            let link = d.join("link.csv");
+            std::os::unix::fs::symlink(&first, &link).unwrap();
+            assert!(out(&link).is_err());
+            let to_init = d.join("to-init.csv");
+            std::os::unix::fs::symlink(&init, &to_init).unwrap();
+            assert!(track_outputs(&frames, &[&init], Some(&to_init), None).is_err());
+        }
         std::fs::remove_dir_all(&d).unwrap();
     }
 }

@@ -272,11 +272,19 @@ pub fn run(args: PoseNoiseArgs) -> anyhow::Result<()> {
         }
         None => None,
     };
+    // Every buffer flushed first, so that a stream or device target (a link to /dev/full)
+    // fails before any file is renamed into place.
+    let mut files: Vec<AtomicFile> = Vec::new();
     if let Some((fb, fa)) = csv {
-        fb.commit()?;
-        fa.commit()?;
+        files.extend([fb, fa]);
     }
-    if let Some(f) = plot_file {
+    files.extend(plot_file);
+    for f in &mut files {
+        let path = f.path().to_path_buf();
+        f.flush()
+            .with_context(|| format!("writing {}", path.display()))?;
+    }
+    for f in files {
         f.commit()?;
     }
     Ok(())

@@ -103,6 +103,7 @@ pub fn run(args: SiftArgs) -> anyhow::Result<()> {
             )?;
         }
         Some(path) => {
+            crate::paths::not_an_input("--out", path, &[&args.image])?;
             let mut w = pftrack::io::AtomicFile::create(path)?;
             let err = || format!("writing {}", path.display());
             let mut header = String::from("x,y,scale,angle_deg,response,octave");

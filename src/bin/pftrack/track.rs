@@ -570,7 +570,15 @@ pub fn run(a: TrackArgs) -> anyhow::Result<()> {
         bail!("--max-frames must be at least 1 (the first frame is the initial estimate)");
     }
     let (frames_path, synth_init) = resolve_input(&a.input);
-    crate::paths::track_outputs(&frames_path, a.out.as_deref(), a.render.as_deref())?;
+    let read: Vec<&Path> = [
+        a.init_file.as_deref(),
+        a.init_truth.as_deref(),
+        synth_init.as_deref(),
+    ]
+    .into_iter()
+    .flatten()
+    .collect();
+    crate::paths::track_outputs(&frames_path, &read, a.out.as_deref(), a.render.as_deref())?;
     let init_file = initial_ellipse(&a, synth_init.as_deref())?;
     let pose = match &a.init_pose {
         Some(p) => {
@@ -670,9 +678,9 @@ pub fn run(a: TrackArgs) -> anyhow::Result<()> {
     let mut tracker = Tracker::with_engine(cfg, engine, &first, init)?;
     // On an error the staging folder is dropped with the frames drawn so far, which would
     // read as a whole track's, as the pose CSV is never moved into place.
-    let written = run_loop(&a, &mut source, &mut tracker, &first, staging.as_ref())?;
+    let (written, moves) = run_loop(&a, &mut source, &mut tracker, &first, staging.as_ref())?;
     if let Some(s) = staging {
-        s.finish()?;
+        s.finish(moves)?;
     }
     errln!(
         "pftrack: tracked {written} frame{} with {} ({}, {}){}",
@@ -689,26 +697,36 @@ pub fn run(a: TrackArgs) -> anyhow::Result<()> {
 }
 
 /// Where `--render` draws its frames until the track is done: a hidden folder inside the
-/// render folder, removed when dropped.
+/// render folder, removed when dropped (with the render folder, when this run created it and
+/// it is still empty).
 struct RenderStaging {
     /// The render folder.
     dir: PathBuf,
     /// The hidden folder inside it.
     staging: PathBuf,
+    /// Whether this run created the render folder.
+    created: bool,
 }
 
 impl RenderStaging {
     /// Creates the render folder (if need be) and an empty staging folder inside it.
     fn create(dir: &Path) -> anyhow::Result<Self> {
+        if dir.exists() && !dir.is_dir() {
+            bail!("--render {}: not a folder", dir.display());
+        }
+        let created = !dir.exists();
         std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
         let staging = dir.join(format!(".pftrack-render-{}.partial", std::process::id()));
-        // One left by an interrupted run of a process with the same id.
-        let _ = std::fs::remove_dir_all(&staging);
-        std::fs::create_dir(&staging).with_context(|| format!("creating {}", staging.display()))?;
-        Ok(Self {
+        let s = Self {
             dir: dir.to_path_buf(),
             staging,
-        })
+            created,
+        };
+        // One left by an interrupted run of a process with the same id.
+        let _ = std::fs::remove_dir_all(&s.staging);
+        std::fs::create_dir(&s.staging)
+            .with_context(|| format!("cannot write rendered frames into {}", dir.display()))?;
+        Ok(s)
     }
 
     /// Where frame `n` is drawn.
@@ -716,13 +734,29 @@ impl RenderStaging {
         self.staging.join(frame_name(n))
     }
 
-    /// Moves the frames drawn into the render folder, replacing those of the same names.
-    fn finish(self) -> anyhow::Result<()> {
+    /// The frames drawn, with where each goes; an error when one of those places holds
+    /// something a frame cannot replace (a folder), found before anything is moved.
+    fn moves(&self) -> anyhow::Result<Vec<(PathBuf, PathBuf)>> {
         let listing = || format!("listing {}", self.staging.display());
+        let mut moves = Vec::new();
         for entry in std::fs::read_dir(&self.staging).with_context(listing)? {
             let entry = entry.with_context(listing)?;
             let to = self.dir.join(entry.file_name());
-            std::fs::rename(entry.path(), &to)
+            if to.is_dir() {
+                bail!(
+                    "{} is a folder: the rendered frame of that name cannot replace it",
+                    to.display()
+                );
+            }
+            moves.push((entry.path(), to));
+        }
+        Ok(moves)
+    }
+
+    /// Moves the frames drawn into the render folder, replacing those of the same names.
+    fn finish(self, moves: Vec<(PathBuf, PathBuf)>) -> anyhow::Result<()> {
+        for (from, to) in moves {
+            std::fs::rename(from, &to)
                 .with_context(|| format!("moving the rendered frame to {}", to.display()))?;
         }
         Ok(())
@@ -732,6 +766,10 @@ impl RenderStaging {
 impl Drop for RenderStaging {
     fn drop(&mut self) {
         let _ = std::fs::remove_dir_all(&self.staging);
+        if self.created {
+            // Only when empty: a failed run leaves no folder it made.
+            let _ = std::fs::remove_dir(&self.dir);
+        }
     }
 }
 
@@ -746,7 +784,7 @@ fn run_loop(
     tracker: &mut Tracker,
     first: &image::RgbImage,
     render: Option<&RenderStaging>,
-) -> anyhow::Result<usize> {
+) -> anyhow::Result<(usize, Vec<(PathBuf, PathBuf)>)> {
     let limit = a.max_frames.unwrap_or(usize::MAX);
     let pb = progress(source.len_hint().map(|n| n.min(limit)));
     let mut csv_out = match &a.out {
@@ -789,11 +827,17 @@ fn run_loop(
         n += 1;
     }
     pb.finish_and_clear();
+    // The rendered frames' places are checked before the poses are committed: a render that
+    // cannot be moved in fails the run with no pose CSV.
+    let moves = render
+        .map(RenderStaging::moves)
+        .transpose()?
+        .unwrap_or_default();
     match csv_out {
         Some(w) => w.finish()?,
         None => out!("{}", pftrack::io::format_pose_csv(&stdout_rows, true))?,
     }
-    Ok(n)
+    Ok((n, moves))
 }
 
 #[cfg(test)]
