@@ -527,6 +527,25 @@ fn cli_a_closed_pipe_ends_the_command_quietly() {
         "{}",
         String::from_utf8_lossy(&out.stderr)
     );
+    // The same for an output file that is the pipe (`--out /dev/stdout`): SIFT's CSV of a
+    // frame is larger than a pipe's buffer, so the write meets the closed pipe.
+    #[cfg(unix)]
+    {
+        let dir = synth_dir("pipe-out", 1, "160x120");
+        let frame = dir.join("frames/00000.png");
+        let mut child = Command::new(env!("CARGO_BIN_EXE_pftrack"))
+            .args(["sift", frame.to_str().unwrap(), "--out", "/dev/stdout"])
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .expect("run pftrack");
+        drop(child.stdout.take());
+        let out = child.wait_with_output().unwrap();
+        assert!(out.status.success(), "{out:?}");
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(!err.contains("error"), "{err}");
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
 }
 
 /// `--out` names a folder: refused at once by name, with no partial file left beside it;

@@ -110,10 +110,7 @@ fn main() {
     // What is still buffered is written now, where its error can be reported.
     let result = result.and_then(|()| std::io::stdout().flush().map_err(|e| StdoutError(e).into()));
     if let Err(e) = result {
-        let closed = e.chain().any(|c| {
-            c.downcast_ref::<StdoutError>()
-                .is_some_and(|s| s.0.kind() == std::io::ErrorKind::BrokenPipe)
-        });
+        let closed = e.chain().any(closed_pipe);
         if closed {
             // The reader stopped reading: it has what it wanted.
             std::process::exit(0);
@@ -123,6 +120,18 @@ fn main() {
         errln!("pftrack: error: {msg}");
         std::process::exit(1);
     }
+}
+
+/// Whether `e` is a write to a pipe whose reader has gone, on standard output or on an
+/// output file that is a pipe (`-o /dev/stdout | head -1`).
+fn closed_pipe(e: &(dyn std::error::Error + 'static)) -> bool {
+    let pipe = |io: &std::io::Error| io.kind() == std::io::ErrorKind::BrokenPipe;
+    e.downcast_ref::<StdoutError>().is_some_and(|s| pipe(&s.0))
+        || e.downcast_ref::<std::io::Error>().is_some_and(pipe)
+        || matches!(
+            e.downcast_ref::<pftrack::io::FormatError>(),
+            Some(pftrack::io::FormatError::Io { cause, .. }) if pipe(cause)
+        )
 }
 
 /// An error and its causes joined with `: `, leaving out a cause whose text the message
