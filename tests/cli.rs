@@ -909,3 +909,32 @@ fn cli_a_render_that_cannot_be_moved_in_changes_nothing() {
     assert!(!fresh.exists());
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+/// `--out -` is standard output, as `-` is standard input for the input: no file named `-`.
+#[test]
+fn cli_out_dash_is_standard_output() {
+    let dir = synth_dir("dash", 2, "64x48");
+    let out = Command::new(env!("CARGO_BIN_EXE_pftrack"))
+        .args([
+            "track",
+            ".",
+            "--backend",
+            "cpu",
+            "--particles",
+            "20",
+            "--out",
+            "-",
+        ])
+        .current_dir(&dir)
+        .output()
+        .expect("run pftrack");
+    assert!(out.status.success(), "{out:?}");
+    let csv = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        csv.starts_with("frame,cx,cy,a,b,rx,ry,rz,score,lost\n"),
+        "{csv}"
+    );
+    assert_eq!(csv.lines().count(), 3);
+    assert!(!dir.join("-").exists());
+    std::fs::remove_dir_all(&dir).unwrap();
+}

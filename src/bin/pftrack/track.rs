@@ -257,7 +257,8 @@ pub struct TrackArgs {
     /// Stop after this many frames.
     #[arg(long)]
     pub max_frames: Option<usize>,
-    /// Pose CSV to write (`frame,cx,cy,a,b,rx,ry,rz,score,lost`); standard output if absent.
+    /// Pose CSV to write (`frame,cx,cy,a,b,rx,ry,rz,score,lost`); standard output if absent
+    /// or `-`.
     #[arg(long, short)]
     pub out: Option<PathBuf>,
     /// Write each frame with the ellipse, pan/tilt bars and angles drawn, as PNG (NNNNN.png),
@@ -565,7 +566,11 @@ pub fn progress(len: Option<usize>) -> indicatif::ProgressBar {
 }
 
 /// Runs the command.
-pub fn run(a: TrackArgs) -> anyhow::Result<()> {
+pub fn run(mut a: TrackArgs) -> anyhow::Result<()> {
+    // `-` is standard output, as it is standard input for the input.
+    if a.out.as_deref() == Some(Path::new(frames::STDIN)) {
+        a.out = None;
+    }
     if a.max_frames == Some(0) {
         bail!("--max-frames must be at least 1 (the first frame is the initial estimate)");
     }
