@@ -485,6 +485,10 @@ fn cli_a_full_standard_output_is_an_error() {
     for args in [
         vec!["eval", t, t],
         vec!["track", d, "--backend", "cpu", "--particles", "20"],
+        // clap's help and version printing ended with 0 and nothing said.
+        vec!["--help"],
+        vec!["track", "--help"],
+        vec!["--version"],
     ] {
         let sink = std::fs::OpenOptions::new().write(true).open(full).unwrap();
         let out = pftrack_to(&args, Stdio::from(sink));

@@ -152,12 +152,21 @@ fn one_line_chain(chain: impl Iterator<Item = String>) -> String {
 
 /// Prints a command-line usage error as one line, `pftrack: error: ...` with clap's tip and a
 /// pointer to the help, and exits with status 2 (clap's own for usage errors); help and
-/// version requests print as clap prints them.
+/// version requests print as clap prints them, with a failure to write them reported.
 fn usage_error(e: clap::Error) -> ! {
     match e.kind() {
-        ErrorKind::DisplayHelp
-        | ErrorKind::DisplayVersion
-        | ErrorKind::DisplayHelpOnMissingArgumentOrSubcommand => e.exit(),
+        // Help and version go to standard output: a write error is reported (clap's own
+        // `exit` would end with 0 and nothing said), a closed pipe ends quietly.
+        ErrorKind::DisplayHelp | ErrorKind::DisplayVersion => {
+            match e.print().and_then(|()| std::io::stdout().flush()) {
+                Err(err) if err.kind() != std::io::ErrorKind::BrokenPipe => {
+                    errln!("pftrack: error: writing to standard output: {err}");
+                    std::process::exit(1);
+                }
+                _ => std::process::exit(0),
+            }
+        }
+        ErrorKind::DisplayHelpOnMissingArgumentOrSubcommand => e.exit(),
         _ => {
             errln!("pftrack: error: {}", one_line(&e.render().to_string()));
             std::process::exit(2);
