@@ -297,23 +297,28 @@ fn resolve_input(input: &Path) -> (PathBuf, Option<PathBuf>) {
 
 /// The initial ellipse from whichever option was given, else from the `init.txt` of a
 /// directory written by `synth`, with the camera's horizontal field of view when an init file
-/// gives it. The camera belongs to the footage: that directory gives its own however the
-/// target is initialised, unless the init file given, `--hfov` or `--weak-perspective`
-/// decides it (its file is then not read).
-pub fn initial_ellipse(a: &TrackArgs, synth_init: Option<&Path>) -> anyhow::Result<InitFile> {
+/// gives it, and the pose when the option gives one (`--init-truth` on a pose CSV). The
+/// camera belongs to the footage: that directory gives its own however the target is
+/// initialised, unless the init file given, `--hfov` or `--weak-perspective` decides it (its
+/// file is then not read).
+pub fn initial_ellipse(
+    a: &TrackArgs,
+    synth_init: Option<&Path>,
+) -> anyhow::Result<(InitFile, Option<Euler>)> {
     match (given_init(a)?, synth_init) {
-        (Some(given), Some(p))
+        (Some((given, pose)), Some(p))
             if given.hfov_deg.is_none() && a.hfov.is_none() && !a.weak_perspective =>
         {
             let dir = pftrack::io::read_init(p)
                 .with_context(|| format!("reading the camera in {}", p.display()))?;
-            Ok(InitFile {
+            let file = InitFile {
                 hfov_deg: dir.hfov_deg,
                 ..given
-            })
+            };
+            Ok((file, pose))
         }
         (Some(given), _) => Ok(given),
-        (None, Some(p)) => Ok(pftrack::io::read_init(p)?),
+        (None, Some(p)) => Ok((pftrack::io::read_init(p)?, None)),
         (None, None) => bail!(
             "no initial ellipse: give one of --init-ellipse, --init-box, --init-points, --init-file, --init-truth"
         ),
@@ -321,27 +326,28 @@ pub fn initial_ellipse(a: &TrackArgs, synth_init: Option<&Path>) -> anyhow::Resu
 }
 
 /// The initial ellipse of the option given (`None` for none), with the camera when it is an
-/// init file that gives one.
-fn given_init(a: &TrackArgs) -> anyhow::Result<Option<InitFile>> {
+/// init file that gives one, and the pose of `--init-truth`'s first row when it is a pose
+/// CSV.
+fn given_init(a: &TrackArgs) -> anyhow::Result<Option<(InitFile, Option<Euler>)>> {
     let no_camera = |ellipse| InitFile {
         ellipse,
         hfov_deg: None,
     };
     if let Some(s) = &a.init_ellipse {
         let v = parse_floats(s, &[4, 5], "--init-ellipse")?;
-        return Ok(Some(no_camera(Ellipse {
+        let e = Ellipse {
             cx: v[0],
             cy: v[1],
             a: v[2],
             b: v[3],
             theta: v.get(4).copied().unwrap_or(0.0).to_radians(),
-        })));
+        };
+        return Ok(Some((no_camera(e), None)));
     }
     if let Some(s) = &a.init_box {
         let v = parse_floats(s, &[4], "--init-box")?;
-        return Ok(Some(no_camera(Ellipse::from_box(&BoxRect::new(
-            v[0], v[1], v[2], v[3],
-        )))));
+        let e = Ellipse::from_box(&BoxRect::new(v[0], v[1], v[2], v[3]));
+        return Ok(Some((no_camera(e), None)));
     }
     if let Some(s) = &a.init_points {
         let pts: anyhow::Result<Vec<[f64; 2]>> = s
@@ -351,32 +357,22 @@ fn given_init(a: &TrackArgs) -> anyhow::Result<Option<InitFile>> {
             .collect();
         let pts = pts?;
         return pftrack::motion::fit_ellipse(&pts)
-            .map(|e| Some(no_camera(e)))
+            .map(|e| Some((no_camera(e), None)))
             .context("--init-points: no ellipse fits these points");
     }
     if let Some(p) = &a.init_file {
-        return Ok(Some(pftrack::io::read_init(p)?));
+        return Ok(Some((pftrack::io::read_init(p)?, None)));
     }
     if let Some(p) = &a.init_truth {
-        let e = match pftrack::eval::load_truth(p)? {
-            pftrack::eval::Truth::Poses(r) => r[0].state.ellipse(0.0),
-            pftrack::eval::Truth::Boxes(b) => Ellipse::from_box(&b[0]),
-        };
-        return Ok(Some(no_camera(e)));
+        return Ok(Some(match pftrack::eval::load_truth(p)? {
+            pftrack::eval::Truth::Poses(r) => {
+                let s = r[0].state;
+                (no_camera(s.ellipse(0.0)), Some(s.euler()))
+            }
+            pftrack::eval::Truth::Boxes(b) => (no_camera(Ellipse::from_box(&b[0])), None),
+        }));
     }
     Ok(None)
-}
-
-/// The pose of `--init-truth`'s first row when it is a pose CSV (`None` for a box file or
-/// without `--init-truth`).
-fn truth_pose(a: &TrackArgs) -> anyhow::Result<Option<Euler>> {
-    let Some(p) = &a.init_truth else {
-        return Ok(None);
-    };
-    Ok(match pftrack::eval::load_truth(p)? {
-        pftrack::eval::Truth::Poses(r) => Some(r[0].state.euler()),
-        pftrack::eval::Truth::Boxes(_) => None,
-    })
 }
 
 /// Builds the tracker configuration from the arguments.
@@ -584,13 +580,13 @@ pub fn run(mut a: TrackArgs) -> anyhow::Result<()> {
     .flatten()
     .collect();
     crate::paths::track_outputs(&frames_path, &read, a.out.as_deref(), a.render.as_deref())?;
-    let init_file = initial_ellipse(&a, synth_init.as_deref())?;
+    let (init_file, truth_pose) = initial_ellipse(&a, synth_init.as_deref())?;
     let pose = match &a.init_pose {
         Some(p) => {
             let v = parse_floats(p, &[3], "--init-pose")?;
             Euler::from_degrees(v[0], v[1], v[2])
         }
-        None => truth_pose(&a)?.unwrap_or_default(),
+        None => truth_pose.unwrap_or_default(),
     };
     let init = Init {
         ellipse: init_file.ellipse,
