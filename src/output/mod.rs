@@ -38,15 +38,22 @@ pub enum OutputError {
 /// parent directory must exist.
 pub fn write_png(path: &Path, img: &RgbImage) -> Result<(), OutputError> {
     let mut file = AtomicFile::create(path)?;
-    img.write_with_encoder(PngEncoder::new(&mut file))
+    encode_png(&mut file, img)?;
+    file.commit()?;
+    Ok(())
+}
+
+/// Encodes `img` as PNG into `file`, left for its caller to commit (when it writes several
+/// files that appear together).
+pub fn encode_png(file: &mut AtomicFile, img: &RgbImage) -> Result<(), OutputError> {
+    let path = file.path().to_path_buf();
+    img.write_with_encoder(PngEncoder::new(file))
         .map_err(|e| match e {
             // A write error is the file's, not the encoding's.
-            image::ImageError::IoError(io) => OutputError::File(FormatError::io(path, io)),
+            image::ImageError::IoError(io) => OutputError::File(FormatError::io(&path, io)),
             e => OutputError::Encode {
                 path: path.display().to_string(),
                 source: e,
             },
-        })?;
-    file.commit()?;
-    Ok(())
+        })
 }

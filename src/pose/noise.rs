@@ -90,9 +90,13 @@ pub struct NoiseConfig {
     pub seed: u64,
 }
 
+/// Most points of a trial [`NoiseConfig::check`] accepts (each trial holds its points; the
+/// paper uses 20).
+pub const MAX_POINTS: usize = 10_000;
+
 impl NoiseConfig {
     /// Checks the settings a trial is drawn from: `max_angle` in `[0, π]`, `depth_spread`
-    /// finite and at least 0, `scale_px` finite and positive, and 3 to 10000 points.
+    /// finite and at least 0, `scale_px` finite and positive, and 3 to [`MAX_POINTS`] points.
     pub fn check(&self) -> Result<(), PoseError> {
         let bad = |what| Err(PoseError::InvalidParameter(what));
         if !(0.0..=std::f64::consts::PI).contains(&self.max_angle) {
@@ -104,7 +108,7 @@ impl NoiseConfig {
         if !(self.scale_px.is_finite() && self.scale_px > 0.0) {
             return bad("scale_px must be finite and positive");
         }
-        if !(3..=10_000).contains(&self.points) {
+        if !(3..=MAX_POINTS).contains(&self.points) {
             return bad("points must lie in 3..=10000");
         }
         Ok(())

@@ -10,7 +10,7 @@ use std::path::{Path, PathBuf};
 use anyhow::Context;
 use clap::{Args, ValueEnum};
 use pftrack::io::AtomicFile;
-use pftrack::pose::noise::{LambdaRow, NoiseConfig, NoiseOn, SnrRow, fig3a, fig3b};
+use pftrack::pose::noise::{LambdaRow, MAX_POINTS, NoiseConfig, NoiseOn, SnrRow, fig3a, fig3b};
 
 /// Which frames receive the noise.
 #[derive(Debug, Clone, Copy, ValueEnum)]
@@ -92,9 +92,6 @@ pub fn lambda_path(p: &Path) -> PathBuf {
 
 /// The SNRs (dB) accepted: beyond them the noise or the signal vanishes in rounding.
 const SNR_RANGE: std::ops::RangeInclusive<f64> = -50.0..=150.0;
-
-/// Most points per trial (each trial holds its points; the paper uses 20).
-const MAX_POINTS: usize = 10_000;
 
 fn check_list(name: &str, v: &[f64]) -> anyhow::Result<()> {
     if v.is_empty() {
@@ -254,31 +251,18 @@ pub fn run(args: PoseNoiseArgs) -> anyhow::Result<()> {
         csv,
         plot: plot_file,
     } = outputs;
-    let csv = match csv {
-        Some((mut fb, mut fa)) => {
-            write_csv(&mut fb, &mut fa, &b, &a)?;
-            Some((fb, fa))
-        }
-        None => None,
-    };
-    let plot_file = match plot_file {
-        Some(mut f) => {
-            let img =
-                plot(&b, &a, &cfg).with_context(|| format!("drawing {}", f.path().display()))?;
-            let path = f.path().to_path_buf();
-            img.write_with_encoder(image::codecs::png::PngEncoder::new(&mut f))
-                .with_context(|| format!("writing {}", path.display()))?;
-            Some(f)
-        }
-        None => None,
-    };
-    // Every buffer flushed first, so that a stream or device target (a link to /dev/full)
-    // fails before any file is renamed into place.
     let mut files: Vec<AtomicFile> = Vec::new();
-    if let Some((fb, fa)) = csv {
+    if let Some((mut fb, mut fa)) = csv {
+        write_csv(&mut fb, &mut fa, &b, &a)?;
         files.extend([fb, fa]);
     }
-    files.extend(plot_file);
+    if let Some(mut f) = plot_file {
+        let img = plot(&b, &a, &cfg).with_context(|| format!("drawing {}", f.path().display()))?;
+        pftrack::output::encode_png(&mut f, &img)?;
+        files.push(f);
+    }
+    // Every buffer flushed first, so that a stream or device target (a link to /dev/full)
+    // fails before any file is renamed into place.
     for f in &mut files {
         let path = f.path().to_path_buf();
         f.flush()
