@@ -440,7 +440,8 @@ impl GpuEngine {
         // The same input checks, and so the same errors, as the CPU engine.
         cpu::validate(frame, params)?;
         let colour_on = params.terms & TERM_COLOUR != 0;
-        let grad_on = params.terms & TERM_GRADIENT != 0 && params.num_lines > 0;
+        let num_lines = gradient_lines(params);
+        let grad_on = num_lines > 0;
         let feat_on = params.terms & TERM_FEATURE != 0 && !frame.features.is_empty();
         let contrast_on = params.terms & TERM_CONTRAST != 0;
         if colour_on && !self.has_model {
@@ -455,7 +456,6 @@ impl GpuEngine {
         let (w, h) = frame.image.dimensions();
         self.check_frame_size(w, h)?;
         let n = particles.len();
-        let num_lines = if grad_on { params.num_lines } else { 0 };
         self.check_particles(n, num_lines, debug.is_some())?;
         out.clear();
         if n == 0 {
@@ -761,9 +761,17 @@ impl LikelihoodEngine for GpuEngine {
         params: &LikelihoodParams,
     ) -> Result<(), LikelihoodError> {
         self.check_frame_size(width, height)?;
-        let grad_on = params.terms & TERM_GRADIENT != 0 && params.num_lines > 0;
-        let num_lines = if grad_on { params.num_lines } else { 0 };
-        self.check_particles(particles, num_lines, false)
+        self.check_particles(particles, gradient_lines(params), false)
+    }
+}
+
+/// The normal lines a pass evaluates per particle: `num_lines` with the gradient term on, 0
+/// without (what sizes the line buffers and the line grid).
+fn gradient_lines(params: &LikelihoodParams) -> u32 {
+    if params.terms & TERM_GRADIENT != 0 {
+        params.num_lines
+    } else {
+        0
     }
 }
 
