@@ -12,12 +12,7 @@ impl Init {
     /// the pose's) within a turn either way ([`TrackError::BadInit`]).
     pub fn check(&self, w: u32, h: u32) -> Result<(), TrackError> {
         let e = &self.ellipse;
-        if !e.is_valid() {
-            return Err(TrackError::BadInit(format!(
-                "cx {}, cy {}, a {}, b {}: values must be finite and the semi-axes positive",
-                e.cx, e.cy, e.a, e.b
-            )));
-        }
+        check_ellipse(e)?;
         if e.a < 2.0 || e.b < 2.0 {
             return Err(TrackError::BadInit(format!(
                 "semi-axes {:.1} x {:.1} px: at least 2 px each",
@@ -242,6 +237,18 @@ impl TrackerConfig {
                 centre_sigma: self.fit_centre_sigma,
             })
     }
+}
+
+/// A start's ellipse has finite values and positive semi-axes (the part of [`Init::check`]
+/// that needs no frame; [`super::refine_ellipse`] checks it too).
+pub(crate) fn check_ellipse(e: &crate::geometry::Ellipse) -> Result<(), TrackError> {
+    if e.is_valid() {
+        return Ok(());
+    }
+    Err(TrackError::BadInit(format!(
+        "cx {}, cy {}, a {}, b {}: values must be finite and the semi-axes positive",
+        e.cx, e.cy, e.a, e.b
+    )))
 }
 
 /// `x` for a message: one decimal, or in exponent form when large.

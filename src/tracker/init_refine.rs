@@ -135,12 +135,7 @@ pub fn refine_ellipse(
         .check()
         .map_err(|e| TrackError::BadConfig(e.to_string()))?;
     cfg.check().map_err(TrackError::BadConfig)?;
-    if !init.is_valid() {
-        return Err(TrackError::BadInit(format!(
-            "cx {}, cy {}, a {}, b {}: values must be finite and the semi-axes positive",
-            init.cx, init.cy, init.a, init.b
-        )));
-    }
+    super::checks::check_ellipse(init)?;
     let scorer = Scorer {
         frame,
         grad: GradientImage::new(frame),
