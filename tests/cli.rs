@@ -447,6 +447,45 @@ fn cli_a_failed_track_leaves_no_render() {
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
+/// A successful track replaces an earlier, longer render in the same folder: its numbered
+/// frames past the new track's last are removed (and said so), anything else stays.
+#[test]
+fn cli_a_render_replaces_an_earlier_longer_one() {
+    let dir = synth_dir("rerender", 5, "64x48");
+    let d = dir.to_str().unwrap();
+    let render = dir.join("render");
+    let r = render.to_str().unwrap();
+    let args = ["track", d, "--backend", "cpu", "--render", r, "-o", "-"];
+    pftrack_ok(&args);
+    assert_eq!(names(&render).len(), 5);
+    for keep in ["notes.txt", "0001.png", "00004.png.bak"] {
+        std::fs::write(render.join(keep), b"the user's").unwrap();
+    }
+    let out = pftrack_ok(&[&args[..], &["--max-frames", "3"]].concat());
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        stderr.contains(&format!("removed 2 frames of an earlier render from {r}")),
+        "{stderr}"
+    );
+    assert_eq!(
+        names(&render),
+        [
+            "00000.png",
+            "00001.png",
+            "00002.png",
+            "00004.png.bak",
+            "0001.png",
+            "notes.txt"
+        ]
+    );
+    // Drawn at the overlay's default scale for a 64 px wide frame.
+    let img = image::open(render.join("00002.png")).unwrap();
+    let scale = pftrack::output::default_scale(64);
+    assert_eq!(scale, 4);
+    assert!(img.width() >= 64 * scale, "{}", img.width());
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
 /// The names in a folder, sorted, hidden ones included.
 fn names(dir: &Path) -> Vec<String> {
     let mut v: Vec<String> = std::fs::read_dir(dir)

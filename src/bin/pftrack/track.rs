@@ -9,7 +9,7 @@ use pftrack::frames::{self, SourceOptions};
 use pftrack::geometry::{BoxRect, Ellipse, Euler};
 use pftrack::io::{InitFile, PoseCsvWriter, PoseRecord};
 use pftrack::likelihood::{Backend, create_engine};
-use pftrack::output::{Overlay, render_overlay, write_png};
+use pftrack::output::{Overlay, default_scale, render_overlay, write_png};
 use pftrack::tracker::{ColourUpdate, Estimate, Init, Mode, Tracker, TrackerConfig};
 
 /// Arguments of `pftrack track`.
@@ -264,7 +264,8 @@ pub struct TrackArgs {
     /// Write each frame with the ellipse, pan/tilt bars and angles drawn, as PNG (NNNNN.png),
     /// here. The frames are drawn into a hidden folder inside and moved into place when the
     /// whole track is done: a run that fails leaves the folder as it found it, as it writes no
-    /// pose CSV.
+    /// pose CSV. One that succeeds replaces an earlier render there: numbered frames past this
+    /// track's last are removed. Frames under 320 px wide are drawn scaled up (160x120 twice).
     #[arg(long, value_name = "DIR")]
     pub render: Option<PathBuf>,
 }
@@ -681,7 +682,15 @@ pub fn run(mut a: TrackArgs) -> anyhow::Result<()> {
     // read as a whole track's, as the pose CSV is never moved into place.
     let (written, moves) = run_loop(&a, &mut source, &mut tracker, &first, staging.as_ref())?;
     if let Some(s) = staging {
-        s.finish(moves)?;
+        let dir = s.dir.clone();
+        let removed = s.finish(moves)?;
+        if removed > 0 {
+            errln!(
+                "pftrack: removed {removed} frame{} of an earlier render from {}",
+                if removed == 1 { "" } else { "s" },
+                dir.display()
+            );
+        }
     }
     errln!(
         "pftrack: tracked {written} frame{} with {} ({}, {}){}",
@@ -754,13 +763,37 @@ impl RenderStaging {
         Ok(moves)
     }
 
-    /// Moves the frames drawn into the render folder, replacing those of the same names.
-    fn finish(self, moves: Vec<(PathBuf, PathBuf)>) -> anyhow::Result<()> {
+    /// Moves the frames drawn into the render folder, replacing those of the same names, then
+    /// removes the numbered frames (`NNNNN.png`) this track did not draw: those of an earlier,
+    /// longer render into the same folder, which would otherwise read as part of this track
+    /// (`ffmpeg -i DIR/%05d.png`). Returns how many were removed.
+    fn finish(self, moves: Vec<(PathBuf, PathBuf)>) -> anyhow::Result<usize> {
+        let drawn: std::collections::HashSet<std::ffi::OsString> = moves
+            .iter()
+            .filter_map(|(_, to)| to.file_name())
+            .map(Into::into)
+            .collect();
         for (from, to) in moves {
             std::fs::rename(from, &to)
                 .with_context(|| format!("moving the rendered frame to {}", to.display()))?;
         }
-        Ok(())
+        let listing = || format!("listing {}", self.dir.display());
+        let mut removed = 0;
+        for entry in std::fs::read_dir(&self.dir).with_context(listing)? {
+            let entry = entry.with_context(listing)?;
+            let name = entry.file_name();
+            let stale = name.to_str().is_some_and(is_frame_name) && !drawn.contains(&name);
+            if stale && entry.file_type().is_ok_and(|t| t.is_file()) {
+                std::fs::remove_file(entry.path()).with_context(|| {
+                    format!(
+                        "removing {}, an earlier render's frame",
+                        entry.path().display()
+                    )
+                })?;
+                removed += 1;
+            }
+        }
+        Ok(removed)
     }
 }
 
@@ -777,6 +810,12 @@ impl Drop for RenderStaging {
 /// The file name of rendered frame `n`.
 fn frame_name(n: usize) -> String {
     format!("{n:05}.png")
+}
+
+/// Whether `name` is one [`frame_name`] gives: five or more digits, then `.png`.
+fn is_frame_name(name: &str) -> bool {
+    name.strip_suffix(".png")
+        .is_some_and(|d| d.len() >= 5 && d.bytes().all(|b| b.is_ascii_digit()))
 }
 
 fn run_loop(
@@ -807,7 +846,7 @@ fn run_loop(
                 score: e.confidence,
                 lost: e.lost,
             };
-            let scale = if frame.width() < 320 { 3 } else { 1 };
+            let scale = default_scale(frame.width());
             write_png(&dir.frame(e.frame), &render_overlay(frame, &o, scale))?;
         }
         pb.inc(1);
