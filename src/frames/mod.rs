@@ -149,8 +149,22 @@ pub struct SourceOptions {
     pub resize: Option<(u32, u32)>,
 }
 
-/// Parses a size written `WxH` (e.g. `128x96`; `X` also accepted), both positive.
+/// Parses a size written `WxH` (e.g. `128x96`; `X` also accepted), both positive and at most
+/// the largest frame side a source reads (32768).
 pub fn parse_size(s: &str) -> Result<(u32, u32), FrameError> {
+    let (w, h) = parse_wxh(s)?;
+    if w > y4m::MAX_SIDE || h > y4m::MAX_SIDE {
+        return Err(FrameError::BadSize {
+            input: s.to_string(),
+            msg: format!("larger than {} pixels", y4m::MAX_SIDE),
+        });
+    }
+    Ok((w, h))
+}
+
+/// Parses a size written `WxH` (e.g. `128x96`; `X` also accepted), both positive, with no
+/// upper bound: for callers that bound the sides themselves (`synth`, `bench`).
+pub fn parse_wxh(s: &str) -> Result<(u32, u32), FrameError> {
     let bad = |msg: &str| FrameError::BadSize {
         input: s.to_string(),
         msg: msg.to_string(),
@@ -167,9 +181,6 @@ pub fn parse_size(s: &str) -> Result<(u32, u32), FrameError> {
     let (w, h) = (num(w)?, num(h)?);
     if w == 0 || h == 0 {
         return Err(bad("width and height must be positive"));
-    }
-    if w > y4m::MAX_SIDE || h > y4m::MAX_SIDE {
-        return Err(bad("larger than 32768 pixels"));
     }
     Ok((w, h))
 }
@@ -452,6 +463,11 @@ mod tests {
             "", "128", "x96", "128x", "0x96", "128x0", "-1x5", "1.5x2", "axb", "9x9x9",
         ] {
             assert!(parse_size(bad).is_err(), "accepted {bad}");
+            assert!(parse_wxh(bad).is_err(), "accepted {bad}");
         }
+        assert_eq!(parse_size("32768x1").unwrap(), (32768, 1));
+        let e = parse_size("32769x1").unwrap_err().to_string();
+        assert!(e.contains("32768"), "{e}");
+        assert_eq!(parse_wxh("100000x7").unwrap(), (100000, 7));
     }
 }

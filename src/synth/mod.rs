@@ -244,10 +244,8 @@ impl SynthConfig {
 
 /// Parses an image size `WxH` (e.g. `160x120`), each side in [`MIN_SIDE`]`..=`[`MAX_SIDE`].
 pub fn parse_size(s: &str) -> Result<(u32, u32), SynthError> {
-    let bad = || SynthError::InvalidConfig(format!("size '{s}' is not WIDTHxHEIGHT, e.g. 160x120"));
-    let (w, h) = s.trim().split_once(['x', 'X']).ok_or_else(bad)?;
-    let w: u32 = w.trim().parse().map_err(|_| bad())?;
-    let h: u32 = h.trim().parse().map_err(|_| bad())?;
+    let (w, h) =
+        crate::frames::parse_wxh(s).map_err(|e| SynthError::InvalidConfig(e.to_string()))?;
     for v in [w, h] {
         if !(MIN_SIDE..=MAX_SIDE).contains(&v) {
             return Err(SynthError::InvalidConfig(format!(

@@ -40,17 +40,7 @@ pub struct BenchArgs {
 }
 
 fn parse_size(s: &str) -> Result<(u32, u32), String> {
-    let (w, h) = s
-        .split_once(['x', 'X'])
-        .ok_or_else(|| format!("size {s:?} is not WxH"))?;
-    let w: u32 = w
-        .trim()
-        .parse()
-        .map_err(|_| format!("bad width in {s:?}"))?;
-    let h: u32 = h
-        .trim()
-        .parse()
-        .map_err(|_| format!("bad height in {s:?}"))?;
+    let (w, h) = pftrack::frames::parse_wxh(s).map_err(|e| e.to_string())?;
     // The synthetic frames the step is timed on are bounded so; a larger frame would only
     // time the allocator (40000x40000 ran for minutes, 100000x100000 aborted).
     let max = pftrack::synth::MAX_SIDE;
