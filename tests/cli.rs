@@ -543,6 +543,87 @@ fn cli_a_full_standard_output_is_an_error() {
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
+/// An interrupt (SIGINT, SIGTERM) mid-run removes what the run had in progress: the pose
+/// CSV's partial file and the render's staging folder, and the render folder the run made;
+/// the command says so in one line and exits with status 130. The frames come from a Y4M
+/// stream on standard input that stalls after three frames, so the signal lands mid-track.
+#[cfg(unix)]
+#[test]
+fn cli_an_interrupted_track_leaves_nothing_behind() {
+    use std::io::Write as _;
+    let dir = tmp_dir("interrupt");
+    std::fs::create_dir_all(&dir).unwrap();
+    let (w, h) = (64usize, 48usize);
+    let mut stream = format!("YUV4MPEG2 W{w} H{h} F25:1 Ip A1:1 C444\n").into_bytes();
+    for k in 0..3 {
+        stream.extend_from_slice(b"FRAME\n");
+        // A textured grey frame, moving a pixel a frame.
+        stream.extend((0..w * h).map(|i| (((i % w + k) * 37 + (i / w) * 11) % 251) as u8));
+        stream.extend(std::iter::repeat_n(128u8, 2 * w * h));
+    }
+    for signal in ["INT", "TERM"] {
+        let csv = dir.join("poses.csv");
+        let render = dir.join("render");
+        let mut child = Command::new(env!("CARGO_BIN_EXE_pftrack"))
+            .args([
+                "track",
+                "-",
+                "--init-ellipse",
+                "32,24,12,15",
+                "--backend",
+                "cpu",
+            ])
+            .args([
+                "-o",
+                csv.to_str().unwrap(),
+                "--render",
+                render.to_str().unwrap(),
+            ])
+            .stdin(Stdio::piped())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .expect("run pftrack");
+        let mut stdin = child.stdin.take().unwrap();
+        stdin.write_all(&stream).unwrap();
+        stdin.flush().unwrap();
+        // Wait for the third frame's rendering: the track is under way, waiting for frame 4.
+        let staged = || {
+            std::fs::read_dir(&render)
+                .into_iter()
+                .flatten()
+                .flatten()
+                .filter_map(|e| std::fs::read_dir(e.path()).ok())
+                .map(|d| d.flatten().filter(|f| f.file_name() == "00002.png").count())
+                .sum::<usize>()
+        };
+        let t0 = std::time::Instant::now();
+        while staged() == 0 {
+            assert!(t0.elapsed().as_secs() < 60, "no frame rendered");
+            std::thread::sleep(std::time::Duration::from_millis(20));
+        }
+        let names_then = names(&dir);
+        assert!(
+            names_then.contains(&".poses.csv.partial".to_string()),
+            "{names_then:?}"
+        );
+        let kill = Command::new("kill")
+            .args([&format!("-{signal}"), &child.id().to_string()])
+            .status()
+            .expect("run kill");
+        assert!(kill.success());
+        let out = child.wait_with_output().unwrap();
+        drop(stdin);
+        assert_eq!(out.status.code(), Some(130), "{signal}: {out:?}");
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(err.ends_with("pftrack: interrupted\n"), "{signal}: {err}");
+        assert!(out.stdout.is_empty());
+        // Nothing of the run stays: no CSV, partial or whole, and no render folder.
+        assert!(names(&dir).is_empty(), "{signal}: {:?}", names(&dir));
+    }
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
 /// A reader that stops reading (`| head -1`) ends the command quietly: exit 0, nothing on
 /// standard error. (Whether the command had written before the pipe closed or not, the
 /// outcome is the same.)

@@ -12,13 +12,15 @@
 //!   such a target cannot be replaced by a rename and is read as a stream anyway. A write
 //!   error there (`/dev/full`) is reported as for any file.
 //!
-//! Every error names the target, never the partial file.
+//! Every error names the target, never the partial file. The partial file is registered
+//! while it exists ([`super::partial`]), so a signal handler can remove it too.
 
 use std::fs::File;
 use std::io::{BufWriter, Write};
 use std::path::{Path, PathBuf};
 
 use super::FormatError;
+use super::partial::{Partial, PartialKind};
 
 /// A buffered file that becomes visible under its final name only on [`AtomicFile::commit`].
 #[derive(Debug)]
@@ -35,6 +37,8 @@ pub struct AtomicFile {
 struct Rename {
     partial: PathBuf,
     to: PathBuf,
+    /// The partial file's registration, for an interrupt to find it.
+    registered: Partial,
 }
 
 impl AtomicFile {
@@ -73,12 +77,14 @@ impl AtomicFile {
         // at (a dangling link: the file it would name).
         let resolved = resolve_links(path).map_err(err)?;
         let partial = partial_path(&resolved);
-        let file = File::create(&partial).map_err(err)?;
+        let (registered, file) =
+            Partial::create(&partial, PartialKind::File, || File::create(&partial)).map_err(err)?;
         Ok(Self {
             target: path.to_path_buf(),
             rename: Some(Rename {
                 partial,
                 to: resolved,
+                registered,
             }),
             writer: Some(BufWriter::new(file)),
         })
@@ -93,24 +99,22 @@ impl AtomicFile {
     /// an error the partial file is removed.
     pub fn commit(mut self) -> Result<(), FormatError> {
         let err = |e: std::io::Error| FormatError::io(&self.target, e);
-        let result = match self.writer.take() {
-            Some(w) => {
-                w.into_inner()
-                    .map_err(|e| e.into_error())
-                    .and_then(|file| match &self.rename {
-                        Some(r) => file
-                            .sync_all()
-                            .and_then(|()| std::fs::rename(&r.partial, &r.to)),
-                        None => Ok(()),
-                    })
-            }
-            None => Ok(()),
+        let Some(w) = self.writer.take() else {
+            return Ok(());
         };
-        if result.is_err()
-            && let Some(r) = &self.rename
-        {
-            let _ = std::fs::remove_file(&r.partial);
-        }
+        let file = w.into_inner().map_err(|e| e.into_error());
+        let Some(r) = self.rename.take() else {
+            return file.map(drop).map_err(err);
+        };
+        let result = r.registered.commit(|| {
+            let result = file
+                .and_then(|file| file.sync_all())
+                .and_then(|()| std::fs::rename(&r.partial, &r.to));
+            if result.is_err() {
+                let _ = std::fs::remove_file(&r.partial);
+            }
+            result
+        });
         result.map_err(err)
     }
 }

@@ -38,7 +38,7 @@ mod sift;
 mod synth;
 mod track;
 
-use std::io::Write as _;
+use std::io::{IsTerminal as _, Write as _};
 
 use clap::error::ErrorKind;
 use clap::{Parser, Subcommand};
@@ -97,6 +97,7 @@ fn main() {
         Ok(cli) => cli,
         Err(e) => usage_error(e),
     };
+    on_interrupt_remove_partial_outputs();
     let result = match cli.command {
         Command::Demo(a) => demo::run(a),
         Command::Track(a) => track::run(*a),
@@ -120,6 +121,27 @@ fn main() {
         errln!("pftrack: error: {msg}");
         std::process::exit(1);
     }
+}
+
+/// Exit status of a run ended by a signal (128 + SIGINT, as a shell reports Ctrl-C).
+const INTERRUPTED_STATUS: i32 = 130;
+
+/// On Ctrl-C, `kill` (SIGTERM) or a closed terminal (SIGHUP): removes the outputs still in
+/// progress (partial files, the render's staging folder) and exits with status 130, so an
+/// interrupted run leaves the places it writes to as it found them, as a failed one does.
+/// Where no handler can be installed the signals keep their default action.
+fn on_interrupt_remove_partial_outputs() {
+    let _ = ctrlc::set_handler(|| {
+        pftrack::io::remove_partial_outputs();
+        // On a terminal a progress bar may hold the line: start a fresh one.
+        let fresh = if std::io::stderr().is_terminal() {
+            "\n"
+        } else {
+            ""
+        };
+        errln!("{fresh}pftrack: interrupted");
+        std::process::exit(INTERRUPTED_STATUS);
+    });
 }
 
 /// Whether `e` is a write to a pipe whose reader has gone, on standard output or on an

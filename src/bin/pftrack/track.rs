@@ -8,6 +8,7 @@ use clap::Args;
 use pftrack::frames::{self, SourceOptions};
 use pftrack::geometry::{BoxRect, Ellipse, Euler};
 use pftrack::io::{InitFile, PoseCsvWriter, PoseRecord};
+use pftrack::io::{Partial, PartialKind};
 use pftrack::likelihood::{Backend, create_engine};
 use pftrack::output::{Overlay, default_scale, render_overlay, write_png};
 use pftrack::tracker::{ColourUpdate, Estimate, Init, Mode, Tracker, TrackerConfig};
@@ -716,6 +717,10 @@ struct RenderStaging {
     staging: PathBuf,
     /// Whether this run created the render folder.
     created: bool,
+    /// The staging folder's registration (and the render folder's, when this run created
+    /// it), for an interrupt to remove them ([`pftrack::io::partial`]).
+    registered: Option<Partial>,
+    _created_registered: Option<Partial>,
 }
 
 impl RenderStaging {
@@ -725,17 +730,24 @@ impl RenderStaging {
             bail!("--render {}: not a folder", dir.display());
         }
         let created = !dir.exists();
-        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+        let (created_registered, ()) =
+            Partial::create(dir, PartialKind::EmptyDir, || std::fs::create_dir_all(dir))
+                .with_context(|| format!("creating {}", dir.display()))?;
         let staging = dir.join(format!(".pftrack-render-{}.partial", std::process::id()));
-        let s = Self {
+        let mut s = Self {
             dir: dir.to_path_buf(),
             staging,
             created,
+            registered: None,
+            _created_registered: created.then_some(created_registered),
         };
         // One left by an interrupted run of a process with the same id.
         let _ = std::fs::remove_dir_all(&s.staging);
-        std::fs::create_dir(&s.staging)
-            .with_context(|| format!("cannot write rendered frames into {}", dir.display()))?;
+        let (registered, ()) = Partial::create(&s.staging, PartialKind::Tree, || {
+            std::fs::create_dir(&s.staging)
+        })
+        .with_context(|| format!("cannot write rendered frames into {}", dir.display()))?;
+        s.registered = Some(registered);
         Ok(s)
     }
 
@@ -767,15 +779,23 @@ impl RenderStaging {
     /// removes the numbered frames (`NNNNN.png`) this track did not draw: those of an earlier,
     /// longer render into the same folder, which would otherwise read as part of this track
     /// (`ffmpeg -i DIR/%05d.png`). Returns how many were removed.
-    fn finish(self, moves: Vec<(PathBuf, PathBuf)>) -> anyhow::Result<usize> {
+    fn finish(mut self, moves: Vec<(PathBuf, PathBuf)>) -> anyhow::Result<usize> {
         let drawn: std::collections::HashSet<std::ffi::OsString> = moves
             .iter()
             .filter_map(|(_, to)| to.file_name())
             .map(Into::into)
             .collect();
-        for (from, to) in moves {
-            std::fs::rename(from, &to)
-                .with_context(|| format!("moving the rendered frame to {}", to.display()))?;
+        // All moved, or (on an error) none more, before an interrupt may clean up.
+        let move_all = || -> anyhow::Result<()> {
+            for (from, to) in moves {
+                std::fs::rename(from, &to)
+                    .with_context(|| format!("moving the rendered frame to {}", to.display()))?;
+            }
+            Ok(())
+        };
+        match self.registered.take() {
+            Some(r) => r.commit(move_all)?,
+            None => move_all()?,
         }
         let listing = || format!("listing {}", self.dir.display());
         let mut removed = 0;
