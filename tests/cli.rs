@@ -447,6 +447,62 @@ fn cli_a_failed_track_leaves_no_render() {
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
+/// `--resize` tracks on the resized frames but takes the start and writes the poses in the
+/// input's own pixels: row 0 is the start as given, and the track stays on the truth, which
+/// `synth` wrote in the input's pixels.
+#[test]
+fn cli_resize_keeps_the_start_and_poses_in_the_input_pixels() {
+    let dir = synth_dir("resize", 60, "160x120");
+    let d = dir.to_str().unwrap();
+    let truth = read_pose_csv(&dir.join("truth.csv")).unwrap();
+    let init = read_init(&dir.join("init.txt")).unwrap().ellipse;
+    for size in ["80x60", "240x180", "120x120"] {
+        let csv = dir.join(format!("poses-{size}.csv"));
+        let render = dir.join(format!("render-{size}"));
+        pftrack_ok(&[
+            "track",
+            d,
+            "--backend",
+            "cpu",
+            "--resize",
+            size,
+            "-o",
+            csv.to_str().unwrap(),
+            "--render",
+            render.to_str().unwrap(),
+        ]);
+        let rows = read_pose_csv(&csv).unwrap();
+        assert_eq!(rows.len(), truth.len());
+        let s = rows[0].state;
+        for (x, y) in [
+            (s.cx, init.cx),
+            (s.cy, init.cy),
+            (s.a, init.a),
+            (s.b, init.b),
+        ] {
+            assert!((x - y).abs() < 1e-5, "{size}: row 0 {x} vs start {y}");
+        }
+        // Measured 2026-12-05: mean 0.8-1.4 px, largest 2.1-4.4 px, over the four sizes.
+        let errors: Vec<f64> = rows
+            .iter()
+            .zip(&truth)
+            .map(|(r, t)| (r.state.cx - t.state.cx).hypot(r.state.cy - t.state.cy))
+            .collect();
+        let mean = errors.iter().sum::<f64>() / errors.len() as f64;
+        let max = errors.iter().fold(0.0f64, |m, &e| m.max(e));
+        assert!(
+            mean < 2.0 && max < 6.0,
+            "{size}: centre error mean {mean}, max {max} px"
+        );
+        // Drawn from the resized frames.
+        let (w, _) = pftrack::frames::parse_size(size).unwrap();
+        let img = image::open(render.join("00000.png")).unwrap();
+        let scale = pftrack::output::default_scale(w);
+        assert!(img.width() >= w * scale && img.width() < 160 * 4, "{size}");
+    }
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
 /// A successful track replaces an earlier, longer render in the same folder: its numbered
 /// frames past the new track's last are removed (and said so), anything else stays.
 #[test]

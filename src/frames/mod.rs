@@ -31,7 +31,7 @@ use std::path::Path;
 
 pub use ffmpeg::FfmpegTools;
 pub use gray::GrayF32;
-pub use resize::resize_bilinear;
+pub use resize::{Rescale, resize_bilinear};
 pub use y4m::{Y4mHeader, Y4mReader};
 
 /// One video frame, 8-bit RGB.

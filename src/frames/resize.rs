@@ -7,6 +7,74 @@
 
 use image::RgbImage;
 
+use crate::geometry::{Ellipse, PoseState};
+
+/// Where positions in a frame of one size lie in the same frame resized to another, by
+/// [`resize_bilinear`]'s convention: `x' = (x + 0.5) · dw / sw − 0.5`, and likewise in y.
+/// Lengths along x scale by `dw / sw`, along y by `dh / sh`: an ellipse's semi-axes `a` (along
+/// x at orientation 0) and `b` scale so, which is exact for an axis-aligned ellipse (a box's,
+/// the usual start) or a resize that keeps the aspect ratio, and the nearest axis-aligned
+/// reading otherwise. Angles are kept.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Rescale {
+    sx: f64,
+    sy: f64,
+}
+
+impl Rescale {
+    /// The map from a `from` frame (width, height) to the `to` frame; sizes of 0 map as 1.
+    pub fn new(from: (u32, u32), to: (u32, u32)) -> Self {
+        let ratio = |t: u32, f: u32| t.max(1) as f64 / f.max(1) as f64;
+        Self {
+            sx: ratio(to.0, from.0),
+            sy: ratio(to.1, from.1),
+        }
+    }
+
+    /// The map back.
+    pub fn inverse(&self) -> Self {
+        Self {
+            sx: 1.0 / self.sx,
+            sy: 1.0 / self.sy,
+        }
+    }
+
+    /// Whether the map leaves every position where it is.
+    pub fn is_identity(&self) -> bool {
+        self.sx == 1.0 && self.sy == 1.0
+    }
+
+    /// Where pixel position `(x, y)` lands (exactly where it was along an axis of scale 1).
+    pub fn point(&self, x: f64, y: f64) -> (f64, f64) {
+        let map = |v: f64, s: f64| if s == 1.0 { v } else { (v + 0.5) * s - 0.5 };
+        (map(x, self.sx), map(y, self.sy))
+    }
+
+    /// The ellipse in the other frame: centre mapped, `a` and `b` scaled along x and y.
+    pub fn ellipse(&self, e: &Ellipse) -> Ellipse {
+        let (cx, cy) = self.point(e.cx, e.cy);
+        Ellipse {
+            cx,
+            cy,
+            a: e.a * self.sx,
+            b: e.b * self.sy,
+            theta: e.theta,
+        }
+    }
+
+    /// The state in the other frame: its ellipse as [`Rescale::ellipse`], its angles kept.
+    pub fn state(&self, s: &PoseState) -> PoseState {
+        let (cx, cy) = self.point(s.cx, s.cy);
+        PoseState {
+            cx,
+            cy,
+            a: s.a * self.sx,
+            b: s.b * self.sy,
+            ..*s
+        }
+    }
+}
+
 /// One output coordinate's two source taps and the weight of the second, `[0, 1]`.
 #[derive(Debug, Clone, Copy, PartialEq)]
 struct Tap {
@@ -68,6 +136,53 @@ pub fn resize_bilinear(img: &RgbImage, w: u32, h: u32) -> RgbImage {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The map follows the resize itself: in a horizontal ramp whose grey level is the source
+    /// column, each resized pixel reads the column its centre maps back to.
+    #[test]
+    fn rescale_agrees_with_the_resize() {
+        let src = RgbImage::from_fn(200, 30, |x, _| image::Rgb([x as u8; 3]));
+        let out = resize_bilinear(&src, 50, 10);
+        let back = Rescale::new((200, 30), (50, 10)).inverse();
+        for x in 1..49 {
+            let (sx, _) = back.point(x as f64, 4.0);
+            let v = out.get_pixel(x, 4)[0] as f64;
+            assert!((v - sx).abs() <= 0.5, "pixel {x}: {v} vs {sx}");
+        }
+    }
+
+    #[test]
+    fn rescale_round_trips_and_scales_per_axis() {
+        let r = Rescale::new((640, 480), (160, 96));
+        assert!(!r.is_identity());
+        let same = Rescale::new((64, 48), (64, 48));
+        assert!(same.is_identity());
+        assert_eq!(same.point(0.1, 0.7), (0.1, 0.7));
+        assert_eq!(r.point(-0.5, -0.5), (-0.5, -0.5));
+        assert_eq!(r.point(639.5, 479.5), (159.5, 95.5));
+        let e = Ellipse {
+            cx: 300.25,
+            cy: 200.5,
+            a: 40.0,
+            b: 50.0,
+            theta: 0.3,
+        };
+        let m = r.ellipse(&e);
+        assert_eq!((m.a, m.b, m.theta), (10.0, 10.0, 0.3));
+        let back = r.inverse().ellipse(&m);
+        for (x, y) in [
+            (back.cx, e.cx),
+            (back.cy, e.cy),
+            (back.a, e.a),
+            (back.b, e.b),
+        ] {
+            assert!((x - y).abs() < 1e-12, "{x} vs {y}");
+        }
+        let s = PoseState::from_parts(&e, crate::geometry::Euler::new(0.1, -0.2, 0.3));
+        let t = r.state(&s);
+        assert_eq!((t.cx, t.cy, t.a, t.b), (m.cx, m.cy, m.a, m.b));
+        assert_eq!((t.rx, t.ry, t.rz), (s.rx, s.ry, s.rz));
+    }
 
     #[test]
     fn identity_size_is_identity() {

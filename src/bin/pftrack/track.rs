@@ -5,6 +5,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{Context, bail};
 use clap::Args;
+use pftrack::frames::Rescale;
 use pftrack::frames::{self, SourceOptions};
 use pftrack::geometry::{BoxRect, Ellipse, Euler};
 use pftrack::io::{InitFile, PoseCsvWriter, PoseRecord};
@@ -252,7 +253,8 @@ pub struct TrackArgs {
     /// (`TemplateTerm::anchor_weight_camera`).
     #[arg(long, value_name = "W")]
     pub anchor_weight: Option<f64>,
-    /// Resize every frame to WxH first.
+    /// Resize every frame to WxH first. The start (--init-*) is read, and the poses are
+    /// written, in the input's own pixels; the rendered frames (--render) are the resized ones.
     #[arg(long, value_name = "WxH")]
     pub resize: Option<String>,
     /// Stop after this many frames.
@@ -668,6 +670,16 @@ pub fn run(mut a: TrackArgs) -> anyhow::Result<()> {
     let resize = a.resize.as_deref().map(frames::parse_size).transpose()?;
     let mut source = frames::open(&frames_path, &SourceOptions { resize })
         .with_context(|| format!("opening {}", frames_path.display()))?;
+    // The start and the poses are in the input's own pixels; the tracker sees the resized
+    // frames (`--resize`).
+    let to_frames = Rescale::new(source.native_size(), source.size());
+    let init = Init {
+        ellipse: to_frames.ellipse(&init.ellipse),
+        ..init
+    };
+    // Checked before the engine is opened, so a bad start is the only line printed.
+    let (w, h) = source.size();
+    init.check(w, h)?;
     let (engine, notice) = create_engine(backend)?;
     if let Some(n) = notice {
         errln!("pftrack: {n}");
@@ -681,7 +693,14 @@ pub fn run(mut a: TrackArgs) -> anyhow::Result<()> {
     let mut tracker = Tracker::with_engine(cfg, engine, &first, init)?;
     // On an error the staging folder is dropped with the frames drawn so far, which would
     // read as a whole track's, as the pose CSV is never moved into place.
-    let (written, moves) = run_loop(&a, &mut source, &mut tracker, &first, staging.as_ref())?;
+    let (written, moves) = run_loop(
+        &a,
+        &mut source,
+        &mut tracker,
+        &first,
+        staging.as_ref(),
+        to_frames.inverse(),
+    )?;
     if let Some(s) = staging {
         let dir = s.dir.clone();
         let removed = s.finish(moves)?;
@@ -844,6 +863,7 @@ fn run_loop(
     tracker: &mut Tracker,
     first: &image::RgbImage,
     render: Option<&RenderStaging>,
+    to_input: Rescale,
 ) -> anyhow::Result<(usize, Vec<(PathBuf, PathBuf)>)> {
     let limit = a.max_frames.unwrap_or(usize::MAX);
     let pb = progress(source.len_hint().map(|n| n.min(limit)));
@@ -853,7 +873,8 @@ fn run_loop(
     };
     let mut stdout_rows = Vec::new();
     let mut emit = |e: &Estimate, frame: &image::RgbImage| -> anyhow::Result<()> {
-        let r = record(e);
+        let mut r = record(e);
+        r.state = to_input.state(&r.state);
         match csv_out.as_mut() {
             Some(w) => w.write(&r)?,
             None => stdout_rows.push(r),
