@@ -1023,7 +1023,16 @@ fn cli_outputs_never_overwrite_what_is_read() {
         track(&[], &init),
         track(&[], &dir.join("./frames/../init.txt")),
         track(&["--init-truth", truth.to_str().unwrap()], &truth),
+        // Not read by the track, but what it is scored against.
+        track(&[], &truth),
     ];
+    // The same path for the poses and the rendered frames.
+    let both = dir.join("both");
+    let same = track(&["--render", both.to_str().unwrap()], &both);
+    assert!(!same.status.success());
+    let err = String::from_utf8_lossy(&same.stderr);
+    assert!(err.contains("--out and --render both name"), "{err}");
+    assert!(!both.exists());
     #[cfg(unix)]
     {
         let link = dir.join("link.csv");
@@ -1036,7 +1045,8 @@ fn cli_outputs_never_overwrite_what_is_read() {
         assert!(!out.status.success());
         let err = String::from_utf8_lossy(&out.stderr);
         assert!(
-            err.contains("overwritten") || err.contains("read as a frame"),
+            err.lines().count() == 1
+                && (err.contains("overwritten") || err.contains("read as a frame")),
             "{err}"
         );
     }

@@ -59,6 +59,14 @@ pub fn track_outputs(
     render: Option<&Path>,
 ) -> anyhow::Result<()> {
     let folder = frames_folder(input);
+    if let (Some(o), Some(r)) = (out, render)
+        && same(o, r)
+    {
+        bail!(
+            "--out and --render both name {}: the poses and the rendered frames need places of their own",
+            o.display()
+        );
+    }
     if let Some(o) = out {
         let mut inputs = vec![input];
         inputs.extend(others);
