@@ -397,6 +397,26 @@ fn cli_sift_and_pose_reject_bad_input_in_one_line() {
         drawn.to_str().unwrap(),
     ];
     assert_one_line_error(&args, "sea, optimal, lsm, rls or essential", &drawn);
+    // A drawing that cannot be written is refused before the rotation is computed.
+    let folder = dir.join("folder.png");
+    std::fs::create_dir(&folder).unwrap();
+    let jpg = dir.join("drawn.jpg");
+    for (draw, needle) in [
+        (&folder, "is a directory"),
+        (&jpg, "the image is a PNG; give a .png name"),
+    ] {
+        let args = [
+            "pose",
+            f0,
+            f1,
+            "--ellipse",
+            "48,36,14,18",
+            "--draw",
+            draw.to_str().unwrap(),
+        ];
+        assert_one_line_error(&args, needle, &jpg);
+        assert!(pftrack(&args).stdout.is_empty(), "{draw:?}");
+    }
     std::fs::remove_dir_all(&dir).unwrap();
 }
 

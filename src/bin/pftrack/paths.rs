@@ -36,6 +36,21 @@ pub fn not_an_input(flag: &str, out: &Path, inputs: &[&Path]) -> anyhow::Result<
     Ok(())
 }
 
+/// Refuses an image output (given by `flag`) whose name does not end in `.png`, the one
+/// format it is written in: a `.jpg` name holding PNG data would mislead what opens it.
+pub fn png_name(flag: &str, path: &Path) -> anyhow::Result<()> {
+    if !path
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("png"))
+    {
+        bail!(
+            "{flag} {}: the image is a PNG; give a .png name",
+            path.display()
+        );
+    }
+    Ok(())
+}
+
 /// The folder whose images a track of `input` reads: the input itself when it is a folder,
 /// the folder of an input image, `None` for a video or a stream.
 fn frames_folder(input: &Path) -> Option<PathBuf> {

@@ -72,9 +72,15 @@ pub fn run(a: PoseArgs) -> anyhow::Result<()> {
     if !e.is_valid() {
         bail!("--ellipse: semi-axes must be positive");
     }
-    if let Some(d) = &a.draw {
-        crate::paths::not_an_input("--draw", d, &[&a.frame_a, &a.frame_b])?;
-    }
+    // Opened before the work, so a bad place for the drawing fails at once.
+    let mut draw = match &a.draw {
+        Some(d) => {
+            crate::paths::not_an_input("--draw", d, &[&a.frame_a, &a.frame_b])?;
+            crate::paths::png_name("--draw", d)?;
+            Some(pftrack::io::AtomicFile::create(d)?)
+        }
+        None => None,
+    };
     // `None`: the essential-matrix baseline, which is not a block solver.
     let solver = match a.solver.as_str() {
         "essential" => None,
@@ -140,12 +146,14 @@ pub fn run(a: PoseArgs) -> anyhow::Result<()> {
         let r = essential_rotation(&p, &q, &k)?;
         show("essential (focal = image width assumed)", &r.rotation)?;
     }
-    if let Some(path) = &a.draw {
+    if let Some(mut file) = draw.take() {
         let mut img = ib.clone();
         for (p, q) in p.iter().zip(&q) {
             arrow(&mut img, *p, *q, Rgb([255, 40, 40]));
         }
-        pftrack::output::write_png(path, &img)?;
+        pftrack::output::encode_png(&mut file, &img)?;
+        let path = file.path().to_path_buf();
+        file.commit()?;
         outln!("matches drawn in {}", path.display())?;
     }
     Ok(())

@@ -151,13 +151,7 @@ impl Outputs {
             names.push(lambda_path(p));
         }
         if let Some(p) = &args.plot {
-            let png = p.extension().is_some_and(|e| e.eq_ignore_ascii_case("png"));
-            if !png {
-                anyhow::bail!(
-                    "--plot {}: the plot is a PNG; give a .png name",
-                    p.display()
-                );
-            }
+            crate::paths::png_name("--plot", p)?;
             names.push(p.clone());
         }
         for (i, a) in names.iter().enumerate() {
