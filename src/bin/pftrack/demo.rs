@@ -20,17 +20,19 @@ use crate::track::{config, progress, record};
 #[command(allow_negative_numbers = true)]
 pub struct DemoArgs {
     /// Scenario to render (nod, pan, roll, combo, depth, car, long).
-    #[arg(long, default_value = "nod")]
+    #[arg(long, default_value = "nod", value_parser = crate::values::scenario)]
     pub scenario: String,
-    /// Number of frames (the scenario's default if absent).
+    /// Number of frames (the scenario's default if absent); the scenario's whole motion plays
+    /// over them.
     #[arg(long)]
     pub frames: Option<usize>,
-    /// Where the sequence, the poses and the score go.
+    /// Where the rendered sequence (DIR/sequence) and the poses (DIR/poses.csv) go; the
+    /// score is printed.
     #[arg(long, default_value = "pftrack-demo")]
     pub out: PathBuf,
     /// Likelihood engine: auto (the GPU if a hardware Vulkan adapter exists), cpu or gpu.
-    #[arg(long, default_value = "auto")]
-    pub backend: String,
+    #[arg(long, default_value = "auto", hide_possible_values = true)]
+    pub backend: Backend,
     /// Number of particles.
     #[arg(long, default_value_t = 200)]
     pub particles: usize,
@@ -49,21 +51,19 @@ pub fn run(a: DemoArgs) -> anyhow::Result<()> {
     }
     // Every argument checked before anything is rendered or written.
     cfg.validate()?;
-    let backend: Backend = a
-        .backend
-        .parse()
-        .map_err(|e| anyhow::anyhow!("--backend: {e}"))?;
+    let backend = a.backend;
     let mut tcfg = config("sea", a.particles, a.seed)?;
+    // The engine too: one that cannot open fails the demo before anything is written.
+    let (engine, notice) = create_engine(backend)?;
+    if let Some(n) = notice {
+        errln!("pftrack: {n}");
+    }
     let seq_dir = a.out.join("sequence");
     std::fs::create_dir_all(&seq_dir).with_context(|| format!("creating {}", seq_dir.display()))?;
     let t0 = std::time::Instant::now();
     let summary = write_sequence(&cfg, &seq_dir, std::io::stderr().is_terminal())?;
     let render_s = t0.elapsed().as_secs_f64();
 
-    let (engine, notice) = create_engine(backend)?;
-    if let Some(n) = notice {
-        errln!("pftrack: {n}");
-    }
     let init_file = read_init(&seq_dir.join("init.txt"))?;
     let init = Init::frontal(init_file.ellipse);
     let mut source = frames::open(&summary.frames_dir, &SourceOptions::default())?;

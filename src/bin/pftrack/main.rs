@@ -37,6 +37,7 @@ mod pose_noise;
 mod sift;
 mod synth;
 mod track;
+mod values;
 
 use std::io::{IsTerminal as _, Write as _};
 
@@ -66,7 +67,7 @@ struct Cli {
 
 #[derive(Debug, Subcommand)]
 enum Command {
-    /// Render the default synthetic scenario, track it and print the error table.
+    /// Render a synthetic scenario (nod by default), track it and print the error table.
     Demo(demo::DemoArgs),
     /// Track an object through a video and write its pose per frame.
     Track(Box<track::TrackArgs>),

@@ -23,10 +23,15 @@ pub struct PoseArgs {
     /// The second image (same size).
     pub frame_b: PathBuf,
     /// The object's ellipse in the first image, `cx,cy,a,b[,angle_deg]`.
-    #[arg(long, value_name = "CX,CY,A,B[,ANGLE]", allow_hyphen_values = true)]
+    #[arg(
+        long,
+        value_name = "CX,CY,A,B[,ANGLE]",
+        allow_hyphen_values = true,
+        value_parser = crate::values::four_or_five
+    )]
     pub ellipse: String,
     /// Solver: sea, optimal, lsm, rls or essential.
-    #[arg(long, default_value = "sea")]
+    #[arg(long, default_value = "sea", value_parser = crate::values::solver)]
     pub solver: String,
     /// Draw the matches as arrows (like the paper's Fig. 1) into this PNG.
     #[arg(long, value_name = "F.png")]

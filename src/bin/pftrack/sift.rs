@@ -38,16 +38,10 @@ pub struct SiftArgs {
 
 /// Parses `x,y,w,h`.
 fn parse_region(s: &str) -> Result<BoxRect, String> {
-    let v: Vec<f64> = s
-        .split(',')
-        .map(|t| t.trim().parse::<f64>())
-        .collect::<Result<_, _>>()
-        .map_err(|e| format!("want x,y,w,h: {e}"))?;
+    let v = crate::values::numbers(s, &[4])?;
     match v[..] {
-        [x, y, w, h] if v.iter().all(|t| t.is_finite()) && w > 0.0 && h > 0.0 => {
-            Ok(BoxRect::new(x, y, w, h))
-        }
-        _ => Err("want four finite numbers x,y,w,h with w, h > 0".into()),
+        [x, y, w, h] if w > 0.0 && h > 0.0 => Ok(BoxRect::new(x, y, w, h)),
+        _ => Err(format!("the width and height of '{s}' must be positive")),
     }
 }
 

@@ -14,9 +14,10 @@ pub struct SynthArgs {
     /// Output directory: receives frames/00000.png..., truth.csv and init.txt.
     pub dir: PathBuf,
     /// Scenario: nod, pan, roll, combo, depth, car, long.
-    #[arg(long, default_value = "combo")]
+    #[arg(long, default_value = "combo", value_parser = crate::values::scenario)]
     pub scenario: String,
-    /// Number of frames (default: the scenario's own, e.g. 180 for nod, 2400 for long).
+    /// Number of frames (default: the scenario's own, e.g. 180 for nod, 2400 for long). The
+    /// scenario's whole motion plays over them: fewer frames, faster motion per frame.
     #[arg(long)]
     pub frames: Option<usize>,
     /// Image size WIDTHxHEIGHT.
@@ -43,8 +44,9 @@ pub fn run(args: SynthArgs) -> anyhow::Result<()> {
         .with_context(|| format!("rendering {} into {}", scenario, args.dir.display()))?;
     let e = summary.init;
     outln!(
-        "wrote {} frames of '{}' ({}x{}, seed {}) to {}; truth {}; init {:.2},{:.2},{:.2},{:.2}",
+        "wrote {} frame{} of '{}' ({}x{}, seed {}) to {}; truth {}; init {:.2},{:.2},{:.2},{:.2}",
         cfg.frames,
+        if cfg.frames == 1 { "" } else { "s" },
         scenario,
         width,
         height,

@@ -14,6 +14,8 @@ use pftrack::likelihood::{Backend, create_engine};
 use pftrack::output::{Overlay, default_scale, render_overlay, write_png};
 use pftrack::tracker::{ColourUpdate, Estimate, Init, Mode, Tracker, TrackerConfig};
 
+use crate::values;
+
 /// Arguments of `pftrack track`.
 #[derive(Debug, Args)]
 #[command(allow_negative_numbers = true)]
@@ -27,7 +29,8 @@ pub struct TrackArgs {
         long,
         value_name = "CX,CY,A,B[,ANGLE]",
         group = "init",
-        allow_hyphen_values = true
+        allow_hyphen_values = true,
+        value_parser = values::four_or_five
     )]
     pub init_ellipse: Option<String>,
     /// Initial box `x,y,w,h` (top-left corner, pixels); its inscribed ellipse is tracked.
@@ -35,7 +38,8 @@ pub struct TrackArgs {
         long,
         value_name = "X,Y,W,H",
         group = "init",
-        allow_hyphen_values = true
+        allow_hyphen_values = true,
+        value_parser = values::four
     )]
     pub init_box: Option<String>,
     /// Points around the object `"x1,y1;x2,y2;..."` (at least 5): a least-squares ellipse.
@@ -43,7 +47,8 @@ pub struct TrackArgs {
         long,
         value_name = "X,Y;X,Y;...",
         group = "init",
-        allow_hyphen_values = true
+        allow_hyphen_values = true,
+        value_parser = values::points
     )]
     pub init_points: Option<String>,
     /// An init file `cx,cy,a,b[,angle]` (what `pftrack synth` writes).
@@ -55,7 +60,12 @@ pub struct TrackArgs {
     pub init_truth: Option<PathBuf>,
     /// Initial pose `rx,ry,rz` in degrees, each within 360 either way [default: frontal
     /// 0,0,0, or the first row's with `--init-truth` on a pose CSV].
-    #[arg(long, value_name = "RX,RY,RZ", allow_hyphen_values = true)]
+    #[arg(
+        long,
+        value_name = "RX,RY,RZ",
+        allow_hyphen_values = true,
+        value_parser = values::three
+    )]
     pub init_pose: Option<String>,
     /// Number of particles.
     #[arg(long, default_value_t = 200)]
@@ -64,11 +74,11 @@ pub struct TrackArgs {
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
     /// The system: sea (full), optimal (certified solver), tpe (tracking then pose), rls.
-    #[arg(long, default_value = "sea")]
+    #[arg(long, default_value = "sea", value_parser = values::mode)]
     pub mode: String,
     /// Likelihood engine: auto (the GPU if a hardware Vulkan adapter exists, or the one PFTRACK_ADAPTER names; else the CPU), cpu or gpu (any Vulkan adapter, software ones too).
-    #[arg(long, default_value = "auto")]
-    pub backend: String,
+    #[arg(long, default_value = "auto", hide_possible_values = true)]
+    pub backend: Backend,
     /// The camera's horizontal field of view in degrees, for the perspective form of the
     /// keyframe depth prior and of the turned first view; when absent, the --init-file's
     /// (`hfov,DEG`, which `pftrack synth` writes), else that of the input directory's
@@ -255,7 +265,7 @@ pub struct TrackArgs {
     pub anchor_weight: Option<f64>,
     /// Resize every frame to WxH first. The start (--init-*) is read, and the poses are
     /// written, in the input's own pixels; the rendered frames (--render) are the resized ones.
-    #[arg(long, value_name = "WxH")]
+    #[arg(long, value_name = "WxH", value_parser = values::size)]
     pub resize: Option<String>,
     /// Stop after this many frames.
     #[arg(long)]
@@ -274,18 +284,7 @@ pub struct TrackArgs {
 }
 
 pub fn parse_floats(s: &str, n: &[usize], what: &str) -> anyhow::Result<Vec<f64>> {
-    let v: Result<Vec<f64>, _> = s.split(',').map(|t| t.trim().parse::<f64>()).collect();
-    let v = v.with_context(|| format!("{what}: '{s}' is not a list of numbers"))?;
-    if !n.contains(&v.len()) || v.iter().any(|x| !x.is_finite()) {
-        bail!(
-            "{what}: expected {} finite numbers, got '{s}'",
-            n.iter()
-                .map(|k| k.to_string())
-                .collect::<Vec<_>>()
-                .join(" or ")
-        );
-    }
-    Ok(v)
+    values::numbers(s, n).map_err(|e| anyhow::anyhow!("{what}: {e}"))
 }
 
 /// The input's frames and init file, accepting a `pftrack synth` directory as is.
@@ -674,10 +673,7 @@ pub fn run(mut a: TrackArgs) -> anyhow::Result<()> {
     };
     cfg.check()
         .map_err(|e| anyhow::anyhow!(flag_error(&e.to_string())))?;
-    let backend: Backend = a
-        .backend
-        .parse()
-        .map_err(|e| anyhow::anyhow!("--backend: {e}"))?;
+    let backend = a.backend;
     let resize = a.resize.as_deref().map(frames::parse_size).transpose()?;
     let mut source = frames::open(&frames_path, &SourceOptions { resize })
         .with_context(|| format!("opening {}", frames_path.display()))?;
