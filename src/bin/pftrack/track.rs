@@ -115,7 +115,7 @@ pub struct TrackArgs {
         long,
         value_name = "PX",
         default_value_t = 0.5,
-        conflicts_with = "no_fit_centre_prior"
+        conflicts_with_all = ["no_fit_centre_prior", "no_fit_prior"]
     )]
     pub fit_centre_sigma: f64,
     /// Leave the keyframe fits' centre free in the motion prior (the prior then holds the
@@ -443,6 +443,12 @@ pub fn apply_template(
         && !(w.is_finite() && w >= 0.0)
     {
         bail!("--anchor-weight must be finite and at least 0, got {w}");
+    }
+    if let Some(w) = anchor_weight
+        && w > 0.0
+        && weight == 0.0
+    {
+        bail!("--anchor-weight {w} needs the template term, which --template-weight 0 turns off");
     }
     let base = cfg.template.unwrap_or_default();
     cfg.template = (weight > 0.0).then(|| pftrack::tracker::TemplateTerm {
@@ -971,7 +977,16 @@ mod tests {
             (t.weight, t.rate, t.anchor_weight, t.anchor_weight_camera),
             (35.0, 0.1, 25.0, 25.0)
         );
-        apply_template(&mut cfg, 0.0, 0.1, Some(25.0)).unwrap();
+        // The anchor rides on the template term: none without it.
+        let e = apply_template(&mut cfg, 0.0, 0.1, Some(25.0)).unwrap_err();
+        assert!(
+            e.to_string().contains("--template-weight 0 turns off"),
+            "{e}"
+        );
+        apply_template(&mut cfg, 0.0, 0.1, Some(0.0)).unwrap();
+        assert!(cfg.template.is_none());
+        apply_template(&mut cfg, 35.0, 0.1, Some(25.0)).unwrap();
+        apply_template(&mut cfg, 0.0, 0.1, None).unwrap();
         assert!(cfg.template.is_none());
         apply_template(&mut cfg, 10.0, 0.0, Some(0.0)).unwrap();
         assert_eq!(
