@@ -26,3 +26,11 @@ pub mod synth;
 pub mod tracker;
 
 pub use error::{Error, Result};
+/// The `image` crate whose `RgbImage` frames the tracker takes, re-exported so that an
+/// embedding program uses the same version.
+pub use image;
+
+// The README's library example is compiled as a doctest.
+#[cfg(doctest)]
+#[doc = include_str!("../README.md")]
+struct ReadmeDoctests;
