@@ -1120,6 +1120,35 @@ fn cli_a_render_that_cannot_be_moved_in_changes_nothing() {
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
+/// The pose CSV keeps the ellipse's orientation (`theta`, `theta0 + rz`): a start turned 30
+/// degrees is row 0's theta, and a track started from that row (`--init-truth`), with a
+/// roll given as well, starts from the same ellipse.
+#[test]
+fn cli_the_pose_csv_keeps_the_ellipse_orientation() {
+    let dir = synth_dir("theta", 3, "64x48");
+    let d = dir.to_str().unwrap();
+    let first = dir.join("first.csv");
+    let again = dir.join("again.csv");
+    let track = |extra: &[&str], out: &Path| {
+        let mut a = vec!["track", d, "--backend", "cpu", "--particles", "20", "-o"];
+        a.push(out.to_str().unwrap());
+        a.extend(extra);
+        pftrack_ok(&a);
+        read_pose_csv(out).unwrap()
+    };
+    let rows = track(
+        &["--init-ellipse", "32,24,9,12,30", "--init-pose", "0,0,10"],
+        &first,
+    );
+    let r0 = &rows[0];
+    assert!((r0.theta.unwrap().to_degrees() - 30.0).abs() < 1e-6);
+    assert!((r0.state.rz.to_degrees() - 10.0).abs() < 1e-6);
+    let rows = track(&["--init-truth", first.to_str().unwrap()], &again);
+    assert_eq!(rows[0].ellipse(), r0.ellipse());
+    assert_eq!(rows[0].state, r0.state);
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
 /// `--out -` is standard output, as `-` is standard input for the input: no file named `-`.
 #[test]
 fn cli_out_dash_is_standard_output() {
@@ -1141,7 +1170,7 @@ fn cli_out_dash_is_standard_output() {
     assert!(out.status.success(), "{out:?}");
     let csv = String::from_utf8_lossy(&out.stdout);
     assert!(
-        csv.starts_with("frame,cx,cy,a,b,rx,ry,rz,score,lost\n"),
+        csv.starts_with("frame,cx,cy,a,b,rx,ry,rz,score,lost,theta\n"),
         "{csv}"
     );
     assert_eq!(csv.lines().count(), 3);

@@ -32,6 +32,7 @@ fn truth_records() -> Vec<PoseRecord> {
             },
             score: None,
             lost: None,
+            theta: None,
         })
         .collect()
 }
@@ -188,6 +189,7 @@ fn from_boxes(boxes: &[BoxRect]) -> Vec<PoseRecord> {
                 state: PoseState::from_parts(&e, Euler::default()),
                 score: Some(1.0),
                 lost: Some(false),
+                theta: None,
             }
         })
         .collect()

@@ -114,6 +114,28 @@ fn deterministic_for_a_seed() {
     assert_eq!(a, b);
 }
 
+/// The start's ellipse is the one seen in the first frame: with a rolled starting pose the
+/// first estimate's ellipse is that ellipse, not turned by the roll again (SPEC: orientation
+/// `theta0 + rz`, so `theta0` is the ellipse's angle less the roll).
+#[test]
+fn the_first_estimate_is_the_start_as_given() {
+    let r = Renderer::new(&SynthConfig::new(Scenario::Roll)).unwrap();
+    let (first, _) = r.render(0);
+    let mut ellipse = r.init_ellipse();
+    ellipse.theta = 0.5;
+    for rz in [0.0, 0.2, -0.7] {
+        let init = Init {
+            ellipse,
+            pose: Euler::new(0.1, -0.05, rz),
+        };
+        let t = Tracker::new(TrackerConfig::default(), &first, init).unwrap();
+        let e = t.initial_estimate();
+        assert_eq!(e.ellipse, ellipse, "roll {rz}");
+        assert_eq!(e.state.rz, rz);
+        assert_eq!(e.state.ellipse(0.5 - rz), ellipse);
+    }
+}
+
 #[test]
 fn a_reinitialised_tracker_tracks_as_a_new_one_would() {
     // A tracker that has followed the head for a while and is then started over on frame 8

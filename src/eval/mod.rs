@@ -532,6 +532,7 @@ mod tests {
             },
             score: None,
             lost: None,
+            theta: None,
         }
     }
 

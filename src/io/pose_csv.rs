@@ -1,6 +1,7 @@
-//! Pose CSV: `frame,cx,cy,a,b,rx,ry,rz` then optional extra columns (`score,lost` from the
-//! tracker). Header required; `frame` counts from 0; angles in degrees in the file, radians in
-//! [`PoseRecord::state`].
+//! Pose CSV: `frame,cx,cy,a,b,rx,ry,rz` then optional extra columns (`score,lost,theta` from
+//! the tracker: its confidence, its lost flag and the ellipse's orientation `theta0 + rz`).
+//! Header required; `frame` counts from 0; angles in degrees in the file, radians in
+//! [`PoseRecord::state`] and [`PoseRecord::theta`].
 
 use std::io::Write;
 use std::path::Path;
@@ -22,6 +23,20 @@ pub struct PoseRecord {
     pub score: Option<f64>,
     /// Whether the tracker declared the target lost, when the file has a `lost` column.
     pub lost: Option<bool>,
+    /// The ellipse's orientation (radians), `theta0 + rz`, when the file has a `theta` column;
+    /// without it the orientation is `rz` (`theta0` = 0, as in ground truth from `synth`).
+    pub theta: Option<f64>,
+}
+
+impl PoseRecord {
+    /// The row's ellipse: its orientation from the `theta` column, else `rz`.
+    pub fn ellipse(&self) -> crate::geometry::Ellipse {
+        let mut e = self.state.ellipse(0.0);
+        if let Some(t) = self.theta {
+            e.theta = t;
+        }
+        e
+    }
 }
 
 /// Reads a pose CSV. Rows must have strictly increasing frame numbers; every value must be a
@@ -57,6 +72,7 @@ pub fn parse_pose_csv(text: &str, path: &Path) -> Result<Vec<PoseRecord>, Format
     }
     let score_col = cols.iter().position(|c| c == "score");
     let lost_col = cols.iter().position(|c| c == "lost");
+    let theta_col = cols.iter().position(|c| c == "theta");
     let mut out: Vec<PoseRecord> = Vec::new();
     for (i, line) in lines {
         let lineno = i + 1;
@@ -116,6 +132,12 @@ pub fn parse_pose_csv(text: &str, path: &Path) -> Result<Vec<PoseRecord>, Format
             }),
             None => None,
         };
+        let theta = match theta_col {
+            Some(c) => Some(rad(
+                parse_f64(f[c], "theta").map_err(|m| FormatError::parse(path, lineno, m))?
+            )),
+            None => None,
+        };
         let state = PoseState {
             cx: v[0],
             cy: v[1],
@@ -130,6 +152,7 @@ pub fn parse_pose_csv(text: &str, path: &Path) -> Result<Vec<PoseRecord>, Format
             state,
             score,
             lost,
+            theta,
         });
     }
     if out.is_empty() {
@@ -156,9 +179,10 @@ fn format_row(r: &PoseRecord, with_score: bool) -> String {
     );
     if with_score {
         row.push_str(&format!(
-            ",{:.6},{}",
+            ",{:.6},{},{:.6}",
             r.score.unwrap_or(0.0),
-            u8::from(r.lost.unwrap_or(false))
+            u8::from(r.lost.unwrap_or(false)),
+            deg(r.theta.unwrap_or(s.rz))
         ));
     }
     row
@@ -173,7 +197,7 @@ pub struct PoseCsvWriter {
 }
 
 impl PoseCsvWriter {
-    /// Starts a pose CSV; `with_score` adds the `score,lost` columns.
+    /// Starts a pose CSV; `with_score` adds the tracker's `score,lost,theta` columns.
     pub fn create(path: &Path, with_score: bool) -> Result<Self, FormatError> {
         let mut file = AtomicFile::create(path)?;
         writeln!(file, "{}", header(with_score)).map_err(|e| FormatError::io(path, e))?;
@@ -196,7 +220,7 @@ impl PoseCsvWriter {
 fn header(with_score: bool) -> String {
     let mut h = POSE_COLUMNS.join(",");
     if with_score {
-        h.push_str(",score,lost");
+        h.push_str(",score,lost,theta");
     }
     h
 }
@@ -243,6 +267,7 @@ mod tests {
             },
             score: Some(0.75),
             lost: Some(frame == 1),
+            theta: Some(0.05 + 0.1 * frame as f64),
         }
     }
 
@@ -254,13 +279,15 @@ mod tests {
         let recs = vec![rec(0, 0.1), rec(1, 0.3), rec(5, -1.0)];
         write_pose_csv(&p, &recs, true).unwrap();
         let text = std::fs::read_to_string(&p).unwrap();
-        assert!(text.starts_with("frame,cx,cy,a,b,rx,ry,rz,score,lost\n"));
+        assert!(text.starts_with("frame,cx,cy,a,b,rx,ry,rz,score,lost,theta\n"));
         assert_eq!(text, format_pose_csv(&recs, true));
         let back = read_pose_csv(&p).unwrap();
         assert_eq!(back.len(), 3);
         for (a, b) in recs.iter().zip(&back) {
             assert_eq!(a.frame, b.frame);
             assert_eq!(a.lost, b.lost);
+            assert!((a.theta.unwrap() - b.theta.unwrap()).abs() < 1e-6);
+            assert!((a.ellipse().theta - b.ellipse().theta).abs() < 1e-6);
             let (x, y) = (a.state.to_array(), b.state.to_array());
             for k in 0..7 {
                 assert!((x[k] - y[k]).abs() < 1e-6, "{k}: {} vs {}", x[k], y[k]);

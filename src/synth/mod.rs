@@ -337,6 +337,7 @@ pub fn write_sequence(
             state: *state,
             score: None,
             lost: None,
+            theta: None,
         })?;
     }
     w.finish()?;

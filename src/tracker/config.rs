@@ -51,7 +51,9 @@ impl Mode {
 /// Where tracking starts: the target's ellipse in the first frame and its pose there.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Init {
-    /// The ellipse around the target; its `theta` is the reference orientation `theta0`.
+    /// The ellipse around the target in the first frame, as seen there: its orientation
+    /// `theta` is `theta0 + rz` of the pose (SPEC), so the reference orientation `theta0` the
+    /// track turns from is `theta - pose.rz` (`theta` itself for a frontal start).
     pub ellipse: Ellipse,
     /// The pose in the first frame (frontal, all zero, by default).
     pub pose: Euler,

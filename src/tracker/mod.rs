@@ -356,7 +356,8 @@ impl Tracker {
             None => init,
         };
         self.size = (w, h);
-        self.theta0 = init.ellipse.theta;
+        // The start's ellipse is the one seen, turned by `theta0 + rz` (SPEC).
+        self.theta0 = init.ellipse.theta - init.pose.rz;
         let model =
             ColourHistogram::from_ellipse(frame, &init.ellipse, self.cfg.likelihood.colour_bins)?;
         self.engine.set_colour_model(&model)?;

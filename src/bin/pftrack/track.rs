@@ -270,7 +270,7 @@ pub struct TrackArgs {
     /// Stop after this many frames.
     #[arg(long)]
     pub max_frames: Option<usize>,
-    /// Pose CSV to write (`frame,cx,cy,a,b,rx,ry,rz,score,lost`); standard output if absent
+    /// Pose CSV to write (`frame,cx,cy,a,b,rx,ry,rz,score,lost,theta`); standard output if absent
     /// or `-`.
     #[arg(long, short)]
     pub out: Option<PathBuf>,
@@ -368,10 +368,7 @@ fn given_init(a: &TrackArgs) -> anyhow::Result<Option<(InitFile, Option<Euler>)>
     }
     if let Some(p) = &a.init_truth {
         return Ok(Some(match pftrack::eval::load_truth(p)? {
-            pftrack::eval::Truth::Poses(r) => {
-                let s = r[0].state;
-                (no_camera(s.ellipse(0.0)), Some(s.euler()))
-            }
+            pftrack::eval::Truth::Poses(r) => (no_camera(r[0].ellipse()), Some(r[0].state.euler())),
             pftrack::eval::Truth::Boxes(b) => (no_camera(Ellipse::from_box(&b[0])), None),
         }));
     }
@@ -551,6 +548,7 @@ pub fn record(e: &Estimate) -> PoseRecord {
         state: e.state,
         score: Some(e.confidence),
         lost: Some(e.lost),
+        theta: Some(e.ellipse.theta),
     }
 }
 
