@@ -85,6 +85,38 @@ impl Default for BundleParams {
     }
 }
 
+/// Most views [`refine`] adjusts together: its normal equations are dense in the views' poses
+/// (`6 n` unknowns, `(6 n)²` entries), so 256 views take 19 MB and a solve of about 4·10⁹
+/// operations a step; the tracker uses 7 to 10.
+pub const MAX_VIEWS: usize = 256;
+
+/// Most Gauss-Newton iterations [`refine`] runs (the tracker runs 8).
+pub const MAX_ITERATIONS: usize = 1000;
+
+impl BundleParams {
+    /// Checks the settings: positive, finite sigmas and Huber threshold, and 1 to
+    /// [`MAX_ITERATIONS`] iterations.
+    pub fn check(&self) -> Result<(), PoseError> {
+        let positive = |v: f64| v.is_finite() && v > 0.0;
+        if !positive(self.depth_sigma) || !self.rotation_sigma.iter().all(|&v| positive(v)) {
+            return Err(PoseError::InvalidParameter(
+                "bundle sigmas (depth, rotation) must be positive and finite",
+            ));
+        }
+        if !positive(self.huber) {
+            return Err(PoseError::InvalidParameter(
+                "bundle Huber threshold must be positive and finite",
+            ));
+        }
+        if !(1..=MAX_ITERATIONS).contains(&self.iterations) {
+            return Err(PoseError::InvalidParameter(
+                "bundle iterations must be from 1 to 1000",
+            ));
+        }
+        Ok(())
+    }
+}
+
 /// The point of depth `z` on the keyframe ray through `x0`.
 fn on_ray(
     x0: &Vector3<f64>,
@@ -128,7 +160,8 @@ fn rotation_steps(
 /// keyframe taken at `key_frame`). Returns the refined points and the objective before and
 /// after; `views` get the refined poses.
 ///
-/// Errors: non-finite input, a feature index out of range, or a singular system.
+/// Errors: settings [`BundleParams::check`] refuses, more than [`MAX_VIEWS`] views,
+/// non-finite input, a feature index out of range, or a singular system.
 pub fn refine(
     x0: &[Vector3<f64>],
     key_centre: &Vector2<f64>,
@@ -137,6 +170,12 @@ pub fn refine(
     views: &mut [BundleView],
     params: &BundleParams,
 ) -> Result<Adjusted, PoseError> {
+    params.check()?;
+    if views.len() > MAX_VIEWS {
+        return Err(PoseError::InvalidParameter(
+            "bundle adjustment of more than 256 views",
+        ));
+    }
     let (nv, np) = (views.len(), x0.len());
     if views.iter().any(|v| {
         v.seen
@@ -442,5 +481,37 @@ mod tests {
         views[0].seen[0].1 = [f64::NAN, 0.0];
         let r = refine(&x, &centre, 0, None, &mut views, &BundleParams::default());
         assert!(r.is_err());
+    }
+
+    /// Settings that would divide by zero or run without end, and more views than the dense
+    /// normal equations are sized for, are refused before any work.
+    #[test]
+    fn bad_settings_and_too_many_views_are_errors() {
+        let (x, _, mut views) = corner(2);
+        let centre = Vector2::new(80.0, 60.0);
+        let d = BundleParams::default();
+        for bad in [
+            BundleParams {
+                depth_sigma: 0.0,
+                ..d
+            },
+            BundleParams {
+                rotation_sigma: [0.05, f64::NAN, 0.05],
+                ..d
+            },
+            BundleParams { huber: -1.0, ..d },
+            BundleParams { iterations: 0, ..d },
+            BundleParams {
+                iterations: MAX_ITERATIONS + 1,
+                ..d
+            },
+        ] {
+            assert!(bad.check().is_err(), "{bad:?}");
+            let r = refine(&x, &centre, 0, None, &mut views, &bad);
+            assert!(matches!(r, Err(PoseError::InvalidParameter(_))), "{r:?}");
+        }
+        let mut many = vec![views[0].clone(); MAX_VIEWS + 1];
+        let r = refine(&x, &centre, 0, None, &mut many, &d);
+        assert!(matches!(r, Err(PoseError::InvalidParameter(_))), "{r:?}");
     }
 }

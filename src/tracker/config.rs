@@ -1241,22 +1241,20 @@ impl BundleAdjust {
     /// least every view, and a finite non-negative turn.
     pub fn check(&self) -> Result<(), String> {
         let p = &self.params;
-        let positive = |v: f64| v.is_finite() && v > 0.0;
-        if !positive(p.depth_sigma) || !p.rotation_sigma.iter().all(|&v| positive(v)) {
+        p.check().map_err(|e| {
+            format!(
+                "{e} (depth {}, rotation {:?}, huber {}, iterations {})",
+                p.depth_sigma, p.rotation_sigma, p.huber, p.iterations
+            )
+        })?;
+        let max = crate::pose::bundle::MAX_VIEWS;
+        if self.min_views < 2
+            || self.max_views < self.min_views
+            || self.max_views > max
+            || self.every == 0
+        {
             return Err(format!(
-                "bundle sigmas (depth {}, rotation {:?}) must be positive",
-                p.depth_sigma, p.rotation_sigma
-            ));
-        }
-        if !positive(p.huber) || p.iterations == 0 {
-            return Err(format!(
-                "bundle huber {} must be positive and iterations {} at least 1",
-                p.huber, p.iterations
-            ));
-        }
-        if self.min_views < 2 || self.max_views < self.min_views || self.every == 0 {
-            return Err(format!(
-                "bundle views: min {} must be at least 2 and at most max {}, every {} at least 1",
+                "bundle views: min {} must be at least 2 and at most max {}, itself at most {max}, every {} at least 1",
                 self.min_views, self.max_views, self.every
             ));
         }
