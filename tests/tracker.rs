@@ -786,6 +786,48 @@ fn greyed(img: &image::RgbImage) -> image::RgbImage {
     g
 }
 
+/// The grey-footage switch is each start's: a tracker started over on colour frames after
+/// grey ones (or the other way) counts the bins and tracks as one built on the new frames.
+#[test]
+fn a_reinit_between_grey_and_colour_footage_tracks_as_a_new_tracker_would() {
+    use pftrack::likelihood::{COLOUR_LUMA, COLOUR_RGB};
+    let r = Renderer::new(&SynthConfig::new(Scenario::Nod)).unwrap();
+    let cfg = TrackerConfig {
+        seed: 2,
+        ..TrackerConfig::default()
+    };
+    let colour = |img: &image::RgbImage| img.clone();
+    let kinds: [(&dyn Fn(&image::RgbImage) -> image::RgbImage, u32); 2] =
+        [(&greyed, COLOUR_LUMA), (&colour, COLOUR_RGB)];
+    for (before, after) in [(0, 1), (1, 0)] {
+        let (was, _) = kinds[before];
+        let (now, bins) = kinds[after];
+        let init = Init::frontal(r.init_ellipse());
+        let mut reused = Tracker::new(cfg.clone(), &was(&r.render(0).0), init).unwrap();
+        for k in 1..4 {
+            reused.step(&was(&r.render(k).0)).unwrap();
+        }
+        let (restart, truth) = r.render(4);
+        let init = Init {
+            ellipse: truth.ellipse(r.init_ellipse().theta),
+            pose: truth.euler(),
+        };
+        reused.reinit(&now(&restart), init).unwrap();
+        let mut fresh = Tracker::new(cfg.clone(), &now(&restart), init).unwrap();
+        assert_eq!(reused.config().likelihood.colour_bins, bins);
+        assert_eq!(reused.config(), fresh.config());
+        for k in 5..12 {
+            let img = now(&r.render(k).0);
+            let (a, b) = (reused.step(&img).unwrap(), fresh.step(&img).unwrap());
+            assert_eq!(
+                (a.state, a.confidence, a.lost),
+                (b.state, b.confidence, b.lost),
+                "{before} -> {after}, frame {k}"
+            );
+        }
+    }
+}
+
 #[test]
 fn grayscale_footage_gets_luma_bins_and_is_followed() {
     use pftrack::likelihood::{COLOUR_LUMA, COLOUR_RGB};

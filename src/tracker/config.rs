@@ -768,8 +768,9 @@ pub struct TrackerConfig {
     /// against 63.9 (filter seed = scenario seed), within the 1-4 degrees a track's seed
     /// moves it, and their worst seeds went from 24 to 30 degrees summed over the axes.
     pub colour_update: Option<ColourUpdate>,
-    /// On grayscale footage (every pixel of the first frame given to [`super::Tracker::new`]
-    /// grey, `R = G = B`), count 64 levels of luma in the colour histogram
+    /// On grayscale footage (every pixel of the frame a track starts on, in
+    /// [`super::Tracker::new`] or [`super::Tracker::reinit`], grey, `R = G = B`), count 64
+    /// levels of luma in the colour histogram
     /// ([`crate::likelihood::COLOUR_LUMA`]) instead of `likelihood.colour_bins`: the paper's
     /// 8x8x8 RGB bins see only the 8 on their diagonal there. On by default. On OTB car4 (seeds
     /// 0-9, success AUC) it went from 0.19 with the 8 RGB levels to 0.22 with 64 luma levels

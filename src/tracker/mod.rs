@@ -140,6 +140,9 @@ const KEYFRAME_REACH: f64 = std::f64::consts::FRAC_PI_4;
 /// The joint tracker and pose estimator.
 pub struct Tracker {
     cfg: TrackerConfig,
+    /// The colour bins the configuration asked for: what each start uses unless its frame is
+    /// grey ([`TrackerConfig::grey_luma`]).
+    colour_bins: u32,
     engine: Box<dyn LikelihoodEngine + Send>,
     sift: Sift,
     /// SIFT without the doubled first octave, for targets of at least
@@ -271,10 +274,7 @@ impl Tracker {
         // The engine's own bounds (the GPU's buffers), before the filter allocates anything.
         let (w, h) = first_frame.dimensions();
         engine.check_capacity(cfg.filter.particles, w, h, &cfg.likelihood)?;
-        let mut cfg = cfg;
-        if cfg.grey_luma && is_grey(first_frame) {
-            cfg.likelihood.colour_bins = COLOUR_LUMA;
-        }
+        let colour_bins = cfg.likelihood.colour_bins;
         let sift = Sift::new(cfg.sift.clone());
         let sift_large = (cfg.sift.upsample && cfg.sift_upsample_below.is_some()).then(|| {
             Sift::new(crate::features::SiftParams {
@@ -290,6 +290,7 @@ impl Tracker {
         .map_err(|e| track_err(TrackError::BadConfig(e.to_string())))?;
         let mut t = Self {
             cfg,
+            colour_bins,
             engine,
             sift,
             sift_large,
@@ -347,14 +348,24 @@ impl Tracker {
     fn start(&mut self, frame: &image::RgbImage, init: Init, index: usize) -> crate::Result<()> {
         let (w, h) = frame.dimensions();
         init.check(w, h).map_err(track_err)?;
+        self.engine
+            .check_capacity(self.cfg.filter.particles, w, h, &self.cfg.likelihood)?;
+        // Grey footage gets luma bins, decided on each start's own frame.
+        let mut likelihood = self.cfg.likelihood.clone();
+        if self.cfg.grey_luma && is_grey(frame) {
+            likelihood.colour_bins = COLOUR_LUMA;
+        } else {
+            likelihood.colour_bins = self.colour_bins;
+        }
         let init = match &self.cfg.init_refine {
             Some(r) => Init {
-                ellipse: init_refine::refine_ellipse(frame, &init.ellipse, &self.cfg.likelihood, r)
+                ellipse: init_refine::refine_ellipse(frame, &init.ellipse, &likelihood, r)
                     .map_err(track_err)?,
                 ..init
             },
             None => init,
         };
+        self.cfg.likelihood = likelihood;
         self.size = (w, h);
         // The start's ellipse is the one seen, turned by `theta0 + rz` (SPEC).
         self.theta0 = init.ellipse.theta - init.pose.rz;
