@@ -351,7 +351,7 @@ impl Tracker {
         self.engine
             .check_capacity(self.cfg.filter.particles, w, h, &self.cfg.likelihood)?;
         // Grey footage gets luma bins, decided on each start's own frame.
-        let mut likelihood = self.cfg.likelihood.clone();
+        let mut likelihood = self.cfg.likelihood;
         if self.cfg.grey_luma && is_grey(frame) {
             likelihood.colour_bins = COLOUR_LUMA;
         } else {
