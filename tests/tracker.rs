@@ -796,12 +796,11 @@ fn a_reinit_between_grey_and_colour_footage_tracks_as_a_new_tracker_would() {
         seed: 2,
         ..TrackerConfig::default()
     };
-    let colour = |img: &image::RgbImage| img.clone();
-    let kinds: [(&dyn Fn(&image::RgbImage) -> image::RgbImage, u32); 2] =
-        [(&greyed, COLOUR_LUMA), (&colour, COLOUR_RGB)];
-    for (before, after) in [(0, 1), (1, 0)] {
-        let (was, _) = kinds[before];
-        let (now, bins) = kinds[after];
+    let shown =
+        |grey: bool| move |img: &image::RgbImage| if grey { greyed(img) } else { img.clone() };
+    for (before, after) in [(true, false), (false, true)] {
+        let (was, now) = (shown(before), shown(after));
+        let bins = if after { COLOUR_LUMA } else { COLOUR_RGB };
         let init = Init::frontal(r.init_ellipse());
         let mut reused = Tracker::new(cfg.clone(), &was(&r.render(0).0), init).unwrap();
         for k in 1..4 {
@@ -822,7 +821,7 @@ fn a_reinit_between_grey_and_colour_footage_tracks_as_a_new_tracker_would() {
             assert_eq!(
                 (a.state, a.confidence, a.lost),
                 (b.state, b.confidence, b.lost),
-                "{before} -> {after}, frame {k}"
+                "grey {before} -> {after}, frame {k}"
             );
         }
     }
