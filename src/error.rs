@@ -1,4 +1,8 @@
 //! The crate's error type: one variant per domain, each wrapping that module's typed error.
+//!
+//! What a caller of the tracker tells apart: a bad start, configuration or frame size is
+//! [`Error::Track`] ([`crate::tracker::TrackError`]); a likelihood engine's failure, or a
+//! particle count its buffers cannot hold, is [`Error::Likelihood`]; SIFT's, [`Error::Features`].
 
 /// Any error of the library.
 #[derive(Debug, thiserror::Error)]
@@ -32,7 +36,7 @@ pub enum Error {
     Likelihood(#[from] crate::likelihood::LikelihoodError),
     /// The tracker.
     #[error(transparent)]
-    Track(crate::tracker::TrackError),
+    Track(#[from] crate::tracker::TrackError),
     /// Rendered output.
     #[error(transparent)]
     Output(#[from] crate::output::OutputError),

@@ -245,6 +245,40 @@ fn bad_input_is_an_error() {
         };
         assert!(matches!(init.check(w, h), Err(TrackError::BadInit(_))));
     }
+    // The filter clamps every particle's semi-axes to its bounds: a start outside them is
+    // refused, not clamped away.
+    let init = Init::frontal(r.init_ellipse());
+    for (min_axis, max_axis) in [(100.0, f64::INFINITY), (2.0, 5.0)] {
+        let mut cfg = TrackerConfig::default();
+        cfg.filter.min_axis = min_axis;
+        cfg.filter.max_axis = max_axis;
+        assert!(cfg.check().is_ok());
+        assert!(init.check(w, h).is_ok());
+        let Err(TrackError::BadInit(why)) = init.check_for(&cfg, w, h) else {
+            panic!("a start outside the filter's axes {min_axis}..{max_axis} passed");
+        };
+        assert!(why.contains("filter.min_axis"), "{why}");
+        let err = Tracker::new(cfg, &img, init).unwrap_err();
+        assert!(
+            matches!(err, pftrack::Error::Track(TrackError::BadInit(_))),
+            "{err}"
+        );
+    }
+    // The contrast term's flag without its settings would fail on the first step.
+    let mut cfg = TrackerConfig {
+        contrast: None,
+        ..TrackerConfig::default()
+    };
+    cfg.likelihood.terms |= pftrack::likelihood::TERM_CONTRAST;
+    assert!(matches!(cfg.check(), Err(TrackError::BadConfig(_))));
+    assert!(Tracker::new(cfg, &img, init).is_err());
+    // The tracker's own errors convert with `?` into the crate's error.
+    let checked = |cfg: &TrackerConfig| -> pftrack::Result<()> {
+        cfg.check()?;
+        init.check_for(cfg, w, h)?;
+        Ok(())
+    };
+    assert!(checked(&TrackerConfig::default()).is_ok());
     // The keyframe fits' rotation prior needs positive sigmas.
     for px in [0.0, -1.0, f64::NAN] {
         let cfg = TrackerConfig {

@@ -407,20 +407,20 @@ pub enum LikelihoodError {
     Invalid(String),
     /// No Vulkan adapter: the driver (or the loader) is missing.
     #[error(
-        "no Vulkan adapter found (install a Vulkan driver, e.g. `apt-get install mesa-vulkan-drivers libvulkan1`, or use --backend cpu)"
+        "no Vulkan adapter found (install a Vulkan driver, e.g. `apt-get install mesa-vulkan-drivers libvulkan1`, or use the CPU engine, `--backend cpu`)"
     )]
     NoAdapter,
     /// The best Vulkan adapter renders in software on the CPU (e.g. Mesa's lavapipe), so the
     /// automatic choice leaves it for the CPU engine, which is faster.
     #[error(
-        "the best Vulkan adapter here, {name}, renders in software, slower than the CPU engine (--backend gpu or PFTRACK_ADAPTER uses it)"
+        "the best Vulkan adapter here, {name}, renders in software, slower than the CPU engine (Backend::Gpu, `--backend gpu`, or PFTRACK_ADAPTER uses it)"
     )]
     SoftwareAdapter {
         /// The adapter's description.
         name: String,
     },
-    /// `PFTRACK_ADAPTER` names no adapter.
-    #[error("no Vulkan adapter matches PFTRACK_ADAPTER={wanted:?}; available: {}", available.join("; "))]
+    /// The adapter asked for (by `PFTRACK_ADAPTER` or [`create_engine_for`]) is not there.
+    #[error("no Vulkan adapter's name contains {wanted:?} (PFTRACK_ADAPTER or the adapter asked for); available: {}", available.join("; "))]
     AdapterNotFound {
         /// The substring asked for.
         wanted: String,
@@ -428,11 +428,11 @@ pub enum LikelihoodError {
         available: Vec<String>,
     },
     /// The GPU device was lost (driver reset, device destroyed); the engine is unusable.
-    #[error("GPU device lost ({0}); rerun with --backend cpu")]
+    #[error("GPU device lost ({0}); rerun on the CPU engine, `--backend cpu`")]
     DeviceLost(String),
     /// The frame does not fit the adapter's buffer limits.
     #[error(
-        "frame {width}x{height} needs a {bytes}-byte GPU buffer, beyond the adapter's limit of {limit} bytes (use --backend cpu or a smaller frame)"
+        "frame {width}x{height} needs a {bytes}-byte GPU buffer, beyond the adapter's limit of {limit} bytes (use the CPU engine, `--backend cpu`, or a smaller frame)"
     )]
     FrameTooLarge {
         /// Frame width.
@@ -511,6 +511,12 @@ impl std::fmt::Display for Backend {
 /// all threads. The GPU engine comes wrapped in a [`FallbackEngine`]: when its
 /// device is lost mid-run it continues on the CPU for the rest of the run and hands the caller
 /// a one-line notice through [`LikelihoodEngine::take_notice`] (which the caller should print).
+///
+/// On a machine without a display, Mesa's Vulkan device-select layer prints
+/// "error: XDG_RUNTIME_DIR is invalid or not set" to standard error for every Vulkan instance,
+/// which reads as the program's own error. The `pftrack` command line sets `NODEVICE_SELECT=1`
+/// first thing in `main`, before any thread exists, which turns the layer off (pftrack picks its
+/// adapter itself); a program embedding the library may do the same.
 pub fn create_engine(
     backend: Backend,
 ) -> Result<(Box<dyn LikelihoodEngine + Send>, Option<String>), LikelihoodError> {

@@ -9,7 +9,8 @@ impl Init {
     /// Checks the start against a `w x h` frame, as [`super::Tracker::new`] and
     /// [`super::Tracker::reinit`] do: a valid ellipse of semi-axes at least 2 px and at most
     /// the frame's longer side, whose centre lies in the frame, and angles (the ellipse's and
-    /// the pose's) within a turn either way ([`TrackError::BadInit`]).
+    /// the pose's) within a turn either way ([`TrackError::BadInit`]). The tracker also holds
+    /// the semi-axes to its filter's bounds ([`Init::check_for`]).
     pub fn check(&self, w: u32, h: u32) -> Result<(), TrackError> {
         let e = &self.ellipse;
         check_ellipse(e)?;
@@ -53,6 +54,27 @@ impl Init {
         Ok(())
     }
 }
+impl Init {
+    /// [`Init::check`], and the semi-axes within the particle filter's bounds
+    /// (`cfg.filter.min_axis`, `cfg.filter.max_axis`), to which it would clamp every particle:
+    /// a start outside them could not be tracked as given.
+    pub fn check_for(&self, cfg: &TrackerConfig, w: u32, h: u32) -> Result<(), TrackError> {
+        self.check(w, h)?;
+        let (e, f) = (&self.ellipse, &cfg.filter);
+        let inside = |v: f64| (f.min_axis..=f.max_axis).contains(&v);
+        if !inside(e.a) || !inside(e.b) {
+            return Err(TrackError::BadInit(format!(
+                "semi-axes {} x {} px: outside the filter's bounds, {} to {} px \
+                 (filter.min_axis, filter.max_axis)",
+                short(e.a),
+                short(e.b),
+                short(f.min_axis),
+                short(f.max_axis)
+            )));
+        }
+        Ok(())
+    }
+}
 
 impl TrackerConfig {
     /// Checks every setting, as [`super::Tracker::new`] does before anything else, with a
@@ -68,6 +90,14 @@ impl TrackerConfig {
     pub fn check(&self) -> Result<(), TrackError> {
         let bad = |e: String| TrackError::BadConfig(e);
         self.filter.check().map_err(|e| bad(e.to_string()))?;
+        if self.likelihood.terms & crate::likelihood::TERM_CONTRAST != 0 && self.contrast.is_none()
+        {
+            return Err(bad(
+                "likelihood.terms has the contrast term but contrast is None: the term needs its \
+                 settings (set contrast, and the tracker adds the flag itself)"
+                    .into(),
+            ));
+        }
         // Re-acquisition weighs its candidates by colour whatever the terms, and the tracker
         // sets the contrast term's scale itself every frame.
         let likelihood = crate::likelihood::LikelihoodParams {

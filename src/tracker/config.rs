@@ -913,7 +913,9 @@ pub struct TrackerConfig {
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct TemplateTerm {
     /// The log-likelihood per unit of correlation; 20 by default, about the spread of the
-    /// contour term between a good and a poor ellipse on car4.
+    /// contour term between a good and a poor ellipse on car4. 0 drops the template's own
+    /// term but keeps the first view's ([`TemplateTerm::anchor_weight`]); `template: None`
+    /// turns both off (as the command line's `--template-weight 0` does).
     pub weight: f64,
     /// The grid's side (`grid x grid` cells, those inside the ellipse sampled: 208 at the
     /// default 16), from 2 to 64.

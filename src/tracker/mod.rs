@@ -3,6 +3,7 @@
 //!
 //! ```no_run
 //! use pftrack::geometry::Ellipse;
+//! use pftrack::image;
 //! use pftrack::tracker::{Init, Tracker, TrackerConfig};
 //!
 //! # fn main() -> Result<(), Box<dyn std::error::Error>> {
@@ -67,7 +68,8 @@ use keyframe::{FitContext, KeyframePool};
 use recovery::lost_state;
 use spin::{Moved, smoothed_spin};
 
-/// Errors of the tracker.
+/// Errors of the tracker's own: its start, configuration and frames. (A likelihood engine's
+/// failure comes as [`crate::Error::Likelihood`], SIFT's as [`crate::Error::Features`].)
 #[derive(Debug, thiserror::Error)]
 pub enum TrackError {
     /// The start (its ellipse or pose) is unusable.
@@ -90,12 +92,6 @@ pub enum TrackError {
         /// The first frame's height.
         want_h: u32,
     },
-    /// The likelihood engine failed.
-    #[error(transparent)]
-    Likelihood(#[from] crate::likelihood::LikelihoodError),
-    /// SIFT failed.
-    #[error(transparent)]
-    Features(#[from] crate::features::FeatureError),
 }
 
 /// What the tracker says about one frame.
@@ -110,13 +106,19 @@ pub struct Estimate {
     pub ellipse: Ellipse,
     /// Confidence in `[0, 1]`: colour similarity and contour support of the estimate, lowered
     /// when no features could measure the rotation. On a frame where a lost target is
-    /// re-acquired, the found target's own (at least [`TrackerConfig::found_above`]).
+    /// re-acquired, the found target's own (at least [`TrackerConfig::found_above`]). It is
+    /// measured by the colour and gradient terms that are on (`likelihood.terms`): with
+    /// neither, it is 1 (0.8 on frames without features) and the target is never declared
+    /// lost.
     pub confidence: f64,
     /// Whether the target is considered lost: from the [`TrackerConfig::lost_after`]-th
     /// frame in a row below [`TrackerConfig::lost_below`] until a frame reaches
     /// [`TrackerConfig::found_above`] or the target is re-acquired.
     pub lost: bool,
-    /// Feature matches used for the rotation this frame (0: colour and gradient only).
+    /// Feature matches with the previous frame (after the outlier rejection), which the
+    /// inter-frame rotation is estimated from; 0 when there were none. The keyframe fits and
+    /// the feature term use matches of their own, so 0 does not mean the rotation went
+    /// unmeasured (the confidence says that: see [`Estimate::confidence`]).
     pub matches: usize,
     /// Effective sample size of the filter after weighting.
     pub ess: f64,
@@ -126,6 +128,18 @@ impl Estimate {
     /// The angles in degrees, `[tilt, pan, roll]`.
     pub fn angles_deg(&self) -> [f64; 3] {
         [deg(self.state.rx), deg(self.state.ry), deg(self.state.rz)]
+    }
+
+    /// The estimate as a row of the pose CSV ([`crate::io::PoseCsvWriter`]), with its score,
+    /// lost flag and ellipse orientation, as `pftrack track` writes it.
+    pub fn to_record(&self) -> crate::io::PoseRecord {
+        crate::io::PoseRecord {
+            frame: self.frame,
+            state: self.state,
+            score: Some(self.confidence),
+            lost: Some(self.lost),
+            theta: Some(self.ellipse.theta),
+        }
     }
 }
 
@@ -347,7 +361,7 @@ impl Tracker {
     /// `index`.
     fn start(&mut self, frame: &image::RgbImage, init: Init, index: usize) -> crate::Result<()> {
         let (w, h) = frame.dimensions();
-        init.check(w, h).map_err(track_err)?;
+        init.check_for(&self.cfg, w, h).map_err(track_err)?;
         self.engine
             .check_capacity(self.cfg.filter.particles, w, h, &self.cfg.likelihood)?;
         // Grey footage gets luma bins, decided on each start's own frame.

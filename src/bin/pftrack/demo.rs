@@ -13,7 +13,7 @@ use pftrack::likelihood::{Backend, create_engine};
 use pftrack::synth::{Scenario, SynthConfig, write_sequence};
 use pftrack::tracker::{Init, Tracker};
 
-use crate::track::{config, progress, record};
+use crate::track::{config, progress};
 
 /// Arguments of `pftrack demo`.
 #[derive(Debug, Args)]
@@ -76,11 +76,11 @@ pub fn run(a: DemoArgs) -> anyhow::Result<()> {
     let poses = a.out.join("poses.csv");
     let mut w = PoseCsvWriter::create(&poses, true)?;
     let pb = progress(Some(cfg.frames));
-    w.write(&record(&tracker.initial_estimate()))?;
+    w.write(&tracker.initial_estimate().to_record())?;
     let t1 = std::time::Instant::now();
     for (k, frame) in source.enumerate() {
         let frame = frame.with_context(|| format!("reading frame {}", k + 1))?;
-        w.write(&record(&tracker.step(&frame)?))?;
+        w.write(&tracker.step(&frame)?.to_record())?;
         pb.inc(1);
     }
     pb.finish_and_clear();

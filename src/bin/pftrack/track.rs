@@ -8,7 +8,7 @@ use clap::Args;
 use pftrack::frames::Rescale;
 use pftrack::frames::{self, SourceOptions};
 use pftrack::geometry::{BoxRect, Ellipse, Euler};
-use pftrack::io::{InitFile, PoseCsvWriter, PoseRecord};
+use pftrack::io::{InitFile, PoseCsvWriter};
 use pftrack::io::{Partial, PartialKind};
 use pftrack::likelihood::{Backend, create_engine};
 use pftrack::output::{Overlay, default_scale, render_overlay, write_png};
@@ -541,17 +541,6 @@ fn flag_error(msg: &str) -> String {
     }
 }
 
-/// The pose CSV record of an estimate.
-pub fn record(e: &Estimate) -> PoseRecord {
-    PoseRecord {
-        frame: e.frame,
-        state: e.state,
-        score: Some(e.confidence),
-        lost: Some(e.lost),
-        theta: Some(e.ellipse.theta),
-    }
-}
-
 /// A progress bar on a terminal, hidden otherwise.
 pub fn progress(len: Option<usize>) -> indicatif::ProgressBar {
     if !std::io::stderr().is_terminal() {
@@ -690,7 +679,7 @@ pub fn run(mut a: TrackArgs) -> anyhow::Result<()> {
     };
     // Checked before the engine is opened, so a bad start is the only line printed.
     let (w, h) = source.size();
-    init.check(w, h)?;
+    init.check_for(&cfg, w, h)?;
     let (engine, notice) = create_engine(backend)?;
     if let Some(n) = notice {
         errln!("pftrack: {n}");
@@ -884,7 +873,7 @@ fn run_loop(
     };
     let mut stdout_rows = Vec::new();
     let mut emit = |e: &Estimate, frame: &image::RgbImage| -> anyhow::Result<()> {
-        let mut r = record(e);
+        let mut r = e.to_record();
         r.state = to_input.state(&r.state);
         match csv_out.as_mut() {
             Some(w) => w.write(&r)?,
