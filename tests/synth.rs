@@ -748,6 +748,13 @@ fn written_frames_equal_the_in_memory_render() {
     let dir = tmp_dir("lib");
     let c = cfg(Scenario::Roll, 4, 64, 48);
     let s = write_sequence(&c, &dir, false).unwrap();
+    // Found again in the folder, as `pftrack track DIR` and an embedder find it.
+    let found = pftrack::synth::SequencePaths::find(&dir).unwrap();
+    assert_eq!(
+        (&found.frames, &found.init, found.truth.as_ref()),
+        (&s.frames_dir, &s.init_file, Some(&s.truth))
+    );
+    assert!(pftrack::synth::SequencePaths::find(&s.frames_dir).is_none());
     let r = Renderer::new(&c).unwrap();
     for k in 0..4 {
         let img = image::open(dir.join("frames").join(format!("{k:05}.png")))

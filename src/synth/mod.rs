@@ -256,6 +256,35 @@ pub fn parse_size(s: &str) -> Result<(u32, u32), SynthError> {
     Ok((w, h))
 }
 
+/// Where a sequence [`write_sequence`] wrote into a folder lies in it.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct SequencePaths {
+    /// The frames, `DIR/frames` (open with [`crate::frames::open`]).
+    pub frames: PathBuf,
+    /// The start and the camera, `DIR/init.txt` ([`crate::io::read_init`]): to track as
+    /// `pftrack track DIR` does, start from its ellipse and set
+    /// [`crate::tracker::TrackerConfig::camera_hfov_deg`] to its `hfov_deg`.
+    pub init: PathBuf,
+    /// The ground truth, `DIR/truth.csv` ([`crate::io::read_pose_csv`]), when there.
+    pub truth: Option<PathBuf>,
+}
+
+impl SequencePaths {
+    /// The sequence in `dir`, when `dir` holds one (a `frames` folder and an `init.txt`).
+    pub fn find(dir: &Path) -> Option<Self> {
+        let (frames, init, truth) = (
+            dir.join("frames"),
+            dir.join("init.txt"),
+            dir.join("truth.csv"),
+        );
+        (frames.is_dir() && init.is_file()).then(|| Self {
+            frames,
+            init,
+            truth: truth.is_file().then_some(truth),
+        })
+    }
+}
+
 /// What [`write_sequence`] wrote.
 #[derive(Debug, Clone, PartialEq)]
 pub struct SynthSummary {

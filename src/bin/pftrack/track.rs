@@ -289,12 +289,9 @@ pub fn parse_floats(s: &str, n: &[usize], what: &str) -> anyhow::Result<Vec<f64>
 
 /// The input's frames and init file, accepting a `pftrack synth` directory as is.
 fn resolve_input(input: &Path) -> (PathBuf, Option<PathBuf>) {
-    let frames = input.join("frames");
-    let init = input.join("init.txt");
-    if frames.is_dir() && init.is_file() {
-        (frames, Some(init))
-    } else {
-        (input.to_path_buf(), None)
+    match pftrack::synth::SequencePaths::find(input) {
+        Some(s) => (s.frames, Some(s.init)),
+        None => (input.to_path_buf(), None),
     }
 }
 
