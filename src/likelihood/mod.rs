@@ -462,7 +462,8 @@ pub enum LikelihoodError {
 }
 
 /// Which likelihood engine to run.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, clap::ValueEnum)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
 pub enum Backend {
     /// The GPU when a hardware Vulkan adapter exists (or `PFTRACK_ADAPTER` names one), else
     /// the CPU (with a one-line notice): a software adapter such as lavapipe is slower than the
