@@ -12,7 +12,10 @@ pub use atomic::AtomicFile;
 pub use boxes::read_otb_boxes;
 pub use init::{InitFile, read_init, write_init};
 pub use partial::{Partial, PartialKind, remove_partial_outputs};
-pub use pose_csv::{PoseCsvWriter, PoseRecord, format_pose_csv, read_pose_csv, write_pose_csv};
+pub use pose_csv::{
+    PoseCsvWriter, PoseRecord, format_pose_csv, format_pose_row, pose_csv_header, read_pose_csv,
+    write_pose_csv,
+};
 
 /// Errors reading or writing the project's file formats.
 #[derive(Debug, thiserror::Error)]

@@ -163,8 +163,9 @@ pub fn parse_pose_csv(text: &str, path: &Path) -> Result<Vec<PoseRecord>, Format
     Ok(out)
 }
 
-/// Formats one record as a CSV row (no newline) with the given extra columns.
-fn format_row(r: &PoseRecord, with_score: bool) -> String {
+/// One record as a CSV row (no newline); `with_score` adds the tracker's `score,lost,theta`
+/// columns. With [`pose_csv_header`], for writing rows to any stream as they come.
+pub fn format_pose_row(r: &PoseRecord, with_score: bool) -> String {
     let s = &r.state;
     let mut row = format!(
         "{},{:.6},{:.6},{:.6},{:.6},{:.6},{:.6},{:.6}",
@@ -200,13 +201,13 @@ impl PoseCsvWriter {
     /// Starts a pose CSV; `with_score` adds the tracker's `score,lost,theta` columns.
     pub fn create(path: &Path, with_score: bool) -> Result<Self, FormatError> {
         let mut file = AtomicFile::create(path)?;
-        writeln!(file, "{}", header(with_score)).map_err(|e| FormatError::io(path, e))?;
+        writeln!(file, "{}", pose_csv_header(with_score)).map_err(|e| FormatError::io(path, e))?;
         Ok(Self { file, with_score })
     }
 
     /// Appends one record.
     pub fn write(&mut self, r: &PoseRecord) -> Result<(), FormatError> {
-        let row = format_row(r, self.with_score);
+        let row = format_pose_row(r, self.with_score);
         writeln!(self.file, "{row}").map_err(|e| FormatError::io(self.file.path(), e))
     }
 
@@ -216,8 +217,8 @@ impl PoseCsvWriter {
     }
 }
 
-/// The header line (no newline) of a pose CSV.
-fn header(with_score: bool) -> String {
+/// The header line (no newline) of a pose CSV; `with_score` adds the tracker's columns.
+pub fn pose_csv_header(with_score: bool) -> String {
     let mut h = POSE_COLUMNS.join(",");
     if with_score {
         h.push_str(",score,lost,theta");
@@ -227,10 +228,10 @@ fn header(with_score: bool) -> String {
 
 /// A whole pose CSV as text, header included (for standard output).
 pub fn format_pose_csv(records: &[PoseRecord], with_score: bool) -> String {
-    let mut s = header(with_score);
+    let mut s = pose_csv_header(with_score);
     s.push('\n');
     for r in records {
-        s.push_str(&format_row(r, with_score));
+        s.push_str(&format_pose_row(r, with_score));
         s.push('\n');
     }
     s
@@ -281,6 +282,13 @@ mod tests {
         let text = std::fs::read_to_string(&p).unwrap();
         assert!(text.starts_with("frame,cx,cy,a,b,rx,ry,rz,score,lost,theta\n"));
         assert_eq!(text, format_pose_csv(&recs, true));
+        // Row by row to a stream, as an application might write them.
+        let mut streamed = Vec::new();
+        writeln!(streamed, "{}", pose_csv_header(true)).unwrap();
+        for r in &recs {
+            writeln!(streamed, "{}", format_pose_row(r, true)).unwrap();
+        }
+        assert_eq!(String::from_utf8(streamed).unwrap(), text);
         let back = read_pose_csv(&p).unwrap();
         assert_eq!(back.len(), 3);
         for (a, b) in recs.iter().zip(&back) {
