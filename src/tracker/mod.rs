@@ -431,7 +431,12 @@ impl Tracker {
         self.prev_features = self
             .sift_for(&init.ellipse)
             .detect(&self.prev_gray, Some(region))?;
-        self.reference = init.ellipse;
+        // The object model's reference outline: the start's ellipse unrolled, since the model
+        // is turned by the pose (roll included) on top of it.
+        self.reference = Ellipse {
+            theta: self.theta0,
+            ..init.ellipse
+        };
         let model = self.model(&hyp.rot, &init.ellipse);
         self.keyframes.tick(index);
         self.keyframes
@@ -1195,6 +1200,29 @@ pub fn continuous_euler(r: &Matrix3<f64>, prev: &Euler) -> Euler {
 mod tests {
     use super::*;
     use crate::geometry::angle_between;
+
+    /// A start with a roll: the object model at the starting pose has the start's outline
+    /// orientation, `theta0 + rz`, not the roll twice.
+    #[test]
+    fn the_model_at_a_rolled_start_is_turned_as_its_ellipse() {
+        use crate::synth::{Renderer, Scenario, SynthConfig};
+        let r = Renderer::new(&SynthConfig::new(Scenario::Roll)).unwrap();
+        let (frame, _) = r.render(0);
+        let ellipse = Ellipse {
+            theta: 0.5,
+            ..r.init_ellipse()
+        };
+        let pose = Euler::new(0.0, 0.0, 0.2);
+        let t = Tracker::new(TrackerConfig::default(), &frame, Init { ellipse, pose }).unwrap();
+        assert!((t.theta0 - 0.3).abs() < 1e-12);
+        let m = t.model(&pose.matrix(), &ellipse);
+        let want = crate::geometry::rot_z(0.5);
+        assert!(
+            (m.orientation - want).abs().max() < 1e-12,
+            "{}",
+            m.orientation
+        );
+    }
 
     #[test]
     fn continuous_euler_passes_through_180_without_jumps() {
