@@ -106,10 +106,11 @@ impl AtomicFile {
         let Some(r) = self.rename.take() else {
             return file.map(drop).map_err(err);
         };
+        // Synced outside the registry's lock (writers on other threads sync at once); only
+        // the rename, or the removal on an error, under it.
+        let synced = file.and_then(|file| file.sync_all());
         let result = r.registered.commit(|| {
-            let result = file
-                .and_then(|file| file.sync_all())
-                .and_then(|()| std::fs::rename(&r.partial, &r.to));
+            let result = synced.and_then(|()| std::fs::rename(&r.partial, &r.to));
             if result.is_err() {
                 let _ = std::fs::remove_file(&r.partial);
             }

@@ -93,8 +93,9 @@ impl Drop for Partial {
 
 /// Removes every partial output of this process (files, then staging folders, then the
 /// folders created for them if empty) and returns how many it removed; meant for a signal
-/// handler that exits next. The registry stays locked until the process ends, so no output
-/// is created or committed after this returns: call it only on the way out.
+/// handler that ends the process next. The registry stays locked until the process ends, so
+/// no output is created or committed after this returns, and any thread that tries waits for
+/// ever: call it only on the way out, then end the process (never return to normal work).
 pub fn remove_partial_outputs() -> usize {
     let reg = registry();
     let mut removed = 0;
