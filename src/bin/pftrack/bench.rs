@@ -29,7 +29,12 @@ pub struct BenchArgs {
     /// the CPU, and the GPU on the best adapter that opens, a software one such as lavapipe
     /// too (unlike `track --backend auto`, which leaves a software adapter alone: here
     /// timing it is the point).
-    #[arg(long, default_value = "auto", hide_possible_values = true)]
+    #[arg(
+        long,
+        default_value = "auto",
+        hide_possible_values = true,
+        ignore_case = true
+    )]
     pub backend: Backend,
     /// Timed runs per measurement (the median is printed), after one warm-up run; with
     /// `--step`, passes over the sequence.

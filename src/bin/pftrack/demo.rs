@@ -31,7 +31,12 @@ pub struct DemoArgs {
     #[arg(long, default_value = "pftrack-demo")]
     pub out: PathBuf,
     /// Likelihood engine: auto (the GPU if a hardware Vulkan adapter exists), cpu or gpu.
-    #[arg(long, default_value = "auto", hide_possible_values = true)]
+    #[arg(
+        long,
+        default_value = "auto",
+        hide_possible_values = true,
+        ignore_case = true
+    )]
     pub backend: Backend,
     /// Number of particles.
     #[arg(long, default_value_t = 200)]

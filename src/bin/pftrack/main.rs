@@ -124,26 +124,37 @@ fn main() {
     }
 }
 
-/// Exit status of a run ended by a signal (128 + SIGINT, as a shell reports Ctrl-C).
-const INTERRUPTED_STATUS: i32 = 130;
-
 /// On Ctrl-C, `kill` (SIGTERM) or a closed terminal (SIGHUP): removes the outputs still in
-/// progress (partial files, the render's staging folder) and exits with status 130, so an
-/// interrupted run leaves the places it writes to as it found them, as a failed one does.
-/// Where no handler can be installed the signals keep their default action.
+/// progress (partial files, the render's staging folder), says so, and ends the process by
+/// that signal's default action, so an interrupted run leaves the places it writes to as it
+/// found them, as a failed one does, and a shell sees it killed by the signal (status 130 for
+/// Ctrl-C; a loop over files stops). Where no handler can be installed the signals keep their
+/// default action.
+#[cfg(unix)]
 fn on_interrupt_remove_partial_outputs() {
-    let _ = ctrlc::set_handler(|| {
-        pftrack::io::remove_partial_outputs();
-        // On a terminal a progress bar may hold the line: start a fresh one.
-        let fresh = if std::io::stderr().is_terminal() {
-            "\n"
-        } else {
-            ""
-        };
-        errln!("{fresh}pftrack: interrupted");
-        std::process::exit(INTERRUPTED_STATUS);
+    use signal_hook::consts::{SIGHUP, SIGINT, SIGTERM};
+    let Ok(mut signals) = signal_hook::iterator::Signals::new([SIGINT, SIGTERM, SIGHUP]) else {
+        return;
+    };
+    std::thread::spawn(move || {
+        if let Some(signal) = signals.forever().next() {
+            pftrack::io::remove_partial_outputs();
+            // On a terminal a progress bar may hold the line: start a fresh one.
+            let fresh = if std::io::stderr().is_terminal() {
+                "\n"
+            } else {
+                ""
+            };
+            errln!("{fresh}pftrack: interrupted");
+            let _ = signal_hook::low_level::emulate_default_handler(signal);
+            std::process::exit(128 + signal);
+        }
     });
 }
+
+/// Elsewhere the signals keep their default action.
+#[cfg(not(unix))]
+fn on_interrupt_remove_partial_outputs() {}
 
 /// Whether `e` is a write to a pipe whose reader has gone, on standard output or on an
 /// output file that is a pipe (`-o /dev/stdout | head -1`).
