@@ -8,13 +8,12 @@
 use image::RgbImage;
 
 use crate::geometry::{Ellipse, PoseState};
+use crate::io::PoseRecord;
 
 /// Where positions in a frame of one size lie in the same frame resized to another, by
 /// [`resize_bilinear`]'s convention: `x' = (x + 0.5) · dw / sw − 0.5`, and likewise in y.
-/// Lengths along x scale by `dw / sw`, along y by `dh / sh`: an ellipse's semi-axes `a` (along
-/// x at orientation 0) and `b` scale so, which is exact for an axis-aligned ellipse (a box's,
-/// the usual start) or a resize that keeps the aspect ratio, and the nearest axis-aligned
-/// reading otherwise. Angles are kept.
+/// An ellipse maps to its exact image under the scaling: with the same aspect ratio its
+/// semi-axes scale and its orientation stays; otherwise a turned ellipse's axes turn too.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Rescale {
     sx: f64,
@@ -50,27 +49,79 @@ impl Rescale {
         (map(x, self.sx), map(y, self.sy))
     }
 
-    /// The ellipse in the other frame: centre mapped, `a` and `b` scaled along x and y.
+    /// The image of the ellipse: its centre mapped, and the ellipse its two semi-axes (now
+    /// conjugate semi-diameters) span. `a` stays the semi-axis nearest the image of the old
+    /// `a`, and the orientation within a quarter turn of the old one.
     pub fn ellipse(&self, e: &Ellipse) -> Ellipse {
         let (cx, cy) = self.point(e.cx, e.cy);
+        let (a, b, theta) = if self.sx == self.sy {
+            (e.a * self.sx, e.b * self.sx, e.theta)
+        } else {
+            self.axes(e.a, e.b, e.theta)
+        };
         Ellipse {
             cx,
             cy,
-            a: e.a * self.sx,
-            b: e.b * self.sy,
-            theta: e.theta,
+            a,
+            b,
+            theta,
         }
     }
 
-    /// The state in the other frame: its ellipse as [`Rescale::ellipse`], its angles kept.
-    pub fn state(&self, s: &PoseState) -> PoseState {
-        let (cx, cy) = self.point(s.cx, s.cy);
-        PoseState {
-            cx,
-            cy,
-            a: s.a * self.sx,
-            b: s.b * self.sy,
-            ..*s
+    /// The semi-axes and orientation of the image of an ellipse of semi-axes `a`, `b` turned
+    /// by `theta`.
+    fn axes(&self, a: f64, b: f64, theta: f64) -> (f64, f64, f64) {
+        let (s, c) = theta.sin_cos();
+        // The images of the two semi-axes, the columns of S R(θ) diag(a, b).
+        let m = nalgebra::Matrix2::new(
+            self.sx * c * a,
+            -self.sx * s * b,
+            self.sy * s * a,
+            self.sy * c * b,
+        );
+        let svd = m.svd(true, false);
+        let Some(u) = svd.u else {
+            return (a * self.sx, b * self.sy, theta);
+        };
+        let (s0, s1) = (svd.singular_values[0], svd.singular_values[1]);
+        if (s0 - s1).abs() <= 1e-12 * s0.max(s1) {
+            // A circle: any orientation; keep the old one.
+            return (s0, s1, theta);
+        }
+        let image_a = m.column(0);
+        let (d0, d1) = (u.column(0), u.column(1));
+        let (len_a, len_b, dir) = if d0.dot(&image_a).abs() >= d1.dot(&image_a).abs() {
+            (s0, s1, d0)
+        } else {
+            (s1, s0, d1)
+        };
+        let mut t = dir[1].atan2(dir[0]);
+        // The axis has no sign: the orientation nearest the old one.
+        let half = std::f64::consts::PI;
+        while t - theta > half / 2.0 {
+            t -= half;
+        }
+        while theta - t > half / 2.0 {
+            t += half;
+        }
+        (len_a, len_b, t)
+    }
+
+    /// A pose-CSV row in the other frame: its ellipse (orientation `theta`, else `rz`) as
+    /// [`Rescale::ellipse`] maps it, the angles kept; `theta` the mapped orientation when
+    /// the row had one.
+    pub fn record(&self, r: &PoseRecord) -> PoseRecord {
+        let e = self.ellipse(&r.ellipse());
+        PoseRecord {
+            state: PoseState {
+                cx: e.cx,
+                cy: e.cy,
+                a: e.a,
+                b: e.b,
+                ..r.state
+            },
+            theta: r.theta.map(|_| e.theta),
+            ..r.clone()
         }
     }
 }
@@ -152,7 +203,7 @@ mod tests {
     }
 
     #[test]
-    fn rescale_round_trips_and_scales_per_axis() {
+    fn rescale_maps_ellipses_exactly_and_back() {
         let r = Rescale::new((640, 480), (160, 96));
         assert!(!r.is_identity());
         let same = Rescale::new((64, 48), (64, 48));
@@ -160,28 +211,70 @@ mod tests {
         assert_eq!(same.point(0.1, 0.7), (0.1, 0.7));
         assert_eq!(r.point(-0.5, -0.5), (-0.5, -0.5));
         assert_eq!(r.point(639.5, 479.5), (159.5, 95.5));
-        let e = Ellipse {
+        let at = |theta: f64| Ellipse {
             cx: 300.25,
             cy: 200.5,
             a: 40.0,
             b: 50.0,
-            theta: 0.3,
+            theta,
         };
-        let m = r.ellipse(&e);
-        assert_eq!((m.a, m.b, m.theta), (10.0, 10.0, 0.3));
-        let back = r.inverse().ellipse(&m);
-        for (x, y) in [
-            (back.cx, e.cx),
-            (back.cy, e.cy),
-            (back.a, e.a),
-            (back.b, e.b),
-        ] {
-            assert!((x - y).abs() < 1e-12, "{x} vs {y}");
+        // Axis-aligned: each semi-axis scales along its own image axis.
+        let m = r.ellipse(&at(0.0));
+        assert!((m.a - 10.0).abs() < 1e-12 && (m.b - 10.0).abs() < 1e-12 && m.theta == 0.0);
+        let m = r.ellipse(&at(std::f64::consts::FRAC_PI_2));
+        assert!(
+            (m.a - 8.0).abs() < 1e-9 && (m.b - 12.5).abs() < 1e-9,
+            "{m:?}"
+        );
+        assert!((m.theta - std::f64::consts::FRAC_PI_2).abs() < 1e-9);
+        // The same aspect ratio: the orientation stays.
+        let u = Rescale::new((640, 480), (320, 240)).ellipse(&at(0.3));
+        assert_eq!((u.a, u.b, u.theta), (20.0, 25.0, 0.3));
+        // Turned: every point of the ellipse maps onto the mapped ellipse, and back again.
+        for theta in [0.3, -1.2, 2.5] {
+            let e = at(theta);
+            let m = r.ellipse(&e);
+            for k in 0..16 {
+                let (x, y) = e.point_at(k as f64 * 0.4);
+                let (u, v) = r.point(x, y);
+                let (p, q) = m.to_unit(u, v);
+                assert!(
+                    ((p * p + q * q) - 1.0).abs() < 1e-9,
+                    "theta {theta}: {p} {q}"
+                );
+            }
+            assert!((m.theta - theta).abs() <= std::f64::consts::FRAC_PI_4 + 1e-9);
+            let back = r.inverse().ellipse(&m);
+            for (x, y) in [
+                (back.cx, e.cx),
+                (back.cy, e.cy),
+                (back.a, e.a),
+                (back.b, e.b),
+                (back.theta, e.theta),
+            ] {
+                assert!((x - y).abs() < 1e-9, "theta {theta}: {x} vs {y}");
+            }
         }
-        let s = PoseState::from_parts(&e, crate::geometry::Euler::new(0.1, -0.2, 0.3));
-        let t = r.state(&s);
-        assert_eq!((t.cx, t.cy, t.a, t.b), (m.cx, m.cy, m.a, m.b));
-        assert_eq!((t.rx, t.ry, t.rz), (s.rx, s.ry, s.rz));
+        // A pose row: its ellipse (orientation from `theta`) mapped, its angles kept.
+        let e = at(0.7);
+        let row = PoseRecord {
+            frame: 3,
+            state: PoseState::from_parts(&e, crate::geometry::Euler::new(0.1, -0.2, 0.3)),
+            score: Some(0.5),
+            lost: Some(false),
+            theta: Some(0.7),
+        };
+        let t = r.record(&row);
+        let m = r.ellipse(&e);
+        assert_eq!(
+            (t.state.cx, t.state.cy, t.state.a, t.state.b),
+            (m.cx, m.cy, m.a, m.b)
+        );
+        assert_eq!((t.state.rx, t.state.ry, t.state.rz), (0.1, -0.2, 0.3));
+        assert_eq!(
+            (t.frame, t.score, t.lost, t.theta),
+            (3, Some(0.5), Some(false), Some(m.theta))
+        );
     }
 
     #[test]

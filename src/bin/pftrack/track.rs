@@ -77,7 +77,12 @@ pub struct TrackArgs {
     #[arg(long, default_value = "sea", value_parser = values::mode)]
     pub mode: String,
     /// Likelihood engine: auto (the GPU if a hardware Vulkan adapter exists, or the one PFTRACK_ADAPTER names; else the CPU), cpu or gpu (any Vulkan adapter, software ones too).
-    #[arg(long, default_value = "auto", hide_possible_values = true)]
+    #[arg(
+        long,
+        default_value = "auto",
+        hide_possible_values = true,
+        ignore_case = true
+    )]
     pub backend: Backend,
     /// The camera's horizontal field of view in degrees, for the perspective form of the
     /// keyframe depth prior and of the turned first view; when absent, the --init-file's
@@ -277,8 +282,8 @@ pub struct TrackArgs {
     /// Write each frame with the ellipse, pan/tilt bars and angles drawn, as PNG (NNNNN.png),
     /// here. The frames are drawn into a hidden folder inside and moved into place when the
     /// whole track is done: a run that fails leaves the folder as it found it, as it writes no
-    /// pose CSV. One that succeeds replaces an earlier render there: numbered frames past this
-    /// track's last are removed. Frames under 320 px wide are drawn scaled up (160x120 twice).
+    /// pose CSV. One that succeeds replaces an earlier render there: frames NNNNN.png past
+    /// this track's last are removed. Frames under 320 px wide are drawn scaled up (160x120 twice).
     #[arg(long, value_name = "DIR")]
     pub render: Option<PathBuf>,
 }
@@ -669,14 +674,21 @@ pub fn run(mut a: TrackArgs) -> anyhow::Result<()> {
         .with_context(|| format!("opening {}", frames_path.display()))?;
     // The start and the poses are in the input's own pixels; the tracker sees the resized
     // frames (`--resize`).
-    let to_frames = Rescale::new(source.native_size(), source.size());
+    // Checked before the engine is opened, so a bad start is the only line printed: first in
+    // the input's pixels, as given, then as the tracker will see it.
+    let ((nw, nh), (w, h)) = (source.native_size(), source.size());
+    let to_frames = Rescale::new((nw, nh), (w, h));
+    init.check(nw, nh)?;
     let init = Init {
         ellipse: to_frames.ellipse(&init.ellipse),
         ..init
     };
-    // Checked before the engine is opened, so a bad start is the only line printed.
-    let (w, h) = source.size();
-    init.check_for(&cfg, w, h)?;
+    let checked = init.check_for(&cfg, w, h);
+    if to_frames.is_identity() {
+        checked?;
+    } else {
+        checked.with_context(|| format!("the start resized to {w}x{h} (--resize)"))?;
+    }
     let (engine, notice) = create_engine(backend)?;
     if let Some(n) = notice {
         errln!("pftrack: {n}");
@@ -746,16 +758,23 @@ impl RenderStaging {
             bail!("--render {}: not a folder", dir.display());
         }
         let created = !dir.exists();
-        let (created_registered, ()) =
-            Partial::create(dir, PartialKind::EmptyDir, || std::fs::create_dir_all(dir))
-                .with_context(|| format!("creating {}", dir.display()))?;
+        // Registered only when this run makes it: an interrupt never removes a folder the
+        // user made, empty or not.
+        let creating = || std::fs::create_dir_all(dir);
+        let created_registered = if created {
+            Some(Partial::create(dir, PartialKind::EmptyDir, creating).map(|(p, ())| p))
+        } else {
+            None
+        }
+        .transpose()
+        .with_context(|| format!("creating {}", dir.display()))?;
         let staging = dir.join(format!(".pftrack-render-{}.partial", std::process::id()));
         let mut s = Self {
             dir: dir.to_path_buf(),
             staging,
             created,
             registered: None,
-            _created_registered: created.then_some(created_registered),
+            _created_registered: created_registered,
         };
         // One left by an interrupted run of a process with the same id.
         let _ = std::fs::remove_dir_all(&s.staging);
@@ -848,10 +867,12 @@ fn frame_name(n: usize) -> String {
     format!("{n:05}.png")
 }
 
-/// Whether `name` is one [`frame_name`] gives: five or more digits, then `.png`.
+/// Whether `name` is the name [`frame_name`] gives a frame below 100000: five digits, then
+/// `.png` (`00042.png`). Not `000042.png`, nor longer numbers, which a date-named image such
+/// as `20240101.png` could be: the stale frames removed are of this form only.
 fn is_frame_name(name: &str) -> bool {
     name.strip_suffix(".png")
-        .is_some_and(|d| d.len() >= 5 && d.bytes().all(|b| b.is_ascii_digit()))
+        .is_some_and(|d| d.len() == 5 && d.bytes().all(|b| b.is_ascii_digit()))
 }
 
 fn run_loop(
@@ -870,8 +891,7 @@ fn run_loop(
     };
     let mut stdout_rows = Vec::new();
     let mut emit = |e: &Estimate, frame: &image::RgbImage| -> anyhow::Result<()> {
-        let mut r = e.to_record();
-        r.state = to_input.state(&r.state);
+        let r = to_input.record(&e.to_record());
         match csv_out.as_mut() {
             Some(w) => w.write(&r)?,
             None => stdout_rows.push(r),
@@ -921,6 +941,25 @@ fn run_loop(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn only_the_names_of_rendered_frames_are_frame_names() {
+        for n in [0, 7, 99_999] {
+            assert!(is_frame_name(&frame_name(n)), "{n}");
+        }
+        for other in [
+            "100000.png",
+            "000001.png",
+            "0001.png",
+            "20240101.png",
+            "00001.PNG",
+            "00001.png.bak",
+            "x0001.png",
+            ".png",
+        ] {
+            assert!(!is_frame_name(other), "{other}");
+        }
+    }
 
     #[test]
     fn depth_ratio_is_checked_and_applied() {
