@@ -88,21 +88,26 @@ impl Rescale {
             // A circle: any orientation; keep the old one.
             return (s0, s1, theta);
         }
+        // `a` is the image axis whose preimage lies nearest the old `a` axis: the component
+        // of the image of `a` along each axis, over that axis's length, is the cosine of the
+        // preimage's angle to `a` (so the map back chooses the same way).
         let image_a = m.column(0);
         let (d0, d1) = (u.column(0), u.column(1));
-        let (len_a, len_b, dir) = if d0.dot(&image_a).abs() >= d1.dot(&image_a).abs() {
+        let (len_a, len_b, dir) = if d0.dot(&image_a).abs() / s0 >= d1.dot(&image_a).abs() / s1 {
             (s0, s1, d0)
         } else {
             (s1, s0, d1)
         };
-        let mut t = dir[1].atan2(dir[0]);
-        // The axis has no sign: the orientation nearest the old one.
-        let half = std::f64::consts::PI;
-        while t - theta > half / 2.0 {
-            t -= half;
-        }
-        while theta - t > half / 2.0 {
-            t += half;
+        // The axis has no sign: the orientation nearest the old one, kept within a turn
+        // either way as the old one was.
+        let pi = std::f64::consts::PI;
+        let t = dir[1].atan2(dir[0]);
+        let mut t = t + pi * ((theta - t) / pi).round();
+        let turn = 2.0 * pi;
+        if t > turn {
+            t -= pi;
+        } else if t < -turn {
+            t += pi;
         }
         (len_a, len_b, t)
     }
@@ -230,8 +235,10 @@ mod tests {
         // The same aspect ratio: the orientation stays.
         let u = Rescale::new((640, 480), (320, 240)).ellipse(&at(0.3));
         assert_eq!((u.a, u.b, u.theta), (20.0, 25.0, 0.3));
-        // Turned: every point of the ellipse maps onto the mapped ellipse, and back again.
-        for theta in [0.3, -1.2, 2.5] {
+        // Turned, by every angle from a turn one way to a turn the other (near the axes too):
+        // every point of the ellipse maps onto the mapped ellipse, and back again.
+        let sweep = (-720..=720).map(|d| f64::from(d).to_radians() / 2.0);
+        for theta in sweep.chain([0.3, -1.2, 2.5, 1e-9, -1e-9]) {
             let e = at(theta);
             let m = r.ellipse(&e);
             for k in 0..16 {
@@ -243,7 +250,12 @@ mod tests {
                     "theta {theta}: {p} {q}"
                 );
             }
-            assert!((m.theta - theta).abs() <= std::f64::consts::FRAC_PI_4 + 1e-9);
+            assert!((m.theta - theta).abs() <= std::f64::consts::FRAC_PI_2 + 1e-9);
+            assert!(
+                m.theta.abs() <= std::f64::consts::TAU + 1e-9,
+                "{theta}: {}",
+                m.theta
+            );
             let back = r.inverse().ellipse(&m);
             for (x, y) in [
                 (back.cx, e.cx),
