@@ -549,8 +549,9 @@ fn cli_resize_keeps_the_start_and_poses_in_the_input_pixels() {
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
-/// A successful track replaces an earlier, longer render in the same folder: its numbered
-/// frames past the new track's last are removed (and said so), anything else stays.
+/// A successful track replaces an earlier, longer render in the same folder: its frames that
+/// follow the new track's last are removed (and said so), anything else stays (other names,
+/// and a frame after a gap, which no reader of the sequence would reach).
 #[test]
 fn cli_a_render_replaces_an_earlier_longer_one() {
     let dir = synth_dir("rerender", 5, "64x48");
@@ -560,7 +561,14 @@ fn cli_a_render_replaces_an_earlier_longer_one() {
     let args = ["track", d, "--backend", "cpu", "--render", r, "-o", "-"];
     pftrack_ok(&args);
     assert_eq!(names(&render).len(), 5);
-    for keep in ["notes.txt", "0001.png", "00004.png.bak"] {
+    for keep in [
+        "notes.txt",
+        "0001.png",
+        "00004.png.bak",
+        "000005.png",
+        "20240101.png",
+        "00009.png",
+    ] {
         std::fs::write(render.join(keep), b"the user's").unwrap();
     }
     let out = pftrack_ok(&[&args[..], &["--max-frames", "3"]].concat());
@@ -573,10 +581,13 @@ fn cli_a_render_replaces_an_earlier_longer_one() {
         names(&render),
         [
             "00000.png",
+            "000005.png",
             "00001.png",
             "00002.png",
             "00004.png.bak",
+            "00009.png",
             "0001.png",
+            "20240101.png",
             "notes.txt"
         ]
     );

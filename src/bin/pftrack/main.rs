@@ -133,11 +133,23 @@ fn main() {
 #[cfg(unix)]
 fn on_interrupt_remove_partial_outputs() {
     use signal_hook::consts::{SIGHUP, SIGINT, SIGTERM};
-    let Ok(mut signals) = signal_hook::iterator::Signals::new([SIGINT, SIGTERM, SIGHUP]) else {
+    // A signal ignored from the start (`nohup`, a background job of a script) stays ignored:
+    // catching it would end a run its caller asked to survive it.
+    let caught: Vec<i32> = [SIGINT, SIGTERM, SIGHUP]
+        .into_iter()
+        .filter(|&s| !ignored(s))
+        .collect();
+    let Ok(mut signals) = signal_hook::iterator::Signals::new(&caught) else {
         return;
     };
     std::thread::spawn(move || {
         if let Some(signal) = signals.forever().next() {
+            // A second signal ends the process at once, should the clean-up or the message
+            // below block (on a stalled standard error, say).
+            for &s in &caught {
+                // SAFETY: restoring a signal's default action; no handler runs Rust code.
+                unsafe { libc::signal(s, libc::SIG_DFL) };
+            }
             pftrack::io::remove_partial_outputs();
             // On a terminal a progress bar may hold the line: start a fresh one.
             let fresh = if std::io::stderr().is_terminal() {
@@ -150,6 +162,18 @@ fn on_interrupt_remove_partial_outputs() {
             std::process::exit(128 + signal);
         }
     });
+}
+
+/// Whether `signal` is ignored (`SIG_IGN`), as a process started by `nohup` finds SIGHUP.
+#[cfg(unix)]
+fn ignored(signal: i32) -> bool {
+    // SAFETY: `sigaction` with a null new action only reads the current one into `old`, a
+    // zeroed `sigaction` owned here.
+    unsafe {
+        let mut old: libc::sigaction = std::mem::zeroed();
+        libc::sigaction(signal, std::ptr::null(), &mut old) == 0
+            && old.sa_sigaction == libc::SIG_IGN
+    }
 }
 
 /// Elsewhere the signals keep their default action.

@@ -282,7 +282,7 @@ pub struct TrackArgs {
     /// Write each frame with the ellipse, pan/tilt bars and angles drawn, as PNG (NNNNN.png),
     /// here. The frames are drawn into a hidden folder inside and moved into place when the
     /// whole track is done: a run that fails leaves the folder as it found it, as it writes no
-    /// pose CSV. One that succeeds replaces an earlier render there: frames NNNNN.png past
+    /// pose CSV. One that succeeds replaces an earlier render there: its frames that follow
     /// this track's last are removed. Frames under 320 px wide are drawn scaled up (160x120 twice).
     #[arg(long, value_name = "DIR")]
     pub render: Option<PathBuf>,
@@ -712,7 +712,7 @@ pub fn run(mut a: TrackArgs) -> anyhow::Result<()> {
     )?;
     if let Some(s) = staging {
         let dir = s.dir.clone();
-        let removed = s.finish(moves)?;
+        let removed = s.finish(moves, written)?;
         if removed > 0 {
             errln!(
                 "pftrack: removed {removed} frame{} of an earlier render from {}",
@@ -811,15 +811,11 @@ impl RenderStaging {
     }
 
     /// Moves the frames drawn into the render folder, replacing those of the same names, then
-    /// removes the numbered frames (`NNNNN.png`) this track did not draw: those of an earlier,
-    /// longer render into the same folder, which would otherwise read as part of this track
-    /// (`ffmpeg -i DIR/%05d.png`). Returns how many were removed.
-    fn finish(mut self, moves: Vec<(PathBuf, PathBuf)>) -> anyhow::Result<usize> {
-        let drawn: std::collections::HashSet<std::ffi::OsString> = moves
-            .iter()
-            .filter_map(|(_, to)| to.file_name())
-            .map(Into::into)
-            .collect();
+    /// removes the frames of an earlier, longer render into the same folder that follow this
+    /// track's last (`frame_name(n)` for `n` from `frames` on, as long as they run), which a
+    /// reader of the sequence (`ffmpeg -i DIR/%05d.png`) would take as part of this track.
+    /// Nothing else in the folder is touched. Returns how many were removed.
+    fn finish(mut self, moves: Vec<(PathBuf, PathBuf)>, frames: usize) -> anyhow::Result<usize> {
         // All moved, or (on an error) none more, before an interrupt may clean up.
         let move_all = || -> anyhow::Result<()> {
             for (from, to) in moves {
@@ -832,21 +828,16 @@ impl RenderStaging {
             Some(r) => r.commit(move_all)?,
             None => move_all()?,
         }
-        let listing = || format!("listing {}", self.dir.display());
         let mut removed = 0;
-        for entry in std::fs::read_dir(&self.dir).with_context(listing)? {
-            let entry = entry.with_context(listing)?;
-            let name = entry.file_name();
-            let stale = name.to_str().is_some_and(is_frame_name) && !drawn.contains(&name);
-            if stale && entry.file_type().is_ok_and(|t| t.is_file()) {
-                std::fs::remove_file(entry.path()).with_context(|| {
-                    format!(
-                        "removing {}, an earlier render's frame",
-                        entry.path().display()
-                    )
-                })?;
-                removed += 1;
+        for n in frames.. {
+            let stale = self.dir.join(frame_name(n));
+            if !std::fs::symlink_metadata(&stale).is_ok_and(|m| m.is_file()) {
+                break;
             }
+            std::fs::remove_file(&stale).with_context(|| {
+                format!("removing {}, an earlier render's frame", stale.display())
+            })?;
+            removed += 1;
         }
         Ok(removed)
     }
@@ -865,14 +856,6 @@ impl Drop for RenderStaging {
 /// The file name of rendered frame `n`.
 fn frame_name(n: usize) -> String {
     format!("{n:05}.png")
-}
-
-/// Whether `name` is the name [`frame_name`] gives a frame below 100000: five digits, then
-/// `.png` (`00042.png`). Not `000042.png`, nor longer numbers, which a date-named image such
-/// as `20240101.png` could be: the stale frames removed are of this form only.
-fn is_frame_name(name: &str) -> bool {
-    name.strip_suffix(".png")
-        .is_some_and(|d| d.len() == 5 && d.bytes().all(|b| b.is_ascii_digit()))
 }
 
 fn run_loop(
@@ -941,25 +924,6 @@ fn run_loop(
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn only_the_names_of_rendered_frames_are_frame_names() {
-        for n in [0, 7, 99_999] {
-            assert!(is_frame_name(&frame_name(n)), "{n}");
-        }
-        for other in [
-            "100000.png",
-            "000001.png",
-            "0001.png",
-            "20240101.png",
-            "00001.PNG",
-            "00001.png.bak",
-            "x0001.png",
-            ".png",
-        ] {
-            assert!(!is_frame_name(other), "{other}");
-        }
-    }
 
     #[test]
     fn depth_ratio_is_checked_and_applied() {
