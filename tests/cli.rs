@@ -658,12 +658,16 @@ fn cli_a_full_standard_output_is_an_error() {
 
 /// An interrupt (SIGINT, SIGTERM) mid-run removes what the run had in progress: the pose
 /// CSV's partial file and the render's staging folder, and the render folder the run made;
-/// the command says so in one line and ends by the signal. The frames come from a Y4M
-/// stream on standard input that stalls after three frames, so the signal lands mid-track.
+/// the command says so in one line and ends by the signal. A signal ignored from the start
+/// (SIGHUP under `nohup`) stays ignored. The frames come from a Y4M stream on standard input
+/// that stalls after three frames, so the signal lands mid-track. The command starts with
+/// the signals' default actions whatever the test's own (a test run in the background of a
+/// script inherits SIGINT ignored).
 #[cfg(unix)]
 #[test]
 fn cli_an_interrupted_track_leaves_nothing_behind() {
     use std::io::Write as _;
+    use std::os::unix::process::{CommandExt as _, ExitStatusExt as _};
     let dir = tmp_dir("interrupt");
     std::fs::create_dir_all(&dir).unwrap();
     let (w, h) = (64usize, 48usize);
@@ -674,29 +678,45 @@ fn cli_an_interrupted_track_leaves_nothing_behind() {
         stream.extend((0..w * h).map(|i| (((i % w + k) * 37 + (i / w) * 11) % 251) as u8));
         stream.extend(std::iter::repeat_n(128u8, 2 * w * h));
     }
-    for signal in ["INT", "TERM"] {
+    // (signal sent first, SIGHUP ignored from the start, the signal that ends the run)
+    for (first, nohup, ends) in [
+        (libc::SIGINT, false, libc::SIGINT),
+        (libc::SIGTERM, false, libc::SIGTERM),
+        (libc::SIGHUP, true, libc::SIGTERM),
+    ] {
         let csv = dir.join("poses.csv");
         let render = dir.join("render");
-        let mut child = Command::new(env!("CARGO_BIN_EXE_pftrack"))
-            .args([
-                "track",
-                "-",
-                "--init-ellipse",
-                "32,24,12,15",
-                "--backend",
-                "cpu",
-            ])
-            .args([
-                "-o",
-                csv.to_str().unwrap(),
-                "--render",
-                render.to_str().unwrap(),
-            ])
-            .stdin(Stdio::piped())
-            .stdout(Stdio::piped())
-            .stderr(Stdio::piped())
-            .spawn()
-            .expect("run pftrack");
+        let mut cmd = Command::new(env!("CARGO_BIN_EXE_pftrack"));
+        cmd.args([
+            "track",
+            "-",
+            "--init-ellipse",
+            "32,24,12,15",
+            "--backend",
+            "cpu",
+        ])
+        .args([
+            "-o",
+            csv.to_str().unwrap(),
+            "--render",
+            render.to_str().unwrap(),
+        ])
+        .stdin(Stdio::piped())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped());
+        // SAFETY: between fork and exec only async-signal-safe calls (signal(2)).
+        unsafe {
+            cmd.pre_exec(move || {
+                for s in [libc::SIGINT, libc::SIGTERM, libc::SIGHUP] {
+                    libc::signal(s, libc::SIG_DFL);
+                }
+                if nohup {
+                    libc::signal(libc::SIGHUP, libc::SIG_IGN);
+                }
+                Ok(())
+            });
+        }
+        let mut child = cmd.spawn().expect("run pftrack");
         let mut stdin = child.stdin.take().unwrap();
         stdin.write_all(&stream).unwrap();
         stdin.flush().unwrap();
@@ -720,23 +740,30 @@ fn cli_an_interrupted_track_leaves_nothing_behind() {
             names_then.contains(&".poses.csv.partial".to_string()),
             "{names_then:?}"
         );
-        let kill = Command::new("kill")
-            .args([&format!("-{signal}"), &child.id().to_string()])
-            .status()
-            .expect("run kill");
-        assert!(kill.success());
+        let pid = child.id() as libc::pid_t;
+        // SAFETY: kill(2) on the child's own pid.
+        assert_eq!(unsafe { libc::kill(pid, first) }, 0);
+        if nohup {
+            // Ignored: still running, its partial files in place.
+            std::thread::sleep(std::time::Duration::from_millis(300));
+            assert!(
+                child.try_wait().unwrap().is_none(),
+                "SIGHUP ended a nohup run"
+            );
+            assert!(names(&dir).contains(&".poses.csv.partial".to_string()));
+            // SAFETY: as above.
+            assert_eq!(unsafe { libc::kill(pid, ends) }, 0);
+        }
         let out = child.wait_with_output().unwrap();
         drop(stdin);
         // Ended by the signal itself, as a shell expects of an interrupted command (so a loop
         // over files stops).
-        use std::os::unix::process::ExitStatusExt as _;
-        let number = if signal == "INT" { 2 } else { 15 };
-        assert_eq!(out.status.signal(), Some(number), "{signal}: {out:?}");
+        assert_eq!(out.status.signal(), Some(ends), "{first}: {out:?}");
         let err = String::from_utf8_lossy(&out.stderr);
-        assert!(err.ends_with("pftrack: interrupted\n"), "{signal}: {err}");
+        assert!(err.ends_with("pftrack: interrupted\n"), "{first}: {err}");
         assert!(out.stdout.is_empty());
         // Nothing of the run stays: no CSV, partial or whole, and no render folder.
-        assert!(names(&dir).is_empty(), "{signal}: {:?}", names(&dir));
+        assert!(names(&dir).is_empty(), "{first}: {:?}", names(&dir));
     }
     std::fs::remove_dir_all(&dir).unwrap();
 }
