@@ -11,7 +11,7 @@ use pftrack::frames::{self, SourceOptions};
 use pftrack::io::{PoseCsvWriter, read_init, read_pose_csv};
 use pftrack::likelihood::{Backend, create_engine};
 use pftrack::synth::{Scenario, SynthConfig, write_sequence};
-use pftrack::tracker::{Init, Tracker};
+use pftrack::tracker::{Init, Mode, Tracker};
 
 use crate::track::{config, progress};
 
@@ -21,7 +21,7 @@ use crate::track::{config, progress};
 pub struct DemoArgs {
     /// Scenario to render (nod, pan, roll, combo, depth, car, long).
     #[arg(long, default_value = "nod", value_parser = crate::values::scenario)]
-    pub scenario: String,
+    pub scenario: Scenario,
     /// Number of frames (the scenario's default if absent); the scenario's whole motion plays
     /// over them.
     #[arg(long)]
@@ -48,7 +48,7 @@ pub struct DemoArgs {
 
 /// Runs the command.
 pub fn run(a: DemoArgs) -> anyhow::Result<()> {
-    let scenario = Scenario::from_name(&a.scenario)?;
+    let scenario = a.scenario;
     let mut cfg = SynthConfig::new(scenario);
     cfg.seed = a.seed;
     if let Some(n) = a.frames {
@@ -57,7 +57,7 @@ pub fn run(a: DemoArgs) -> anyhow::Result<()> {
     // Every argument checked before anything is rendered or written.
     cfg.validate()?;
     let backend = a.backend;
-    let mut tcfg = config("sea", a.particles, a.seed)?;
+    let mut tcfg = config(Mode::Sea, a.particles, a.seed)?;
     // The engine too: one that cannot open fails the demo before anything is written.
     let (engine, notice) = create_engine(backend)?;
     if let Some(n) = notice {

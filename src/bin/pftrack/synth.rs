@@ -15,7 +15,7 @@ pub struct SynthArgs {
     pub dir: PathBuf,
     /// Scenario: nod, pan, roll, combo, depth, car, long.
     #[arg(long, default_value = "combo", value_parser = crate::values::scenario)]
-    pub scenario: String,
+    pub scenario: Scenario,
     /// Number of frames (default: the scenario's own, e.g. 180 for nod, 2400 for long). The
     /// scenario's whole motion plays over them: fewer frames, faster motion per frame.
     #[arg(long)]
@@ -30,7 +30,7 @@ pub struct SynthArgs {
 
 /// Runs the command.
 pub fn run(args: SynthArgs) -> anyhow::Result<()> {
-    let scenario = Scenario::from_name(&args.scenario)?;
+    let scenario = args.scenario;
     let (width, height) = parse_size(&args.size)?;
     let mut cfg = SynthConfig::new(scenario);
     cfg.width = width;

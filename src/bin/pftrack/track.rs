@@ -75,7 +75,7 @@ pub struct TrackArgs {
     pub seed: u64,
     /// The system: sea (full), optimal (certified solver), tpe (tracking then pose), rls.
     #[arg(long, default_value = "sea", value_parser = values::mode)]
-    pub mode: String,
+    pub mode: Mode,
     /// Likelihood engine: auto (the GPU if a hardware Vulkan adapter exists, or the one PFTRACK_ADAPTER names; else the CPU), cpu or gpu (any Vulkan adapter, software ones too).
     #[arg(
         long,
@@ -378,9 +378,7 @@ fn given_init(a: &TrackArgs) -> anyhow::Result<Option<(InitFile, Option<Euler>)>
 }
 
 /// Builds the tracker configuration from the arguments.
-pub fn config(mode: &str, particles: usize, seed: u64) -> anyhow::Result<TrackerConfig> {
-    let mode = Mode::from_name(mode)
-        .with_context(|| format!("unknown --mode '{mode}' (sea, optimal, tpe, rls)"))?;
+pub fn config(mode: Mode, particles: usize, seed: u64) -> anyhow::Result<TrackerConfig> {
     let max = pftrack::filter::MAX_PARTICLES;
     if !(1..=max).contains(&particles) {
         bail!("--particles must lie in 1..={max}, got {particles}");
@@ -601,7 +599,7 @@ pub fn run(mut a: TrackArgs) -> anyhow::Result<()> {
         ellipse: init_file.ellipse,
         pose,
     };
-    let mut cfg = config(&a.mode, a.particles, a.seed)?;
+    let mut cfg = config(a.mode, a.particles, a.seed)?;
     apply_hfov(
         &mut cfg,
         if a.weak_perspective {
@@ -725,7 +723,7 @@ pub fn run(mut a: TrackArgs) -> anyhow::Result<()> {
         "pftrack: tracked {written} frame{} with {} ({}, {}){}",
         if written == 1 { "" } else { "s" },
         tracker.engine_name(),
-        a.mode,
+        a.mode.name(),
         camera,
         a.out
             .as_ref()

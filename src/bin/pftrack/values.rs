@@ -1,7 +1,7 @@
 //! clap's checks of the values the commands take as text (lists of numbers, names from a
 //! fixed set, sizes): a malformed value is a usage error, exit status 2, reported by clap
-//! with the flag, as for an unknown option. Each returns the text it checked; the command
-//! reads it with the same rules.
+//! with the flag, as for an unknown option. A name comes back as what it names; the others
+//! return the text they checked, which the command reads with the same rules.
 
 use pftrack::pose::SolverKind;
 use pftrack::synth::Scenario;
@@ -48,10 +48,8 @@ pub fn points(s: &str) -> Result<String, String> {
 }
 
 /// A tracker mode (`--mode`).
-pub fn mode(s: &str) -> Result<String, String> {
-    Mode::from_name(s)
-        .map(|_| s.to_string())
-        .ok_or_else(|| "expected sea, optimal, tpe or rls".to_string())
+pub fn mode(s: &str) -> Result<Mode, String> {
+    Mode::from_name(s).ok_or_else(|| "expected sea, optimal, tpe or rls".to_string())
 }
 
 /// A rotation solver of `pose` (`--solver`): the block solvers or `essential`.
@@ -64,10 +62,8 @@ pub fn solver(s: &str) -> Result<String, String> {
 }
 
 /// A synthetic scenario (`--scenario`).
-pub fn scenario(s: &str) -> Result<String, String> {
-    Scenario::from_name(s)
-        .map(|_| s.to_string())
-        .map_err(|e| e.to_string())
+pub fn scenario(s: &str) -> Result<Scenario, String> {
+    Scenario::from_name(s).map_err(|e| e.to_string())
 }
 
 /// A frame size `WxH` as a source resizes to (`--resize`).
@@ -89,9 +85,10 @@ mod tests {
         assert!(numbers("1,x,3", &[3]).unwrap_err().contains("not a list"));
         assert!(four_or_five("1,2,3,4,5").is_ok() && four_or_five("1,2,3").is_err());
         assert!(points("1,2;3,4;").is_ok() && points("1,2;3").is_err());
-        assert!(mode("TPE").is_ok() && mode("foo").is_err());
+        assert_eq!(mode("TPE"), Ok(Mode::Tpe));
+        assert!(mode("foo").is_err());
         assert!(solver("essential").is_ok() && solver("lsm").is_ok() && solver("x").is_err());
-        assert!(scenario("car").is_ok());
+        assert_eq!(scenario("car"), Ok(Scenario::Car));
         assert!(scenario("spin").unwrap_err().contains("nod, pan"));
         assert!(size("80x60").is_ok() && size("80").is_err());
     }
