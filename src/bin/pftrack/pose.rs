@@ -78,7 +78,7 @@ pub fn run(a: PoseArgs) -> anyhow::Result<()> {
         bail!("--ellipse: semi-axes must be positive");
     }
     // Opened before the work, so a bad place for the drawing fails at once.
-    let mut draw = match &a.draw {
+    let draw = match &a.draw {
         Some(d) => {
             crate::paths::not_an_input("--draw", d, &[&a.frame_a, &a.frame_b])?;
             crate::paths::png_name("--draw", d)?;
@@ -151,7 +151,7 @@ pub fn run(a: PoseArgs) -> anyhow::Result<()> {
         let r = essential_rotation(&p, &q, &k)?;
         show("essential (focal = image width assumed)", &r.rotation)?;
     }
-    if let Some(mut file) = draw.take() {
+    if let Some(mut file) = draw {
         let mut img = ib.clone();
         for (p, q) in p.iter().zip(&q) {
             arrow(&mut img, *p, *q, Rgb([255, 40, 40]));

@@ -671,9 +671,9 @@ pub fn run(mut a: TrackArgs) -> anyhow::Result<()> {
     let mut source = frames::open(&frames_path, &SourceOptions { resize })
         .with_context(|| format!("opening {}", frames_path.display()))?;
     // The start and the poses are in the input's own pixels; the tracker sees the resized
-    // frames (`--resize`).
-    // Checked before the engine is opened, so a bad start is the only line printed: first in
-    // the input's pixels, as given, then as the tracker will see it.
+    // frames (`--resize`). The start is checked before the engine is opened, so a bad one is
+    // the only line printed: first in the input's pixels, as given, then as the tracker will
+    // see it.
     let ((nw, nh), (w, h)) = (source.native_size(), source.size());
     let to_frames = Rescale::new((nw, nh), (w, h));
     init.check(nw, nh)?;
@@ -741,12 +741,12 @@ struct RenderStaging {
     dir: PathBuf,
     /// The hidden folder inside it.
     staging: PathBuf,
-    /// Whether this run created the render folder.
-    created: bool,
-    /// The staging folder's registration (and the render folder's, when this run created
-    /// it), for an interrupt to remove them ([`pftrack::io::partial`]).
+    /// The staging folder's registration, for an interrupt to remove it
+    /// ([`pftrack::io::partial`]); taken when the frames are moved in.
     registered: Option<Partial>,
-    _created_registered: Option<Partial>,
+    /// The render folder's registration, when this run created it (and an interrupt or a
+    /// failure removes it if empty).
+    created: Option<Partial>,
 }
 
 impl RenderStaging {
@@ -755,24 +755,22 @@ impl RenderStaging {
         if dir.exists() && !dir.is_dir() {
             bail!("--render {}: not a folder", dir.display());
         }
-        let created = !dir.exists();
         // Registered only when this run makes it: an interrupt never removes a folder the
         // user made, empty or not.
-        let creating = || std::fs::create_dir_all(dir);
-        let created_registered = if created {
-            Some(Partial::create(dir, PartialKind::EmptyDir, creating).map(|(p, ())| p))
-        } else {
+        let created = if dir.exists() {
             None
-        }
-        .transpose()
-        .with_context(|| format!("creating {}", dir.display()))?;
+        } else {
+            let (p, ()) =
+                Partial::create(dir, PartialKind::EmptyDir, || std::fs::create_dir_all(dir))
+                    .with_context(|| format!("creating {}", dir.display()))?;
+            Some(p)
+        };
         let staging = dir.join(format!(".pftrack-render-{}.partial", std::process::id()));
         let mut s = Self {
             dir: dir.to_path_buf(),
             staging,
-            created,
             registered: None,
-            _created_registered: created_registered,
+            created,
         };
         // One left by an interrupted run of a process with the same id.
         let _ = std::fs::remove_dir_all(&s.staging);
@@ -844,7 +842,7 @@ impl RenderStaging {
 impl Drop for RenderStaging {
     fn drop(&mut self) {
         let _ = std::fs::remove_dir_all(&self.staging);
-        if self.created {
+        if self.created.is_some() {
             // Only when empty: a failed run leaves no folder it made.
             let _ = std::fs::remove_dir(&self.dir);
         }
