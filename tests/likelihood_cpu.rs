@@ -674,6 +674,37 @@ fn engine_terms_flags_and_errors() {
         },
         &mut eng
     ));
+    // p0 is a probability; a clutter gain below f32's epsilon reads 0 on every line, which
+    // made the tracker's confidence 0 / 0 (NaN) and never lost.
+    assert!(bad(
+        LikelihoodParams {
+            p_no_contour: 2.0,
+            ..params
+        },
+        &mut eng
+    ));
+    assert!(bad(
+        LikelihoodParams {
+            sigma_z: 1e30,
+            ..params
+        },
+        &mut eng
+    ));
+    assert!(bad(
+        LikelihoodParams {
+            p_no_contour: 1.0,
+            clutter_density: 1e30,
+            ..params
+        },
+        &mut eng
+    ));
+    assert!(!bad(
+        LikelihoodParams {
+            p_no_contour: 1.0,
+            ..params
+        },
+        &mut eng
+    ));
     assert!(bad(
         LikelihoodParams {
             feature_eps: 0.0,

@@ -167,26 +167,28 @@ pub fn parse_pose_csv(text: &str, path: &Path) -> Result<Vec<PoseRecord>, Format
 /// columns. With [`pose_csv_header`], for writing rows to any stream as they come.
 pub fn format_pose_row(r: &PoseRecord, with_score: bool) -> String {
     let s = &r.state;
-    let mut row = format!(
-        "{},{:.6},{:.6},{:.6},{:.6},{:.6},{:.6},{:.6}",
-        r.frame,
-        s.cx,
-        s.cy,
-        s.a,
-        s.b,
-        deg(s.rx),
-        deg(s.ry),
-        deg(s.rz)
-    );
+    let mut row = r.frame.to_string();
+    let values = [s.cx, s.cy, s.a, s.b, deg(s.rx), deg(s.ry), deg(s.rz)];
+    for v in values {
+        push_fixed6(&mut row, v);
+    }
     if with_score {
-        row.push_str(&format!(
-            ",{:.6},{},{:.6}",
-            r.score.unwrap_or(0.0),
-            u8::from(r.lost.unwrap_or(false)),
-            deg(r.theta.unwrap_or(s.rz))
-        ));
+        push_fixed6(&mut row, r.score.unwrap_or(0.0));
+        row.push_str(if r.lost.unwrap_or(false) { ",1" } else { ",0" });
+        push_fixed6(&mut row, deg(r.theta.unwrap_or(s.rz)));
     }
     row
+}
+
+/// Appends `,v` with six decimals; a value that rounds to zero is written `0.000000`, never
+/// `-0.000000`.
+fn push_fixed6(row: &mut String, v: f64) {
+    let text = format!("{v:.6}");
+    row.push(',');
+    row.push_str(match text.as_str() {
+        "-0.000000" => "0.000000",
+        t => t,
+    });
 }
 
 /// Writes a pose CSV row by row; the file appears under its name only on
@@ -302,6 +304,22 @@ mod tests {
             }
         }
         std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn rows_have_six_decimals_and_no_negative_zero() {
+        let mut r = rec(2, -1e-9);
+        r.state.ry = -0.0;
+        r.state.rz = -4e-7f64.to_radians();
+        r.state.cx = -0.0000004;
+        r.theta = Some(-1e-12);
+        assert_eq!(
+            format_pose_row(&r, true),
+            "2,0.000000,20.250000,5.000000,6.000000,0.000000,0.000000,0.000000,0.750000,0,0.000000"
+        );
+        // A negative value that rounds to a non-zero one keeps its sign.
+        r.state.cx = -0.0000006;
+        assert!(format_pose_row(&r, false).starts_with("2,-0.000001,"));
     }
 
     #[test]

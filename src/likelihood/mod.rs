@@ -252,8 +252,9 @@ pub struct LikelihoodParams {
 impl LikelihoodParams {
     /// Checks the settings of the enabled terms, as every evaluation does: known term flags
     /// and colour binning, a finite `contrast_scale` (contrast), a positive finite
-    /// `sigma_colour` (colour), positive finite `sigma_z`, `p_no_contour` and
-    /// `clutter_density` whose clutter gain does not overflow, a finite `edge_threshold`,
+    /// `sigma_colour` (colour), positive finite `sigma_z` and
+    /// `clutter_density` with `p_no_contour` in `(0, 1]`, whose clutter gain neither overflows
+    /// nor falls below `f32::EPSILON` (where the term would read 0 on every line), a finite `edge_threshold`,
     /// `line_half_length` in `[0, 4096]` and at most 4096 lines (gradient), and a positive
     /// finite `feature_eps` with a finite `depth_ratio` of at least 0 (feature).
     pub fn check(&self) -> Result<(), LikelihoodError> {
@@ -277,8 +278,16 @@ impl LikelihoodParams {
                     "sigma_z, p_no_contour and clutter_density must be positive and finite",
                 );
             }
-            if !cpu::gradient::clutter_gain(self).is_finite() {
+            if self.p_no_contour > 1.0 {
+                return bad("p_no_contour is a probability: at most 1");
+            }
+            let gain = cpu::gradient::clutter_gain(self);
+            if !gain.is_finite() {
                 return bad("1 / (sqrt(2 pi) sigma_z p0 gamma) overflows");
+            }
+            // Below f32's epsilon `ln(1 + K e^..)` is 0 on every line: no contour term.
+            if gain < f32::EPSILON {
+                return bad("1 / (sqrt(2 pi) sigma_z p0 gamma) is below f32 precision");
             }
             if !self.edge_threshold.is_finite() {
                 return bad("edge_threshold is not finite");

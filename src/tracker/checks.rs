@@ -276,8 +276,8 @@ pub(crate) fn check_ellipse(e: &crate::geometry::Ellipse) -> Result<(), TrackErr
         return Ok(());
     }
     Err(TrackError::BadInit(format!(
-        "cx {}, cy {}, a {}, b {}: values must be finite and the semi-axes positive",
-        e.cx, e.cy, e.a, e.b
+        "cx {}, cy {}, a {}, b {}, theta {}: values must be finite and the semi-axes positive",
+        e.cx, e.cy, e.a, e.b, e.theta
     )))
 }
 

@@ -100,7 +100,11 @@ pub struct Estimate {
     /// Frame index (0 for the first frame).
     pub frame: usize,
     /// The state: ellipse centre and semi-axes, rotation (radians) relative to the reference
-    /// pose. Angles are continuous from frame to frame (no jumps at ±180°).
+    /// pose. Angles are not wrapped at ±180° (a target turning on past 180° reads 190°), but
+    /// they jump where the tracker recovers: re-anchored on its first view
+    /// ([`TrackerConfig::reanchor`]) the estimate takes the first view's pose (the start's),
+    /// re-posed it takes the tilt and pan at which the first view fits, and re-acquired after
+    /// being lost the pose of the keyframe its features fit.
     pub state: PoseState,
     /// The ellipse, turned by `theta0 + rz`.
     pub ellipse: Ellipse,
@@ -1072,7 +1076,12 @@ impl Tracker {
                 .zip(w)
                 .map(|(t, w)| w * t.gradient as f64)
                 .sum();
-            edges = (g / full).clamp(0.0, 1.0);
+            // `check` holds K at f32's epsilon or more, so `full` is positive.
+            edges = if full > 0.0 {
+                (g / full).clamp(0.0, 1.0)
+            } else {
+                0.0
+            };
         }
         let c = (colour * edges).sqrt();
         if rotation_measured { c } else { 0.8 * c }

@@ -341,7 +341,10 @@ pub fn validate(frame: &FrameInput<'_>, params: &LikelihoodParams) -> Result<(),
 
 impl LikelihoodEngine for CpuEngine {
     fn name(&self) -> String {
-        format!("cpu ({} threads)", self.threads())
+        match self.threads() {
+            1 => "cpu (1 thread)".to_string(),
+            n => format!("cpu ({n} threads)"),
+        }
     }
 
     fn set_colour_model(&mut self, model: &ColourHistogram) -> Result<(), LikelihoodError> {
