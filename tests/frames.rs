@@ -173,6 +173,28 @@ fn directory_errors() {
     std::fs::write(bad0.join("1.jpg"), b"not a jpeg at all").unwrap();
     assert!(frames::open(&bad0, &SourceOptions::default()).is_err());
 
+    // Hidden files are not frames; a dangling link is one, and fails naming itself rather
+    // than being skipped (which renumbered every later frame).
+    let links = d.join("links");
+    std::fs::create_dir(&links).unwrap();
+    save_flat(&links.join("1.png"), 4, 3, 1);
+    save_flat(&links.join(".thumb.png"), 4, 3, 9);
+    std::fs::write(links.join("._1.png"), b"\x00\x05\x16\x07 resource fork").unwrap();
+    save_flat(&links.join("3.png"), 4, 3, 3);
+    let listed = frames::dir::list_images(&links).unwrap();
+    let names: Vec<_> = listed.iter().map(|p| p.file_name().unwrap()).collect();
+    assert_eq!(names, ["1.png", "3.png"]);
+    #[cfg(unix)]
+    {
+        std::os::unix::fs::symlink(d.join("gone.png"), links.join("2.png")).unwrap();
+        let res: Vec<_> = frames::open(&links, &SourceOptions::default())
+            .unwrap()
+            .collect();
+        assert_eq!(res.len(), 2, "the iterator ends after the error");
+        let e = res[1].as_ref().unwrap_err().to_string();
+        assert!(e.contains("2.png"), "{e}");
+    }
+
     // Frames of different sizes: the frame and both sizes named.
     let mixed = d.join("mixed");
     std::fs::create_dir(&mixed).unwrap();

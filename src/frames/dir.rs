@@ -64,16 +64,19 @@ pub fn natural_cmp(a: &str, b: &str) -> Ordering {
 }
 
 /// Lists the image files of `dir` in natural order of their names.
+///
+/// Hidden files (names starting with `.`, such as a viewer's thumbnails or macOS's `._`
+/// resource forks) and folders are not frames. Anything else with an image extension is,
+/// a dangling or looping link included: it fails when read, naming itself, rather than
+/// being skipped and shifting every later frame's number.
 pub fn list_images(dir: &Path) -> Result<Vec<PathBuf>, FrameError> {
     let io = |e| FrameError::io(dir, e);
     let mut files: Vec<(String, PathBuf)> = Vec::new();
     for entry in std::fs::read_dir(dir).map_err(io)? {
-        let p = entry.map_err(io)?.path();
-        if is_image_file(&p) && p.is_file() {
-            let name = p
-                .file_name()
-                .map(|n| n.to_string_lossy().into_owned())
-                .unwrap_or_default();
+        let entry = entry.map_err(io)?;
+        let name = entry.file_name().to_string_lossy().into_owned();
+        let p = entry.path();
+        if !name.starts_with('.') && is_image_file(&p) && !p.is_dir() {
             files.push((name, p));
         }
     }
