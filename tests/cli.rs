@@ -352,6 +352,41 @@ fn cli_takes_negative_values_and_reports_usage_errors_on_one_line() {
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
+/// Exit status 2 for a command line that is malformed or lacks what the command needs, 1 for
+/// values out of range and failures at run time (README). A missing start and a malformed
+/// `synth --size` used to exit 1.
+#[test]
+fn cli_usage_errors_exit_2_and_others_1() {
+    let dir = tmp_dir("status");
+    std::fs::create_dir_all(&dir).unwrap();
+    let frames = dir.join("frames");
+    std::fs::create_dir_all(&frames).unwrap();
+    image::RgbImage::from_pixel(32, 24, image::Rgb([90, 60, 30]))
+        .save(frames.join("0.png"))
+        .unwrap();
+    let f = frames.to_str().unwrap();
+    let seq = dir.join("seq");
+    let s = seq.to_str().unwrap();
+    let cases: [(&[&str], i32, &str); 7] = [
+        (&["track", f, "--backend", "cpu"], 2, "no initial ellipse"),
+        (&["synth", s, "--size", "80x"], 2, "WIDTHxHEIGHT"),
+        (&["synth", s, "--size", "16x16"], 2, "24..=8192"),
+        (&["track", f, "--resize", "32768x32768"], 2, "pixels in all"),
+        (&["pose-noise", "--trials", "0"], 1, "--trials"),
+        (&["pose-noise", "--trials", "18446744073709551615"], 1, "1000000"),
+        (&["track", f, "--init-ellipse", "16,12,60,8"], 1, "invalid start"),
+    ];
+    for (args, code, needle) in cases {
+        let out = pftrack(args);
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(code), "{args:?}: {err}");
+        assert_eq!(err.trim_end().lines().count(), 1, "{args:?}: {err}");
+        assert!(err.contains(needle), "{args:?}: {err}");
+    }
+    assert!(!seq.exists());
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
 /// `sift` and `pose` check their input before any work: a region off the image, an image that
 /// is not one (its cause said once) and an unknown solver are each one line and no output.
 #[test]

@@ -221,6 +221,10 @@ fn bad_resize_and_sizes() {
     assert_eq!(frames::parse_size("160x120").unwrap(), (160, 120));
     let e = frames::parse_size("160by120").unwrap_err();
     assert!(e.to_string().contains("160by120"));
+    assert_eq!(frames::parse_size("8192x8192").unwrap(), (8192, 8192));
+    assert_eq!(frames::parse_size("32768x2048").unwrap(), (32768, 2048));
+    let e = frames::parse_size("32768x32768").unwrap_err().to_string();
+    assert!(e.contains("pixels in all"), "{e}");
     let d = scratch("badresize");
     save_flat(&d.join("1.png"), 4, 3, 1);
     // Zero, and (as parse_size bounds them) more than 32768 a side: 100000x100000 once
@@ -228,6 +232,10 @@ fn bad_resize_and_sizes() {
     for resize in [
         (0, 5),
         (32769, 10),
+        // Sides within bounds but more pixels than a source reads: 32768x32768 was killed
+        // for memory on the first frame.
+        (32768, 32768),
+        (8193, 8192),
         (100_000, 100_000),
         (u32::MAX, u32::MAX),
     ] {

@@ -155,7 +155,7 @@ fn fig3_small_run_orders_the_solvers_and_repeats() {
         lambda_snr_db: vec![5.0, 30.0],
         ..NoiseConfig::default()
     };
-    let rows = fig3b(&cfg);
+    let rows = fig3b(&cfg).unwrap();
     for r in &rows {
         let [sea, opt, lsm, rls] = r.mean_deg;
         // the constrained solvers beat RANSAC's fit on a subset and are close to each other
@@ -168,10 +168,18 @@ fn fig3_small_run_orders_the_solvers_and_repeats() {
         rows[0].mean_deg[0] > rows[2].mean_deg[0],
         "error falls with SNR"
     );
-    assert_eq!(rows, fig3b(&cfg), "deterministic for a seed");
-    let lam = fig3a(&cfg);
+    assert_eq!(rows, fig3b(&cfg).unwrap(), "deterministic for a seed");
+    let lam = fig3a(&cfg).unwrap();
     assert!(lam[0].sea_deg > lam[1].sea_deg, "{lam:?}");
-    assert_eq!(lam, fig3a(&cfg));
+    assert_eq!(lam, fig3a(&cfg).unwrap());
+    // Settings are checked before any trial: no trials, or more than can be held.
+    for trials in [0, pftrack::pose::noise::MAX_TRIALS + 1, usize::MAX] {
+        let cfg = NoiseConfig {
+            trials,
+            ..cfg.clone()
+        };
+        assert!(fig3b(&cfg).is_err() && fig3a(&cfg).is_err(), "{trials}");
+    }
 }
 
 /// Points on the visible hemisphere of an ellipsoid centred at the rotation centre.

@@ -608,6 +608,27 @@ fn unknown_scenario_lists_valid_names() {
     assert!(Renderer::new(&cfg(Scenario::Nod, 5, 0, 120)).is_err());
 }
 
+#[test]
+fn every_scenario_at_the_smallest_size_gives_a_start_a_tracker_takes() {
+    use pftrack::synth::MIN_SIDE;
+    use pftrack::tracker::{Init, TrackerConfig};
+    let tc = TrackerConfig::default();
+    for &sc in Scenario::all() {
+        for (w, h) in [
+            (MIN_SIDE, MIN_SIDE),
+            (MIN_SIDE, 8 * MIN_SIDE),
+            (8 * MIN_SIDE, MIN_SIDE),
+        ] {
+            let r = Renderer::new(&cfg(sc, 3, w, h)).unwrap();
+            let init = Init::frontal(r.init_ellipse());
+            // At 16 px a side the heads' start was 1.8 px wide and the tracker refused it.
+            init.check_for(&tc, w, h)
+                .unwrap_or_else(|e| panic!("{sc:?} at {w}x{h}: {e}"));
+        }
+    }
+    assert!(Renderer::new(&cfg(Scenario::Nod, 3, MIN_SIDE - 1, 120)).is_err());
+}
+
 // ---------------------------------------------------------------- determinism
 
 #[test]

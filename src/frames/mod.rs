@@ -149,17 +149,29 @@ pub struct SourceOptions {
     pub resize: Option<(u32, u32)>,
 }
 
-/// Parses a size written `WxH` (e.g. `128x96`; `X` also accepted), both positive and at most
-/// the largest frame side a source reads (32768).
+/// Parses a size written `WxH` (e.g. `128x96`; `X` also accepted), both positive, within the
+/// largest frame a source reads: sides of at most [`y4m::MAX_SIDE`] and at most
+/// [`y4m::MAX_PIXELS`] pixels in all.
 pub fn parse_size(s: &str) -> Result<(u32, u32), FrameError> {
     let (w, h) = parse_wxh(s)?;
-    if w > y4m::MAX_SIDE || h > y4m::MAX_SIDE {
-        return Err(FrameError::BadSize {
+    match size_limit(w, h) {
+        Some(msg) => Err(FrameError::BadSize {
             input: s.to_string(),
-            msg: format!("larger than {} pixels", y4m::MAX_SIDE),
-        });
+            msg,
+        }),
+        None => Ok((w, h)),
     }
-    Ok((w, h))
+}
+
+/// What is wrong with a frame size of `w x h` beyond the largest a source reads, if anything.
+fn size_limit(w: u32, h: u32) -> Option<String> {
+    if w > y4m::MAX_SIDE || h > y4m::MAX_SIDE {
+        Some(format!("sides of at most {} pixels", y4m::MAX_SIDE))
+    } else if u64::from(w) * u64::from(h) > y4m::MAX_PIXELS {
+        Some(format!("at most {} pixels in all", y4m::MAX_PIXELS))
+    } else {
+        None
+    }
 }
 
 /// Parses a size written `WxH` (e.g. `128x96`; `X` also accepted), both positive, with no
@@ -397,11 +409,12 @@ fn check_resize(opts: &SourceOptions) -> Result<(), FrameError> {
     match opts.resize {
         Some((w, h)) if w == 0 || h == 0 => bad(w, h, "width and height must be positive"),
         // As `parse_size` and the y4m reader bound them (a 100000x100000 frame aborted on
-        // its 30 GB allocation at the first frame).
-        Some((w, h)) if w > y4m::MAX_SIDE || h > y4m::MAX_SIDE => {
-            bad(w, h, "larger than 32768 pixels")
-        }
-        _ => Ok(()),
+        // its 30 GB allocation at the first frame, and 32768x32768 was killed for memory).
+        Some((w, h)) => match size_limit(w, h) {
+            Some(msg) => bad(w, h, &msg),
+            None => Ok(()),
+        },
+        None => Ok(()),
     }
 }
 

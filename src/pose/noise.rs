@@ -94,9 +94,15 @@ pub struct NoiseConfig {
 /// paper uses 20).
 pub const MAX_POINTS: usize = 10_000;
 
+/// Most trials per SNR [`NoiseConfig::check`] accepts: each trial's errors are kept until
+/// they are summed in order (64 bytes a trial for Fig. 3b), and a million already gives
+/// standard errors near 1e-3 degrees (the README's table uses 50000).
+pub const MAX_TRIALS: usize = 1_000_000;
+
 impl NoiseConfig {
     /// Checks the settings a trial is drawn from: `max_angle` in `[0, π]`, `depth_spread`
-    /// finite and at least 0, `scale_px` finite and positive, and 3 to [`MAX_POINTS`] points.
+    /// finite and at least 0, `scale_px` finite and positive, 3 to [`MAX_POINTS`] points and
+    /// 1 to [`MAX_TRIALS`] trials.
     pub fn check(&self) -> Result<(), PoseError> {
         let bad = |what| Err(PoseError::InvalidParameter(what));
         if !(0.0..=std::f64::consts::PI).contains(&self.max_angle) {
@@ -110,6 +116,9 @@ impl NoiseConfig {
         }
         if !(3..=MAX_POINTS).contains(&self.points) {
             return bad("points must lie in 3..=10000");
+        }
+        if !(1..=MAX_TRIALS).contains(&self.trials) {
+            return bad("trials must lie in 1..=1000000");
         }
         Ok(())
     }
@@ -319,9 +328,12 @@ impl PairedDifference {
     }
 }
 
-/// Fig. 3b: mean rotation error against input SNR for the four solvers.
-pub fn fig3b(cfg: &NoiseConfig) -> Vec<SnrRow> {
-    cfg.snr_db
+/// Fig. 3b: mean rotation error against input SNR for the four solvers. An error when the
+/// settings fail [`NoiseConfig::check`], before any trial runs.
+pub fn fig3b(cfg: &NoiseConfig) -> Result<Vec<SnrRow>, PoseError> {
+    cfg.check()?;
+    Ok(cfg
+        .snr_db
         .iter()
         .enumerate()
         .map(|(si, &snr)| {
@@ -374,7 +386,7 @@ pub fn fig3b(cfg: &NoiseConfig) -> Vec<SnrRow> {
                 optimal_minus_sea: PairedDifference::from_differences(&diffs),
             }
         })
-        .collect()
+        .collect())
 }
 
 /// Mean SEA error at one Λ-SNR (Fig. 3a).
@@ -389,10 +401,13 @@ pub struct LambdaRow {
 }
 
 /// Fig. 3a: SEA's error against the SNR of a perturbation of its multiplier Λ, at the input
-/// SNR `cfg.lambda_input_snr_db`.
-pub fn fig3a(cfg: &NoiseConfig) -> Vec<LambdaRow> {
+/// SNR `cfg.lambda_input_snr_db`. An error when the settings fail [`NoiseConfig::check`],
+/// before any trial runs.
+pub fn fig3a(cfg: &NoiseConfig) -> Result<Vec<LambdaRow>, PoseError> {
+    cfg.check()?;
     let series = 1000;
-    cfg.lambda_snr_db
+    Ok(cfg
+        .lambda_snr_db
         .iter()
         .enumerate()
         .map(|(si, &lsnr)| {
@@ -423,7 +438,7 @@ pub fn fig3a(cfg: &NoiseConfig) -> Vec<LambdaRow> {
                 failures: per.len() - ok.len(),
             }
         })
-        .collect()
+        .collect())
 }
 
 #[cfg(test)]

@@ -392,8 +392,8 @@ mod tests {
     #[test]
     fn lighting_changes_slowly() {
         let r = Renderer::new(&SynthConfig {
-            width: 16,
-            height: 16,
+            width: 24,
+            height: 24,
             ..SynthConfig::new(Scenario::Long)
         })
         .unwrap();

@@ -22,7 +22,7 @@ pub struct BenchArgs {
     /// the sequence has 59 of them per pass].
     #[arg(long, value_delimiter = ',')]
     pub particles: Vec<usize>,
-    /// Frame size `WxH`, 8 to 8192 pixels a side (with `--step`, 16 or more).
+    /// Frame size `WxH`, 8 to 8192 pixels a side (with `--step`, 24 or more, as `synth` renders).
     #[arg(long, default_value = "160x120", value_parser = parse_size)]
     pub size: (u32, u32),
     /// Which engines to time: `cpu`, `gpu` (an error without a Vulkan adapter), or `auto`:

@@ -49,6 +49,12 @@ use clap::{Parser, Subcommand};
 #[error("writing to standard output: {0}")]
 struct StdoutError(std::io::Error);
 
+/// A command line that parses but lacks what the command needs, which clap cannot say (a
+/// start is required unless the input is a synth folder): a usage error, exit status 2.
+#[derive(Debug, thiserror::Error)]
+#[error("{0}")]
+struct UsageError(String);
+
 /// Writes to standard output (for [`outln!`] and [`out!`]).
 fn write_stdout(args: std::fmt::Arguments<'_>) -> anyhow::Result<()> {
     std::io::stdout()
@@ -120,7 +126,8 @@ fn main() {
         // One line: the error and its causes joined.
         let msg = one_line_chain(e.chain().map(|c| c.to_string()));
         errln!("pftrack: error: {msg}");
-        std::process::exit(1);
+        let usage = e.chain().any(|c| c.is::<UsageError>());
+        std::process::exit(if usage { 2 } else { 1 });
     }
 }
 

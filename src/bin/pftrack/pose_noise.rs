@@ -10,7 +10,9 @@ use std::path::{Path, PathBuf};
 use anyhow::Context;
 use clap::{Args, ValueEnum};
 use pftrack::io::AtomicFile;
-use pftrack::pose::noise::{LambdaRow, MAX_POINTS, NoiseConfig, NoiseOn, SnrRow, fig3a, fig3b};
+use pftrack::pose::noise::{
+    LambdaRow, MAX_POINTS, MAX_TRIALS, NoiseConfig, NoiseOn, SnrRow, fig3a, fig3b,
+};
 
 /// Which frames receive the noise.
 #[derive(Debug, Clone, Copy, ValueEnum)]
@@ -115,8 +117,11 @@ fn check_args(args: &PoseNoiseArgs) -> anyhow::Result<()> {
             args.points
         );
     }
-    if args.trials == 0 {
-        anyhow::bail!("--trials must be positive");
+    if !(1..=MAX_TRIALS).contains(&args.trials) {
+        anyhow::bail!(
+            "--trials must be between 1 and {MAX_TRIALS} (got {})",
+            args.trials
+        );
     }
     check_list("snr", &args.snr)?;
     check_list("lambda-snr", &args.lambda_snr)?;
@@ -191,8 +196,8 @@ pub fn run(args: PoseNoiseArgs) -> anyhow::Result<()> {
         seed: args.seed,
         ..NoiseConfig::default()
     };
-    let b = fig3b(&cfg);
-    let a = fig3a(&cfg);
+    let b = fig3b(&cfg)?;
+    let a = fig3a(&cfg)?;
     outln!(
         "Fig. 3b: mean rotation error (deg), {} points, {} trials per SNR",
         cfg.points,

@@ -20,8 +20,8 @@ pub struct SynthArgs {
     /// scenario's whole motion plays over them: fewer frames, faster motion per frame.
     #[arg(long)]
     pub frames: Option<usize>,
-    /// Image size WIDTHxHEIGHT.
-    #[arg(long, default_value = "160x120")]
+    /// Image size WIDTHxHEIGHT, 24 to 8192 pixels a side.
+    #[arg(long, default_value = "160x120", value_parser = crate::values::synth_size)]
     pub size: String,
     /// Seed of the textures, the noise and the random motion of `long`.
     #[arg(long, default_value_t = 1)]

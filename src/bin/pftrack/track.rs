@@ -324,9 +324,12 @@ pub fn initial_ellipse(
         }
         (Some(given), _) => Ok(given),
         (None, Some(p)) => Ok((pftrack::io::read_init(p)?, None)),
-        (None, None) => bail!(
-            "no initial ellipse: give one of --init-ellipse, --init-box, --init-points, --init-file, --init-truth"
-        ),
+        (None, None) => Err(crate::UsageError(
+            "no initial ellipse: give one of --init-ellipse, --init-box, --init-points, \
+             --init-file, --init-truth"
+                .into(),
+        )
+        .into()),
     }
 }
 

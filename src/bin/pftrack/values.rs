@@ -73,6 +73,13 @@ pub fn size(s: &str) -> Result<String, String> {
         .map_err(|e| e.to_string())
 }
 
+/// A synthetic frame size `WxH` (`synth --size`), each side in `synth::MIN_SIDE..=MAX_SIDE`.
+pub fn synth_size(s: &str) -> Result<String, String> {
+    pftrack::synth::parse_size(s)
+        .map(|_| s.to_string())
+        .map_err(|e| e.to_string())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
