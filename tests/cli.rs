@@ -373,8 +373,16 @@ fn cli_usage_errors_exit_2_and_others_1() {
         (&["synth", s, "--size", "16x16"], 2, "24..=8192"),
         (&["track", f, "--resize", "32768x32768"], 2, "pixels in all"),
         (&["pose-noise", "--trials", "0"], 1, "--trials"),
-        (&["pose-noise", "--trials", "18446744073709551615"], 1, "1000000"),
-        (&["track", f, "--init-ellipse", "16,12,60,8"], 1, "invalid start"),
+        (
+            &["pose-noise", "--trials", "18446744073709551615"],
+            1,
+            "1000000",
+        ),
+        (
+            &["track", f, "--init-ellipse", "16,12,60,8"],
+            1,
+            "invalid start",
+        ),
     ];
     for (args, code, needle) in cases {
         let out = pftrack(args);

@@ -812,25 +812,40 @@ fn written_frames_equal_the_in_memory_render() {
 }
 
 #[test]
-fn a_failed_render_leaves_no_truth() {
+fn a_failed_render_leaves_the_folder_as_it_was() {
     let dir = tmp_dir("fail");
     let c = cfg(Scenario::Pan, 3, 48, 36);
     write_sequence(&c, &dir, false).unwrap();
     assert!(dir.join("truth.csv").exists() && dir.join("init.txt").exists());
-    // frame 1 cannot be written: a non-empty directory stands in its place
+    let truth = std::fs::read(dir.join("truth.csv")).unwrap();
+    let frame0 = std::fs::read(dir.join("frames/00000.png")).unwrap();
+    // Frame 1 cannot be moved in: a non-empty folder stands in its place. Found before
+    // anything moves; the old sequence used to lose its truth and init file here (and to an
+    // interrupt mid-render), and the new frames written before the failure stayed.
     std::fs::remove_file(dir.join("frames/00001.png")).unwrap();
     std::fs::create_dir_all(dir.join("frames/00001.png/x")).unwrap();
-    let err = write_sequence(&c, &dir, false).unwrap_err().to_string();
+    let c2 = SynthConfig { seed: 7, ..c };
+    let err = write_sequence(&c2, &dir, false).unwrap_err().to_string();
     assert!(err.contains("00001.png"), "{err}");
-    // the old truth is gone with the old sequence: nothing presents itself as complete
-    assert!(!dir.join("truth.csv").exists());
-    assert!(!dir.join("init.txt").exists());
-    let leftovers: Vec<_> = std::fs::read_dir(dir.join("frames"))
+    assert_eq!(std::fs::read(dir.join("truth.csv")).unwrap(), truth);
+    assert!(dir.join("init.txt").exists());
+    assert_eq!(std::fs::read(dir.join("frames/00000.png")).unwrap(), frame0);
+    let mut names: Vec<String> = std::fs::read_dir(&dir)
         .unwrap()
         .map(|e| e.unwrap().file_name().into_string().unwrap())
-        .filter(|n| n.ends_with(".partial"))
         .collect();
-    assert!(leftovers.is_empty(), "{leftovers:?}");
+    names.sort();
+    assert_eq!(
+        names,
+        ["frames", "init.txt", "truth.csv"],
+        "no staging folder left"
+    );
+    // A render into a path that is a file is refused, and one into a new folder that fails
+    // leaves no folder.
+    let file = dir.join("plain");
+    std::fs::write(&file, "x").unwrap();
+    assert!(write_sequence(&c, &file, false).is_err());
+    assert_eq!(std::fs::read(&file).unwrap(), b"x");
     std::fs::remove_dir_all(&dir).unwrap();
 }
 

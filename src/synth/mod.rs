@@ -42,6 +42,7 @@ pub use texture::{Background, Material, SolidTexture, hash, noise};
 pub use trajectory::{CAR_DEPTH, HEAD_DEPTH, ObjectPose, Trajectory, smoothstep};
 
 use crate::geometry::Ellipse;
+use crate::io::partial::{Partial, PartialKind};
 use crate::io::{FormatError, InitFile, PoseCsvWriter, PoseRecord, write_init};
 
 /// Errors of this module.
@@ -310,11 +311,15 @@ pub fn frame_name(k: usize) -> String {
 /// Renders a whole sequence into `dir`: `dir/frames/00000.png ...`, then `dir/truth.csv` (pose
 /// CSV) and `dir/init.txt` (`cx,cy,a,b` of frame 0).
 ///
-/// A render in progress is never mistaken for a finished one: any old `truth.csv` and
-/// `init.txt` are removed first, every PNG is written under a temporary name and renamed, and
-/// the truth and init files are written last (each atomically). Frames `00000.png`... left over
-/// from a longer earlier render, and temporary files of an interrupted one, are removed. Frames render in parallel (rayon); `progress` shows
-/// an indicatif bar on stderr.
+/// A render in progress is never mistaken for a finished one, and a failed or interrupted
+/// render leaves `dir` as it found it: the frames, the truth and the init file are first
+/// written into a hidden staging folder inside `dir` (registered with [`crate::io::partial`],
+/// so an interrupt removes it), and only when all are there do they replace what `dir` held:
+/// the old `truth.csv` and `init.txt` are removed, the frames moved into `dir/frames`, frames
+/// `00000.png`... left over from a longer earlier render removed, and the init file then the
+/// truth moved in last. A place a file cannot go (a folder named like a frame) is found before
+/// anything moves. Frames render in parallel (rayon); `progress` shows an indicatif bar on
+/// stderr.
 pub fn write_sequence(
     cfg: &SynthConfig,
     dir: &Path,
@@ -323,18 +328,7 @@ pub fn write_sequence(
     use rayon::prelude::*;
 
     let renderer = Renderer::new(cfg)?;
-    let frames_dir = dir.join("frames");
-    std::fs::create_dir_all(&frames_dir).map_err(|e| SynthError::io(&frames_dir, e))?;
-    let truth_path = dir.join("truth.csv");
-    let init_path = dir.join("init.txt");
-    for p in [&truth_path, &init_path] {
-        match std::fs::remove_file(p) {
-            Ok(()) => {}
-            Err(e) if e.kind() == std::io::ErrorKind::NotFound => {}
-            Err(e) => return Err(SynthError::io(p, e)),
-        }
-    }
-    remove_stale_frames(&frames_dir, cfg.frames)?;
+    let stage = Staging::create(dir)?;
 
     let bar = if progress {
         let bar = indicatif::ProgressBar::new(cfg.frames as u64);
@@ -353,15 +347,14 @@ pub fn write_sequence(
         .into_par_iter()
         .map(|k| {
             let (img, state) = renderer.render(k);
-            let path = frames_dir.join(frame_name(k));
-            write_png(&img, &path)?;
+            write_png(&img, &stage.path.join(frame_name(k)))?;
             bar.inc(1);
             Ok(state)
         })
         .collect::<Result<_, SynthError>>()?;
     bar.finish_and_clear();
 
-    let mut w = PoseCsvWriter::create(&truth_path, false)?;
+    let mut w = PoseCsvWriter::create(&stage.path.join(TRUTH), false)?;
     for (frame, state) in truth.iter().enumerate() {
         w.write(&PoseRecord {
             frame,
@@ -375,19 +368,145 @@ pub fn write_sequence(
     let s0 = truth[0];
     let init = Ellipse::new(s0.cx, s0.cy, s0.a, s0.b);
     write_init(
-        &init_path,
+        &stage.path.join(INIT),
         &InitFile {
             ellipse: init,
             hfov_deg: Some(HFOV_DEG),
         },
     )?;
+    stage.finish(cfg.frames)?;
     Ok(SynthSummary {
         config: *cfg,
-        frames_dir,
-        truth: truth_path,
-        init_file: init_path,
+        frames_dir: dir.join("frames"),
+        truth: dir.join(TRUTH),
+        init_file: dir.join(INIT),
         init,
     })
+}
+
+/// The truth's file name in a sequence folder.
+const TRUTH: &str = "truth.csv";
+/// The init file's name in a sequence folder.
+const INIT: &str = "init.txt";
+
+/// The hidden folder inside a sequence folder that a render writes into, moved into place by
+/// [`Staging::finish`]; dropped unfinished, it is removed, with the sequence folder when this
+/// render made it and nothing else is in it.
+struct Staging {
+    /// The sequence folder.
+    dir: PathBuf,
+    /// The staging folder inside it.
+    path: PathBuf,
+    /// The staging folder's registration, for an interrupt to remove it; taken by `finish`.
+    registered: Option<Partial>,
+    /// The sequence folder's registration, when this render made it.
+    created: Option<Partial>,
+}
+
+impl Staging {
+    /// Creates `dir` (if need be) and an empty staging folder inside it.
+    fn create(dir: &Path) -> Result<Self, SynthError> {
+        if dir.exists() && !dir.is_dir() {
+            return Err(SynthError::io(dir, not_a_folder()));
+        }
+        // Registered only when this render makes it: a folder the user made is never removed.
+        let created = if dir.exists() {
+            None
+        } else {
+            let (p, ()) =
+                Partial::create(dir, PartialKind::EmptyDir, || std::fs::create_dir_all(dir))
+                    .map_err(|e| SynthError::io(dir, e))?;
+            Some(p)
+        };
+        let path = dir.join(format!(".pftrack-synth-{}.partial", std::process::id()));
+        let mut s = Self {
+            dir: dir.to_path_buf(),
+            path,
+            registered: None,
+            created,
+        };
+        // One left by an interrupted render of a process with the same id.
+        let _ = std::fs::remove_dir_all(&s.path);
+        let (registered, ()) =
+            Partial::create(&s.path, PartialKind::Tree, || std::fs::create_dir(&s.path))
+                .map_err(|e| SynthError::io(&s.path, e))?;
+        s.registered = Some(registered);
+        Ok(s)
+    }
+
+    /// Moves the staged sequence into place (see [`write_sequence`]) under the registry's
+    /// lock, so that an interrupt waits for it and finds either the old sequence or the new.
+    fn finish(mut self, frames: usize) -> Result<(), SynthError> {
+        let frames_dir = self.dir.join("frames");
+        if frames_dir.exists() && !frames_dir.is_dir() {
+            return Err(SynthError::io(&frames_dir, not_a_folder()));
+        }
+        for name in [TRUTH, INIT] {
+            let to = self.dir.join(name);
+            if to.is_dir() {
+                return Err(SynthError::io(&to, is_a_folder()));
+            }
+        }
+        for k in 0..frames {
+            let to = frames_dir.join(frame_name(k));
+            if to.is_dir() {
+                return Err(SynthError::io(&to, is_a_folder()));
+            }
+        }
+        let move_in = || -> Result<(), SynthError> {
+            for name in [TRUTH, INIT] {
+                let p = self.dir.join(name);
+                match std::fs::remove_file(&p) {
+                    Ok(()) => {}
+                    Err(e) if e.kind() == std::io::ErrorKind::NotFound => {}
+                    Err(e) => return Err(SynthError::io(&p, e)),
+                }
+            }
+            std::fs::create_dir_all(&frames_dir).map_err(|e| SynthError::io(&frames_dir, e))?;
+            for k in 0..frames {
+                let (from, to) = (
+                    self.path.join(frame_name(k)),
+                    frames_dir.join(frame_name(k)),
+                );
+                std::fs::rename(&from, &to).map_err(|e| SynthError::io(&to, e))?;
+            }
+            remove_stale_frames(&frames_dir, frames)?;
+            for name in [INIT, TRUTH] {
+                let to = self.dir.join(name);
+                std::fs::rename(self.path.join(name), &to).map_err(|e| SynthError::io(&to, e))?;
+            }
+            let _ = std::fs::remove_dir(&self.path);
+            Ok(())
+        };
+        match self.registered.take() {
+            Some(r) => r.commit(move_in),
+            None => move_in(),
+        }?;
+        // Made by this render and now holding the sequence: kept.
+        self.created = None;
+        Ok(())
+    }
+}
+
+impl Drop for Staging {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.path);
+        if self.created.is_some() {
+            // Only when empty: a failed render leaves no folder it made.
+            let _ = std::fs::remove_dir(&self.dir);
+        }
+    }
+}
+
+fn not_a_folder() -> std::io::Error {
+    std::io::Error::new(std::io::ErrorKind::NotADirectory, "not a folder")
+}
+
+fn is_a_folder() -> std::io::Error {
+    std::io::Error::new(
+        std::io::ErrorKind::IsADirectory,
+        "is a folder: the sequence's file of that name cannot replace it",
+    )
 }
 
 /// Writes a frame as PNG, complete or not at all ([`crate::output::write_png`]).
