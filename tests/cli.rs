@@ -395,6 +395,39 @@ fn cli_usage_errors_exit_2_and_others_1() {
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
+/// `-` is standard output for `sift --out` as for `track -o` (it wrote a file named `-`);
+/// `pose-noise --csv` writes two files, so a stream or device is refused (`--csv /dev/null`
+/// made `/dev/null_lambda`); an image with no pixels is an error, not "0 keypoints".
+#[test]
+fn cli_dash_is_standard_output_and_streams_are_refused_where_two_files_go() {
+    let dir = synth_dir("dash-sift", 1, "64x48");
+    let f0 = dir.join("frames/00000.png");
+    let f0 = f0.to_str().unwrap();
+    let kps = dir.join("kps.csv");
+    pftrack_ok(&["sift", f0, "--out", kps.to_str().unwrap()]);
+    let out = pftrack(&["sift", f0, "--out", "-"]);
+    assert!(out.status.success());
+    assert_eq!(out.stdout, std::fs::read(&kps).unwrap());
+    assert!(!Path::new("-").exists());
+
+    for csv in ["-", "/dev/null"] {
+        let out = pftrack(&["pose-noise", "--trials", "2", "--snr", "10", "--csv", csv]);
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(2), "{csv}: {err}");
+        assert!(err.contains("two files"), "{err}");
+    }
+    assert!(!Path::new("/dev/null_lambda").exists());
+
+    let empty = dir.join("empty.pgm");
+    std::fs::write(&empty, b"P5\n0 0\n255\n").unwrap();
+    assert_one_line_error(
+        &["sift", empty.to_str().unwrap()],
+        "empty image",
+        &kps.with_extension("x"),
+    );
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
 /// `sift` and `pose` check their input before any work: a region off the image, an image that
 /// is not one (its cause said once) and an unknown solver are each one line and no output.
 #[test]

@@ -84,7 +84,8 @@ pub fn list_images(dir: &Path) -> Result<Vec<PathBuf>, FrameError> {
     Ok(files.into_iter().map(|(_, p)| p).collect())
 }
 
-/// Decodes one image file to RGB8 (format guessed from the content, then the extension).
+/// Decodes one image file to RGB8 (format guessed from the content, then the extension); an
+/// image with no pixels is an error.
 /// A folder is refused by name (the image crate would call it an unknown format).
 pub fn decode_rgb(p: &Path) -> Result<Frame, FrameError> {
     let dec = |e: image::ImageError| FrameError::Decode {
@@ -111,7 +112,14 @@ pub fn decode_rgb(p: &Path) -> Result<Frame, FrameError> {
             msg: "not an image (png, jpg, jpeg, bmp, pgm, ppm)".into(),
         });
     }
-    Ok(reader.decode().map_err(dec)?.into_rgb8())
+    let img = reader.decode().map_err(dec)?.into_rgb8();
+    if img.width() == 0 || img.height() == 0 {
+        return Err(FrameError::Decode {
+            path: p.display().to_string(),
+            msg: format!("an empty image ({}x{})", img.width(), img.height()),
+        });
+    }
+    Ok(img)
 }
 
 /// The size of an image file from its header, without decoding the pixels.

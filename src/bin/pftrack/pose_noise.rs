@@ -152,6 +152,17 @@ impl Outputs {
     fn open(args: &PoseNoiseArgs) -> anyhow::Result<Self> {
         let mut names: Vec<PathBuf> = Vec::new();
         if let Some(p) = &args.csv {
+            // Two files are written, the second named after the first: a stream or device
+            // has no such sibling (`--csv /dev/null` made a file `/dev/null_lambda`).
+            let stream = p.as_os_str() == pftrack::frames::STDIN
+                || std::fs::metadata(p).is_ok_and(|m| !m.is_file() && !m.is_dir());
+            if stream {
+                return Err(crate::UsageError(format!(
+                    "--csv {}: writes two files, NAME and NAME with _lambda; give a file name",
+                    p.display()
+                ))
+                .into());
+            }
             names.push(p.clone());
             names.push(lambda_path(p));
         }

@@ -20,7 +20,8 @@ pub struct SiftArgs {
     #[arg(long, value_parser = parse_region, allow_hyphen_values = true)]
     pub region: Option<BoxRect>,
     /// Write keypoints and descriptors as CSV: `x,y,scale,angle_deg,response,octave,d0..d127`
-    /// (`scale` is σ in pixels; OpenCV's `size` is 2σ). Without it, print a summary.
+    /// (`scale` is σ in pixels; OpenCV's `size` is 2σ), `-` for standard output. Without it,
+    /// print a summary.
     #[arg(long)]
     pub out: Option<PathBuf>,
     /// Do not double the image for the first octave.
@@ -97,17 +98,17 @@ pub fn run(args: SiftArgs) -> anyhow::Result<()> {
             )?;
         }
         Some(path) => {
-            crate::paths::not_an_input("--out", path, &[&args.image])?;
-            let mut w = pftrack::io::AtomicFile::create(path)?;
-            let err = || format!("writing {}", path.display());
-            let mut header = String::from("x,y,scale,angle_deg,response,octave");
-            for i in 0..pftrack::features::DESCRIPTOR_LEN {
-                header.push_str(&format!(",d{i}"));
+            let to_stdout = path.as_os_str() == pftrack::frames::STDIN;
+            if !to_stdout {
+                crate::paths::not_an_input("--out", path, &[&args.image])?;
             }
-            writeln!(w, "{header}").with_context(err)?;
+            let mut text = String::from("x,y,scale,angle_deg,response,octave");
+            for i in 0..pftrack::features::DESCRIPTOR_LEN {
+                text.push_str(&format!(",d{i}"));
+            }
+            text.push('\n');
             for (k, d) in feats.keypoints.iter().zip(&feats.descriptors) {
-                write!(
-                    w,
+                text.push_str(&format!(
                     "{},{},{},{},{},{}",
                     k.x,
                     k.y,
@@ -115,19 +116,29 @@ pub fn run(args: SiftArgs) -> anyhow::Result<()> {
                     k.angle.to_degrees(),
                     k.response,
                     k.octave
-                )
-                .with_context(err)?;
+                ));
                 for v in d {
-                    write!(w, ",{v}").with_context(err)?;
+                    text.push_str(&format!(",{v}"));
                 }
-                writeln!(w).with_context(err)?;
+                text.push('\n');
             }
-            w.commit()?;
+            if to_stdout {
+                out!("{text}")?;
+            } else {
+                let mut w = pftrack::io::AtomicFile::create(path)?;
+                w.write_all(text.as_bytes())
+                    .with_context(|| format!("writing {}", path.display()))?;
+                w.commit()?;
+            }
             errln!(
                 "{} keypoints in {median:.3} ms (median of {}, fastest {fastest:.3} ms) → {}",
                 feats.len(),
                 args.repeat,
-                path.display()
+                if to_stdout {
+                    "standard output".to_string()
+                } else {
+                    path.display().to_string()
+                }
             );
         }
     }
