@@ -543,12 +543,14 @@ fn carphone_mp4_through_ffmpeg() {
     assert_eq!(src.size(), (176, 144));
     assert_eq!(src.len_hint(), Some(120));
     assert!(src.describe().contains("ffmpeg"));
+    let mut src = src;
     let mut n = 0;
-    for f in src {
+    for f in src.by_ref() {
         assert_eq!(f.unwrap().dimensions(), (176, 144));
         n += 1;
     }
     assert_eq!(n, 120);
+    assert_eq!(src.shortfall(), None, "every declared frame came");
     // With a resize to the paper's 128x96.
     let opts = SourceOptions {
         resize: Some((128, 96)),
@@ -579,14 +581,70 @@ fn box_mp4_gives_each_decoded_frame_once() {
         .unwrap();
     assert!(out.status.success());
     let decoded: usize = String::from_utf8_lossy(&out.stdout).trim().parse().unwrap();
-    let src = frames::open(&p, &SourceOptions::default()).unwrap();
+    let mut src = frames::open(&p, &SourceOptions::default()).unwrap();
     assert_eq!(src.size(), (640, 480));
     let mut n = 0;
-    for f in src {
+    for f in src.by_ref() {
         f.unwrap();
         n += 1;
     }
     assert_eq!(n, decoded, "frames read against ffprobe's decoded count");
+    // ffmpeg ends with success; the source says a frame is missing, and why.
+    let short = src.shortfall().expect("455 of 456 frames is a shortfall");
+    assert!(short.contains("decoded 455 of the 456 frames"), "{short}");
+}
+
+#[test]
+fn a_truncated_video_says_it_is_short() {
+    if !have_ffmpeg() {
+        return;
+    }
+    let d = scratch("truncated-video");
+    // Textured frames, so the encoded file has some length to cut.
+    for k in 0..6u32 {
+        let img = image::RgbImage::from_fn(96, 72, |x, y| {
+            let v = (x * 37 + y * 91 + k * 13) ^ (x * y + k);
+            image::Rgb([(v % 251) as u8, (v / 3 % 241) as u8, (v / 7 % 239) as u8])
+        });
+        img.save(d.join(format!("{k}.png"))).unwrap();
+    }
+    let full = d.join("full.avi");
+    ffmpeg(&[
+        "-framerate".as_ref(),
+        "10".as_ref(),
+        "-i".as_ref(),
+        d.join("%d.png").as_os_str(),
+        "-c:v".as_ref(),
+        "mpeg4".as_ref(),
+        full.as_os_str(),
+    ]);
+    let bytes = std::fs::read(&full).unwrap();
+    let cut = d.join("cut.avi");
+    std::fs::write(&cut, &bytes[..bytes.len() * 2 / 5]).unwrap();
+    let mut whole = frames::open(&full, &SourceOptions::default()).unwrap();
+    assert_eq!(whole.by_ref().map(Result::unwrap).count(), 6);
+    assert_eq!(whole.shortfall(), None);
+    let Ok(mut src) = frames::open(&cut, &SourceOptions::default()) else {
+        // This ffprobe refuses the cut file outright: an error, which is as good.
+        return;
+    };
+    let mut n = 0;
+    let mut failed = false;
+    for f in src.by_ref() {
+        match f {
+            Ok(_) => n += 1,
+            Err(_) => failed = true,
+        }
+    }
+    assert!(n < 6, "{n} frames from two fifths of the file");
+    if !failed && src.len_hint() == Some(6) {
+        let short = src.shortfall().expect("a short video says so");
+        assert!(
+            short.contains(&format!("decoded {n} of the 6 frames")),
+            "{short}"
+        );
+    }
+    std::fs::remove_dir_all(&d).unwrap();
 }
 
 /// Runs ffmpeg with `args`, failing the test when it fails.

@@ -212,6 +212,9 @@ pub(crate) struct FfmpegSource {
     frames: usize,
     /// The child has been waited for.
     reaped: bool,
+    /// The last line of ffmpeg's stderr in a decode that ended with success (see
+    /// [`Self::complaint`]).
+    complaint: Option<String>,
 }
 
 impl FfmpegSource {
@@ -245,6 +248,7 @@ impl FfmpegSource {
             frames_hint: n,
             frames: 0,
             reaped: false,
+            complaint: None,
         })
     }
 
@@ -256,6 +260,12 @@ impl FfmpegSource {
     /// The container's frame count, when it states one.
     pub(crate) fn len_hint(&self) -> Option<usize> {
         self.frames_hint
+    }
+
+    /// The last line ffmpeg wrote to stderr in a decode that ended with success (it writes
+    /// only errors: `-v error`), if any.
+    pub(crate) fn complaint(&self) -> Option<&str> {
+        self.complaint.as_deref()
     }
 
     /// Waits for the child and collects its stderr tail.
@@ -337,6 +347,8 @@ impl FfmpegSource {
                 msg: format!("ffmpeg sent {got} of {} bytes", buf.len()),
             });
         }
+        let line = last_line(&text);
+        self.complaint = (!text.trim().is_empty()).then_some(line);
         Ok(Pipe::End)
     }
 }

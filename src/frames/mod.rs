@@ -228,6 +228,8 @@ pub struct FrameSource {
     out: (u32, u32),
     produced: usize,
     done: bool,
+    /// Whether the stream ended normally (not by an error).
+    ended: bool,
 }
 
 /// The path [`open`] reads as standard input, a y4m stream (`ffmpeg ... -f yuv4mpegpipe - |
@@ -263,6 +265,7 @@ impl FrameSource {
             out: opts.resize.unwrap_or(native),
             produced: 0,
             done: false,
+            ended: false,
         }
     }
 
@@ -362,6 +365,26 @@ impl FrameSource {
         self.produced
     }
 
+    /// Once a video has ended normally: one line saying it gave fewer frames than its
+    /// container declares (a truncated file, an undecodable frame), with the decoder's last
+    /// complaint; `None` for a complete video, before the end, and for the other sources,
+    /// whose reading fails on a bad frame. A caller that reports the frames as the whole
+    /// video should say this too: ffmpeg ends a damaged file with success.
+    pub fn shortfall(&self) -> Option<String> {
+        let Inner::Ffmpeg(f) = &self.inner else {
+            return None;
+        };
+        let declared = f.len_hint()?;
+        if !self.ended || self.produced >= declared {
+            return None;
+        }
+        let why = f.complaint().map(|c| format!(" ({c})")).unwrap_or_default();
+        Some(format!(
+            "{}: ffmpeg decoded {} of the {declared} frames the file declares{why}",
+            self.path, self.produced
+        ))
+    }
+
     /// One line saying what this source is.
     pub fn describe(&self) -> String {
         let (w, h) = self.native;
@@ -437,6 +460,7 @@ impl Iterator for FrameSource {
             }
             Ok(None) => {
                 self.done = true;
+                self.ended = true;
                 (self.produced == 0).then(|| {
                     Err(FrameError::NoFrames {
                         path: self.path.clone(),

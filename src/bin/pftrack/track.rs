@@ -733,6 +733,10 @@ pub fn run(mut a: TrackArgs) -> anyhow::Result<()> {
             .map(|p| format!(", poses in {}", p.display()))
             .unwrap_or_default()
     );
+    // ffmpeg ends a truncated or damaged video with success: the track is of what it decoded.
+    if let Some(short) = source.shortfall() {
+        errln!("pftrack: warning: {short}");
+    }
     Ok(())
 }
 
