@@ -184,7 +184,7 @@ pub fn pose_box(r: &PoseRecord) -> BoxRect {
 /// Reads ground truth: a pose CSV when the first non-blank line starts with `frame`, otherwise
 /// an OTB box file (see [`crate::io::boxes`]).
 pub fn load_truth(path: &Path) -> Result<Truth, EvalError> {
-    let text = std::fs::read_to_string(path).map_err(|cause| EvalError::Io {
+    let text = crate::io::read_text(path).map_err(|cause| EvalError::Io {
         path: path.display().to_string(),
         cause,
     })?;

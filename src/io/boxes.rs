@@ -24,7 +24,7 @@ pub fn pixel_to_otb(b: &BoxRect) -> [f64; 4] {
 /// Reads an OTB box file, converting every box with [`otb_to_pixel`]. Blank lines are
 /// ignored; any other line must hold exactly four finite numbers.
 pub fn read_otb_boxes(path: &Path) -> Result<Vec<BoxRect>, FormatError> {
-    let text = std::fs::read_to_string(path).map_err(|e| FormatError::io(path, e))?;
+    let text = super::read_text(path).map_err(|e| FormatError::io(path, e))?;
     parse_otb_boxes(&text, path)
 }
 

@@ -22,7 +22,7 @@ pub struct InitFile {
 
 /// Reads an init file.
 pub fn read_init(path: &Path) -> Result<InitFile, FormatError> {
-    let text = std::fs::read_to_string(path).map_err(|e| FormatError::io(path, e))?;
+    let text = super::read_text(path).map_err(|e| FormatError::io(path, e))?;
     parse_init(&text, path)
 }
 

@@ -17,6 +17,16 @@ pub use pose_csv::{
     write_pose_csv,
 };
 
+/// Reads a text file whole, without the UTF-8 byte-order mark some editors put first (it
+/// would otherwise cling to the first field: `'\u{feff}39.5' is not a number`).
+pub(crate) fn read_text(path: &std::path::Path) -> std::io::Result<String> {
+    let mut text = std::fs::read_to_string(path)?;
+    if text.starts_with('\u{feff}') {
+        text.drain(..'\u{feff}'.len_utf8());
+    }
+    Ok(text)
+}
+
 /// Errors reading or writing the project's file formats.
 #[derive(Debug, thiserror::Error)]
 pub enum FormatError {
@@ -73,5 +83,44 @@ pub(crate) fn parse_f64(s: &str, what: &str) -> Result<f64, String> {
         Ok(v)
     } else {
         Err(format!("{what}: '{}' is not finite", s.trim()))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    /// A UTF-8 byte-order mark before the first field is read past in every text format
+    /// (it was "'\u{feff}39.5' is not a number").
+    #[test]
+    fn a_byte_order_mark_is_read_past() {
+        let dir = std::env::temp_dir().join(format!("pftrack-bom-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let write = |name: &str, text: &str| {
+            let p = dir.join(name);
+            std::fs::write(&p, format!("\u{feff}{text}")).unwrap();
+            p
+        };
+        let init = super::read_init(&write("init.txt", "39.5,29.5,9,12\n")).unwrap();
+        assert_eq!(init.ellipse.cx, 39.5);
+        let poses = super::read_pose_csv(&write(
+            "p.csv",
+            "frame,cx,cy,a,b,rx,ry,rz\n0,1,2,3,4,0,0,0\n",
+        ))
+        .unwrap();
+        assert_eq!(poses.len(), 1);
+        let boxes = super::read_otb_boxes(&write("b.txt", "1,2,30,40\r\n")).unwrap();
+        assert_eq!((boxes.len(), boxes[0].w), (1, 30.0));
+        assert!(
+            crate::eval::load_truth(&write(
+                "t.csv",
+                "frame,cx,cy,a,b,rx,ry,rz\n0,1,2,3,4,0,0,0\n"
+            ))
+            .is_ok()
+        );
+        std::fs::write(dir.join("plain.txt"), "39.5,29.5,9,12\n").unwrap();
+        assert_eq!(
+            super::read_text(&dir.join("plain.txt")).unwrap(),
+            "39.5,29.5,9,12\n"
+        );
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 }

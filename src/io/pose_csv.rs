@@ -42,7 +42,7 @@ impl PoseRecord {
 /// Reads a pose CSV. Rows must have strictly increasing frame numbers; every value must be a
 /// finite number; `a` and `b` positive.
 pub fn read_pose_csv(path: &Path) -> Result<Vec<PoseRecord>, FormatError> {
-    let text = std::fs::read_to_string(path).map_err(|e| FormatError::io(path, e))?;
+    let text = super::read_text(path).map_err(|e| FormatError::io(path, e))?;
     parse_pose_csv(&text, path)
 }
 
