@@ -367,7 +367,7 @@ fn cli_usage_errors_exit_2_and_others_1() {
     let f = frames.to_str().unwrap();
     let seq = dir.join("seq");
     let s = seq.to_str().unwrap();
-    let cases: [(&[&str], i32, &str); 7] = [
+    let cases: [(&[&str], i32, &str); 9] = [
         (&["track", f, "--backend", "cpu"], 2, "no initial ellipse"),
         (&["synth", s, "--size", "80x"], 2, "WIDTHxHEIGHT"),
         (&["synth", s, "--size", "16x16"], 2, "24..=8192"),
@@ -382,6 +382,31 @@ fn cli_usage_errors_exit_2_and_others_1() {
             &["track", f, "--init-ellipse", "16,12,60,8"],
             1,
             "invalid start",
+        ),
+        // 1e-300 degrees was taken (and printed in 300 digits).
+        (
+            &[
+                "track",
+                f,
+                "--init-ellipse",
+                "16,12,6,8",
+                "--hfov",
+                "1e-300",
+            ],
+            1,
+            "--hfov must lie between 0.1 and 179.9 degrees, got 1e-300",
+        ),
+        (
+            &[
+                "track",
+                f,
+                "--init-ellipse",
+                "16,12,6,8",
+                "--contrast-weight",
+                "1e300",
+            ],
+            1,
+            "contrast weight 1e300 is not in [0, 1e6]",
         ),
     ];
     for (args, code, needle) in cases {

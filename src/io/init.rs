@@ -70,11 +70,16 @@ pub fn parse_init(text: &str, path: &Path) -> Result<InitFile, FormatError> {
             }
         };
         let h = parse_f64(value, "hfov").map_err(|m| FormatError::parse(path, n, m))?;
-        if !(h > 0.0 && h < 180.0) {
+        let range = crate::tracker::HFOV_RANGE_DEG;
+        if !range.contains(&h) {
             return Err(FormatError::parse(
                 path,
                 n,
-                format!("hfov must lie strictly between 0 and 180 degrees, found {h}"),
+                format!(
+                    "hfov must lie between {} and {} degrees, found {h}",
+                    range.start(),
+                    range.end()
+                ),
             ));
         }
         hfov_deg = Some(h);

@@ -141,19 +141,23 @@ impl TrackerConfig {
                 self.keyframe_refresh_percent
             )));
         }
+        let hfov = &super::config::HFOV_RANGE_DEG;
         if let Some(h) = self.camera_hfov_deg
-            && !(h > 0.0 && h < 180.0)
+            && !hfov.contains(&h)
         {
             return Err(bad(format!(
-                "camera_hfov_deg {h} must lie strictly between 0 and 180 degrees; set it to \
-                 None for weak perspective"
+                "camera_hfov_deg {h} must lie between {} and {} degrees; set it to None for \
+                 weak perspective",
+                hfov.start(),
+                hfov.end()
             )));
         }
-        if !(self.feature_weight.is_finite() && self.feature_weight >= 0.0) {
+        if !super::config::weight_ok(self.feature_weight) {
             return Err(TrackError::BadConfig(format!(
-                "feature_weight {} must be finite and at least 0 (0 leaves the rotation to the \
-                 motion alone)",
-                self.feature_weight
+                "feature_weight {} must lie in [0, {:e}] (0 leaves the rotation to the motion \
+                 alone)",
+                self.feature_weight,
+                super::config::MAX_WEIGHT
             )));
         }
         if let Some(prior) = self.fit_prior() {
@@ -396,6 +400,23 @@ mod tests {
         let mut c = d();
         c.camera_hfov_deg = Some(180.0);
         cases.push((c, "camera_hfov_deg 180"));
+        let mut c = d();
+        c.camera_hfov_deg = Some(1e-300);
+        cases.push((c, "camera_hfov_deg 0.000"));
+        // Weights beyond MAX_WEIGHT: 1e300 overflowed mid-run, 1e39 split GPU from CPU.
+        let mut c = d();
+        c.feature_weight = 2e6;
+        cases.push((c, "feature_weight 2000000"));
+        let mut c = d();
+        if let Some(t) = c.template.as_mut() {
+            t.weight = 1e300;
+        }
+        cases.push((c, "template weight 1000"));
+        let mut c = d();
+        if let Some(k) = c.contrast.as_mut() {
+            k.weight = 1e39;
+        }
+        cases.push((c, "contrast weight 1000"));
         for (cfg, name) in cases {
             let Err(TrackError::BadConfig(why)) = cfg.check() else {
                 panic!("{name}: accepted");

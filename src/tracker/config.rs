@@ -384,7 +384,7 @@ pub struct TrackerConfig {
     /// Horizontal field of view of the camera (degrees) for the perspective depth prior of
     /// the keyframe fit ([`crate::pose::prior`]) and the projection of the turned first view
     /// ([`crate::likelihood::template::Template::correlate_turned`]); `None` (the default)
-    /// for the paper's weak perspective, which every term then uses.
+    /// for the paper's weak perspective, which every term then uses. Within [`HFOV_RANGE_DEG`].
     ///
     /// Why it matters: weak perspective magnifies the whole object as its centre, but the
     /// near side of a near object is magnified by `Z / (Z − d)` more (`Z` its distance, `d`
@@ -1013,12 +1013,12 @@ impl TemplateTerm {
         }
     }
 
-    /// Checks the settings: finite weights of at least 0, a grid of 2 to 64, a rate and a
+    /// Checks the settings: weights in `[0, MAX_WEIGHT]`, a grid of 2 to 64, a rate and a
     /// confidence in `[0, 1]`, and an anchor threshold in `[-1, 1)`.
     pub fn check(&self) -> Result<(), String> {
-        if !(self.weight.is_finite() && self.weight >= 0.0) {
+        if !weight_ok(self.weight) {
             return Err(format!(
-                "template weight {} is not finite and at least 0",
+                "template weight {} is not in [0, {MAX_WEIGHT:e}]",
                 self.weight
             ));
         }
@@ -1038,8 +1038,8 @@ impl TemplateTerm {
             ("anchor_weight", self.anchor_weight),
             ("anchor_weight_camera", self.anchor_weight_camera),
         ] {
-            if !(w.is_finite() && w >= 0.0) {
-                return Err(format!("template {name} {w} is not finite and at least 0"));
+            if !weight_ok(w) {
+                return Err(format!("template {name} {w} is not in [0, {MAX_WEIGHT:e}]"));
             }
         }
         if !(-1.0..1.0).contains(&self.anchor_threshold) {
@@ -1114,12 +1114,12 @@ impl Default for Contrast {
 }
 
 impl Contrast {
-    /// Checks the settings: a finite non-negative weight, a ring above 1, a positive limit,
+    /// Checks the settings: a weight in `[0, MAX_WEIGHT]`, a ring above 1, a positive limit,
     /// a rate and a confidence in `[0, 1]`.
     pub fn check(&self) -> Result<(), String> {
-        if !(self.weight.is_finite() && self.weight >= 0.0) {
+        if !weight_ok(self.weight) {
             return Err(format!(
-                "contrast weight {} is not finite and non-negative",
+                "contrast weight {} is not in [0, {MAX_WEIGHT:e}]",
                 self.weight
             ));
         }
@@ -1146,6 +1146,23 @@ impl Contrast {
         }
         Ok(())
     }
+}
+
+/// The horizontal fields of view ([`TrackerConfig::camera_hfov_deg`]) a configuration
+/// accepts, degrees: from a long telephoto's to just short of a half turn (1e-300 degrees was
+/// accepted, a focal length of 1e302 px).
+pub const HFOV_RANGE_DEG: std::ops::RangeInclusive<f64> = 0.1..=179.9;
+
+/// The largest weight of a likelihood term a configuration accepts (template, first view,
+/// contrast, features). The terms are summed in `f32` on the GPU: at 1e6 a term's values
+/// (up to a weight times 50 for the contrast) keep a resolution of a few units, and a larger
+/// weight would leave the other terms nothing to decide (`--contrast-weight 1e300` overflowed
+/// mid-run, 1e39 gave the GPU and the CPU different tracks).
+pub const MAX_WEIGHT: f64 = 1e6;
+
+/// A weight in `[0, MAX_WEIGHT]`.
+pub(crate) fn weight_ok(w: f64) -> bool {
+    (0.0..=MAX_WEIGHT).contains(&w)
 }
 
 /// When the target is re-anchored on its first view ([`TrackerConfig::reanchor`]).

@@ -124,7 +124,7 @@ fn main() {
             std::process::exit(0);
         }
         // One line: the error and its causes joined.
-        let msg = one_line_chain(e.chain().map(|c| c.to_string()));
+        let msg = compact_numbers(&one_line_chain(e.chain().map(|c| c.to_string())));
         errln!("pftrack: error: {msg}");
         let usage = e.chain().any(|c| c.is::<UsageError>());
         std::process::exit(if usage { 2 } else { 1 });
@@ -215,6 +215,34 @@ fn one_line_chain(chain: impl Iterator<Item = String>) -> String {
     msg
 }
 
+/// The message with every number written in more than 24 characters put in exponent form:
+/// Rust writes an `f64` in full, so a 1e308 given for a size came back as 309 digits, and
+/// 1e-300 as 300 zeros. Nothing shorter (a path's digits, a count) is touched.
+fn compact_numbers(msg: &str) -> String {
+    let is_num = |c: char| c.is_ascii_digit() || c == '.';
+    let mut out = String::with_capacity(msg.len());
+    let mut rest = msg;
+    while let Some(start) = rest.find(|c: char| c.is_ascii_digit()) {
+        out.push_str(&rest[..start]);
+        let run = &rest[start..];
+        let len = run.find(|c: char| !is_num(c)).unwrap_or(run.len());
+        let (num, after) = run.split_at(len);
+        // A sentence's full stop after a number is not part of it.
+        let (num, dot) = match num.strip_suffix('.') {
+            Some(n) => (n, "."),
+            None => (num, ""),
+        };
+        match num.parse::<f64>() {
+            Ok(v) if num.len() > 24 => out.push_str(&format!("{v:e}")),
+            _ => out.push_str(num),
+        }
+        out.push_str(dot);
+        rest = after;
+    }
+    out.push_str(rest);
+    out
+}
+
 /// Prints a command-line usage error as one line, `pftrack: error: ...` with clap's tip and a
 /// pointer to the help, and exits with status 2 (clap's own for usage errors); help and
 /// version requests print as clap prints them, with a failure to write them reported.
@@ -274,7 +302,28 @@ fn one_line(rendered: &str) -> String {
 
 #[cfg(test)]
 mod tests {
-    use super::{one_line, one_line_chain};
+    use super::{compact_numbers, one_line, one_line_chain};
+
+    #[test]
+    fn long_numbers_are_written_in_exponent_form() {
+        let big = format!("contrast weight {} is not in [0, 1e6]", 1e300);
+        assert_eq!(
+            compact_numbers(&big),
+            "contrast weight 1e300 is not in [0, 1e6]"
+        );
+        let small = format!("camera hfov {}.", 1e-300);
+        assert_eq!(compact_numbers(&small), "camera hfov 1e-300.");
+        let tiny = format!("a {} b", 1.5e-30);
+        assert_eq!(compact_numbers(&tiny), "a 1.5e-30 b");
+        for kept in [
+            "frames/00012.png: 160x120, 3.25 px, 1.0. 12345678901234567890 ok",
+            "",
+            "no digits",
+            "v1.2.3",
+        ] {
+            assert_eq!(compact_numbers(kept), kept);
+        }
+    }
 
     #[test]
     fn a_repeated_cause_is_said_once() {

@@ -12,7 +12,7 @@ use pftrack::io::{InitFile, PoseCsvWriter};
 use pftrack::io::{Partial, PartialKind};
 use pftrack::likelihood::{Backend, create_engine};
 use pftrack::output::{Overlay, default_scale, render_overlay, write_png};
-use pftrack::tracker::{ColourUpdate, Estimate, Init, Mode, Tracker, TrackerConfig};
+use pftrack::tracker::{ColourUpdate, Estimate, Init, MAX_WEIGHT, Mode, Tracker, TrackerConfig};
 
 use crate::values;
 
@@ -397,10 +397,15 @@ pub fn config(mode: Mode, particles: usize, seed: u64) -> anyhow::Result<Tracker
 
 /// Checks and applies `--hfov`.
 pub fn apply_hfov(cfg: &mut TrackerConfig, hfov: Option<f64>) -> anyhow::Result<()> {
+    let range = pftrack::tracker::HFOV_RANGE_DEG;
     if let Some(h) = hfov
-        && !(h > 0.0 && h < 180.0)
+        && !range.contains(&h)
     {
-        bail!("--hfov must lie strictly between 0 and 180 degrees, got {h}");
+        bail!(
+            "--hfov must lie between {} and {} degrees, got {h}",
+            range.start(),
+            range.end()
+        );
     }
     cfg.camera_hfov_deg = hfov;
     Ok(())
@@ -417,8 +422,8 @@ pub fn apply_depth_ratio(cfg: &mut TrackerConfig, r: f64) -> anyhow::Result<()> 
 
 /// Checks and applies `--feature-weight`.
 pub fn apply_feature_weight(cfg: &mut TrackerConfig, w: f64) -> anyhow::Result<()> {
-    if !(w.is_finite() && w >= 0.0) {
-        bail!("--feature-weight must be finite and at least 0, got {w}");
+    if !(0.0..=MAX_WEIGHT).contains(&w) {
+        bail!("--feature-weight must lie between 0 and {MAX_WEIGHT:e}, got {w}");
     }
     cfg.feature_weight = w;
     Ok(())
@@ -433,16 +438,16 @@ pub fn apply_template(
     rate: f64,
     anchor_weight: Option<f64>,
 ) -> anyhow::Result<()> {
-    if !(weight.is_finite() && weight >= 0.0) {
-        bail!("--template-weight must be finite and at least 0, got {weight}");
+    if !(0.0..=MAX_WEIGHT).contains(&weight) {
+        bail!("--template-weight must lie between 0 and {MAX_WEIGHT:e}, got {weight}");
     }
     if !(0.0..=1.0).contains(&rate) {
         bail!("--template-rate must lie between 0 and 1, got {rate}");
     }
     if let Some(w) = anchor_weight
-        && !(w.is_finite() && w >= 0.0)
+        && !(0.0..=MAX_WEIGHT).contains(&w)
     {
-        bail!("--anchor-weight must be finite and at least 0, got {w}");
+        bail!("--anchor-weight must lie between 0 and {MAX_WEIGHT:e}, got {w}");
     }
     if let Some(w) = anchor_weight
         && w > 0.0
