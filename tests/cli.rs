@@ -518,6 +518,18 @@ fn cli_sift_and_pose_reject_bad_input_in_one_line() {
         assert_one_line_error(&args, needle, &jpg);
         assert!(pftrack(&args).stdout.is_empty(), "{draw:?}");
     }
+    // The ellipse is held to a tracker start's rules (axes of 1e308 px were taken).
+    for (ellipse, needle) in [
+        ("48,36,1e308,1e308", "--ellipse: semi-axes 1.000e308"),
+        ("48,36,14,18,1e308", "at most 360 either way"),
+        (
+            "148,36,14,18",
+            "centre (148.0, 36.0) lies outside the 96x72 frame",
+        ),
+        ("48,36,1,18", "at least 2 px"),
+    ] {
+        assert_one_line_error(&["pose", f0, f1, "--ellipse", ellipse], needle, &jpg);
+    }
     std::fs::remove_dir_all(&dir).unwrap();
 }
 

@@ -105,15 +105,14 @@ pub fn run(a: PoseArgs) -> anyhow::Result<()> {
             ib.height()
         );
     }
-    if !e.centre_inside(ia.width(), ia.height()) {
-        bail!(
-            "--ellipse: centre ({}, {}) lies outside the {}x{} image",
-            e.cx,
-            e.cy,
-            ia.width(),
-            ia.height()
-        );
-    }
+    // The rules of a tracker's start: the centre in the image, semi-axes from 2 px to its
+    // longer side, an angle within a turn (1e308 px axes were taken).
+    pftrack::tracker::Init::frontal(e)
+        .check(ia.width(), ia.height())
+        .map_err(|err| match err {
+            pftrack::tracker::TrackError::BadInit(why) => anyhow::anyhow!("--ellipse: {why}"),
+            other => other.into(),
+        })?;
     let sift = Sift::new(SiftParams::default());
     let fa = sift.detect(&GrayF32::from_rgb(&ia), None)?;
     let fb = sift.detect(&GrayF32::from_rgb(&ib), None)?;
