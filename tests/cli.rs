@@ -367,7 +367,10 @@ fn cli_usage_errors_exit_2_and_others_1() {
     let f = frames.to_str().unwrap();
     let seq = dir.join("seq");
     let s = seq.to_str().unwrap();
-    let cases: [(&[&str], i32, &str); 9] = [
+    let otb = dir.join("otb.txt");
+    std::fs::write(&otb, "0,0,0,0\n1,1,5,5\n").unwrap();
+    let o = otb.to_str().unwrap();
+    let cases: [(&[&str], i32, &str); 11] = [
         (&["track", f, "--backend", "cpu"], 2, "no initial ellipse"),
         (&["synth", s, "--size", "80x"], 2, "WIDTHxHEIGHT"),
         (&["synth", s, "--size", "16x16"], 2, "24..=8192"),
@@ -407,6 +410,17 @@ fn cli_usage_errors_exit_2_and_others_1() {
             ],
             1,
             "contrast weight 1e300 is not in [0, 1e6]",
+        ),
+        // Both were reported as the ellipse derived from them (`cx -2.5, ... a -2.5`).
+        (
+            &["track", f, "--init-box", "0,0,-5,5"],
+            1,
+            "--init-box 0,0,-5,5: the width and height must be positive",
+        ),
+        (
+            &["track", f, "--init-truth", o],
+            1,
+            "the first box has no size",
         ),
     ];
     for (args, code, needle) in cases {

@@ -354,6 +354,13 @@ fn given_init(a: &TrackArgs) -> anyhow::Result<Option<(InitFile, Option<Euler>)>
     }
     if let Some(s) = &a.init_box {
         let v = parse_floats(s, &[4], "--init-box")?;
+        if !(v[2] > 0.0 && v[3] > 0.0) {
+            bail!(
+                "--init-box {s}: the width and height must be positive, got {} x {}",
+                v[2],
+                v[3]
+            );
+        }
         let e = Ellipse::from_box(&BoxRect::new(v[0], v[1], v[2], v[3]));
         return Ok(Some((no_camera(e), None)));
     }
@@ -374,7 +381,19 @@ fn given_init(a: &TrackArgs) -> anyhow::Result<Option<(InitFile, Option<Euler>)>
     if let Some(p) = &a.init_truth {
         return Ok(Some(match pftrack::eval::load_truth(p)? {
             pftrack::eval::Truth::Poses(r) => (no_camera(r[0].ellipse()), Some(r[0].state.euler())),
-            pftrack::eval::Truth::Boxes(b) => (no_camera(Ellipse::from_box(&b[0])), None),
+            pftrack::eval::Truth::Boxes(b) => {
+                // OTB marks a frame without the target by a box of no size.
+                if !(b[0].w > 0.0 && b[0].h > 0.0) {
+                    bail!(
+                        "--init-truth {}: the first box has no size ({} x {}): the target is \
+                         not in the first frame",
+                        p.display(),
+                        b[0].w,
+                        b[0].h
+                    );
+                }
+                (no_camera(Ellipse::from_box(&b[0])), None)
+            }
         }));
     }
     Ok(None)
