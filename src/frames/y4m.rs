@@ -132,7 +132,11 @@ impl Y4mHeader {
                         .parse()
                         .ok()
                         .filter(|&n| n > 0 && n <= MAX_SIDE)
-                        .ok_or_else(|| format!("tag {tag}: bad frame size"))?;
+                        .ok_or_else(|| {
+                            format!(
+                                "tag {tag}: a frame side is a whole number from 1 to {MAX_SIDE}"
+                            )
+                        })?;
                     if letter == 'W' { &mut w } else { &mut h }.replace(n);
                 }
                 'F' => hdr.frame_rate = Some(ratio(v, 'F', false)?),

@@ -695,8 +695,8 @@ pub fn run(mut a: TrackArgs) -> anyhow::Result<()> {
         .map_err(|e| anyhow::anyhow!(flag_error(&e.to_string())))?;
     let backend = a.backend;
     let resize = a.resize.as_deref().map(frames::parse_size).transpose()?;
-    let mut source = frames::open(&frames_path, &SourceOptions { resize })
-        .with_context(|| format!("opening {}", frames_path.display()))?;
+    // Its errors name the input themselves.
+    let mut source = frames::open(&frames_path, &SourceOptions { resize })?;
     // The start and the poses are in the input's own pixels; the tracker sees the resized
     // frames (`--resize`). The start is checked before the engine is opened, so a bad one is
     // the only line printed: first in the input's pixels, as given, then as the tracker will
