@@ -195,6 +195,22 @@ fn directory_errors() {
         assert!(e.contains("2.png"), "{e}");
     }
 
+    // A JPEG cut short decoded "successfully", its missing part grey.
+    let jpg = d.join("jpg");
+    std::fs::create_dir(&jpg).unwrap();
+    let img = image::RgbImage::from_fn(64, 48, |x, y| {
+        image::Rgb([(x * 4) as u8, (y * 5) as u8, 90])
+    });
+    img.save(jpg.join("1.jpg")).unwrap();
+    let bytes = std::fs::read(jpg.join("1.jpg")).unwrap();
+    std::fs::write(jpg.join("2.jpg"), &bytes[..bytes.len() * 3 / 4]).unwrap();
+    let res: Vec<_> = frames::open(&jpg, &SourceOptions::default())
+        .unwrap()
+        .collect();
+    assert!(res[0].is_ok());
+    let e = res[1].as_ref().unwrap_err().to_string();
+    assert!(e.contains("2.jpg") && e.contains("truncated JPEG"), "{e}");
+
     // Frames of different sizes: the frame and both sizes named.
     let mixed = d.join("mixed");
     std::fs::create_dir(&mixed).unwrap();

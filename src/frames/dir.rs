@@ -101,16 +101,28 @@ pub fn decode_rgb(p: &Path) -> Result<Frame, FrameError> {
             ),
         ));
     }
-    let reader = image::ImageReader::open(p)
-        .map_err(|e| FrameError::io(p, e))?
+    let bytes = std::fs::read(p).map_err(|e| FrameError::io(p, e))?;
+    let mut reader = image::ImageReader::new(std::io::Cursor::new(&bytes));
+    if let Ok(f) = image::ImageFormat::from_path(p) {
+        reader.set_format(f);
+    }
+    let reader = reader
         .with_guessed_format()
         .map_err(|e| FrameError::io(p, e))?;
-    if reader.format().is_none() {
+    let bad = |msg: &str| FrameError::Decode {
+        path: p.display().to_string(),
+        msg: msg.into(),
+    };
+    match reader.format() {
         // Neither the content nor the extension names a format.
-        return Err(FrameError::Decode {
-            path: p.display().to_string(),
-            msg: "not an image (png, jpg, jpeg, bmp, pgm, ppm)".into(),
-        });
+        None => return Err(bad("not an image (png, jpg, jpeg, bmp, pgm, ppm)")),
+        // The JPEG decoder fills a cut-off scan with grey and reports success.
+        Some(image::ImageFormat::Jpeg) if !jpeg_scan_ends(&bytes) => {
+            return Err(bad(
+                "a truncated JPEG: its last scan has no end-of-image marker",
+            ));
+        }
+        Some(_) => {}
     }
     let img = reader.decode().map_err(dec)?.into_rgb8();
     if img.width() == 0 || img.height() == 0 {
@@ -120,6 +132,18 @@ pub fn decode_rgb(p: &Path) -> Result<Frame, FrameError> {
         });
     }
     Ok(img)
+}
+
+/// Whether a JPEG's last scan (its last start-of-scan marker, `FF DA`) is followed by the
+/// end-of-image marker (`FF D9`). Inside a scan a byte `FF` is always followed by `00` or a
+/// restart marker, so neither marker occurs there; an EXIF thumbnail's markers come before
+/// the image's own scans, and data after the end (some cameras append their own) is allowed.
+fn jpeg_scan_ends(bytes: &[u8]) -> bool {
+    let last = |m: u8| bytes.windows(2).rposition(|w| w == [0xFF, m]);
+    match (last(0xDA), last(0xD9)) {
+        (Some(sos), Some(eoi)) => eoi > sos,
+        _ => false,
+    }
 }
 
 /// The size of an image file from its header, without decoding the pixels.
@@ -228,6 +252,23 @@ mod tests {
             natural_cmp("x99999999999999999999999", "x100000000000000000000000"),
             Ordering::Less
         );
+    }
+
+    #[test]
+    fn a_jpeg_scan_must_end() {
+        let (sos, eoi) = ([0xFF, 0xDA], [0xFF, 0xD9]);
+        let whole = [&[0xFF, 0xD8][..], &sos, &[1, 2, 0xFF, 0x00, 3], &eoi].concat();
+        assert!(jpeg_scan_ends(&whole));
+        assert!(
+            !jpeg_scan_ends(&whole[..whole.len() - 2]),
+            "cut in the scan"
+        );
+        // A thumbnail's end comes before the image's scan; trailing data after the end.
+        let thumb = [&[0xFF, 0xD8][..], &sos, &[9], &eoi, &sos, &[1, 2]].concat();
+        assert!(!jpeg_scan_ends(&thumb));
+        let trailer = [&whole[..], b"camera trailer"].concat();
+        assert!(jpeg_scan_ends(&trailer));
+        assert!(!jpeg_scan_ends(&[]));
     }
 
     #[test]
