@@ -148,8 +148,9 @@ mod tests {
         let i = parse_init("1,2,3,4\n\n# camera\nhfov, 50\n", Path::new("i")).unwrap();
         assert_eq!(i.hfov_deg, Some(50.0));
         for (bad, what) in [
-            ("1,2,3,4\nhfov,0", "between 0 and 180"),
-            ("1,2,3,4\nhfov,180", "between 0 and 180"),
+            ("1,2,3,4\nhfov,0", "between 0.1 and 179.9"),
+            ("1,2,3,4\nhfov,180", "between 0.1 and 179.9"),
+            ("1,2,3,4\nhfov,0.05", "between 0.1 and 179.9"),
             ("1,2,3,4\nhfov,nan", "hfov"),
             ("1,2,3,4\nhfov,50\nhfov,60", "one line hfov"),
             ("1,2,3,4\nfocal,50", "one line hfov"),

@@ -1041,9 +1041,12 @@ mod tests {
         assert_eq!(cfg.feature_weight, 20.0);
         apply_feature_weight(&mut cfg, 0.0).unwrap();
         assert_eq!(cfg.feature_weight, 0.0);
-        for bad in [-1.0, f64::NAN, f64::INFINITY] {
+        for bad in [-1.0, f64::NAN, f64::INFINITY, 2e6] {
             let e = apply_feature_weight(&mut cfg, bad).unwrap_err().to_string();
-            assert!(e.starts_with("--feature-weight must be"), "{e}");
+            assert!(
+                e.starts_with("--feature-weight must lie between 0 and 1e6"),
+                "{e}"
+            );
         }
         assert_eq!(cfg.feature_weight, 0.0);
     }
