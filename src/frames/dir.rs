@@ -66,9 +66,10 @@ pub fn natural_cmp(a: &str, b: &str) -> Ordering {
 /// Lists the image files of `dir` in natural order of their names.
 ///
 /// Hidden files (names starting with `.`, such as a viewer's thumbnails or macOS's `._`
-/// resource forks) and folders are not frames. Anything else with an image extension is,
-/// a dangling or looping link included: it fails when read, naming itself, rather than
-/// being skipped and shifting every later frame's number.
+/// resource forks), folders, pipes, sockets and devices are not frames. Files with an image
+/// extension are, and so are links to them and links that lead nowhere (dangling, a loop):
+/// those fail when read, naming themselves, rather than being skipped and shifting every
+/// later frame's number.
 pub fn list_images(dir: &Path) -> Result<Vec<PathBuf>, FrameError> {
     let io = |e| FrameError::io(dir, e);
     let mut files: Vec<(String, PathBuf)> = Vec::new();
@@ -76,7 +77,15 @@ pub fn list_images(dir: &Path) -> Result<Vec<PathBuf>, FrameError> {
         let entry = entry.map_err(io)?;
         let name = entry.file_name().to_string_lossy().into_owned();
         let p = entry.path();
-        if !name.starts_with('.') && is_image_file(&p) && !p.is_dir() {
+        if name.starts_with('.') || !is_image_file(&p) {
+            continue;
+        }
+        let kind = entry.file_type().map_err(io)?;
+        // A link counts when it leads to a file or to nothing that can be read (dangling, a
+        // loop); a pipe, socket or device is no frame (reading a pipe would wait for ever).
+        let frame = kind.is_file()
+            || (kind.is_symlink() && std::fs::metadata(&p).map_or(true, |m| m.is_file()));
+        if frame {
             files.push((name, p));
         }
     }
@@ -134,15 +143,61 @@ pub fn decode_rgb(p: &Path) -> Result<Frame, FrameError> {
     Ok(img)
 }
 
-/// Whether a JPEG's last scan (its last start-of-scan marker, `FF DA`) is followed by the
-/// end-of-image marker (`FF D9`). Inside a scan a byte `FF` is always followed by `00` or a
-/// restart marker, so neither marker occurs there; an EXIF thumbnail's markers come before
-/// the image's own scans, and data after the end (some cameras append their own) is allowed.
+/// Whether a JPEG's image data ends: walking its markers from the start, past each
+/// segment by its length and each scan's entropy-coded data (where a byte `FF` is followed
+/// only by `00` or a restart marker), the end-of-image marker `FF D9` is reached before the
+/// file ends. What follows that marker (a camera's trailer, a motion photo's video) is not
+/// looked at.
 fn jpeg_scan_ends(bytes: &[u8]) -> bool {
-    let last = |m: u8| bytes.windows(2).rposition(|w| w == [0xFF, m]);
-    match (last(0xDA), last(0xD9)) {
-        (Some(sos), Some(eoi)) => eoi > sos,
-        _ => false,
+    if !bytes.starts_with(&[0xFF, 0xD8]) {
+        return false;
+    }
+    let mut i = 2;
+    loop {
+        // A marker, after any fill bytes `FF`.
+        if bytes.get(i) != Some(&0xFF) {
+            return false;
+        }
+        while bytes.get(i + 1) == Some(&0xFF) {
+            i += 1;
+        }
+        let Some(&marker) = bytes.get(i + 1) else {
+            return false;
+        };
+        i += 2;
+        match marker {
+            0xD9 => return true,
+            // Markers without a length: restarts, TEM.
+            0xD0..=0xD7 | 0x01 => continue,
+            _ => {}
+        }
+        let Some(len) = bytes
+            .get(i..i + 2)
+            .map(|b| usize::from(u16::from_be_bytes([b[0], b[1]])))
+        else {
+            return false;
+        };
+        if len < 2 {
+            return false;
+        }
+        i += len;
+        if marker == 0xDA {
+            // The scan's data, up to the next marker that is not a stuffed byte or a restart.
+            loop {
+                let Some(off) = bytes
+                    .get(i..)
+                    .and_then(|r| r.iter().position(|&b| b == 0xFF))
+                else {
+                    return false;
+                };
+                i += off;
+                match bytes.get(i + 1) {
+                    None => return false,
+                    Some(0x00 | 0xD0..=0xD7) => i += 2,
+                    Some(_) => break,
+                }
+            }
+        }
     }
 }
 
@@ -256,19 +311,37 @@ mod tests {
 
     #[test]
     fn a_jpeg_scan_must_end() {
-        let (sos, eoi) = ([0xFF, 0xDA], [0xFF, 0xD9]);
-        let whole = [&[0xFF, 0xD8][..], &sos, &[1, 2, 0xFF, 0x00, 3], &eoi].concat();
+        // SOI, an APP segment whose payload holds marker-like bytes, SOS with its header,
+        // entropy data with a stuffed FF and a restart, EOI.
+        let head = [0xFF, 0xD8, 0xFF, 0xE1, 0x00, 0x06, 0xFF, 0xD9, 0xFF, 0xDA];
+        let scan = [
+            0xFF, 0xDA, 0x00, 0x03, 0x01, 7, 0xFF, 0x00, 8, 0xFF, 0xD3, 9,
+        ];
+        let whole = [&head[..], &scan, &[0xFF, 0xD9]].concat();
         assert!(jpeg_scan_ends(&whole));
-        assert!(
-            !jpeg_scan_ends(&whole[..whole.len() - 2]),
-            "cut in the scan"
-        );
-        // A thumbnail's end comes before the image's scan; trailing data after the end.
-        let thumb = [&[0xFF, 0xD8][..], &sos, &[9], &eoi, &sos, &[1, 2]].concat();
-        assert!(!jpeg_scan_ends(&thumb));
-        let trailer = [&whole[..], b"camera trailer"].concat();
-        assert!(jpeg_scan_ends(&trailer));
+        for cut in 1..whole.len() {
+            assert!(!jpeg_scan_ends(&whole[..cut]), "cut at {cut}");
+        }
+        // A progressive image: two scans with a table between them.
+        let second = [
+            &head[..],
+            &scan,
+            &[0xFF, 0xC4, 0x00, 0x02],
+            &scan,
+            &[0xFF, 0xD9],
+        ]
+        .concat();
+        assert!(jpeg_scan_ends(&second));
+        // Whatever follows the end is not looked at, marker-like bytes included.
+        for tail in [
+            &b"camera trailer"[..],
+            &[0xFF, 0xDA, 0x00],
+            &[0xFF, 0xD8, 0xFF, 0xDA],
+        ] {
+            assert!(jpeg_scan_ends(&[&whole[..], tail].concat()), "{tail:?}");
+        }
         assert!(!jpeg_scan_ends(&[]));
+        assert!(!jpeg_scan_ends(b"not a jpeg"));
     }
 
     #[test]

@@ -212,7 +212,7 @@ pub(crate) struct FfmpegSource {
     frames: usize,
     /// The child has been waited for.
     reaped: bool,
-    /// The last line of ffmpeg's stderr in a decode that ended with success (see
+    /// The first line of ffmpeg's stderr in a decode that ended with success (see
     /// [`Self::complaint`]).
     complaint: Option<String>,
 }
@@ -262,8 +262,9 @@ impl FfmpegSource {
         self.frames_hint
     }
 
-    /// The last line ffmpeg wrote to stderr in a decode that ended with success (it writes
-    /// only errors: `-v error`), if any.
+    /// The earliest line kept of what ffmpeg wrote to stderr (the last 16 KiB) in a decode
+    /// that ended with success, if any: it writes only errors (`-v error`), and the first is
+    /// the decoder's own, where later ones can be the muxer's about the gap.
     pub(crate) fn complaint(&self) -> Option<&str> {
         self.complaint.as_deref()
     }
@@ -347,8 +348,11 @@ impl FfmpegSource {
                 msg: format!("ffmpeg sent {got} of {} bytes", buf.len()),
             });
         }
-        let line = last_line(&text);
-        self.complaint = (!text.trim().is_empty()).then_some(line);
+        self.complaint = text
+            .lines()
+            .map(str::trim)
+            .find(|l| !l.is_empty())
+            .map(str::to_string);
         Ok(Pipe::End)
     }
 }

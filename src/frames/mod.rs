@@ -366,21 +366,23 @@ impl FrameSource {
     }
 
     /// Once a video has ended normally: one line saying it gave fewer frames than its
-    /// container declares (a truncated file, an undecodable frame), with the decoder's last
-    /// complaint; `None` for a complete video, before the end, and for the other sources,
-    /// whose reading fails on a bad frame. A caller that reports the frames as the whole
-    /// video should say this too: ffmpeg ends a damaged file with success.
+    /// container declares while ffmpeg reported errors (a truncated file, an undecodable
+    /// frame), with ffmpeg's first complaint; `None` for a complete video, before the end, and
+    /// for the other sources, whose reading fails on a bad frame. A caller that reports the
+    /// frames as the whole video should say this too: ffmpeg ends a damaged file with success.
+    /// Fewer frames without a complaint are no shortfall: a clip cut without re-encoding
+    /// keeps samples before its start that are decoded but never shown.
     pub fn shortfall(&self) -> Option<String> {
         let Inner::Ffmpeg(f) = &self.inner else {
             return None;
         };
         let declared = f.len_hint()?;
+        let complaint = f.complaint()?;
         if !self.ended || self.produced >= declared {
             return None;
         }
-        let why = f.complaint().map(|c| format!(" ({c})")).unwrap_or_default();
         Some(format!(
-            "{}: ffmpeg decoded {} of the {declared} frames the file declares{why}",
+            "{}: ffmpeg decoded {} of the {declared} frames the file declares ({complaint})",
             self.path, self.produced
         ))
     }

@@ -217,23 +217,34 @@ fn one_line_chain(chain: impl Iterator<Item = String>) -> String {
 
 /// The message with every number written in more than 24 characters put in exponent form:
 /// Rust writes an `f64` in full, so a 1e308 given for a size came back as 309 digits, and
-/// 1e-300 as 300 zeros. Nothing shorter (a path's digits, a count) is touched.
+/// 1e-300 as 300 zeros. Only a number standing alone is touched (after a space, a bracket, a
+/// comma, `=`, `:` or a quote, and before one, a full stop or the end): digits inside a name
+/// (`run_20240101120000000000000001/video.mp4`) are left as written.
 fn compact_numbers(msg: &str) -> String {
-    let is_num = |c: char| c.is_ascii_digit() || c == '.';
+    let apart = |c: Option<char>| c.is_none_or(|c| c.is_whitespace() || "()[],;:='\"".contains(c));
     let mut out = String::with_capacity(msg.len());
     let mut rest = msg;
     while let Some(start) = rest.find(|c: char| c.is_ascii_digit()) {
         out.push_str(&rest[..start]);
+        let mut back = out.chars().rev();
+        let before = back.next();
+        // A minus sign belongs to the number when it stands alone itself.
+        let alone_before = apart(before) || (before == Some('-') && apart(back.next()));
         let run = &rest[start..];
-        let len = run.find(|c: char| !is_num(c)).unwrap_or(run.len());
+        let len = run
+            .find(|c: char| !(c.is_ascii_digit() || c == '.'))
+            .unwrap_or(run.len());
         let (num, after) = run.split_at(len);
         // A sentence's full stop after a number is not part of it.
         let (num, dot) = match num.strip_suffix('.') {
             Some(n) => (n, "."),
             None => (num, ""),
         };
+        let alone_after = apart(after.chars().next()) || after.starts_with('°');
         match num.parse::<f64>() {
-            Ok(v) if num.len() > 24 => out.push_str(&format!("{v:e}")),
+            Ok(v) if num.len() > 24 && alone_before && alone_after => {
+                out.push_str(&format!("{v:e}"));
+            }
             _ => out.push_str(num),
         }
         out.push_str(dot);
@@ -315,11 +326,19 @@ mod tests {
         assert_eq!(compact_numbers(&small), "camera hfov 1e-300.");
         let tiny = format!("a {} b", 1.5e-30);
         assert_eq!(compact_numbers(&tiny), "a 1.5e-30 b");
+        let neg = format!("weight {} is not in [0, 1e6]", -1e300);
+        assert_eq!(compact_numbers(&neg), "weight -1e300 is not in [0, 1e6]");
+        let angle = format!("hfov {}°), poses", 1e300);
+        assert_eq!(compact_numbers(&angle), "hfov 1e300°), poses");
         for kept in [
             "frames/00012.png: 160x120, 3.25 px, 1.0. 12345678901234567890 ok",
             "",
             "no digits",
             "v1.2.3",
+            "run_20240101120000000000000001/video.mp4: no such file or directory",
+            "/data/20240101120000000000000001.mp4: no such file",
+            "x-20240101120000000000000001 and 20240101120000000000000001a",
+            "192.168.100.200",
         ] {
             assert_eq!(compact_numbers(kept), kept);
         }
