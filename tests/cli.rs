@@ -449,13 +449,14 @@ fn cli_dash_is_standard_output_and_streams_are_refused_where_two_files_go() {
     assert_eq!(out.stdout, std::fs::read(&kps).unwrap());
     assert!(!Path::new("-").exists());
 
-    for csv in ["-", "/dev/null"] {
+    for csv in ["-", "/dev/null", "/dev/stdout"] {
         let out = pftrack(&["pose-noise", "--trials", "2", "--snr", "10", "--csv", csv]);
         let err = String::from_utf8_lossy(&out.stderr);
-        assert_eq!(out.status.code(), Some(2), "{csv}: {err}");
+        assert_eq!(out.status.code(), Some(1), "{csv}: {err}");
         assert!(err.contains("two files"), "{err}");
     }
     assert!(!Path::new("/dev/null_lambda").exists());
+    assert!(!Path::new("/dev/stdout_lambda").exists());
 
     let empty = dir.join("empty.pgm");
     std::fs::write(&empty, b"P5\n0 0\n255\n").unwrap();
@@ -891,6 +892,83 @@ fn cli_an_interrupted_track_leaves_nothing_behind() {
         assert!(out.stdout.is_empty());
         // Nothing of the run stays: no CSV, partial or whole, and no render folder.
         assert!(names(&dir).is_empty(), "{first}: {:?}", names(&dir));
+    }
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// An interrupted `synth` leaves an earlier sequence in its folder whole (it used to delete
+/// its truth and init file and mix new frames with the old), and a new folder not at all.
+#[cfg(unix)]
+#[test]
+fn cli_an_interrupted_synth_leaves_the_folder_as_it_was() {
+    use std::os::unix::process::{CommandExt as _, ExitStatusExt as _};
+    let dir = tmp_dir("interrupt-synth");
+    std::fs::create_dir_all(&dir).unwrap();
+    let seq = dir.join("seq");
+    let s = seq.to_str().unwrap();
+    pftrack_ok(&[
+        "synth",
+        s,
+        "--scenario",
+        "nod",
+        "--frames",
+        "5",
+        "--size",
+        "64x48",
+    ]);
+    let truth = std::fs::read(seq.join("truth.csv")).unwrap();
+    let frames_before = names(&seq.join("frames"));
+    let fresh = dir.join("fresh");
+    for (into, existed) in [(&seq, true), (&fresh, false)] {
+        let mut cmd = Command::new(env!("CARGO_BIN_EXE_pftrack"));
+        cmd.args(["synth", into.to_str().unwrap(), "--scenario", "long"])
+            .args(["--frames", "2400", "--size", "320x240"])
+            .stdout(Stdio::null())
+            .stderr(Stdio::piped());
+        // SAFETY: between fork and exec only async-signal-safe calls (signal(2)).
+        unsafe {
+            cmd.pre_exec(|| {
+                libc::signal(libc::SIGINT, libc::SIG_DFL);
+                Ok(())
+            });
+        }
+        let child = cmd.spawn().expect("run pftrack");
+        // Wait for frames in the staging folder: the render is under way.
+        let frames = into.join("frames");
+        let rendering = || {
+            std::fs::read_dir(&frames)
+                .into_iter()
+                .flatten()
+                .flatten()
+                .filter(|e| {
+                    e.file_name()
+                        .to_string_lossy()
+                        .starts_with(".pftrack-synth-")
+                })
+                .filter_map(|e| std::fs::read_dir(e.path()).ok())
+                .map(|d| d.count())
+                .sum::<usize>()
+                > 0
+        };
+        let t0 = std::time::Instant::now();
+        while !rendering() {
+            assert!(t0.elapsed().as_secs() < 60, "no frame rendered");
+            std::thread::sleep(std::time::Duration::from_millis(20));
+        }
+        // SAFETY: kill(2) on the child's own pid.
+        assert_eq!(
+            unsafe { libc::kill(child.id() as libc::pid_t, libc::SIGINT) },
+            0
+        );
+        let out = child.wait_with_output().unwrap();
+        assert_eq!(out.status.signal(), Some(libc::SIGINT), "{out:?}");
+        if existed {
+            assert_eq!(std::fs::read(seq.join("truth.csv")).unwrap(), truth);
+            assert!(seq.join("init.txt").exists());
+            assert_eq!(names(&frames), frames_before, "old frames only, no staging");
+        } else {
+            assert!(!fresh.exists(), "{:?}", names(&fresh));
+        }
     }
     std::fs::remove_dir_all(&dir).unwrap();
 }

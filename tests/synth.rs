@@ -840,12 +840,49 @@ fn a_failed_render_leaves_the_folder_as_it_was() {
         ["frames", "init.txt", "truth.csv"],
         "no staging folder left"
     );
-    // A render into a path that is a file is refused, and one into a new folder that fails
-    // leaves no folder.
+    // A render into a path that is a file is refused.
     let file = dir.join("plain");
     std::fs::write(&file, "x").unwrap();
     assert!(write_sequence(&c, &file, false).is_err());
     assert_eq!(std::fs::read(&file).unwrap(), b"x");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// `frames` that is not a folder is refused before anything is rendered (a dangling link
+/// used to fail after the whole render, with the old truth already deleted), and a stale
+/// frame that is a folder is left alone rather than failing the move half-way.
+#[test]
+fn a_sequence_folder_in_an_odd_state_is_refused_or_left_alone() {
+    let dir = tmp_dir("odd");
+    let c = cfg(Scenario::Pan, 3, 48, 36);
+    std::fs::create_dir_all(&dir).unwrap();
+    std::fs::write(dir.join("frames"), "not a folder").unwrap();
+    let err = write_sequence(&c, &dir, false).unwrap_err().to_string();
+    assert!(
+        err.contains("frames") && err.contains("not a folder"),
+        "{err}"
+    );
+    std::fs::remove_file(dir.join("frames")).unwrap();
+    #[cfg(unix)]
+    {
+        std::os::unix::fs::symlink(dir.join("nowhere"), dir.join("frames")).unwrap();
+        let err = write_sequence(&c, &dir, false).unwrap_err().to_string();
+        assert!(err.contains("not a folder"), "{err}");
+        std::fs::remove_file(dir.join("frames")).unwrap();
+    }
+    assert!(!dir.join("truth.csv").exists());
+    // A folder where a longer render's frame 5 was: the new 3-frame sequence goes in, the
+    // regular stale frames go, the folder stays.
+    std::fs::create_dir_all(dir.join("frames/00005.png")).unwrap();
+    std::fs::write(dir.join("frames/00004.png"), "stale").unwrap();
+    write_sequence(&c, &dir, false).unwrap();
+    let mut names: Vec<String> = std::fs::read_dir(dir.join("frames"))
+        .unwrap()
+        .map(|e| e.unwrap().file_name().into_string().unwrap())
+        .collect();
+    names.sort();
+    assert_eq!(names, ["00000.png", "00001.png", "00002.png", "00005.png"]);
+    assert_eq!(read_pose_csv(&dir.join("truth.csv")).unwrap().len(), 3);
     std::fs::remove_dir_all(&dir).unwrap();
 }
 

@@ -71,9 +71,10 @@ fn file_arg(path: &Path) -> OsString {
 }
 
 /// Maps a failure to start a program to the right error.
-fn spawn_error(program: &Path, e: std::io::Error) -> FrameError {
+fn spawn_error(program: &Path, input: &Path, e: std::io::Error) -> FrameError {
     if e.kind() == std::io::ErrorKind::NotFound {
         FrameError::FfmpegMissing {
+            path: input.display().to_string(),
             program: program.display().to_string(),
         }
     } else {
@@ -103,7 +104,7 @@ pub fn probe(tools: &FfmpegTools, path: &Path) -> Result<(u32, u32, Option<usize
         .arg(file_arg(path))
         .stdin(Stdio::null())
         .output()
-        .map_err(|e| spawn_error(&tools.ffprobe, e))?;
+        .map_err(|e| spawn_error(&tools.ffprobe, path, e))?;
     let err = |msg: String| FrameError::Ffmpeg {
         path: path.display().to_string(),
         msg,
@@ -168,7 +169,7 @@ fn spawn_decoder(ffmpeg: &Path, path: &Path, legacy_sync: bool) -> Result<Decode
         .stdout(Stdio::piped())
         .stderr(Stdio::piped())
         .spawn()
-        .map_err(|e| spawn_error(ffmpeg, e))?;
+        .map_err(|e| spawn_error(ffmpeg, path, e))?;
     let (Some(stdout), Some(mut stderr)) = (child.stdout.take(), child.stderr.take()) else {
         let _ = child.kill();
         let _ = child.wait();

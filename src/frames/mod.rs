@@ -104,8 +104,10 @@ pub enum FrameError {
         msg: String,
     },
     /// ffmpeg (or ffprobe) is not on `PATH`.
-    #[error("`{program}` not found: {FFMPEG_HINT}")]
+    #[error("{path}: reading a video needs `{program}`, which is not found: {FFMPEG_HINT}")]
     FfmpegMissing {
+        /// The video to be read.
+        path: String,
         /// The program that could not be started.
         program: String,
     },

@@ -118,6 +118,75 @@ impl AtomicFile {
         });
         result.map_err(err)
     }
+
+    /// Flushes and syncs the file without moving it into place, for a caller that moves it
+    /// together with other outputs under one registration's lock ([`Prepared::rename_now`]
+    /// inside a [`Partial::commit`]): then an interrupt finds all of them moved or none. On
+    /// an error the partial file is removed.
+    pub(crate) fn prepare(mut self) -> Result<Prepared, FormatError> {
+        let err = |e: std::io::Error| FormatError::io(&self.target, e);
+        let rename = self.rename.take();
+        let Some(w) = self.writer.take() else {
+            return Ok(Prepared {
+                target: self.target.clone(),
+                rename: None,
+                renamed: false,
+            });
+        };
+        let synced = w
+            .into_inner()
+            .map_err(|e| e.into_error())
+            .and_then(|file| match &rename {
+                Some(_) => file.sync_all(),
+                None => Ok(()),
+            });
+        if let Err(e) = synced {
+            if let Some(r) = &rename {
+                let _ = std::fs::remove_file(&r.partial);
+            }
+            return Err(err(e));
+        }
+        Ok(Prepared {
+            target: self.target.clone(),
+            rename,
+            renamed: false,
+        })
+    }
+}
+
+/// A file written and synced, not yet under its name ([`AtomicFile::prepare`]); dropped
+/// before [`Prepared::rename_now`], its partial file is removed. Drop it outside any
+/// registration's commit: its own registration takes the registry's lock.
+#[derive(Debug)]
+pub(crate) struct Prepared {
+    target: PathBuf,
+    /// `None` for a stream written in place.
+    rename: Option<Rename>,
+    /// Moved into place by [`Prepared::rename_now`].
+    renamed: bool,
+}
+
+impl Prepared {
+    /// Renames the file into place, without taking the registry's lock: for use inside the
+    /// commit of the registration that covers the whole move.
+    pub(crate) fn rename_now(&mut self) -> Result<(), FormatError> {
+        if let Some(r) = &self.rename {
+            std::fs::rename(&r.partial, &r.to).map_err(|e| FormatError::io(&self.target, e))?;
+        }
+        // Nothing left to remove (the registration is forgotten on drop).
+        self.renamed = true;
+        Ok(())
+    }
+}
+
+impl Drop for Prepared {
+    fn drop(&mut self) {
+        if let Some(r) = &self.rename
+            && !self.renamed
+        {
+            let _ = std::fs::remove_file(&r.partial);
+        }
+    }
 }
 
 /// `.NAME.partial` beside `path`: hidden, and named after what it will become.

@@ -100,25 +100,26 @@ pub fn parse_init(text: &str, path: &Path) -> Result<InitFile, FormatError> {
 /// camera's horizontal field of view when given.
 pub fn write_init(path: &Path, init: &InitFile) -> Result<(), FormatError> {
     let mut f = AtomicFile::create(path)?;
-    let e = &init.ellipse;
-    let mut text = if e.theta == 0.0 {
-        format!("{:.6},{:.6},{:.6},{:.6}\n", e.cx, e.cy, e.a, e.b)
-    } else {
-        format!(
-            "{:.6},{:.6},{:.6},{:.6},{:.6}\n",
-            e.cx,
-            e.cy,
-            e.a,
-            e.b,
-            deg(e.theta)
-        )
-    };
-    if let Some(h) = init.hfov_deg {
-        text.push_str(&format!("hfov,{h:.6}\n"));
-    }
-    f.write_all(text.as_bytes())
+    f.write_all(format_init(init).as_bytes())
         .map_err(|err| FormatError::io(path, err))?;
     f.commit()
+}
+
+/// An init file's text: `cx,cy,a,b[,angle_deg]` with six decimals (the angle only when not
+/// 0), then `hfov,DEG` when the camera is given.
+pub(crate) fn format_init(init: &InitFile) -> String {
+    let e = &init.ellipse;
+    let mut values = vec![e.cx, e.cy, e.a, e.b];
+    if e.theta != 0.0 {
+        values.push(deg(e.theta));
+    }
+    let text: Vec<String> = values.into_iter().map(super::pose_csv::fixed6).collect();
+    let mut out = text.join(",");
+    out.push('\n');
+    if let Some(h) = init.hfov_deg {
+        out.push_str(&format!("hfov,{}\n", super::pose_csv::fixed6(h)));
+    }
+    out
 }
 
 #[cfg(test)]

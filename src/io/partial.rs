@@ -92,7 +92,7 @@ impl Drop for Partial {
 }
 
 /// Removes every partial output of this process (files, then staging folders, then the
-/// folders created for them if empty) and returns how many it removed; meant for a signal
+/// folders created for them if empty, newest first) and returns how many it removed; meant for a signal
 /// handler that ends the process next. The registry stays locked until the process ends, so
 /// no output is created or committed after this returns, and any thread that tries waits for
 /// ever: call it only on the way out, then end the process (never return to normal work).
@@ -100,7 +100,12 @@ pub fn remove_partial_outputs() -> usize {
     let reg = registry();
     let mut removed = 0;
     for kind in [PartialKind::File, PartialKind::Tree, PartialKind::EmptyDir] {
-        for e in reg.entries.iter().filter(|e| e.kind == kind) {
+        // Folders newest first: one made inside another is registered after it.
+        let entries: Vec<&Entry> = match kind {
+            PartialKind::EmptyDir => reg.entries.iter().rev().collect(),
+            _ => reg.entries.iter().collect(),
+        };
+        for e in entries.into_iter().filter(|e| e.kind == kind) {
             let ok = match kind {
                 PartialKind::File => std::fs::remove_file(&e.path).is_ok(),
                 PartialKind::Tree => std::fs::remove_dir_all(&e.path).is_ok(),

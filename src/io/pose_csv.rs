@@ -180,15 +180,21 @@ pub fn format_pose_row(r: &PoseRecord, with_score: bool) -> String {
     row
 }
 
-/// Appends `,v` with six decimals; a value that rounds to zero is written `0.000000`, never
-/// `-0.000000`.
+/// Appends `,v` as [`fixed6`] writes it.
 fn push_fixed6(row: &mut String, v: f64) {
-    let text = format!("{v:.6}");
     row.push(',');
-    row.push_str(match text.as_str() {
-        "-0.000000" => "0.000000",
-        t => t,
-    });
+    row.push_str(&fixed6(v));
+}
+
+/// `v` with six decimals, as the project's files write numbers; a value that rounds to zero
+/// is written `0.000000`, never `-0.000000`.
+pub(crate) fn fixed6(v: f64) -> String {
+    let text = format!("{v:.6}");
+    if text == "-0.000000" {
+        "0.000000".to_string()
+    } else {
+        text
+    }
 }
 
 /// Writes a pose CSV row by row; the file appears under its name only on

@@ -42,8 +42,10 @@ pub use texture::{Background, Material, SolidTexture, hash, noise};
 pub use trajectory::{CAR_DEPTH, HEAD_DEPTH, ObjectPose, Trajectory, smoothstep};
 
 use crate::geometry::Ellipse;
+use crate::io::atomic::Prepared;
+use crate::io::init::format_init;
 use crate::io::partial::{Partial, PartialKind};
-use crate::io::{FormatError, InitFile, PoseCsvWriter, PoseRecord, write_init};
+use crate::io::{AtomicFile, FormatError, InitFile, PoseRecord, format_pose_csv};
 
 /// Errors of this module.
 #[derive(Debug, thiserror::Error)]
@@ -312,14 +314,17 @@ pub fn frame_name(k: usize) -> String {
 /// CSV) and `dir/init.txt` (`cx,cy,a,b` of frame 0).
 ///
 /// A render in progress is never mistaken for a finished one, and a failed or interrupted
-/// render leaves `dir` as it found it: the frames, the truth and the init file are first
-/// written into a hidden staging folder inside `dir` (registered with [`crate::io::partial`],
-/// so an interrupt removes it), and only when all are there do they replace what `dir` held:
-/// the old `truth.csv` and `init.txt` are removed, the frames moved into `dir/frames`, frames
-/// `00000.png`... left over from a longer earlier render removed, and the init file then the
-/// truth moved in last. A place a file cannot go (a folder named like a frame) is found before
-/// anything moves. Frames render in parallel (rayon); `progress` shows an indicatif bar on
-/// stderr.
+/// render leaves an earlier sequence in `dir` whole: the frames are rendered into a hidden
+/// staging folder inside `dir/frames` (registered with [`crate::io::partial`], so an interrupt
+/// removes it) and the truth and init file beside their names, and only when all are written
+/// do they replace what `dir` held, in one move an interrupt waits for: the old `truth.csv`
+/// and `init.txt` are removed, the frames moved into `dir/frames`, frames `00000.png`... of a
+/// longer earlier render removed (regular files only), and the init file then the truth moved
+/// in last. What would stop the move (a `frames` that is not a folder, a folder named like a
+/// frame) is refused before anything is rendered or moved; only an I/O error in the move
+/// itself could leave `dir` without a `truth.csv`, which reads as unfinished. Folders this
+/// render made are removed again when it fails. Frames render in parallel (rayon); `progress` shows an
+/// indicatif bar on stderr.
 pub fn write_sequence(
     cfg: &SynthConfig,
     dir: &Path,
@@ -328,7 +333,7 @@ pub fn write_sequence(
     use rayon::prelude::*;
 
     let renderer = Renderer::new(cfg)?;
-    let stage = Staging::create(dir)?;
+    let stage = Staging::create(dir, cfg.frames)?;
 
     let bar = if progress {
         let bar = indicatif::ProgressBar::new(cfg.frames as u64);
@@ -354,27 +359,24 @@ pub fn write_sequence(
         .collect::<Result<_, SynthError>>()?;
     bar.finish_and_clear();
 
-    let mut w = PoseCsvWriter::create(&stage.path.join(TRUTH), false)?;
-    for (frame, state) in truth.iter().enumerate() {
-        w.write(&PoseRecord {
+    let records: Vec<PoseRecord> = truth
+        .iter()
+        .enumerate()
+        .map(|(frame, state)| PoseRecord {
             frame,
             state: *state,
             score: None,
             lost: None,
             theta: None,
-        })?;
-    }
-    w.finish()?;
+        })
+        .collect();
     let s0 = truth[0];
     let init = Ellipse::new(s0.cx, s0.cy, s0.a, s0.b);
-    write_init(
-        &stage.path.join(INIT),
-        &InitFile {
-            ellipse: init,
-            hfov_deg: Some(HFOV_DEG),
-        },
-    )?;
-    stage.finish(cfg.frames)?;
+    let init_text = format_init(&InitFile {
+        ellipse: init,
+        hfov_deg: Some(HFOV_DEG),
+    });
+    stage.finish(cfg.frames, &format_pose_csv(&records, false), &init_text)?;
     Ok(SynthSummary {
         config: *cfg,
         frames_dir: dir.join("frames"),
@@ -389,62 +391,48 @@ const TRUTH: &str = "truth.csv";
 /// The init file's name in a sequence folder.
 const INIT: &str = "init.txt";
 
-/// The hidden folder inside a sequence folder that a render writes into, moved into place by
-/// [`Staging::finish`]; dropped unfinished, it is removed, with the sequence folder when this
-/// render made it and nothing else is in it.
+/// The hidden folder inside `DIR/frames` that a render writes its frames into, moved into
+/// place by [`Staging::finish`]; dropped unfinished, it is removed, with the folders this
+/// render made when nothing else is in them.
 struct Staging {
     /// The sequence folder.
     dir: PathBuf,
-    /// The staging folder inside it.
+    /// `DIR/frames`.
+    frames_dir: PathBuf,
+    /// The staging folder inside it: on the same file system as the frames' places, however
+    /// `frames` is linked, so the frames move in by renaming.
     path: PathBuf,
     /// The staging folder's registration, for an interrupt to remove it; taken by `finish`.
     registered: Option<Partial>,
-    /// The sequence folder's registration, when this render made it.
-    created: Option<Partial>,
+    /// The folders this render made (`DIR`, `DIR/frames`), outermost first, with their
+    /// registrations.
+    made: Vec<(PathBuf, Partial)>,
 }
 
 impl Staging {
-    /// Creates `dir` (if need be) and an empty staging folder inside it.
-    fn create(dir: &Path) -> Result<Self, SynthError> {
-        if dir.exists() && !dir.is_dir() {
-            return Err(SynthError::io(dir, not_a_folder()));
-        }
-        // Registered only when this render makes it: a folder the user made is never removed.
-        let created = if dir.exists() {
-            None
-        } else {
-            let (p, ()) =
-                Partial::create(dir, PartialKind::EmptyDir, || std::fs::create_dir_all(dir))
-                    .map_err(|e| SynthError::io(dir, e))?;
-            Some(p)
-        };
-        let path = dir.join(format!(".pftrack-synth-{}.partial", std::process::id()));
+    /// Makes `dir` and `dir/frames` as needed and an empty staging folder in the latter,
+    /// after checking that the frames of a `frames`-long sequence can be moved in.
+    fn create(dir: &Path, frames: usize) -> Result<Self, SynthError> {
+        let frames_dir = dir.join("frames");
         let mut s = Self {
             dir: dir.to_path_buf(),
-            path,
+            frames_dir: frames_dir.clone(),
+            path: PathBuf::new(),
             registered: None,
-            created,
+            made: Vec::new(),
         };
-        // One left by an interrupted render of a process with the same id.
-        let _ = std::fs::remove_dir_all(&s.path);
-        let (registered, ()) =
-            Partial::create(&s.path, PartialKind::Tree, || std::fs::create_dir(&s.path))
-                .map_err(|e| SynthError::io(&s.path, e))?;
-        s.registered = Some(registered);
-        Ok(s)
-    }
-
-    /// Moves the staged sequence into place (see [`write_sequence`]) under the registry's
-    /// lock, so that an interrupt waits for it and finds either the old sequence or the new.
-    fn finish(mut self, frames: usize) -> Result<(), SynthError> {
-        let frames_dir = self.dir.join("frames");
-        if frames_dir.exists() && !frames_dir.is_dir() {
-            return Err(SynthError::io(&frames_dir, not_a_folder()));
-        }
-        for name in [TRUTH, INIT] {
-            let to = self.dir.join(name);
-            if to.is_dir() {
-                return Err(SynthError::io(&to, is_a_folder()));
+        for d in [dir, frames_dir.as_path()] {
+            // A link to nothing is not a folder, and cannot be made one.
+            let present = std::fs::symlink_metadata(d).is_ok();
+            if present && !d.is_dir() {
+                return Err(SynthError::io(d, not_a_folder()));
+            }
+            // Registered only when this render makes it: a folder the user made stays.
+            if !present {
+                let (p, ()) =
+                    Partial::create(d, PartialKind::EmptyDir, || std::fs::create_dir_all(d))
+                        .map_err(|e| SynthError::io(d, e))?;
+                s.made.push((d.to_path_buf(), p));
             }
         }
         for k in 0..frames {
@@ -453,7 +441,42 @@ impl Staging {
                 return Err(SynthError::io(&to, is_a_folder()));
             }
         }
-        let move_in = || -> Result<(), SynthError> {
+        for name in [TRUTH, INIT] {
+            let to = dir.join(name);
+            if to.is_dir() {
+                return Err(SynthError::io(&to, is_a_folder()));
+            }
+        }
+        // Unique to this render: another process (in another container, with the same id)
+        // may be rendering into the same folder.
+        let nanos = std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map_or(0, |d| d.as_nanos());
+        s.path = frames_dir.join(format!(
+            ".pftrack-synth-{}-{nanos}.partial",
+            std::process::id()
+        ));
+        let (registered, ()) =
+            Partial::create(&s.path, PartialKind::Tree, || std::fs::create_dir(&s.path))
+                .map_err(|e| SynthError::io(&s.path, e))?;
+        s.registered = Some(registered);
+        Ok(s)
+    }
+
+    /// Writes the truth and the init file beside their names, then moves the sequence into
+    /// place (see [`write_sequence`]) under the registry's lock, so that an interrupt waits
+    /// for it and finds either the old sequence or the new.
+    fn finish(mut self, frames: usize, truth: &str, init: &str) -> Result<(), SynthError> {
+        let prepare = |name: &str, text: &str| -> Result<Prepared, SynthError> {
+            let path = self.dir.join(name);
+            let mut f = AtomicFile::create(&path)?;
+            std::io::Write::write_all(&mut f, text.as_bytes())
+                .map_err(|e| SynthError::io(&path, e))?;
+            Ok(f.prepare()?)
+        };
+        let mut init = prepare(INIT, init)?;
+        let mut truth = prepare(TRUTH, truth)?;
+        let mut move_in = || -> Result<(), SynthError> {
             for name in [TRUTH, INIT] {
                 let p = self.dir.join(name);
                 match std::fs::remove_file(&p) {
@@ -462,19 +485,14 @@ impl Staging {
                     Err(e) => return Err(SynthError::io(&p, e)),
                 }
             }
-            std::fs::create_dir_all(&frames_dir).map_err(|e| SynthError::io(&frames_dir, e))?;
             for k in 0..frames {
-                let (from, to) = (
-                    self.path.join(frame_name(k)),
-                    frames_dir.join(frame_name(k)),
-                );
-                std::fs::rename(&from, &to).map_err(|e| SynthError::io(&to, e))?;
+                let to = self.frames_dir.join(frame_name(k));
+                std::fs::rename(self.path.join(frame_name(k)), &to)
+                    .map_err(|e| SynthError::io(&to, e))?;
             }
-            remove_stale_frames(&frames_dir, frames)?;
-            for name in [INIT, TRUTH] {
-                let to = self.dir.join(name);
-                std::fs::rename(self.path.join(name), &to).map_err(|e| SynthError::io(&to, e))?;
-            }
+            remove_stale_frames(&self.frames_dir, frames)?;
+            init.rename_now()?;
+            truth.rename_now()?;
             let _ = std::fs::remove_dir(&self.path);
             Ok(())
         };
@@ -483,7 +501,7 @@ impl Staging {
             None => move_in(),
         }?;
         // Made by this render and now holding the sequence: kept.
-        self.created = None;
+        self.made.clear();
         Ok(())
     }
 }
@@ -491,9 +509,9 @@ impl Staging {
 impl Drop for Staging {
     fn drop(&mut self) {
         let _ = std::fs::remove_dir_all(&self.path);
-        if self.created.is_some() {
-            // Only when empty: a failed render leaves no folder it made.
-            let _ = std::fs::remove_dir(&self.dir);
+        // Innermost first, and only when empty: a failed render leaves no folder it made.
+        for (d, _) in self.made.iter().rev() {
+            let _ = std::fs::remove_dir(d);
         }
     }
 }
@@ -517,7 +535,8 @@ fn write_png(img: &image::RgbImage, path: &Path) -> Result<(), SynthError> {
     })
 }
 
-/// Removes `NNNNN.png` frames with an index of `frames` or more (from an earlier, longer render)
+/// Removes `NNNNN.png` frames (regular files) with an index of `frames` or more (from an earlier,
+/// longer render)
 /// and the temporary files of frames an interrupted render left behind.
 fn remove_stale_frames(frames_dir: &Path, frames: usize) -> Result<(), SynthError> {
     let entries = std::fs::read_dir(frames_dir).map_err(|e| SynthError::io(frames_dir, e))?;
@@ -537,6 +556,7 @@ fn remove_stale_frames(frames_dir: &Path, frames: usize) -> Result<(), SynthErro
         if stem.len() == 5
             && stem.bytes().all(|b| b.is_ascii_digit())
             && stem.parse::<usize>().is_ok_and(|k| k >= frames)
+            && entry.file_type().is_ok_and(|t| t.is_file())
         {
             let p = entry.path();
             std::fs::remove_file(&p).map_err(|e| SynthError::io(&p, e))?;

@@ -153,15 +153,18 @@ impl Outputs {
         let mut names: Vec<PathBuf> = Vec::new();
         if let Some(p) = &args.csv {
             // Two files are written, the second named after the first: a stream or device
-            // has no such sibling (`--csv /dev/null` made a file `/dev/null_lambda`).
+            // has no such sibling (`--csv /dev/null` made a file `/dev/null_lambda`, and
+            // `/dev/stdout` redirected to a file made `/dev/stdout_lambda`).
+            let system = [Path::new("/dev"), Path::new("/proc")];
+            let absolute = std::path::absolute(p).unwrap_or_else(|_| p.clone());
             let stream = p.as_os_str() == pftrack::frames::STDIN
+                || system.iter().any(|d| absolute.starts_with(d))
                 || std::fs::metadata(p).is_ok_and(|m| !m.is_file() && !m.is_dir());
             if stream {
-                return Err(crate::UsageError(format!(
+                anyhow::bail!(
                     "--csv {}: writes two files, NAME and NAME with _lambda; give a file name",
                     p.display()
-                ))
-                .into());
+                );
             }
             names.push(p.clone());
             names.push(lambda_path(p));
