@@ -818,7 +818,10 @@ fn ffmpeg_missing_says_how_to_install() {
     };
     let e = FrameSource::from_video(&p, &SourceOptions::default(), &tools).unwrap_err();
     assert!(matches!(e, FrameError::FfmpegMissing { .. }), "{e}");
-    assert!(e.to_string().contains("clip.mp4"), "the video is named: {e}");
+    assert!(
+        e.to_string().contains("clip.mp4"),
+        "the video is named: {e}"
+    );
     assert!(
         e.to_string()
             .contains("install ffmpeg (Debian: apt-get install ffmpeg)"),

@@ -404,13 +404,14 @@ struct Staging {
     path: PathBuf,
     /// The staging folder's registration, for an interrupt to remove it; taken by `finish`.
     registered: Option<Partial>,
-    /// The folders this render made (`DIR`, `DIR/frames`), outermost first, with their
-    /// registrations.
+    /// The folders this render made (missing parents of `DIR`, `DIR`, `DIR/frames`),
+    /// outermost first, with their registrations.
     made: Vec<(PathBuf, Partial)>,
 }
 
 impl Staging {
-    /// Makes `dir` and `dir/frames` as needed and an empty staging folder in the latter,
+    /// Makes `dir` (and its missing parents) and `dir/frames` as needed and an empty staging
+    /// folder in the latter,
     /// after checking that the frames of a `frames`-long sequence can be moved in.
     fn create(dir: &Path, frames: usize) -> Result<Self, SynthError> {
         let frames_dir = dir.join("frames");
@@ -423,17 +424,26 @@ impl Staging {
         };
         for d in [dir, frames_dir.as_path()] {
             // A link to nothing is not a folder, and cannot be made one.
-            let present = std::fs::symlink_metadata(d).is_ok();
-            if present && !d.is_dir() {
+            if std::fs::symlink_metadata(d).is_ok() && !d.is_dir() {
                 return Err(SynthError::io(d, not_a_folder()));
             }
-            // Registered only when this render makes it: a folder the user made stays.
-            if !present {
-                let (p, ()) =
-                    Partial::create(d, PartialKind::EmptyDir, || std::fs::create_dir_all(d))
-                        .map_err(|e| SynthError::io(d, e))?;
-                s.made.push((d.to_path_buf(), p));
-            }
+        }
+        // The folders to make, outermost first: the missing ancestors of `dir`, `dir`, and
+        // `dir/frames`. Registered only when this render makes them: a folder the user made
+        // stays.
+        let mut missing: Vec<&Path> = dir
+            .ancestors()
+            .filter(|a| !a.as_os_str().is_empty())
+            .take_while(|a| std::fs::symlink_metadata(a).is_err())
+            .collect();
+        missing.reverse();
+        if std::fs::symlink_metadata(&frames_dir).is_err() {
+            missing.push(&frames_dir);
+        }
+        for d in missing {
+            let (p, ()) = Partial::create(d, PartialKind::EmptyDir, || std::fs::create_dir(d))
+                .map_err(|e| SynthError::io(d, e))?;
+            s.made.push((d.to_path_buf(), p));
         }
         for k in 0..frames {
             let to = frames_dir.join(frame_name(k));
