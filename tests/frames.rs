@@ -631,16 +631,18 @@ fn a_truncated_video_says_it_is_short() {
         });
         img.save(d.join(format!("{k}.png"))).unwrap();
     }
+    // The six frames encoded with ffmpeg's own MPEG-4 encoder (`extra`: more options).
+    let pattern = d.join("%d.png");
+    let encode = |out: &Path, extra: &[&str]| {
+        let os = std::ffi::OsStr::new;
+        let mut args = vec![os("-framerate"), os("10"), os("-i"), pattern.as_os_str()];
+        args.extend([os("-c:v"), os("mpeg4")]);
+        args.extend(extra.iter().map(|a| os(a)));
+        args.push(out.as_os_str());
+        ffmpeg(&args);
+    };
     let full = d.join("full.avi");
-    ffmpeg(&[
-        "-framerate".as_ref(),
-        "10".as_ref(),
-        "-i".as_ref(),
-        d.join("%d.png").as_os_str(),
-        "-c:v".as_ref(),
-        "mpeg4".as_ref(),
-        full.as_os_str(),
-    ]);
+    encode(&full, &[]);
     let bytes = std::fs::read(&full).unwrap();
     let cut = d.join("cut.avi");
     std::fs::write(&cut, &bytes[..bytes.len() * 2 / 5]).unwrap();
@@ -673,17 +675,7 @@ fn a_truncated_video_says_it_is_short() {
     // A clip cut without re-encoding keeps samples before its start that ffmpeg decodes but
     // never shows: fewer frames than declared, no complaint, no shortfall.
     let mp4 = d.join("full.mp4");
-    ffmpeg(&[
-        "-framerate".as_ref(),
-        "10".as_ref(),
-        "-i".as_ref(),
-        d.join("%d.png").as_os_str(),
-        "-c:v".as_ref(),
-        "mpeg4".as_ref(),
-        "-g".as_ref(),
-        "4".as_ref(),
-        mp4.as_os_str(),
-    ]);
+    encode(&mp4, &["-g", "4"]);
     let trimmed = d.join("trimmed.mp4");
     ffmpeg(&[
         "-ss".as_ref(),
