@@ -886,6 +886,46 @@ fn a_sequence_folder_in_an_odd_state_is_refused_or_left_alone() {
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
+/// A link named `truth.csv` is replaced by the new truth, not written through (which deleted
+/// the link, overwrote its target and left no truth); staging a killed render left an hour
+/// ago is removed, a fresh one (another render's, under way) is not.
+#[cfg(unix)]
+#[test]
+fn links_are_replaced_and_abandoned_staging_is_removed() {
+    let dir = tmp_dir("links");
+    let c = cfg(Scenario::Nod, 3, 48, 36);
+    write_sequence(&c, &dir, false).unwrap();
+    let elsewhere = dir.with_extension("elsewhere.csv");
+    std::fs::write(&elsewhere, "keep me").unwrap();
+    std::fs::remove_file(dir.join("truth.csv")).unwrap();
+    std::os::unix::fs::symlink(&elsewhere, dir.join("truth.csv")).unwrap();
+    let old = dir.join("frames/.pftrack-synth-1-1.partial");
+    let fresh = dir.join("frames/.pftrack-synth-2-2.partial");
+    for d in [&old, &fresh] {
+        std::fs::create_dir_all(d).unwrap();
+        std::fs::write(d.join("00000.png"), "x").unwrap();
+    }
+    let old_file = dir.join(".pftrack-synth-1-1.partial-truth.csv");
+    std::fs::write(&old_file, "half").unwrap();
+    for p in [&old, &old_file] {
+        let touched = std::process::Command::new("touch")
+            .args(["-d", "2 hours ago"])
+            .arg(p)
+            .status()
+            .unwrap();
+        assert!(touched.success());
+    }
+    write_sequence(&c, &dir, false).unwrap();
+    let meta = std::fs::symlink_metadata(dir.join("truth.csv")).unwrap();
+    assert!(meta.is_file(), "the link is replaced by a file");
+    assert_eq!(read_pose_csv(&dir.join("truth.csv")).unwrap().len(), 3);
+    assert_eq!(std::fs::read_to_string(&elsewhere).unwrap(), "keep me");
+    assert!(!old.exists() && !old_file.exists());
+    assert!(fresh.exists());
+    std::fs::remove_file(&elsewhere).unwrap();
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
 /// Normalised 8×8×8 RGB histogram of the listed pixels.
 fn histogram(img: &image::RgbImage, pixels: &[(u32, u32)]) -> Vec<f64> {
     let mut h = vec![0.0; 512];

@@ -145,19 +145,28 @@ pub fn decode_rgb(p: &Path) -> Result<Frame, FrameError> {
 
 /// Whether a JPEG's image data ends: walking its markers from the start, past each
 /// segment by its length and each scan's entropy-coded data (where a byte `FF` is followed
-/// only by `00` or a restart marker), the end-of-image marker `FF D9` is reached before the
-/// file ends. What follows that marker (a camera's trailer, a motion photo's video) is not
-/// looked at.
+/// only by `00`, by fill bytes `FF`, or by a restart marker), the end-of-image marker
+/// `FF D9` is reached before the file ends. Stray bytes between segments are passed over,
+/// as decoders do. What follows that marker (a camera's trailer, a motion photo's video) is
+/// not looked at.
 fn jpeg_scan_ends(bytes: &[u8]) -> bool {
     if !bytes.starts_with(&[0xFF, 0xD8]) {
         return false;
     }
+    // The next `FF` at or after `i`.
+    let next_ff = |i: usize| {
+        bytes
+            .get(i..)
+            .and_then(|r| r.iter().position(|&b| b == 0xFF))
+            .map(|off| i + off)
+    };
     let mut i = 2;
     loop {
-        // A marker, after any fill bytes `FF`.
-        if bytes.get(i) != Some(&0xFF) {
+        // A marker: stray bytes, then `FF`, any fill bytes `FF`, the marker's code.
+        let Some(ff) = next_ff(i) else {
             return false;
-        }
+        };
+        i = ff;
         while bytes.get(i + 1) == Some(&0xFF) {
             i += 1;
         }
@@ -167,8 +176,8 @@ fn jpeg_scan_ends(bytes: &[u8]) -> bool {
         i += 2;
         match marker {
             0xD9 => return true,
-            // Markers without a length: restarts, TEM.
-            0xD0..=0xD7 | 0x01 => continue,
+            // Markers without a length: restarts, TEM, and a stuffed zero out of place.
+            0xD0..=0xD7 | 0x01 | 0x00 => continue,
             _ => {}
         }
         let Some(len) = bytes
@@ -184,17 +193,20 @@ fn jpeg_scan_ends(bytes: &[u8]) -> bool {
         if marker == 0xDA {
             // The scan's data, up to the next marker that is not a stuffed byte or a restart.
             loop {
-                let Some(off) = bytes
-                    .get(i..)
-                    .and_then(|r| r.iter().position(|&b| b == 0xFF))
-                else {
+                let Some(ff) = next_ff(i) else {
                     return false;
                 };
-                i += off;
-                match bytes.get(i + 1) {
+                let mut j = ff;
+                while bytes.get(j + 1) == Some(&0xFF) {
+                    j += 1;
+                }
+                match bytes.get(j + 1) {
                     None => return false,
-                    Some(0x00 | 0xD0..=0xD7) => i += 2,
-                    Some(_) => break,
+                    Some(0x00 | 0xD0..=0xD7) => i = j + 2,
+                    Some(_) => {
+                        i = j;
+                        break;
+                    }
                 }
             }
         }
@@ -342,6 +354,18 @@ mod tests {
         }
         assert!(!jpeg_scan_ends(&[]));
         assert!(!jpeg_scan_ends(b"not a jpeg"));
+        // Decoders read past stray bytes between segments and fill bytes before a restart.
+        let stray = [&head[..], &[0, 0], &scan, &[0xFF, 0xD9]].concat();
+        assert!(jpeg_scan_ends(&stray));
+        let filled = [
+            &head[..],
+            &scan[..10],
+            &[0xFF, 0xFF, 0xD4, 5],
+            &[0xFF, 0xD9],
+        ]
+        .concat();
+        assert!(jpeg_scan_ends(&filled));
+        assert!(!jpeg_scan_ends(&filled[..filled.len() - 2]));
     }
 
     #[test]

@@ -82,6 +82,20 @@ fn spawn_error(program: &Path, input: &Path, e: std::io::Error) -> FrameError {
     }
 }
 
+/// A line of ffmpeg's log without the address in its prefix (`[h264 @ 0x5585572f2d80]` ->
+/// `[h264]`), which differs from run to run.
+fn without_address(line: &str) -> String {
+    if let Some(at) = line.find(" @ 0x")
+        && let Some(end) = line[at..].find(']')
+        && line[at + 5..at + end]
+            .bytes()
+            .all(|b| b.is_ascii_hexdigit())
+    {
+        return format!("{}{}", &line[..at], &line[at + end..]);
+    }
+    line.to_string()
+}
+
 /// The last non-empty line of a program's stderr, or a fallback.
 fn last_line(text: &str) -> String {
     text.lines()
@@ -353,7 +367,7 @@ impl FfmpegSource {
             .lines()
             .map(str::trim)
             .find(|l| !l.is_empty())
-            .map(str::to_string);
+            .map(without_address);
         Ok(Pipe::End)
     }
 }
@@ -375,5 +389,26 @@ impl Drop for FfmpegSource {
         // The stderr thread ends when the pipe closes; it is detached rather than joined, so a
         // grandchild holding the pipe open cannot hang the drop.
         drop(self.stderr.take());
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::without_address;
+
+    #[test]
+    fn log_lines_lose_their_address() {
+        assert_eq!(
+            without_address("[h264 @ 0x5585572f2d80] decode_slice_header error"),
+            "[h264] decode_slice_header error"
+        );
+        for kept in [
+            "plain line",
+            "[h264 @ 0xzz] x",
+            "a @ 0x12 without bracket",
+            "",
+        ] {
+            assert_eq!(without_address(kept), kept);
+        }
     }
 }

@@ -90,6 +90,25 @@ impl AtomicFile {
         })
     }
 
+    /// Opens a file that will replace `path` itself on commit, written meanwhile to
+    /// `partial` (in the same folder): a link at `path` is replaced, not followed, and
+    /// nothing is written through it (for a sequence folder's own files, where a stray link
+    /// must not send the truth elsewhere).
+    pub(crate) fn create_replacing(path: &Path, partial: PathBuf) -> Result<Self, FormatError> {
+        let err = |e: std::io::Error| FormatError::io(path, e);
+        let (registered, file) =
+            Partial::create(&partial, PartialKind::File, || File::create(&partial)).map_err(err)?;
+        Ok(Self {
+            target: path.to_path_buf(),
+            rename: Some(Rename {
+                partial,
+                to: path.to_path_buf(),
+                registered,
+            }),
+            writer: Some(BufWriter::new(file)),
+        })
+    }
+
     /// The final path.
     pub fn path(&self) -> &Path {
         &self.target

@@ -91,6 +91,52 @@ impl Drop for Partial {
     }
 }
 
+/// The folders a run made for its outputs, outermost first, each registered
+/// ([`PartialKind::EmptyDir`]) so that an interrupt removes it when nothing else is in it;
+/// [`MadeDirs::remove_empty`] does the same after a failure, and [`MadeDirs::keep`] forgets
+/// them once the output they hold is complete.
+#[derive(Debug, Default)]
+pub struct MadeDirs(Vec<(PathBuf, Partial)>);
+
+impl MadeDirs {
+    /// Makes `dir` and its missing parents one by one, as `create_dir_all` does, registering
+    /// each one this call made (a folder that was there, or that another process makes at
+    /// the same moment, is not this run's to remove). A `..` in the path is no folder to make.
+    pub fn create_all(&mut self, dir: &Path) -> std::io::Result<()> {
+        let mut missing: Vec<&Path> = dir
+            .ancestors()
+            .filter(|a| !a.as_os_str().is_empty())
+            .take_while(|a| std::fs::symlink_metadata(a).is_err())
+            .collect();
+        missing.reverse();
+        for d in missing {
+            match Partial::create(d, PartialKind::EmptyDir, || std::fs::create_dir(d)) {
+                Ok((p, ())) => self.0.push((d.to_path_buf(), p)),
+                Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists && d.is_dir() => {}
+                Err(e) => return Err(e),
+            }
+        }
+        Ok(())
+    }
+
+    /// Removes the folders made, innermost first, each only when empty.
+    pub fn remove_empty(&mut self) {
+        for (d, _) in self.0.drain(..).rev() {
+            let _ = std::fs::remove_dir(d);
+        }
+    }
+
+    /// Keeps the folders made: they now hold a complete output.
+    pub fn keep(&mut self) {
+        self.0.clear();
+    }
+
+    /// Whether this run made any folder.
+    pub fn any(&self) -> bool {
+        !self.0.is_empty()
+    }
+}
+
 /// Removes every partial output of this process (files, then staging folders, then the
 /// folders created for them if empty, newest first) and returns how many it removed; meant for a signal
 /// handler that ends the process next. The registry stays locked until the process ends, so
@@ -125,6 +171,32 @@ mod tests {
 
     fn registered(path: &Path) -> bool {
         registry().entries.iter().any(|e| e.path == path)
+    }
+
+    #[test]
+    fn made_folders_are_registered_one_by_one_and_removed_innermost_first() {
+        let root = std::env::temp_dir().join(format!("pftrack-made-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&root);
+        std::fs::create_dir_all(&root).unwrap();
+        let mut made = MadeDirs::default();
+        // `x/..` is not a folder to make (create_dir on it fails with "exists").
+        made.create_all(&root.join("x/../a/b/c")).unwrap();
+        assert!(root.join("a/b/c").is_dir());
+        // Registered as named, through the `..`.
+        for d in ["x", "x/../a", "x/../a/b", "x/../a/b/c"] {
+            assert!(registered(&root.join(d)), "{d}");
+        }
+        // Already there: nothing more made.
+        let mut again = MadeDirs::default();
+        again.create_all(&root.join("a/b")).unwrap();
+        assert!(!again.any());
+        // A file the user put in `a` keeps `a`; the rest goes.
+        std::fs::write(root.join("a/keep.txt"), "x").unwrap();
+        made.remove_empty();
+        assert!(!root.join("a/b").exists() && !root.join("x").exists());
+        assert!(root.join("a/keep.txt").exists());
+        assert!(!registered(&root.join("x/../a")));
+        std::fs::remove_dir_all(&root).unwrap();
     }
 
     #[test]

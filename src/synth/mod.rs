@@ -44,7 +44,7 @@ pub use trajectory::{CAR_DEPTH, HEAD_DEPTH, ObjectPose, Trajectory, smoothstep};
 use crate::geometry::Ellipse;
 use crate::io::atomic::Prepared;
 use crate::io::init::format_init;
-use crate::io::partial::{Partial, PartialKind};
+use crate::io::partial::{MadeDirs, Partial, PartialKind};
 use crate::io::{AtomicFile, FormatError, InitFile, PoseRecord, format_pose_csv};
 
 /// Errors of this module.
@@ -320,7 +320,8 @@ pub fn frame_name(k: usize) -> String {
 /// do they replace what `dir` held, in one move an interrupt waits for: the old `truth.csv`
 /// and `init.txt` are removed, the frames moved into `dir/frames`, frames `00000.png`... of a
 /// longer earlier render removed (regular files only), and the init file then the truth moved
-/// in last. What would stop the move (a `frames` that is not a folder, a folder named like a
+/// in last; staging left by renders killed outright (unchanged for an hour) goes too. The
+/// sequence's own files replace whatever has their names, a link included (not followed). What would stop the move (a `frames` that is not a folder, a folder named like a
 /// frame) is refused before anything is rendered or moved; only an I/O error in the move
 /// itself could leave `dir` without a `truth.csv`, which reads as unfinished. Folders this
 /// render made are removed again when it fails. Frames render in parallel (rayon); `progress` shows an
@@ -404,9 +405,8 @@ struct Staging {
     path: PathBuf,
     /// The staging folder's registration, for an interrupt to remove it; taken by `finish`.
     registered: Option<Partial>,
-    /// The folders this render made (missing parents of `DIR`, `DIR`, `DIR/frames`),
-    /// outermost first, with their registrations.
-    made: Vec<(PathBuf, Partial)>,
+    /// The folders this render made (missing parents of `DIR`, `DIR`, `DIR/frames`).
+    made: MadeDirs,
 }
 
 impl Staging {
@@ -420,7 +420,7 @@ impl Staging {
             frames_dir: frames_dir.clone(),
             path: PathBuf::new(),
             registered: None,
-            made: Vec::new(),
+            made: MadeDirs::default(),
         };
         for d in [dir, frames_dir.as_path()] {
             // A link to nothing is not a folder, and cannot be made one.
@@ -428,23 +428,10 @@ impl Staging {
                 return Err(SynthError::io(d, not_a_folder()));
             }
         }
-        // The folders to make, outermost first: the missing ancestors of `dir`, `dir`, and
-        // `dir/frames`. Registered only when this render makes them: a folder the user made
-        // stays.
-        let mut missing: Vec<&Path> = dir
-            .ancestors()
-            .filter(|a| !a.as_os_str().is_empty())
-            .take_while(|a| std::fs::symlink_metadata(a).is_err())
-            .collect();
-        missing.reverse();
-        if std::fs::symlink_metadata(&frames_dir).is_err() {
-            missing.push(&frames_dir);
-        }
-        for d in missing {
-            let (p, ()) = Partial::create(d, PartialKind::EmptyDir, || std::fs::create_dir(d))
-                .map_err(|e| SynthError::io(d, e))?;
-            s.made.push((d.to_path_buf(), p));
-        }
+        // Registered only when this render makes them: a folder the user made stays.
+        s.made
+            .create_all(&frames_dir)
+            .map_err(|e| SynthError::io(&frames_dir, e))?;
         for k in 0..frames {
             let to = frames_dir.join(frame_name(k));
             if to.is_dir() {
@@ -477,9 +464,13 @@ impl Staging {
     /// place (see [`write_sequence`]) under the registry's lock, so that an interrupt waits
     /// for it and finds either the old sequence or the new.
     fn finish(mut self, frames: usize, truth: &str, init: &str) -> Result<(), SynthError> {
+        // Beside their names, named after this render's staging folder so that two renders
+        // into one folder do not share them; a link of that name is replaced, not followed.
         let prepare = |name: &str, text: &str| -> Result<Prepared, SynthError> {
             let path = self.dir.join(name);
-            let mut f = AtomicFile::create(&path)?;
+            let staging = self.path.file_name().unwrap_or_default().to_string_lossy();
+            let partial = self.dir.join(format!("{staging}-{name}"));
+            let mut f = AtomicFile::create_replacing(&path, partial)?;
             std::io::Write::write_all(&mut f, text.as_bytes())
                 .map_err(|e| SynthError::io(&path, e))?;
             Ok(f.prepare()?)
@@ -511,8 +502,44 @@ impl Staging {
             None => move_in(),
         }?;
         // Made by this render and now holding the sequence: kept.
-        self.made.clear();
+        self.made.keep();
+        remove_abandoned(&self.frames_dir, &self.dir);
         Ok(())
+    }
+}
+
+/// How long a staging folder or file goes unchanged before a render takes it for one a
+/// killed render left (a render adds a frame every few milliseconds).
+const ABANDONED_AFTER: std::time::Duration = std::time::Duration::from_secs(3600);
+
+/// Removes what renders killed outright (no clean-up runs on `SIGKILL` or a power cut) left
+/// in `frames_dir` and `dir`: `.pftrack-synth-*` staging folders and files unchanged for
+/// [`ABANDONED_AFTER`]. A render in progress in the same folder keeps changing its own.
+fn remove_abandoned(frames_dir: &Path, dir: &Path) {
+    for folder in [frames_dir, dir] {
+        let Ok(entries) = std::fs::read_dir(folder) else {
+            continue;
+        };
+        for entry in entries.flatten() {
+            let name = entry.file_name();
+            if !name.to_string_lossy().starts_with(".pftrack-synth-") {
+                continue;
+            }
+            let old = entry
+                .metadata()
+                .and_then(|m| m.modified())
+                .ok()
+                .and_then(|t| t.elapsed().ok())
+                .is_some_and(|age| age > ABANDONED_AFTER);
+            if old {
+                let p = entry.path();
+                let _ = if p.is_dir() {
+                    std::fs::remove_dir_all(&p)
+                } else {
+                    std::fs::remove_file(&p)
+                };
+            }
+        }
     }
 }
 
@@ -520,9 +547,7 @@ impl Drop for Staging {
     fn drop(&mut self) {
         let _ = std::fs::remove_dir_all(&self.path);
         // Innermost first, and only when empty: a failed render leaves no folder it made.
-        for (d, _) in self.made.iter().rev() {
-            let _ = std::fs::remove_dir(d);
-        }
+        self.made.remove_empty();
     }
 }
 

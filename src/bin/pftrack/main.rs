@@ -121,14 +121,37 @@ fn main() {
         let closed = e.chain().any(closed_pipe);
         if closed {
             // The reader stopped reading: it has what it wanted.
-            std::process::exit(0);
+            exit(0);
         }
         // One line: the error and its causes joined.
         let msg = compact_numbers(&one_line_chain(e.chain().map(|c| c.to_string())));
         errln!("pftrack: error: {msg}");
         let usage = e.chain().any(|c| c.is::<UsageError>());
-        std::process::exit(if usage { 2 } else { 1 });
+        exit(if usage { 2 } else { 1 });
     }
+    exit(0);
+}
+
+/// Set in the signal handler itself, at the moment an interrupt arrives.
+#[cfg(unix)]
+static INTERRUPTED: std::sync::OnceLock<std::sync::Arc<std::sync::atomic::AtomicBool>> =
+    std::sync::OnceLock::new();
+
+/// Ends the process with `code`, unless an interrupt has arrived: then the interrupt's
+/// handler ends it (by the signal, after its clean-up), however far the run had got. A
+/// signal during the last moves of a run (its outputs' commit, which holds the clean-up
+/// back) used to be lost when the run ended first, with status 0.
+fn exit(code: i32) -> ! {
+    #[cfg(unix)]
+    if INTERRUPTED
+        .get()
+        .is_some_and(|f| f.load(std::sync::atomic::Ordering::SeqCst))
+    {
+        loop {
+            std::thread::park();
+        }
+    }
+    std::process::exit(code)
 }
 
 /// On Ctrl-C, `kill` (SIGTERM) or a closed terminal (SIGHUP): removes the outputs still in
@@ -149,6 +172,12 @@ fn on_interrupt_remove_partial_outputs() {
     let Ok(mut signals) = signal_hook::iterator::Signals::new(&caught) else {
         return;
     };
+    let flag = INTERRUPTED.get_or_init(Default::default);
+    for &s in &caught {
+        // Where this fails the run still ends by the iterator's thread below, only not
+        // waited for at the very end.
+        let _ = signal_hook::flag::register(s, std::sync::Arc::clone(flag));
+    }
     std::thread::spawn(move || {
         if let Some(signal) = signals.forever().next() {
             // A second signal ends the process at once, should the clean-up or the message
@@ -218,11 +247,14 @@ fn one_line_chain(chain: impl Iterator<Item = String>) -> String {
 /// The message with every number written in more than 24 characters put in exponent form:
 /// Rust writes an `f64` in full, so a 1e308 given for a size came back as 309 digits, and
 /// 1e-300 as 300 zeros. Only a number standing alone is touched (after a space, a bracket, a
-/// comma, `=`, `:` or a quote, and before one, a full stop or the end): digits inside a name
-/// (`run_20240101120000000000000001/video.mp4`) are left as written.
+/// comma, `=`, `:` or a quote, and before one, a full stop or the end), and nothing before
+/// the first `": "`, where a message names its file: digits inside a name
+/// (`run_20240101120000000000000001/video.mp4`, or a name all digits) are left as written.
 fn compact_numbers(msg: &str) -> String {
+    // What comes before the first ": " is a path or a flag, as given: left alone.
+    let (lead, msg) = msg.split_at(msg.find(": ").unwrap_or(0));
     let apart = |c: Option<char>| c.is_none_or(|c| c.is_whitespace() || "()[],;:='\"".contains(c));
-    let mut out = String::with_capacity(msg.len());
+    let mut out = String::from(lead);
     let mut rest = msg;
     while let Some(start) = rest.find(|c: char| c.is_ascii_digit()) {
         out.push_str(&rest[..start]);
@@ -339,6 +371,8 @@ mod tests {
             "/data/20240101120000000000000001.mp4: no such file",
             "x-20240101120000000000000001 and 20240101120000000000000001a",
             "192.168.100.200",
+            "1000000000000000000000000000001: no such file or directory",
+            "my 1000000000000000000000000000001: no such file or directory",
         ] {
             assert_eq!(compact_numbers(kept), kept);
         }

@@ -9,7 +9,7 @@ use pftrack::frames::Rescale;
 use pftrack::frames::{self, SourceOptions};
 use pftrack::geometry::{BoxRect, Ellipse, Euler};
 use pftrack::io::{InitFile, PoseCsvWriter};
-use pftrack::io::{Partial, PartialKind};
+use pftrack::io::{MadeDirs, Partial, PartialKind};
 use pftrack::likelihood::{Backend, create_engine};
 use pftrack::output::{Overlay, default_scale, render_overlay, write_png};
 use pftrack::tracker::{ColourUpdate, Estimate, Init, MAX_WEIGHT, Mode, Tracker, TrackerConfig};
@@ -775,9 +775,9 @@ struct RenderStaging {
     /// The staging folder's registration, for an interrupt to remove it
     /// ([`pftrack::io::partial`]); taken when the frames are moved in.
     registered: Option<Partial>,
-    /// The render folder's registration, when this run created it (and an interrupt or a
-    /// failure removes it if empty).
-    created: Option<Partial>,
+    /// The folders this run made for the render (the folder and its missing parents; an
+    /// interrupt or a failure removes them if empty).
+    made: MadeDirs,
 }
 
 impl RenderStaging {
@@ -786,22 +786,17 @@ impl RenderStaging {
         if dir.exists() && !dir.is_dir() {
             bail!("--render {}: not a folder", dir.display());
         }
-        // Registered only when this run makes it: an interrupt never removes a folder the
+        // Registered only when this run makes them: an interrupt never removes a folder the
         // user made, empty or not.
-        let created = if dir.exists() {
-            None
-        } else {
-            let (p, ()) =
-                Partial::create(dir, PartialKind::EmptyDir, || std::fs::create_dir_all(dir))
-                    .with_context(|| format!("creating {}", dir.display()))?;
-            Some(p)
-        };
+        let mut made = MadeDirs::default();
+        made.create_all(dir)
+            .with_context(|| format!("creating {}", dir.display()))?;
         let staging = dir.join(format!(".pftrack-render-{}.partial", std::process::id()));
         let mut s = Self {
             dir: dir.to_path_buf(),
             staging,
             registered: None,
-            created,
+            made,
         };
         // One left by an interrupted run of a process with the same id.
         let _ = std::fs::remove_dir_all(&s.staging);
@@ -873,10 +868,9 @@ impl RenderStaging {
 impl Drop for RenderStaging {
     fn drop(&mut self) {
         let _ = std::fs::remove_dir_all(&self.staging);
-        if self.created.is_some() {
-            // Only when empty: a failed run leaves no folder it made.
-            let _ = std::fs::remove_dir(&self.dir);
-        }
+        // Only when empty: a failed run leaves no folder it made (a finished one has filled
+        // them).
+        self.made.remove_empty();
     }
 }
 
