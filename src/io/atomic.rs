@@ -76,18 +76,7 @@ impl AtomicFile {
         // A regular file or nothing yet: the partial file goes beside the file the links end
         // at (a dangling link: the file it would name).
         let resolved = resolve_links(path).map_err(err)?;
-        let partial = partial_path(&resolved);
-        let (registered, file) =
-            Partial::create(&partial, PartialKind::File, || File::create(&partial)).map_err(err)?;
-        Ok(Self {
-            target: path.to_path_buf(),
-            rename: Some(Rename {
-                partial,
-                to: resolved,
-                registered,
-            }),
-            writer: Some(BufWriter::new(file)),
-        })
+        Self::staged(path, partial_path(&resolved), resolved)
     }
 
     /// Opens a file that will replace `path` itself on commit, written meanwhile to
@@ -95,14 +84,20 @@ impl AtomicFile {
     /// nothing is written through it (for a sequence folder's own files, where a stray link
     /// must not send the truth elsewhere).
     pub(crate) fn create_replacing(path: &Path, partial: PathBuf) -> Result<Self, FormatError> {
-        let err = |e: std::io::Error| FormatError::io(path, e);
+        Self::staged(path, partial, path.to_path_buf())
+    }
+
+    /// Writes to `partial` (registered for an interrupt to remove), renamed onto `to` on
+    /// commit; `target` is the name messages give.
+    fn staged(target: &Path, partial: PathBuf, to: PathBuf) -> Result<Self, FormatError> {
         let (registered, file) =
-            Partial::create(&partial, PartialKind::File, || File::create(&partial)).map_err(err)?;
+            Partial::create(&partial, PartialKind::File, || File::create(&partial))
+                .map_err(|e| FormatError::io(target, e))?;
         Ok(Self {
-            target: path.to_path_buf(),
+            target: target.to_path_buf(),
             rename: Some(Rename {
                 partial,
-                to: path.to_path_buf(),
+                to,
                 registered,
             }),
             writer: Some(BufWriter::new(file)),
