@@ -137,6 +137,66 @@ impl MadeDirs {
     }
 }
 
+/// A hidden folder an output is built in before it moves into place: made (with the folders
+/// it needs, [`MadeDirs`]) inside the folder the output goes to, so that the output moves in
+/// by renaming, and registered so that an interrupt removes it. Dropped, it is removed, with
+/// the folders made for it that are still empty; [`StagingDir::commit`] runs the move.
+#[derive(Debug)]
+pub struct StagingDir {
+    path: PathBuf,
+    /// Taken by [`StagingDir::commit`].
+    registered: Option<Partial>,
+    made: MadeDirs,
+}
+
+impl StagingDir {
+    /// Makes `parent` as need be (and its missing parents) and a new folder
+    /// `.PREFIX-PID-NANOS.partial` in it, a name no other run (another process with the same
+    /// id in another container, say) has.
+    pub fn create(parent: &Path, prefix: &str) -> std::io::Result<Self> {
+        let mut made = MadeDirs::default();
+        made.create_all(parent)?;
+        let nanos = std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map_or(0, |d| d.as_nanos());
+        let path = parent.join(format!(".{prefix}-{}-{nanos}.partial", std::process::id()));
+        let mut s = Self {
+            path,
+            registered: None,
+            made,
+        };
+        let (registered, ()) =
+            Partial::create(&s.path, PartialKind::Tree, || std::fs::create_dir(&s.path))?;
+        s.registered = Some(registered);
+        Ok(s)
+    }
+
+    /// The staging folder.
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+
+    /// Runs `move_in` (which moves the output out of the staging folder into place) under the
+    /// registry's lock, so that an interrupt finds all of it moved or none, and forgets the
+    /// folder; on success the folders made for the output are kept.
+    pub fn commit<T, E>(&mut self, move_in: impl FnOnce() -> Result<T, E>) -> Result<T, E> {
+        let out = match self.registered.take() {
+            Some(r) => r.commit(move_in),
+            None => move_in(),
+        }?;
+        self.made.keep();
+        Ok(out)
+    }
+}
+
+impl Drop for StagingDir {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.path);
+        // Innermost first, and only when empty: a failed run leaves no folder it made.
+        self.made.remove_empty();
+    }
+}
+
 /// Removes every partial output of this process (files, then staging folders, then the
 /// folders created for them if empty, newest first) and returns how many it removed; meant for a signal
 /// handler that ends the process next. The registry stays locked until the process ends, so

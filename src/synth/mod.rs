@@ -44,7 +44,7 @@ pub use trajectory::{CAR_DEPTH, HEAD_DEPTH, ObjectPose, Trajectory, smoothstep};
 use crate::geometry::Ellipse;
 use crate::io::atomic::Prepared;
 use crate::io::init::format_init;
-use crate::io::partial::{MadeDirs, Partial, PartialKind};
+use crate::io::partial::StagingDir;
 use crate::io::{AtomicFile, FormatError, InitFile, PoseRecord, format_pose_csv};
 
 /// Errors of this module.
@@ -353,7 +353,7 @@ pub fn write_sequence(
         .into_par_iter()
         .map(|k| {
             let (img, state) = renderer.render(k);
-            write_png(&img, &stage.path.join(frame_name(k)))?;
+            write_png(&img, &stage.frame(k))?;
             bar.inc(1);
             Ok(state)
         })
@@ -392,9 +392,9 @@ const TRUTH: &str = "truth.csv";
 /// The init file's name in a sequence folder.
 const INIT: &str = "init.txt";
 
-/// The hidden folder inside `DIR/frames` that a render writes its frames into, moved into
-/// place by [`Staging::finish`]; dropped unfinished, it is removed, with the folders this
-/// render made when nothing else is in them.
+/// The hidden folder inside `DIR/frames` that a render writes its frames into
+/// ([`StagingDir`]), moved into place by [`Staging::finish`]; dropped unfinished, it is
+/// removed, with the folders this render made when nothing else is in them.
 struct Staging {
     /// The sequence folder.
     dir: PathBuf,
@@ -402,62 +402,38 @@ struct Staging {
     frames_dir: PathBuf,
     /// The staging folder inside it: on the same file system as the frames' places, however
     /// `frames` is linked, so the frames move in by renaming.
-    path: PathBuf,
-    /// The staging folder's registration, for an interrupt to remove it; taken by `finish`.
-    registered: Option<Partial>,
-    /// The folders this render made (missing parents of `DIR`, `DIR`, `DIR/frames`).
-    made: MadeDirs,
+    stage: StagingDir,
 }
 
 impl Staging {
-    /// Makes `dir` (and its missing parents) and `dir/frames` as needed and an empty staging
-    /// folder in the latter,
-    /// after checking that the frames of a `frames`-long sequence can be moved in.
+    /// Checks that the frames of a `frames`-long sequence can be moved into `dir`, then makes
+    /// `dir/frames` as need be (registering what it makes) and the staging folder inside.
     fn create(dir: &Path, frames: usize) -> Result<Self, SynthError> {
         let frames_dir = dir.join("frames");
-        let mut s = Self {
-            dir: dir.to_path_buf(),
-            frames_dir: frames_dir.clone(),
-            path: PathBuf::new(),
-            registered: None,
-            made: MadeDirs::default(),
-        };
         for d in [dir, frames_dir.as_path()] {
             // A link to nothing is not a folder, and cannot be made one.
             if std::fs::symlink_metadata(d).is_ok() && !d.is_dir() {
                 return Err(SynthError::io(d, not_a_folder()));
             }
         }
-        // Registered only when this render makes them: a folder the user made stays.
-        s.made
-            .create_all(&frames_dir)
+        let names = (0..frames).map(|k| frames_dir.join(frame_name(k)));
+        for to in names.chain([TRUTH, INIT].map(|n| dir.join(n))) {
+            if to.is_dir() {
+                return Err(SynthError::io(&to, is_a_folder()));
+            }
+        }
+        let stage = StagingDir::create(&frames_dir, "pftrack-synth")
             .map_err(|e| SynthError::io(&frames_dir, e))?;
-        for k in 0..frames {
-            let to = frames_dir.join(frame_name(k));
-            if to.is_dir() {
-                return Err(SynthError::io(&to, is_a_folder()));
-            }
-        }
-        for name in [TRUTH, INIT] {
-            let to = dir.join(name);
-            if to.is_dir() {
-                return Err(SynthError::io(&to, is_a_folder()));
-            }
-        }
-        // Unique to this render: another process (in another container, with the same id)
-        // may be rendering into the same folder.
-        let nanos = std::time::SystemTime::now()
-            .duration_since(std::time::UNIX_EPOCH)
-            .map_or(0, |d| d.as_nanos());
-        s.path = frames_dir.join(format!(
-            ".pftrack-synth-{}-{nanos}.partial",
-            std::process::id()
-        ));
-        let (registered, ()) =
-            Partial::create(&s.path, PartialKind::Tree, || std::fs::create_dir(&s.path))
-                .map_err(|e| SynthError::io(&s.path, e))?;
-        s.registered = Some(registered);
-        Ok(s)
+        Ok(Self {
+            dir: dir.to_path_buf(),
+            frames_dir,
+            stage,
+        })
+    }
+
+    /// Where frame `k` is rendered.
+    fn frame(&self, k: usize) -> PathBuf {
+        self.stage.path().join(frame_name(k))
     }
 
     /// Writes the truth and the init file beside their names, then moves the sequence into
@@ -466,9 +442,10 @@ impl Staging {
     fn finish(mut self, frames: usize, truth: &str, init: &str) -> Result<(), SynthError> {
         // Beside their names, named after this render's staging folder so that two renders
         // into one folder do not share them; a link of that name is replaced, not followed.
+        let staging = self.stage.path().file_name().unwrap_or_default();
+        let staging = staging.to_string_lossy().into_owned();
         let prepare = |name: &str, text: &str| -> Result<Prepared, SynthError> {
             let path = self.dir.join(name);
-            let staging = self.path.file_name().unwrap_or_default().to_string_lossy();
             let partial = self.dir.join(format!("{staging}-{name}"));
             let mut f = AtomicFile::create_replacing(&path, partial)?;
             std::io::Write::write_all(&mut f, text.as_bytes())
@@ -477,9 +454,11 @@ impl Staging {
         };
         let mut init = prepare(INIT, init)?;
         let mut truth = prepare(TRUTH, truth)?;
-        let mut move_in = || -> Result<(), SynthError> {
+        let (dir, frames_dir) = (&self.dir, &self.frames_dir);
+        let stage_path = self.stage.path().to_path_buf();
+        self.stage.commit(|| -> Result<(), SynthError> {
             for name in [TRUTH, INIT] {
-                let p = self.dir.join(name);
+                let p = dir.join(name);
                 match std::fs::remove_file(&p) {
                     Ok(()) => {}
                     Err(e) if e.kind() == std::io::ErrorKind::NotFound => {}
@@ -487,22 +466,16 @@ impl Staging {
                 }
             }
             for k in 0..frames {
-                let to = self.frames_dir.join(frame_name(k));
-                std::fs::rename(self.path.join(frame_name(k)), &to)
+                let to = frames_dir.join(frame_name(k));
+                std::fs::rename(stage_path.join(frame_name(k)), &to)
                     .map_err(|e| SynthError::io(&to, e))?;
             }
-            remove_stale_frames(&self.frames_dir, frames)?;
+            remove_stale_frames(frames_dir, frames)?;
             init.rename_now()?;
             truth.rename_now()?;
-            let _ = std::fs::remove_dir(&self.path);
+            let _ = std::fs::remove_dir(&stage_path);
             Ok(())
-        };
-        match self.registered.take() {
-            Some(r) => r.commit(move_in),
-            None => move_in(),
-        }?;
-        // Made by this render and now holding the sequence: kept.
-        self.made.keep();
+        })?;
         remove_abandoned(&self.frames_dir, &self.dir);
         Ok(())
     }
@@ -540,14 +513,6 @@ fn remove_abandoned(frames_dir: &Path, dir: &Path) {
                 };
             }
         }
-    }
-}
-
-impl Drop for Staging {
-    fn drop(&mut self) {
-        let _ = std::fs::remove_dir_all(&self.path);
-        // Innermost first, and only when empty: a failed render leaves no folder it made.
-        self.made.remove_empty();
     }
 }
 

@@ -63,8 +63,8 @@ pub fn run(a: DemoArgs) -> anyhow::Result<()> {
     if let Some(n) = notice {
         errln!("pftrack: {n}");
     }
+    // `write_sequence` makes the folders, registered for an interrupt to remove.
     let seq_dir = a.out.join("sequence");
-    std::fs::create_dir_all(&seq_dir).with_context(|| format!("creating {}", seq_dir.display()))?;
     let t0 = std::time::Instant::now();
     let summary = write_sequence(&cfg, &seq_dir, std::io::stderr().is_terminal())?;
     let render_s = t0.elapsed().as_secs_f64();

@@ -8,10 +8,12 @@ use clap::Args;
 use pftrack::frames::Rescale;
 use pftrack::frames::{self, SourceOptions};
 use pftrack::geometry::{BoxRect, Ellipse, Euler};
+use pftrack::io::StagingDir;
 use pftrack::io::{InitFile, PoseCsvWriter};
-use pftrack::io::{MadeDirs, Partial, PartialKind};
+// Rendered frames are numbered as synthetic ones are: NNNNN.png.
 use pftrack::likelihood::{Backend, create_engine};
 use pftrack::output::{Overlay, default_scale, render_overlay, write_png};
+use pftrack::synth::frame_name;
 use pftrack::tracker::{ColourUpdate, Estimate, Init, MAX_WEIGHT, Mode, Tracker, TrackerConfig};
 
 use crate::values;
@@ -765,19 +767,14 @@ pub fn run(mut a: TrackArgs) -> anyhow::Result<()> {
 }
 
 /// Where `--render` draws its frames until the track is done: a hidden folder inside the
-/// render folder, removed when dropped (with the render folder, when this run created it and
-/// it is still empty).
+/// render folder ([`StagingDir`]), removed when dropped (with the render folder, when this run
+/// created it and it is still empty).
 struct RenderStaging {
     /// The render folder.
     dir: PathBuf,
-    /// The hidden folder inside it.
-    staging: PathBuf,
-    /// The staging folder's registration, for an interrupt to remove it
-    /// ([`pftrack::io::partial`]); taken when the frames are moved in.
-    registered: Option<Partial>,
-    /// The folders this run made for the render (the folder and its missing parents; an
-    /// interrupt or a failure removes them if empty).
-    made: MadeDirs,
+    /// The hidden folder inside it, registered for an interrupt to remove it
+    /// ([`pftrack::io::partial`]), with the folders this run made for the render.
+    stage: StagingDir,
 }
 
 impl RenderStaging {
@@ -786,39 +783,27 @@ impl RenderStaging {
         if dir.exists() && !dir.is_dir() {
             bail!("--render {}: not a folder", dir.display());
         }
-        // Registered only when this run makes them: an interrupt never removes a folder the
-        // user made, empty or not.
-        let mut made = MadeDirs::default();
-        made.create_all(dir)
-            .with_context(|| format!("creating {}", dir.display()))?;
-        let staging = dir.join(format!(".pftrack-render-{}.partial", std::process::id()));
-        let mut s = Self {
+        // What it makes is registered: an interrupt never removes a folder the user made,
+        // empty or not.
+        let stage = StagingDir::create(dir, "pftrack-render")
+            .with_context(|| format!("cannot write rendered frames into {}", dir.display()))?;
+        Ok(Self {
             dir: dir.to_path_buf(),
-            staging,
-            registered: None,
-            made,
-        };
-        // One left by an interrupted run of a process with the same id.
-        let _ = std::fs::remove_dir_all(&s.staging);
-        let (registered, ()) = Partial::create(&s.staging, PartialKind::Tree, || {
-            std::fs::create_dir(&s.staging)
+            stage,
         })
-        .with_context(|| format!("cannot write rendered frames into {}", dir.display()))?;
-        s.registered = Some(registered);
-        Ok(s)
     }
 
     /// Where frame `n` is drawn.
     fn frame(&self, n: usize) -> PathBuf {
-        self.staging.join(frame_name(n))
+        self.stage.path().join(frame_name(n))
     }
 
     /// The frames drawn, with where each goes; an error when one of those places holds
     /// something a frame cannot replace (a folder), found before anything is moved.
     fn moves(&self) -> anyhow::Result<Vec<(PathBuf, PathBuf)>> {
-        let listing = || format!("listing {}", self.staging.display());
+        let listing = || format!("listing {}", self.stage.path().display());
         let mut moves = Vec::new();
-        for entry in std::fs::read_dir(&self.staging).with_context(listing)? {
+        for entry in std::fs::read_dir(self.stage.path()).with_context(listing)? {
             let entry = entry.with_context(listing)?;
             let to = self.dir.join(entry.file_name());
             if to.is_dir() {
@@ -846,10 +831,7 @@ impl RenderStaging {
             }
             Ok(())
         };
-        match self.registered.take() {
-            Some(r) => r.commit(move_all)?,
-            None => move_all()?,
-        }
+        self.stage.commit(move_all)?;
         let mut removed = 0;
         for n in frames.. {
             let stale = self.dir.join(frame_name(n));
@@ -863,20 +845,6 @@ impl RenderStaging {
         }
         Ok(removed)
     }
-}
-
-impl Drop for RenderStaging {
-    fn drop(&mut self) {
-        let _ = std::fs::remove_dir_all(&self.staging);
-        // Only when empty: a failed run leaves no folder it made (a finished one has filled
-        // them).
-        self.made.remove_empty();
-    }
-}
-
-/// The file name of rendered frame `n`.
-fn frame_name(n: usize) -> String {
-    format!("{n:05}.png")
 }
 
 fn run_loop(
