@@ -784,6 +784,44 @@ fn cli_a_full_standard_output_is_an_error() {
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
+/// Starts `cmd` with the interrupt signals at their default actions whatever the test's own
+/// (a test run in the background of a script inherits SIGINT ignored), and SIGHUP ignored
+/// when `nohup`.
+#[cfg(unix)]
+fn spawn_with_default_signals(cmd: &mut Command, nohup: bool) -> std::process::Child {
+    use std::os::unix::process::CommandExt as _;
+    // SAFETY: between fork and exec only async-signal-safe calls (signal(2)).
+    unsafe {
+        cmd.pre_exec(move || {
+            for s in [libc::SIGINT, libc::SIGTERM, libc::SIGHUP] {
+                libc::signal(s, libc::SIG_DFL);
+            }
+            if nohup {
+                libc::signal(libc::SIGHUP, libc::SIG_IGN);
+            }
+            Ok(())
+        });
+    }
+    cmd.spawn().expect("run pftrack")
+}
+
+#[cfg(unix)]
+/// Waits (a minute at most) until `rendered` says a frame is drawn.
+fn wait_for_a_frame(rendered: impl Fn() -> bool) {
+    let t0 = std::time::Instant::now();
+    while !rendered() {
+        assert!(t0.elapsed().as_secs() < 60, "no frame rendered");
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
+}
+
+/// Sends `signal` to `child`.
+#[cfg(unix)]
+fn send(child: &std::process::Child, signal: i32) {
+    // SAFETY: kill(2) on the child's own pid.
+    assert_eq!(unsafe { libc::kill(child.id() as libc::pid_t, signal) }, 0);
+}
+
 /// An interrupt (SIGINT, SIGTERM) mid-run removes what the run had in progress: the pose
 /// CSV's partial file and the render's staging folder, and the render folder the run made;
 /// the command says so in one line and ends by the signal. A signal ignored from the start
@@ -795,7 +833,7 @@ fn cli_a_full_standard_output_is_an_error() {
 #[test]
 fn cli_an_interrupted_track_leaves_nothing_behind() {
     use std::io::Write as _;
-    use std::os::unix::process::{CommandExt as _, ExitStatusExt as _};
+    use std::os::unix::process::ExitStatusExt as _;
     let dir = tmp_dir("interrupt");
     std::fs::create_dir_all(&dir).unwrap();
     let (w, h) = (64usize, 48usize);
@@ -832,19 +870,7 @@ fn cli_an_interrupted_track_leaves_nothing_behind() {
         .stdin(Stdio::piped())
         .stdout(Stdio::piped())
         .stderr(Stdio::piped());
-        // SAFETY: between fork and exec only async-signal-safe calls (signal(2)).
-        unsafe {
-            cmd.pre_exec(move || {
-                for s in [libc::SIGINT, libc::SIGTERM, libc::SIGHUP] {
-                    libc::signal(s, libc::SIG_DFL);
-                }
-                if nohup {
-                    libc::signal(libc::SIGHUP, libc::SIG_IGN);
-                }
-                Ok(())
-            });
-        }
-        let mut child = cmd.spawn().expect("run pftrack");
+        let mut child = spawn_with_default_signals(&mut cmd, nohup);
         let mut stdin = child.stdin.take().unwrap();
         stdin.write_all(&stream).unwrap();
         stdin.flush().unwrap();
@@ -858,19 +884,13 @@ fn cli_an_interrupted_track_leaves_nothing_behind() {
                 .map(|d| d.flatten().filter(|f| f.file_name() == "00002.png").count())
                 .sum::<usize>()
         };
-        let t0 = std::time::Instant::now();
-        while staged() == 0 {
-            assert!(t0.elapsed().as_secs() < 60, "no frame rendered");
-            std::thread::sleep(std::time::Duration::from_millis(20));
-        }
+        wait_for_a_frame(|| staged() > 0);
         let names_then = names(&dir);
         assert!(
             names_then.contains(&".poses.csv.partial".to_string()),
             "{names_then:?}"
         );
-        let pid = child.id() as libc::pid_t;
-        // SAFETY: kill(2) on the child's own pid.
-        assert_eq!(unsafe { libc::kill(pid, first) }, 0);
+        send(&child, first);
         if nohup {
             // Ignored: still running, its partial files in place.
             std::thread::sleep(std::time::Duration::from_millis(300));
@@ -879,8 +899,7 @@ fn cli_an_interrupted_track_leaves_nothing_behind() {
                 "SIGHUP ended a nohup run"
             );
             assert!(names(&dir).contains(&".poses.csv.partial".to_string()));
-            // SAFETY: as above.
-            assert_eq!(unsafe { libc::kill(pid, ends) }, 0);
+            send(&child, ends);
         }
         let out = child.wait_with_output().unwrap();
         drop(stdin);
@@ -902,7 +921,7 @@ fn cli_an_interrupted_track_leaves_nothing_behind() {
 #[cfg(unix)]
 #[test]
 fn cli_an_interrupted_synth_leaves_the_folder_as_it_was() {
-    use std::os::unix::process::{CommandExt as _, ExitStatusExt as _};
+    use std::os::unix::process::ExitStatusExt as _;
     let dir = tmp_dir("interrupt-synth");
     std::fs::create_dir_all(&dir).unwrap();
     let seq = dir.join("seq");
@@ -926,14 +945,7 @@ fn cli_an_interrupted_synth_leaves_the_folder_as_it_was() {
             .args(["--frames", "2400", "--size", "320x240"])
             .stdout(Stdio::null())
             .stderr(Stdio::piped());
-        // SAFETY: between fork and exec only async-signal-safe calls (signal(2)).
-        unsafe {
-            cmd.pre_exec(|| {
-                libc::signal(libc::SIGINT, libc::SIG_DFL);
-                Ok(())
-            });
-        }
-        let child = cmd.spawn().expect("run pftrack");
+        let child = spawn_with_default_signals(&mut cmd, false);
         // Wait for frames in the staging folder: the render is under way.
         let frames = into.join("frames");
         let rendering = || {
@@ -951,16 +963,8 @@ fn cli_an_interrupted_synth_leaves_the_folder_as_it_was() {
                 .sum::<usize>()
                 > 0
         };
-        let t0 = std::time::Instant::now();
-        while !rendering() {
-            assert!(t0.elapsed().as_secs() < 60, "no frame rendered");
-            std::thread::sleep(std::time::Duration::from_millis(20));
-        }
-        // SAFETY: kill(2) on the child's own pid.
-        assert_eq!(
-            unsafe { libc::kill(child.id() as libc::pid_t, libc::SIGINT) },
-            0
-        );
+        wait_for_a_frame(rendering);
+        send(&child, libc::SIGINT);
         let out = child.wait_with_output().unwrap();
         assert_eq!(out.status.signal(), Some(libc::SIGINT), "{out:?}");
         if existed {
