@@ -370,9 +370,14 @@ fn cli_usage_errors_exit_2_and_others_1() {
     let otb = dir.join("otb.txt");
     std::fs::write(&otb, "0,0,0,0\n1,1,5,5\n").unwrap();
     let o = otb.to_str().unwrap();
-    let cases: [(&[&str], i32, &str); 11] = [
+    let cases: [(&[&str], i32, &str); 14] = [
         (&["track", f, "--backend", "cpu"], 2, "no initial ellipse"),
         (&["synth", s, "--size", "80x"], 2, "WIDTHxHEIGHT"),
+        // A negative size got clap's "unexpected argument '-8'".
+        (&["synth", s, "--size", "-80x60"], 2, "bad size '-80x60'"),
+        (&["track", f, "--resize", "-3x4"], 2, "bad size '-3x4'"),
+        // As `sift --repeat 0` (it exited 1).
+        (&["bench", "--repeats", "0"], 2, "0 is not in 1.."),
         (&["synth", s, "--size", "16x16"], 2, "24..=8192"),
         (&["track", f, "--resize", "32768x32768"], 2, "pixels in all"),
         (&["pose-noise", "--trials", "0"], 1, "--trials"),

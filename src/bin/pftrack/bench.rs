@@ -23,7 +23,7 @@ pub struct BenchArgs {
     #[arg(long, value_delimiter = ',')]
     pub particles: Vec<usize>,
     /// Frame size `WxH`, 8 to 8192 pixels a side (with `--step`, 24 or more, as `synth` renders).
-    #[arg(long, default_value = "160x120", value_parser = parse_size)]
+    #[arg(long, default_value = "160x120", value_parser = parse_size, allow_hyphen_values = true)]
     pub size: (u32, u32),
     /// Which engines to time: `cpu`, `gpu` (an error without a Vulkan adapter), or `auto`:
     /// the CPU, and the GPU on the best adapter that opens, a software one such as lavapipe
@@ -38,8 +38,8 @@ pub struct BenchArgs {
     pub backend: Backend,
     /// Timed runs per measurement (the median is printed), after one warm-up run; with
     /// `--step`, passes over the sequence.
-    #[arg(long, default_value_t = 5)]
-    pub repeats: usize,
+    #[arg(long, default_value_t = 5, value_parser = clap::value_parser!(u32).range(1..))]
+    pub repeats: u32,
     /// Time the whole tracker step instead (SIFT, matching, the keyframe fits, block
     /// matching, the filter with all its terms) on the synthetic `nod` scenario rendered at
     /// `--size`: the median per step and frames per second, on one thread and on all.
@@ -110,9 +110,6 @@ fn median_stages(runs: &[StageTimes]) -> StageTimes {
 
 /// Runs the command.
 pub fn run(args: BenchArgs) -> anyhow::Result<()> {
-    if args.repeats == 0 {
-        anyhow::bail!("--repeats must be at least 1");
-    }
     let max = pftrack::filter::MAX_PARTICLES;
     if let Some(n) = args.particles.iter().find(|&&n| n == 0 || n > max) {
         anyhow::bail!("--particles: {n} is not a count from 1 to {max}");
@@ -120,7 +117,7 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
     if args.step {
         return run_step(&args);
     }
-    let repeats = args.repeats.max(1);
+    let repeats = args.repeats as usize;
     let (width, height) = args.size;
     let w = workload(width, height, 1).context("building the benchmark frame")?;
     let frame = FrameInput {
@@ -247,7 +244,7 @@ const STEP_FRAMES: usize = 60;
 /// `--step`: the whole tracker step, per particle count, on one thread, on all, and on the
 /// GPU engine when one is asked for or (with `auto`) found.
 fn run_step(args: &BenchArgs) -> anyhow::Result<()> {
-    let passes = args.repeats.max(1);
+    let passes = args.repeats as usize;
     let (width, height) = args.size;
     let cfg = SynthConfig {
         width,

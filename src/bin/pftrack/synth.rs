@@ -21,7 +21,12 @@ pub struct SynthArgs {
     #[arg(long)]
     pub frames: Option<usize>,
     /// Image size WIDTHxHEIGHT, 24 to 8192 pixels a side.
-    #[arg(long, default_value = "160x120", value_parser = crate::values::synth_size)]
+    #[arg(
+        long,
+        default_value = "160x120",
+        value_parser = crate::values::synth_size,
+        allow_hyphen_values = true
+    )]
     pub size: String,
     /// Seed of the textures, the noise and the random motion of `long`.
     #[arg(long, default_value_t = 1)]

@@ -272,7 +272,7 @@ pub struct TrackArgs {
     pub anchor_weight: Option<f64>,
     /// Resize every frame to WxH first. The start (--init-*) is read, and the poses are
     /// written, in the input's own pixels; the rendered frames (--render) are the resized ones.
-    #[arg(long, value_name = "WxH", value_parser = values::size)]
+    #[arg(long, value_name = "WxH", value_parser = values::size, allow_hyphen_values = true)]
     pub resize: Option<String>,
     /// Stop after this many frames.
     #[arg(long)]
