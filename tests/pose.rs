@@ -172,6 +172,37 @@ fn fig3_small_run_orders_the_solvers_and_repeats() {
     let lam = fig3a(&cfg).unwrap();
     assert!(lam[0].sea_deg > lam[1].sea_deg, "{lam:?}");
     assert_eq!(lam, fig3a(&cfg).unwrap());
+    for r in &lam {
+        // Against the truth the input noise's own error (10 dB) is there at any Λ-SNR.
+        assert!(r.vs_truth_deg > r.sea_deg, "{r:?}");
+        assert_eq!(r.failures, 0, "{r:?}");
+    }
+    let no_perturbation = |lambda_snr_db: f64| {
+        let c = NoiseConfig {
+            trials: 100,
+            lambda_snr_db: vec![lambda_snr_db],
+            ..cfg.clone()
+        };
+        fig3a(&c).unwrap()[0].clone()
+    };
+    // The Λ-induced error shrinks with the perturbation and vanishes without it (to SEA's
+    // convergence tolerance: its block meets the constraint to about 1e-7 rad); the error
+    // against the truth tends to SEA's own at the input SNR.
+    let tiny = no_perturbation(200.0);
+    assert!(tiny.sea_deg < 1e-3, "{tiny:?}");
+    let own = fig3b(&NoiseConfig {
+        trials: 100,
+        snr_db: vec![cfg.lambda_input_snr_db],
+        seed: cfg.seed,
+        ..cfg.clone()
+    })
+    .unwrap()[0]
+        .mean_deg[0];
+    // (Different trials: 100 each, a standard error of about 1 degree.)
+    assert!(
+        own > 5.0 && (tiny.vs_truth_deg - own).abs() < 0.25 * own,
+        "{tiny:?} {own}"
+    );
     // Settings are checked before any trial: no trials, or more than can be held.
     for trials in [0, pftrack::pose::noise::MAX_TRIALS + 1, usize::MAX] {
         let cfg = NoiseConfig {

@@ -41,7 +41,11 @@
 //! Fig. 3a: at a fixed input SNR (10 dB), SEA's converged multiplier Λ* is perturbed by a
 //! symmetric Gaussian matrix `N` at a given Λ-SNR (`‖Λ*‖_F² / E‖N‖_F²`), `R2` is recomputed
 //! from Sylvester's equation with `Λ* + N` (Kronecker solution, no further iteration) and scored
-//! as above.
+//! against SEA's own unperturbed answer: the error that the evaluation of Λ adds. That is what
+//! the paper's figure shows: it quotes "about 5 degrees when SNR = 5 dB for Λ" at 10 dB input,
+//! and this gives 5.5 (3000 trials). Against the true rotation the error cannot fall below the
+//! input noise's own (16.7 degrees at 10 dB, Fig. 3b), and it only goes from 19 to 16.7 degrees
+//! from 0 to 40 dB of Λ-SNR; [`LambdaRow::vs_truth_deg`] reports it as well.
 //!
 //! Determinism: every trial draws from its own `StdRng` seeded from `(seed, series, trial)`;
 //! trials run in parallel (rayon) and are summed in trial order.
@@ -394,8 +398,12 @@ pub fn fig3b(cfg: &NoiseConfig) -> Result<Vec<SnrRow>, PoseError> {
 pub struct LambdaRow {
     /// Λ perturbation SNR (dB).
     pub lambda_snr_db: f64,
-    /// Mean error (degrees) of SEA with the perturbed Λ.
+    /// Mean angle (degrees) between the rotation from the perturbed Λ and SEA's own answer
+    /// from the unperturbed one: the error the perturbation adds (the paper's Fig. 3a).
     pub sea_deg: f64,
+    /// Mean error (degrees) of the rotation from the perturbed Λ against the true rotation
+    /// (input noise and perturbation together).
+    pub vs_truth_deg: f64,
     /// Trials that failed (singular Sylvester system or SEA error), excluded from the mean.
     pub failures: usize,
 }
@@ -411,7 +419,7 @@ pub fn fig3a(cfg: &NoiseConfig) -> Result<Vec<LambdaRow>, PoseError> {
         .iter()
         .enumerate()
         .map(|(si, &lsnr)| {
-            let per: Vec<Option<f64>> = (0..cfg.trials)
+            let per: Vec<Option<(f64, f64)>> = (0..cfg.trials)
                 .into_par_iter()
                 .map(|k| {
                     let seed = trial_seed(cfg.seed, series + si as u64, k as u64);
@@ -424,17 +432,29 @@ pub fn fig3a(cfg: &NoiseConfig) -> Result<Vec<LambdaRow>, PoseError> {
                     let off = nd.sample(&mut rng);
                     let noise = Matrix2::new(nd.sample(&mut rng), off, off, nd.sample(&mut rng));
                     let r2 = sylvester_block(&mo.a, &mo.b, &(lam + noise)).ok()?;
-                    block_error(&r2, &t.rotation).ok()
+                    // SEA's own answer, on the Necker branch nearer the truth (as scored in
+                    // Fig. 3b); the perturbed one is then scored on its branch nearer that.
+                    let own = complete_rotation(&nearest_valid_block(&sol.r2).ok()?)
+                        .ok()?
+                        .closest_to(&t.rotation);
+                    Some((
+                        block_error(&r2, &own).ok()?,
+                        block_error(&r2, &t.rotation).ok()?,
+                    ))
                 })
                 .collect();
-            let ok: Vec<f64> = per.iter().flatten().map(|e| deg(*e)).collect();
-            LambdaRow {
-                lambda_snr_db: lsnr,
-                sea_deg: if ok.is_empty() {
+            let ok: Vec<(f64, f64)> = per.iter().flatten().copied().collect();
+            let mean = |f: fn(&(f64, f64)) -> f64| {
+                if ok.is_empty() {
                     f64::NAN
                 } else {
-                    ok.iter().sum::<f64>() / ok.len() as f64
-                },
+                    ok.iter().map(|e| deg(f(e))).sum::<f64>() / ok.len() as f64
+                }
+            };
+            LambdaRow {
+                lambda_snr_db: lsnr,
+                sea_deg: mean(|e| e.0),
+                vs_truth_deg: mean(|e| e.1),
                 failures: per.len() - ok.len(),
             }
         })
