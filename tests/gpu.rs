@@ -1192,7 +1192,7 @@ fn a_frame_beyond_the_buffer_limits_fails_evaluate_before_any_allocation() {
         Err(err @ LikelihoodError::FrameTooLarge { .. }) => {
             let msg = err.to_string();
             assert!(
-                msg.contains(&format!("{side}x{side}")) && msg.contains("--backend cpu"),
+                msg.contains(&format!("{side}x{side}")) && msg.contains("Backend::Cpu"),
                 "{msg}"
             );
         }

@@ -23,6 +23,15 @@ pub struct FallbackEngine {
     notice: Option<String>,
 }
 
+impl std::fmt::Debug for FallbackEngine {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("FallbackEngine")
+            .field("active", &self.active.name())
+            .field("on_cpu", &self.on_cpu)
+            .finish_non_exhaustive()
+    }
+}
+
 impl FallbackEngine {
     /// Wraps `primary`.
     pub fn new(primary: Box<dyn LikelihoodEngine + Send>) -> Self {

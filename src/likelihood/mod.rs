@@ -404,6 +404,7 @@ impl Default for LikelihoodParams {
 
 /// Errors of the likelihood engines.
 #[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
 pub enum LikelihoodError {
     /// The engine has no colour model yet.
     #[error("no colour model set")]
@@ -416,13 +417,13 @@ pub enum LikelihoodError {
     Invalid(String),
     /// No Vulkan adapter: the driver (or the loader) is missing.
     #[error(
-        "no Vulkan adapter found (install a Vulkan driver, e.g. `apt-get install mesa-vulkan-drivers libvulkan1`, or use the CPU engine, `--backend cpu`)"
+        "no Vulkan adapter found (install a Vulkan driver, e.g. `apt-get install mesa-vulkan-drivers libvulkan1`, or use the CPU engine, Backend::Cpu)"
     )]
     NoAdapter,
     /// The best Vulkan adapter renders in software on the CPU (e.g. Mesa's lavapipe), so the
     /// automatic choice leaves it for the CPU engine, which is faster.
     #[error(
-        "the best Vulkan adapter here, {name}, renders in software, slower than the CPU engine (Backend::Gpu, `--backend gpu`, or PFTRACK_ADAPTER uses it)"
+        "the best Vulkan adapter here, {name}, renders in software, slower than the CPU engine (Backend::Gpu or PFTRACK_ADAPTER uses it)"
     )]
     SoftwareAdapter {
         /// The adapter's description.
@@ -437,11 +438,11 @@ pub enum LikelihoodError {
         available: Vec<String>,
     },
     /// The GPU device was lost (driver reset, device destroyed); the engine is unusable.
-    #[error("GPU device lost ({0}); rerun on the CPU engine, `--backend cpu`")]
+    #[error("GPU device lost ({0}); rerun on the CPU engine (Backend::Cpu)")]
     DeviceLost(String),
     /// The frame does not fit the adapter's buffer limits.
     #[error(
-        "frame {width}x{height} needs a {bytes}-byte GPU buffer, beyond the adapter's limit of {limit} bytes (use the CPU engine, `--backend cpu`, or a smaller frame)"
+        "frame {width}x{height} needs a {bytes}-byte GPU buffer, beyond the adapter's limit of {limit} bytes (use the CPU engine, Backend::Cpu, or a smaller frame)"
     )]
     FrameTooLarge {
         /// Frame width.

@@ -61,7 +61,7 @@ pub fn run(a: DemoArgs) -> anyhow::Result<()> {
     // The engine too: one that cannot open fails the demo before anything is written.
     let (engine, notice) = create_engine(backend)?;
     if let Some(n) = notice {
-        errln!("pftrack: {n}");
+        errln!("pftrack: {}", crate::in_cli_terms(&n));
     }
     // `write_sequence` makes the folders, registered for an interrupt to remove.
     let seq_dir = a.out.join("sequence");

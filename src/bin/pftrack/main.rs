@@ -124,7 +124,9 @@ fn main() {
             exit(0);
         }
         // One line: the error and its causes joined.
-        let msg = compact_numbers(&one_line_chain(e.chain().map(|c| c.to_string())));
+        let msg = compact_numbers(&one_line_chain(
+            e.chain().map(|c| in_cli_terms(&c.to_string())),
+        ));
         errln!("pftrack: error: {msg}");
         let usage = e.chain().any(|c| c.is::<UsageError>());
         exit(if usage { 2 } else { 1 });
@@ -244,6 +246,13 @@ fn one_line_chain(chain: impl Iterator<Item = String>) -> String {
     msg
 }
 
+/// The library's messages name its API where a user of the command line wants the flag:
+/// `Backend::Cpu` is `--backend cpu` here, `Backend::Gpu` is `--backend gpu`.
+fn in_cli_terms(msg: &str) -> String {
+    msg.replace("Backend::Cpu", "`--backend cpu`")
+        .replace("Backend::Gpu", "`--backend gpu`")
+}
+
 /// The message with every number written in more than 24 characters put in exponent form:
 /// Rust writes an `f64` in full, so a 1e308 given for a size came back as 309 digits, and
 /// 1e-300 as 300 zeros. Only a number standing alone is touched (after a space, a bracket, a
@@ -345,7 +354,17 @@ fn one_line(rendered: &str) -> String {
 
 #[cfg(test)]
 mod tests {
-    use super::{compact_numbers, one_line, one_line_chain};
+    use super::*;
+
+    #[test]
+    fn library_names_become_flags() {
+        let e = pftrack::likelihood::LikelihoodError::DeviceLost("Destroyed".into());
+        assert_eq!(
+            in_cli_terms(&e.to_string()),
+            "GPU device lost (Destroyed); rerun on the CPU engine (`--backend cpu`)"
+        );
+        assert_eq!(in_cli_terms("no Backend here"), "no Backend here");
+    }
 
     #[test]
     fn long_numbers_are_written_in_exponent_form() {

@@ -718,7 +718,7 @@ pub fn run(mut a: TrackArgs) -> anyhow::Result<()> {
     }
     let (engine, notice) = create_engine(backend)?;
     if let Some(n) = notice {
-        errln!("pftrack: {n}");
+        errln!("pftrack: {}", crate::in_cli_terms(&n));
     }
     let staging = a.render.as_deref().map(RenderStaging::create).transpose()?;
     let first = source.next().context("the input has no frames")??;
@@ -891,6 +891,7 @@ fn run_loop(
             .step(&frame)
             .with_context(|| format!("tracking frame {n}"))?;
         if let Some(notice) = tracker.take_engine_notice() {
+            let notice = crate::in_cli_terms(&notice);
             pb.suspend(|| errln!("pftrack: frame {n}: {notice}"));
         }
         emit(&est, &frame)?;

@@ -180,7 +180,9 @@ impl CpuEngine {
 
     /// An engine on its own pool of `threads` threads; `1` runs on the calling thread alone.
     /// Errors when `threads` is 0 or more than [`MAX_THREADS`], or the pool cannot be
-    /// created.
+    /// created. This bounds the likelihood pass only: a tracker's other parts (SIFT, block
+    /// matching, the template terms) run on the pool its step is called in
+    /// ([`crate::tracker::Tracker::step`] says how to bound them all).
     pub fn with_threads(threads: usize) -> Result<Self, LikelihoodError> {
         match threads {
             0 => Err(LikelihoodError::Invalid(

@@ -25,6 +25,16 @@ pub struct GpuDevice {
     lost_flag: Arc<AtomicBool>,
 }
 
+impl std::fmt::Debug for GpuDevice {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("GpuDevice")
+            .field("adapter", &describe(&self.info))
+            .field("timestamps", &self.timestamps)
+            .field("lost", &self.is_lost())
+            .finish_non_exhaustive()
+    }
+}
+
 fn vulkan_instance() -> wgpu::Instance {
     let mut desc = wgpu::InstanceDescriptor::new_without_display_handle();
     desc.backends = wgpu::Backends::VULKAN;
@@ -150,7 +160,11 @@ impl GpuDevice {
             device.set_device_lost_callback(move |reason, msg| {
                 flag.store(true, Ordering::SeqCst);
                 if let Ok(mut l) = lost.lock() {
-                    *l = Some(format!("{reason:?}: {msg}"));
+                    *l = Some(if msg.is_empty() {
+                        format!("{reason:?}")
+                    } else {
+                        format!("{reason:?}: {msg}")
+                    });
                 }
             });
         }

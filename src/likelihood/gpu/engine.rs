@@ -141,6 +141,16 @@ pub struct GpuEngine {
     trig_scratch: Vec<[f32; 2]>,
 }
 
+impl std::fmt::Debug for GpuEngine {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("GpuEngine")
+            .field("gpu", &self.gpu)
+            .field("has_model", &self.has_model)
+            .field("has_contrast", &self.has_contrast)
+            .finish_non_exhaustive()
+    }
+}
+
 fn storage_entry(binding: u32, read_only: bool) -> wgpu::BindGroupLayoutEntry {
     wgpu::BindGroupLayoutEntry {
         binding,
