@@ -6,6 +6,7 @@
 
 /// Any error of the library.
 #[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
 pub enum Error {
     /// Reading frames.
     #[error(transparent)]

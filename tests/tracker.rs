@@ -226,6 +226,26 @@ fn bad_input_is_an_error() {
         assert!(matches!(init.check(w, h), Err(TrackError::BadInit(_))));
         assert!(Tracker::new(TrackerConfig::default(), &img, init).is_err());
     }
+    // A frame without pixels, to start or start over on, is named as such (it was refused
+    // as a start "at most 0 px" wide).
+    let init = Init::frontal(r.init_ellipse());
+    for (ew, eh) in [(0, 0), (0, 5), (5, 0)] {
+        let empty = image::RgbImage::new(ew, eh);
+        let empty_frame = |r: pftrack::Result<()>| {
+            matches!(
+                r,
+                Err(pftrack::Error::Track(TrackError::EmptyFrame { width, height }))
+                    if (width, height) == (ew, eh)
+            )
+        };
+        assert!(empty_frame(
+            Tracker::new(TrackerConfig::default(), &empty, init).map(|_| ())
+        ));
+        let mut t = Tracker::new(TrackerConfig::default(), &img, init).unwrap();
+        assert!(empty_frame(t.reinit(&empty, init)));
+        // The failed start left the tracker as it was.
+        assert!(t.step(&r.render(1).0).is_ok());
+    }
     // The largest ellipse and the widest angles allowed.
     let side = f64::from(w.max(h));
     let whole = Ellipse {
@@ -847,8 +867,11 @@ fn a_reinit_between_grey_and_colour_footage_tracks_as_a_new_tracker_would() {
         };
         reused.reinit(&now(&restart), init).unwrap();
         let mut fresh = Tracker::new(cfg.clone(), &now(&restart), init).unwrap();
-        assert_eq!(reused.config().likelihood.colour_bins, bins);
-        assert_eq!(reused.config(), fresh.config());
+        assert_eq!(reused.likelihood().colour_bins, bins);
+        assert_eq!(reused.likelihood(), fresh.likelihood());
+        // The configuration stays as given: a tracker built from it starts as this one did.
+        assert_eq!(reused.config(), &cfg);
+        assert_eq!(fresh.config(), &cfg);
         for k in 5..12 {
             let img = now(&r.render(k).0);
             let (a, b) = (reused.step(&img).unwrap(), fresh.step(&img).unwrap());
@@ -870,15 +893,18 @@ fn grayscale_footage_gets_luma_bins_and_is_followed() {
     let init = Init::frontal(r.init_ellipse());
     // Colour frames keep the RGB bins; grey ones get luma bins unless that is switched off.
     let colour = Tracker::new(TrackerConfig::default(), &r.render(0).0, init).unwrap();
-    assert_eq!(colour.config().likelihood.colour_bins, COLOUR_RGB);
+    assert_eq!(colour.likelihood().colour_bins, COLOUR_RGB);
     let off = TrackerConfig {
         grey_luma: false,
         ..TrackerConfig::default()
     };
     let kept = Tracker::new(off, &first, init).unwrap();
-    assert_eq!(kept.config().likelihood.colour_bins, COLOUR_RGB);
+    assert_eq!(kept.likelihood().colour_bins, COLOUR_RGB);
     let mut t = Tracker::new(TrackerConfig::default(), &first, init).unwrap();
-    assert_eq!(t.config().likelihood.colour_bins, COLOUR_LUMA);
+    assert_eq!(t.likelihood().colour_bins, COLOUR_LUMA);
+    // A grey start leaves the configuration as given (it used to read luma bins there, so a
+    // colour tracker built from a clone of it counted luma too).
+    assert_eq!(t.config(), &TrackerConfig::default());
     let mut worst: f64 = 0.0;
     for k in 1..30 {
         let (img, truth) = r.render(k);

@@ -53,6 +53,7 @@ pub const SUCCESS_STEPS: usize = 21;
 
 /// Errors of this module.
 #[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
 pub enum EvalError {
     /// The truth file could not be read. (The cause is part of the message, not a separate
     /// `source()`, so a printed error chain says it once.)

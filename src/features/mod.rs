@@ -59,6 +59,7 @@ impl Features {
 
 /// Errors of this module.
 #[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
 pub enum FeatureError {
     /// The pixel buffer does not match the image size.
     #[error("bad image: {width}x{height} with {len} pixels")]

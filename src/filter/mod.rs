@@ -35,6 +35,7 @@ pub const MAX_PARTICLES: usize = 10_000_000;
 
 /// Errors of the particle filter.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[non_exhaustive]
 pub enum FilterError {
     /// A setting is out of range; the message names it.
     #[error("invalid filter settings: {0}")]

@@ -42,6 +42,7 @@ pub const FFMPEG_HINT: &str = "install ffmpeg (Debian: apt-get install ffmpeg)";
 
 /// Errors of the frame sources.
 #[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
 pub enum FrameError {
     /// The input could not be read. (The cause is part of the message, not a separate
     /// `source()`, so a printed error chain says it once.)

@@ -29,6 +29,7 @@ pub(crate) fn read_text(path: &std::path::Path) -> std::io::Result<String> {
 
 /// Errors reading or writing the project's file formats.
 #[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
 pub enum FormatError {
     /// The file could not be opened, read or written.
     #[error("{path}: {cause}")]

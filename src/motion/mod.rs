@@ -10,6 +10,7 @@ pub use fit::fit_ellipse;
 
 /// Errors of this module.
 #[derive(Debug, thiserror::Error, PartialEq)]
+#[non_exhaustive]
 pub enum MotionError {
     /// An ellipse fit needs at least `needed` points.
     #[error("ellipse fit needs at least {needed} points, got {got}")]

@@ -19,6 +19,7 @@ pub use overlay::{
 
 /// Errors writing output frames.
 #[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
 pub enum OutputError {
     /// Creating, writing or renaming the file failed.
     #[error(transparent)]

@@ -46,6 +46,7 @@ use nalgebra::{Matrix2, Vector2};
 
 /// Errors of this module.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[non_exhaustive]
 pub enum PoseError {
     /// Fewer matches than the solver needs.
     #[error("too few matches: {got} (need at least {need})")]

@@ -49,6 +49,7 @@ use crate::io::{AtomicFile, FormatError, InitFile, PoseRecord, format_pose_csv};
 
 /// Errors of this module.
 #[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
 pub enum SynthError {
     /// The scenario name is not one of [`Scenario::all`].
     #[error("unknown scenario '{name}' (valid: {valid})")]

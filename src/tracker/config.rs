@@ -775,7 +775,8 @@ pub struct TrackerConfig {
     /// 8x8x8 RGB bins see only the 8 on their diagonal there. On by default. On OTB car4 (seeds
     /// 0-9, success AUC) it went from 0.19 with the 8 RGB levels to 0.22 with 64 luma levels
     /// (0.22 with 32 levels, 0.21 with 128 over seeds 0-5: no sharp optimum). The tracker's
-    /// configuration ([`super::Tracker::config`]) shows the bins in use.
+    /// [`super::Tracker::likelihood`] shows the bins in use; its configuration
+    /// ([`super::Tracker::config`]) stays as given.
     pub grey_luma: bool,
     /// Holds the ellipse to the shapes the object model can show: its aspect `a / b` stays
     /// within the range of the outlines of the first frame's ellipsoid (semi-axes `a`, `b` and

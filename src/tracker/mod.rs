@@ -71,6 +71,7 @@ use spin::{Moved, smoothed_spin};
 /// Errors of the tracker's own: its start, configuration and frames. (A likelihood engine's
 /// failure comes as [`crate::Error::Likelihood`], SIFT's as [`crate::Error::Features`].)
 #[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
 pub enum TrackError {
     /// The start (its ellipse or pose) is unusable.
     #[error("invalid start: {0}")]
@@ -78,6 +79,14 @@ pub enum TrackError {
     /// A setting of the configuration is out of range.
     #[error("invalid tracker configuration: {0}")]
     BadConfig(String),
+    /// A frame without pixels (0 wide or high), given to start on.
+    #[error("the frame to start on is {width}x{height}: it has no pixels")]
+    EmptyFrame {
+        /// Its width.
+        width: u32,
+        /// Its height.
+        height: u32,
+    },
     /// A frame's size differs from the first frame's.
     #[error("frame {frame} is {got_w}x{got_h}, the first frame was {want_w}x{want_h}")]
     FrameSize {
@@ -157,10 +166,11 @@ const KEYFRAME_REACH: f64 = std::f64::consts::FRAC_PI_4;
 
 /// The joint tracker and pose estimator.
 pub struct Tracker {
+    /// The configuration as given (what [`Tracker::config`] returns).
     cfg: TrackerConfig,
-    /// The colour bins the configuration asked for: what each start uses unless its frame is
-    /// grey ([`TrackerConfig::grey_luma`]).
-    colour_bins: u32,
+    /// The likelihood settings in use: the configuration's, with luma bins where the start's
+    /// frame is grey ([`TrackerConfig::grey_luma`]).
+    likelihood: LikelihoodParams,
     engine: Box<dyn LikelihoodEngine + Send>,
     sift: Sift,
     /// SIFT without the doubled first octave, for targets of at least
@@ -209,16 +219,6 @@ pub struct Tracker {
     anchor_correlations: Vec<f32>,
 }
 
-impl std::fmt::Debug for Tracker {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("Tracker")
-            .field("engine", &self.engine.name())
-            .field("frame", &self.frame)
-            .field("size", &self.size)
-            .finish_non_exhaustive()
-    }
-}
-
 /// The normalised histogram of the pixels of `frame` in the ring between `e` and `e` scaled
 /// by `c.ring` (the contrast term's background); `None` when the ring holds no pixel of the
 /// frame (a target filling it).
@@ -264,9 +264,29 @@ fn search_region(e: &Ellipse, w: u32, h: u32) -> BoxRect {
     BoxRect::new(x0, y0, (x1 - x0).max(0.0), (y1 - y0).max(0.0))
 }
 
+/// [`TrackError::EmptyFrame`] for a frame to start on without pixels.
+fn not_empty(width: u32, height: u32) -> crate::Result<()> {
+    if width == 0 || height == 0 {
+        return Err(track_err(TrackError::EmptyFrame { width, height }));
+    }
+    Ok(())
+}
+
 /// The margin of [`search_region`] around an ellipse's bounding box.
 fn search_margin(e: &Ellipse) -> f64 {
     0.5 * e.a.max(e.b) + 8.0
+}
+
+impl std::fmt::Debug for Tracker {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Tracker")
+            .field("engine", &self.engine.name())
+            .field("size", &self.size)
+            .field("frame", &self.frame)
+            .field("lost", &self.lost)
+            .field("particles", &self.cfg.filter.particles)
+            .finish_non_exhaustive()
+    }
 }
 
 impl Tracker {
@@ -291,8 +311,9 @@ impl Tracker {
         cfg.check().map_err(track_err)?;
         // The engine's own bounds (the GPU's buffers), before the filter allocates anything.
         let (w, h) = first_frame.dimensions();
+        not_empty(w, h)?;
         engine.check_capacity(cfg.filter.particles, w, h, &cfg.likelihood)?;
-        let colour_bins = cfg.likelihood.colour_bins;
+        let likelihood = cfg.likelihood;
         let sift = Sift::new(cfg.sift.clone());
         let sift_large = (cfg.sift.upsample && cfg.sift_upsample_below.is_some()).then(|| {
             Sift::new(crate::features::SiftParams {
@@ -308,7 +329,7 @@ impl Tracker {
         .map_err(|e| track_err(TrackError::BadConfig(e.to_string())))?;
         let mut t = Self {
             cfg,
-            colour_bins,
+            likelihood,
             engine,
             sift,
             sift_large,
@@ -365,6 +386,7 @@ impl Tracker {
     /// `index`.
     fn start(&mut self, frame: &image::RgbImage, init: Init, index: usize) -> crate::Result<()> {
         let (w, h) = frame.dimensions();
+        not_empty(w, h)?;
         init.check_for(&self.cfg, w, h).map_err(track_err)?;
         self.engine
             .check_capacity(self.cfg.filter.particles, w, h, &self.cfg.likelihood)?;
@@ -372,8 +394,6 @@ impl Tracker {
         let mut likelihood = self.cfg.likelihood;
         if self.cfg.grey_luma && is_grey(frame) {
             likelihood.colour_bins = COLOUR_LUMA;
-        } else {
-            likelihood.colour_bins = self.colour_bins;
         }
         let init = match &self.cfg.init_refine {
             Some(r) => Init {
@@ -383,17 +403,17 @@ impl Tracker {
             },
             None => init,
         };
-        self.cfg.likelihood = likelihood;
+        self.likelihood = likelihood;
         self.size = (w, h);
         // The start's ellipse is the one seen, turned by `theta0 + rz` (SPEC).
         self.theta0 = init.ellipse.theta - init.pose.rz;
         let model =
-            ColourHistogram::from_ellipse(frame, &init.ellipse, self.cfg.likelihood.colour_bins)?;
+            ColourHistogram::from_ellipse(frame, &init.ellipse, self.likelihood.colour_bins)?;
         self.engine.set_colour_model(&model)?;
         self.colour_model = model;
         self.background = None;
         if let Some(c) = self.cfg.contrast {
-            let bins = self.cfg.likelihood.colour_bins;
+            let bins = self.likelihood.colour_bins;
             self.background = ring_histogram(frame, &init.ellipse, &c, bins);
             self.send_contrast_table()?;
         }
@@ -402,7 +422,7 @@ impl Tracker {
         self.filter.set_frame(w, h);
         self.filter.set_aspect_range(aspect_range(
             &init.ellipse,
-            self.cfg.likelihood.depth_ratio as f64,
+            self.likelihood.depth_ratio as f64,
             self.cfg.aspect_slack,
         ));
         self.filter.reset(&hyp);
@@ -424,7 +444,7 @@ impl Tracker {
                 t.clone(),
                 crate::likelihood::template::FirstView {
                     particle: hyp.to_particle(),
-                    depth_ratio: self.cfg.likelihood.depth_ratio,
+                    depth_ratio: self.likelihood.depth_ratio,
                     camera: self.camera(),
                 },
             )),
@@ -467,9 +487,17 @@ impl Tracker {
         self.first
     }
 
-    /// The configuration.
+    /// The configuration as it was given: a tracker built from a clone of it tracks as this
+    /// one would. What a start changed for its own frames is in [`Tracker::likelihood`].
     pub fn config(&self) -> &TrackerConfig {
         &self.cfg
+    }
+
+    /// The likelihood settings in use since the last start: the configuration's, with the
+    /// luma bins ([`crate::likelihood::COLOUR_LUMA`]) where that start's frame was grey
+    /// ([`TrackerConfig::grey_luma`]).
+    pub fn likelihood(&self) -> &LikelihoodParams {
+        &self.likelihood
     }
 
     /// The particle filter (its particles, weights and last resampling), read only.
@@ -502,6 +530,14 @@ impl Tracker {
     /// step's parallel parts (SIFT's bands, block matching beside SIFT, the particles'
     /// likelihoods, the template terms), each of which would otherwise wake a worker and
     /// put the caller to sleep again. Called from inside the pool it runs in place.
+    ///
+    /// Threads: every parallel part runs on the rayon pool the step is called in, the global
+    /// pool (one thread a core, or `RAYON_NUM_THREADS`) unless the caller installs its own.
+    /// To hold a tracker to `n` threads, build a pool and step inside it:
+    /// `pool.install(|| tracker.step(&frame))` with `pool` from
+    /// `rayon::ThreadPoolBuilder::new().num_threads(n).build()`; the output is the same on
+    /// any number of threads. [`crate::likelihood::cpu::CpuEngine::with_threads`] bounds only
+    /// the likelihood pass.
     pub fn step(&mut self, frame: &image::RgbImage) -> crate::Result<Estimate> {
         rayon::scope(|_| self.step_in_pool(frame))
     }
@@ -620,7 +656,7 @@ impl Tracker {
             None => (&inter_pairs, self.prev),
         };
         let key_inter = key_fit.is_some() || prior_prev.is_some();
-        let mut lp = self.cfg.likelihood;
+        let mut lp = self.likelihood;
         let (dx, dy, scale, rotations) = match (&key_fit, &prior_prev, &inter, self.cfg.mode) {
             (_, _, _, Mode::Tpe) => (dx, dy, scale, vec![(1.0, Matrix3::identity())]),
             (Some(k), _, _, _) => {
@@ -887,7 +923,7 @@ impl Tracker {
             return false;
         }
         let e = est.to_state().ellipse(self.theta0);
-        let Some(seen) = ring_histogram(frame, &e, &c, self.cfg.likelihood.colour_bins) else {
+        let Some(seen) = ring_histogram(frame, &e, &c, self.likelihood.colour_bins) else {
             return false;
         };
         bg.blend_towards(&seen, c.background_rate as f32);
@@ -912,7 +948,7 @@ impl Tracker {
             return Ok(false);
         }
         let e = est.to_state().ellipse(self.theta0);
-        let bins = self.cfg.likelihood.colour_bins;
+        let bins = self.likelihood.colour_bins;
         // Held back while the model's colours are those of the surroundings.
         if u.max_ring_similarity < 1.0 {
             // The contrast term's background, else the ring around the estimate; a target
@@ -999,7 +1035,7 @@ impl Tracker {
     fn model(&self, rot: &Matrix3<f64>, view: &Ellipse) -> crate::pose::prior::Ellipsoid {
         crate::pose::prior::Ellipsoid::posed(
             &self.reference,
-            self.cfg.likelihood.depth_ratio as f64,
+            self.likelihood.depth_ratio as f64,
             rot,
             view,
         )
@@ -1097,7 +1133,7 @@ impl Tracker {
         h: &Hypothesis,
         rotation_measured: bool,
     ) -> crate::Result<(f64, f64)> {
-        let mut shown = self.cfg.likelihood;
+        let mut shown = self.likelihood;
         shown.terms &= TERM_COLOUR | TERM_GRADIENT;
         lp.terms = TERM_COLOUR | shown.terms;
         self.engine

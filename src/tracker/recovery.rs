@@ -292,7 +292,7 @@ impl Tracker {
     ) -> crate::Result<Option<(Hypothesis, f64)>> {
         let (w, h) = self.size;
         let cands = search_grid(&self.reference, w, h, &Euler::from_matrix(&est.rot));
-        let mut lp = self.cfg.likelihood;
+        let mut lp = self.likelihood;
         lp.terms = TERM_COLOUR;
         // The contrast sum over the same area for every size, the initial ellipse's.
         self.enable_contrast(&mut lp, self.reference.a * self.reference.b);
