@@ -1210,3 +1210,58 @@ fn a_turn_carries_on_through_frames_where_nothing_measures_it() {
         "mean signed pan error at the gap's end: {coasting:.2} degrees coasting, {held:.2} held"
     );
 }
+
+/// The last step's weighing is open to inspection: one entry per particle, the terms the
+/// engine gave those very particles, the log-weights the terms' weighted sum, and the best
+/// weighted particle on the target; nothing before a step or after a start.
+#[test]
+fn the_last_weighing_shows_each_particle_its_terms_and_log_weight() {
+    use pftrack::likelihood::cpu::CpuEngine;
+    use pftrack::likelihood::{FrameInput, LikelihoodEngine, Particle, TERM_COLOUR};
+    let r = Renderer::new(&SynthConfig::new(Scenario::Nod)).unwrap();
+    let init = Init::frontal(r.init_ellipse());
+    // The colour term alone, so that each log-weight is its particle's colour term.
+    let mut cfg = TrackerConfig {
+        template: None,
+        contrast: None,
+        ..TrackerConfig::default()
+    };
+    cfg.likelihood.terms = TERM_COLOUR;
+    let n = cfg.filter.particles;
+    let mut t = Tracker::new(cfg, &r.render(0).0, init).unwrap();
+    assert!(t.last_weighing().is_none());
+    for k in 1..4 {
+        let (img, truth) = r.render(k);
+        let model = t.colour_model().clone();
+        t.step(&img).unwrap();
+        let w = t.last_weighing().unwrap();
+        assert_eq!(
+            (w.particles.len(), w.terms.len(), w.totals.len()),
+            (n, n, n)
+        );
+        for (term, total) in w.terms.iter().zip(w.totals) {
+            assert_eq!(*total, term.colour, "frame {k}");
+        }
+        // The same particles scored again by an engine of our own give the same terms.
+        let mut engine = CpuEngine::new();
+        engine.set_colour_model(&model).unwrap();
+        let input = FrameInput {
+            image: &img,
+            features: &[],
+            depths: None,
+            prev: Particle::default(),
+            theta0: r.init_ellipse().theta as f32,
+        };
+        let mut again = Vec::new();
+        engine
+            .evaluate(&input, t.likelihood(), w.particles, &mut again)
+            .unwrap();
+        assert_eq!(again.as_slice(), w.terms, "frame {k}");
+        let best = (0..n).max_by(|&i, &j| w.totals[i].total_cmp(&w.totals[j]));
+        let p = w.particles[best.unwrap()];
+        let off = (f64::from(p.cx) - truth.cx).hypot(f64::from(p.cy) - truth.cy);
+        assert!(off < 3.0, "frame {k}: best particle {off} px off");
+    }
+    t.reinit(&r.render(4).0, init).unwrap();
+    assert!(t.last_weighing().is_none());
+}

@@ -103,6 +103,24 @@ pub enum TrackError {
     },
 }
 
+/// How the last step weighed its particles ([`Tracker::last_weighing`]): for looking inside
+/// the filter (debugging, drawing the particle cloud). Index `i` of each slice is the same
+/// particle.
+#[derive(Debug, Clone, Copy)]
+pub struct Weighing<'a> {
+    /// The particles as proposed and evaluated, before any resampling: state relative to the
+    /// start's reference pose, as the likelihood engines take it.
+    pub particles: &'a [Particle],
+    /// Each particle's log-likelihood terms (colour, gradient, feature, contrast) from the
+    /// likelihood engine, unweighted.
+    pub terms: &'a [TermLogs],
+    /// Each particle's log-weight as the filter took it: the enabled terms with the feature
+    /// term's weight, plus the template terms ([`TrackerConfig::template`]). The filter adds
+    /// the proposal's correction to these ([`ParticleFilter::last_resampling`] holds the
+    /// normalised weights when it resampled).
+    pub totals: &'a [f32],
+}
+
 /// What the tracker says about one frame.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Estimate {
@@ -197,8 +215,13 @@ pub struct Tracker {
     held_axes: (f64, f64),
     /// The previous frame's confidence (1 after an initialisation).
     prev_confidence: f64,
+    /// The last step's proposed particles, their terms and their total log-weights
+    /// ([`Tracker::last_weighing`]); empty after a start.
     particles: Vec<Particle>,
     terms: Vec<TermLogs>,
+    totals: Vec<f32>,
+    /// The terms of a single hypothesis scored on its own ([`Self::own_confidence`]).
+    own_terms: Vec<TermLogs>,
     first: Estimate,
     /// The colour model the engine holds (it adapts, [`TrackerConfig::colour_update`]).
     colour_model: ColourHistogram,
@@ -350,6 +373,8 @@ impl Tracker {
             prev_confidence: 1.0,
             particles: Vec::new(),
             terms: Vec::new(),
+            totals: Vec::new(),
+            own_terms: Vec::new(),
             colour_model: ColourHistogram(Vec::new()),
             background: None,
             template: None,
@@ -451,6 +476,9 @@ impl Tracker {
             _ => None,
         };
         self.anchor_correlations.clear();
+        self.particles.clear();
+        self.terms.clear();
+        self.totals.clear();
         let region = search_region(&init.ellipse, w, h);
         self.prev_features = self
             .sift_for(&init.ellipse)
@@ -498,6 +526,18 @@ impl Tracker {
     /// ([`TrackerConfig::grey_luma`]).
     pub fn likelihood(&self) -> &LikelihoodParams {
         &self.likelihood
+    }
+
+    /// How the last step weighed its particles: the proposed particles, their likelihood
+    /// terms and their log-weights. `None` before the first step after a start. A step that
+    /// then reset the filter (re-anchored, re-acquired) reports the particles it weighed
+    /// before the reset.
+    pub fn last_weighing(&self) -> Option<Weighing<'_>> {
+        (!self.particles.is_empty()).then_some(Weighing {
+            particles: &self.particles,
+            terms: &self.terms,
+            totals: &self.totals,
+        })
     }
 
     /// The particle filter (its particles, weights and last resampling), read only.
@@ -712,8 +752,8 @@ impl Tracker {
         self.engine
             .evaluate(&input, &lp, &self.particles, &mut self.terms)?;
         self.correlate_template(&gray);
-        let totals = self.weighted_totals(&lp);
-        let info = self.filter.update(&totals);
+        self.totals = self.weighted_totals(&lp);
+        let info = self.filter.update(&self.totals);
         let mut est = self.filter.estimate();
 
         // TPE: the rotation from the features of the tracked region, after tracking.
@@ -729,10 +769,10 @@ impl Tracker {
 
         // Confidence from the weighted colour similarity and contour support.
         let weights = crate::filter::resample::normalise_log_weights(
-            &totals.iter().map(|&t| t as f64).collect::<Vec<_>>(),
+            &self.totals.iter().map(|&t| t as f64).collect::<Vec<_>>(),
         );
         let rotation_measured = inter.is_some() || key_inter;
-        let mut confidence = self.confidence(&lp, &weights, rotation_measured);
+        let mut confidence = confidence(&self.terms, &lp, &weights, rotation_measured);
         // Whether the estimate was moved by a reset rather than tracked (for the spin).
         let mut jumped = false;
         // Loop closure on appearance: the first view found again beside the estimate, and
@@ -1086,46 +1126,9 @@ impl Tracker {
             .collect()
     }
 
-    /// Confidence in `[0, 1]`: the weighted colour similarity ρ̄ (recovered from the colour
-    /// term, `ρ = 1 + 2σc² ln p_colour`) mapped from [0.5, 1] to [0, 1], times the weighted
-    /// share of normal lines with contour support, square-rooted (a geometric mean); times 0.8
-    /// when no features measured the rotation.
-    fn confidence(&self, lp: &LikelihoodParams, w: &[f64], rotation_measured: bool) -> f64 {
-        let mut colour = 1.0;
-        if lp.terms & TERM_COLOUR != 0 {
-            let rho: f64 = self
-                .terms
-                .iter()
-                .zip(w)
-                .map(|(t, w)| w * rho_from_log(t.colour, lp.sigma_colour))
-                .sum();
-            colour = ((rho - 0.5) / 0.5).clamp(0.0, 1.0);
-        }
-        let mut edges = 1.0;
-        if lp.terms & TERM_GRADIENT != 0 && lp.num_lines > 0 {
-            // Every line's edge on the contour: the term's largest value.
-            let k = f64::from(crate::likelihood::cpu::gradient::clutter_gain(lp));
-            let full = lp.num_lines as f64 * (1.0 + k).ln();
-            let g: f64 = self
-                .terms
-                .iter()
-                .zip(w)
-                .map(|(t, w)| w * t.gradient as f64)
-                .sum();
-            // `check` holds K at f32's epsilon or more, so `full` is positive.
-            edges = if full > 0.0 {
-                (g / full).clamp(0.0, 1.0)
-            } else {
-                0.0
-            };
-        }
-        let c = (colour * edges).sqrt();
-        if rotation_measured { c } else { 0.8 * c }
-    }
-
     /// The colour similarity and confidence of one hypothesis on this frame's `input`, as
     /// the frame reports it: from the colour and contour terms of `lp` alone, discounted as
-    /// [`Self::confidence`] does unless `rotation_measured`.
+    /// [`confidence`] does unless `rotation_measured`.
     fn own_confidence(
         &mut self,
         input: &FrameInput<'_>,
@@ -1137,13 +1140,56 @@ impl Tracker {
         shown.terms &= TERM_COLOUR | TERM_GRADIENT;
         lp.terms = TERM_COLOUR | shown.terms;
         self.engine
-            .evaluate(input, &lp, &[h.to_particle()], &mut self.terms)?;
+            .evaluate(input, &lp, &[h.to_particle()], &mut self.own_terms)?;
         let rho = self
-            .terms
+            .own_terms
             .first()
             .map_or(0.0, |t| rho_from_log(t.colour, lp.sigma_colour));
-        Ok((rho, self.confidence(&shown, &[1.0], rotation_measured)))
+        Ok((
+            rho,
+            confidence(&self.own_terms, &shown, &[1.0], rotation_measured),
+        ))
     }
+}
+
+/// Confidence in `[0, 1]`: the weighted colour similarity ρ̄ (recovered from the colour
+/// term, `ρ = 1 + 2σc² ln p_colour`) mapped from [0.5, 1] to [0, 1], times the weighted
+/// share of normal lines with contour support, square-rooted (a geometric mean); times 0.8
+/// when no features measured the rotation.
+fn confidence(
+    terms: &[TermLogs],
+    lp: &LikelihoodParams,
+    w: &[f64],
+    rotation_measured: bool,
+) -> f64 {
+    let mut colour = 1.0;
+    if lp.terms & TERM_COLOUR != 0 {
+        let rho: f64 = terms
+            .iter()
+            .zip(w)
+            .map(|(t, w)| w * rho_from_log(t.colour, lp.sigma_colour))
+            .sum();
+        colour = ((rho - 0.5) / 0.5).clamp(0.0, 1.0);
+    }
+    let mut edges = 1.0;
+    if lp.terms & TERM_GRADIENT != 0 && lp.num_lines > 0 {
+        // Every line's edge on the contour: the term's largest value.
+        let k = f64::from(crate::likelihood::cpu::gradient::clutter_gain(lp));
+        let full = lp.num_lines as f64 * (1.0 + k).ln();
+        let g: f64 = terms
+            .iter()
+            .zip(w)
+            .map(|(t, w)| w * t.gradient as f64)
+            .sum();
+        // `check` holds K at f32's epsilon or more, so `full` is positive.
+        edges = if full > 0.0 {
+            (g / full).clamp(0.0, 1.0)
+        } else {
+            0.0
+        };
+    }
+    let c = (colour * edges).sqrt();
+    if rotation_measured { c } else { 0.8 * c }
 }
 
 /// Whether the ellipse's size is held ([`TrackerConfig::size_hold`]) on the frame after one
