@@ -152,15 +152,8 @@ pub struct TrackerConfig {
     /// identical with it and [`TrackerConfig::reacquire_ncc`] on); what it changes is the `lost` column, which
     /// then says what the track is, and that a lost tracker goes on searching.
     ///
-    /// A re-acquired target had to reach only `lost_below` until 2026-12-02. On girl, filter
-    /// seed 11, the ellipse shrank onto part of her head as she turned, was lost, and at
-    /// frame 239 a candidate at the frame's bottom-left corner, more than half outside it,
-    /// was taken at 0.31 and followed to the end at 0.3-0.5 (success AUC 0.45). With the
-    /// re-acquisition held to this bar too, girl's success AUC over filter seeds 0-15 went
-    /// from 0.614 ± 0.015 to 0.637 ± 0.009 and over 16-31 from 0.600 ± 0.010 to
-    /// 0.611 ± 0.012 (seed 11: 0.65, seed 18: 0.55 -> 0.70; three seeds of 32 fell by
-    /// 0.01-0.03); seeds 32-47 (0.601 ± 0.008), car4 over seeds 0-31 and the synthetic
-    /// scenarios are the same per seed.
+    /// The measurements behind it, and what was tried and not kept:
+    /// `docs/measurements.md`, under "TrackerConfig::found_above".
     pub found_above: f64,
     /// A re-acquisition candidate must reach this colour similarity (Bhattacharyya ρ), and
     /// then be recognised: its features must fit one of the keyframes, or its grey levels
@@ -188,78 +181,15 @@ pub struct TrackerConfig {
     /// search's own grid a sharply textured synthetic head that had jumped away correlated
     /// at most 0.47-0.51 with its first view.
     ///
-    /// Measured 2026-12-02 with `scripts/eval_seeds.sh real` (success AUC, mean ± standard
-    /// error; with [`TrackerConfig::found_above`] at 0.5):
-    ///
-    /// | filter seeds | features alone | 0.5, higher of the two templates | 0.5, lower (default) |
-    /// |---|---|---|---|
-    /// | girl, 0-15 | 0.539 ± 0.003 | 0.549 ± 0.003 | 0.547 ± 0.003 |
-    /// | girl, 16-31 | 0.541 ± 0.004 | 0.549 ± 0.002 | 0.546 ± 0.003 |
-    /// | car4, 0-15 | 0.798 ± 0.003 | 0.798 ± 0.003 | 0.798 ± 0.003 |
-    /// | car4, 16-31 | 0.772 ± 0.031 | 0.773 ± 0.031 | 0.772 ± 0.031 |
-    ///
-    /// On girl several seeds gain up to 0.03, the ellipse found again on her face after the
-    /// occluding face has left. car4 seed 31 is lost at frame 304 in every column, and with
-    /// the higher of the two templates it was "found" on a patch 140 px from the car (it
-    /// scored 0.309 against 0.304, lost either way); with the lower it stays lost, and car4
-    /// is identical per seed to features alone. The synthetic scenarios are identical (no
-    /// track is lost there). Before the finer placement, thresholds 0.4 and 0.5 gave girl the
-    /// same per seed (0.549 ± 0.003, seeds 0-15, higher of the two) and 0.6 gave
-    /// 0.547 ± 0.003: the threshold is not tuned finer than that.
+    /// The measurements behind it, and what was tried and not kept:
+    /// `docs/measurements.md`, under "TrackerConfig::reacquire_ncc".
     pub reacquire_ncc: Option<f64>,
     /// Weight of the feature term's log in the particle weights (the colour and gradient
     /// terms have weight 1); finite and at least 0. The feature term is the log of a sum of
     /// inverse reprojection distances, flat next to the 24 normal lines of the gradient term,
     /// and it is the only term that sees the rotation.
     ///
-    /// 10 by default, a trade between synthetic and real footage, measured with
-    /// `scripts/eval_seeds.sh` (2026-12-01, with the template term, [`TrackerConfig::template`]):
-    /// the synthetic columns are the sum of the per-axis angle RMSE over the six scenarios
-    /// (scenario seeds 0-11 with filter seed 0 and 1, then fresh scenario seeds 12-23 with
-    /// filter seed 0); the real columns are the success AUC over filter seeds 0-15, then over
-    /// held-out filter seeds 16-31.
-    ///
-    /// | weight | synthetic 0-11 | synthetic 12-23 | girl | car4 |
-    /// |---|---|---|---|---|
-    /// | 8 | 65.1 / 65.9 | 68.4 | 0.530 ± 0.003 / 0.526 ± 0.002 | 0.795 ± 0.003 / 0.793 ± 0.006 |
-    /// | 10 | 58.7 / 61.8 | 64.6 | 0.525 ± 0.002 / 0.523 ± 0.004 | 0.797 ± 0.002 / 0.801 ± 0.002 |
-    /// | 12 | 59.5 / 57.7 | – | 0.520 ± 0.005 / – | 0.796 ± 0.002 / 0.749 ± 0.040 |
-    /// | 14 | 57.0 / 55.4 | 58.1 | 0.516 ± 0.003 / 0.519 ± 0.002 | 0.795 ± 0.002 / 0.722 ± 0.045 |
-    /// | 16 | 53.1 / – | – | 0.515 ± 0.003 / – | 0.761 ± 0.038 / – |
-    ///
-    /// From 12 up, pan comes within 3° on every axis (at 14: 2.97, 2.91, 2.87 and 2.70,
-    /// 2.48, 2.78 with the two filter seeds) and nod's tilt to 3.1-3.5. But car4 then loses
-    /// whole seeds (at 14, seeds 29 and 31 score 0.32 and 0.23): the estimate slides off the
-    /// car over a hundred frames or so, is declared lost, and is never found again, because
-    /// the colour model, the contrast term's ring and the template have followed the slide,
-    /// so the re-acquisition's colour ranking puts the road first (seen on seed 5 at 16: the
-    /// truth's candidate scored −20 against +18 for the road). Ranking the candidates by the
-    /// template's correlation as well (the better of the first frame's template and the
-    /// adapted one), and verifying the best three instead of the best one, did not recover
-    /// seed 5: the road still ranked first, and ranked by the correlation alone the best were
-    /// small patches of road texture (correlation about 0.7). Nor did looking for the
-    /// keyframes' own features over the whole frame (a candidate where a keyframe's matches
-    /// put it, verified as the colour one is): from frame 260 on no keyframe had the 10
-    /// matches of an accepted fit anywhere in the frame (both tried in throwaway builds).
-    /// Keeping only the keyframes' features within 0.8 of their ellipse, so that fewer of the
-    /// still background's features read as parallax, moved which car4 seed was lost at 14
-    /// rather than whether one was (0.775 ± 0.024 and 0.772 ± 0.023 over filter seeds 0-15
-    /// and 16-31).
-    /// Girl loses a little more at each step up. 10 keeps every real seed and takes about
-    /// a tenth off the synthetic sum.
-    ///
-    /// Before the template term (filter seeds 0-15 for the real columns):
-    ///
-    /// | weight | synthetic | girl | car4 |
-    /// |---|---|---|---|
-    /// | 4 | – | 0.538 ± 0.003 | 0.452 ± 0.049 |
-    /// | 8 | 64.5 / 67.6 / 62.7 | 0.536 ± 0.004 | 0.578 ± 0.047 |
-    /// | 12 | 53.8 | 0.517 ± 0.007 | 0.555 ± 0.059 |
-    /// | 20 | 51.5 / 53.2 / 55.7 | 0.502 ± 0.010 | 0.362 ± 0.060 |
-    /// | 30 | 51.3 | – | – |
-    ///
-    /// (synthetic there with filter seed 0, 1, or the scenario's own; on fresh scenario seeds
-    /// 12-23, filter seed 0, the sum was 67.6 at 8 and 53.5 at 20).
+    /// 10 by default: a trade between synthetic and real footage.
     ///
     /// On the synthetic heads the texture is sharp, and a keyframe fit passes on over 90 % of
     /// frames with about 16 matches. There a heavier term follows fast turns that the lighter
@@ -271,20 +201,8 @@ pub struct TrackerConfig {
     /// no turn in the scene), and a heavier term drags the ellipse after them. Girl loses
     /// steadily above 8; car4's spread over seeds is too wide to rank 4, 8 and 12.
     ///
-    /// With the template term (2026-12-01, throwaway build, particles weighted at 10), the
-    /// estimate's rotation taken from the particles reweighted with the feature term at 20
-    /// gave a synthetic sum of 56.5 and 57.7 (filter seeds 0 and 1, against 58.7 and 61.8),
-    /// car4 0.797 and 0.787 ± 0.012 and girl 0.520 and 0.524 (filter seeds 0-15 and 16-31,
-    /// against 0.797, 0.801, 0.525, 0.523); at 15, 60.2 and 62.5, and car4 lost a seed over
-    /// 0-15 (0.757 ± 0.040). No trend beyond the seeds' chaos, so it was not kept.
-    ///
-    /// Tried and not kept (before the template term):
-    /// - the weight in proportion to the frame's matches (1.25 per match, from 8 to 24):
-    ///   synthetic 52.1, girl 0.513, car4 0.421;
-    /// - 20 on frames with an accepted keyframe fit, 8 on the others: 52.9, 0.520, 0.440;
-    /// - the same on fits within 0.6 px only: 59.8, and car4 0.479;
-    /// - 20 for the rotation estimate alone, the particles weighted at 8: 60.0, 0.529,
-    ///   0.498.
+    /// The measurements behind it, and what was tried and not kept:
+    /// `docs/measurements.md`, under "TrackerConfig::feature_weight".
     pub feature_weight: f64,
     /// The consensus test the matches with the previous frame must pass before the rotation
     /// between the two frames is estimated from them ([`Consensus`]: at least 5 matches that
@@ -329,49 +247,8 @@ pub struct TrackerConfig {
     /// frame 180. `tests/tracker.rs` blurs five frames of a fast pan: held still, the pan
     /// ends them 8.5° behind on average over ten filter seeds; carried on, 1.9°.
     ///
-    /// Measured 2026-12-05 (`scripts/eval_seeds.sh`, per-axis RMSE summed over the six
-    /// scenarios; success AUC on the real footage), without and with it:
-    ///
-    /// | evaluation | without | with |
-    /// |---|---|---|
-    /// | scenario seeds 0-11, filter seed 0 | 43.5 | 43.6 |
-    /// | the same, each scenario's own filter seed | 44.1 | 43.1 |
-    /// | fresh scenario seeds 12-23, filter seed 0 | 45.2 | 44.0 |
-    /// | weak perspective, filter seed 0 | 45.5 | 45.6 |
-    /// | girl, filter seeds 0-15 / 16-31 | 0.654 / 0.626 | 0.643 / 0.628 |
-    /// | car4, filter seeds 0-15 / 16-31 | 0.798 / 0.802 | 0.802 / 0.801 |
-    ///
-    /// `combo` went 2.66 / 2.91 / 2.30 -> 2.80 / 2.96 / 2.22 with filter seed 0, 2.93 /
-    /// 3.27 / 2.73 -> 2.57 / 3.04 / 2.25 with its own, and 2.84 / 3.71 / 2.17 -> 2.38 / 3.52
-    /// / 2.09 on the fresh seeds; the other scenarios moved by 0.1° or less but `pan` with
-    /// its own filter seeds (2.34 / 2.45 / 2.12 -> 2.36 / 2.47 / 2.23). The real footage is
-    /// within its standard errors (0.010-0.011 on girl). The rate was taken from the
-    /// exponential smoothing tried for the fits' prior (see
-    /// [`TrackerConfig::fit_pixel_sigma`]) and not searched. Three other rules for the spin
-    /// were measured on the first three evaluations: following every tracked frame, measured
-    /// or not, and stopping at resets and jumps (43.3 / 43.3 / 44.6; girl 0.648 / 0.646);
-    /// the same but keeping the spin through resets (43.9 / 43.4 / 44.5; girl 0.637 /
-    /// 0.658); fading by the rate on unmeasured frames (43.9 / 42.9 / 45.0, fresh `combo`'s
-    /// pan 3.79). The first two let the spin feed on the filter's own noise through a long
-    /// stretch without features, the last gives up most of the gap it is there to bridge:
-    /// within noise of each other, the rule kept is the one without either fault. With it,
-    /// taking a new keyframe only after two frames in a row without a fit (instead of one)
-    /// gave 44.4 and, on the fresh seeds, 45.2 (`combo`'s pan 3.12 there), so the rule
-    /// stays.
-    ///
-    /// The rotation between successive frames (Sylvester's, both members of its Necker pair)
-    /// still comes before the spin where no keyframe fit passed, as in the paper, though
-    /// between frames it errs by more than no rotation at all (README): on fresh `combo` seed
-    /// 16 at frame 162, from 5 matches, it moved the estimate 7° in tilt and 6° back in pan
-    /// while the head panned on, and the keyframe taken there kept the error (see
-    /// [`TrackerConfig::max_rotation_step`] for bounding it). The spin in its place, measured
-    /// 2026-12-05 (fourth session) on the same three evaluations: 43.8 / 42.9 / 43.7 against
-    /// 43.6 / 43.1 / 44.0 (`combo`'s pan 2.98 / 3.18 / 3.05 against 2.96 / 3.04 / 3.52,
-    /// `pan`'s 2.52 / 2.45 / 2.73 against 2.28 / 2.47 / 2.67); with such frames also left
-    /// out of the spin's updates, 43.8 / 43.0 / 43.4; half the particles turned by the spin
-    /// and a quarter by each member of the pair, `combo` over the fresh seeds 2.67 / 3.00 /
-    /// 2.03 (against 2.38 / 3.52 / 2.09). Within the runs' noise, so the paper's proposal
-    /// stays.
+    /// The measurements behind it, and what was tried and not kept:
+    /// `docs/measurements.md`, under "TrackerConfig::coast_rate".
     pub coast_rate: Option<f64>,
     /// Largest RMS reprojection error (pixels) of an accepted depth-prior fit (the ellipsoid
     /// is only a prior, so the residual grows with the angle).
@@ -393,55 +270,6 @@ pub struct TrackerConfig {
     /// and the tracked nod's tilt came out 1.09-1.17 times too large on every scenario seed
     /// (0-11), which is most of its 3.4-3.6° RMSE.
     ///
-    /// Measured 2026-12-01 (`scripts/eval_seeds.sh synth -- --hfov 50`, the synthetic
-    /// camera; RMSE per axis, mean over scenario seeds 0-11; sums over scenarios and axes):
-    ///
-    /// | camera in | filter seed 0 sum | filter seed 1 sum | nod rx | pan ry | combo rx | car ry |
-    /// |---|---|---|---|---|---|---|
-    /// | none (default) | 53.7 | 50.8 | 3.56 / 3.4 | 2.52 / 2.4 | 4.94 / 4.5 | 11.3 / 10.6 |
-    /// | keyframe fits only (before) | 58.0 | 59.2 | 3.57 / 3.41 | 2.58 / 2.34 | 5.21 / 4.97 | 15.0 / 15.8 |
-    /// | **keyframe fits and first view** | **55.4** | **56.4** | **1.74 / 1.65** | 2.79 / 3.03 | 4.65 / 3.65 | 15.7 / 15.9 |
-    /// | every term (feature term too) | 62.2 | – | 1.61 | 4.97 | 4.73 | 19.6 |
-    /// | keyframe fits and first view, `--anchor-weight 60` | 54.8 | – | 1.58 | 2.99 | 3.69 | 16.2 |
-    /// | keyframe fits and first view, `--anchor-weight 80` | 54.7 | – | 1.56 | 3.04 | 3.22 | 15.8 |
-    ///
-    /// The anchor-weight rows were measured with an earlier form of the lift (three
-    /// fixed-point steps along the ray, before the exact [`crate::pose::prior::lift`]); the
-    /// weight-80 row was measured again with the exact lift, and the first build gave 53.4,
-    /// pan 2.90, combo 3.49 there: a track is chaotic in such small changes, so read the
-    /// figures to about ±2 on the sums and ±0.3 on an axis. With the camera the first view
-    /// is an unbiased measure of the rotation and can bear more weight: at 80, pan's worst
-    /// axis is 2.9-3.0° and nod's 1.5-1.6°. The default weight (40) was chosen without a
-    /// camera and on the real footage, where none is given, so it is left as it is.
-    ///
-    /// (Pairs are filter seeds 0 / 1.) With the camera the nod's tilt gain is 1.00 and its
-    /// RMSE 1.6-1.7°, but the pan lags (gain 0.89-0.94 about y): the keyframe chain alone follows
-    /// only 0.79 of the pan, with or without the camera (`--feature-weight 0 --anchor-weight
-    /// 0`, seeds 0-5), and weak perspective's over-reading in the terms had been making up
-    /// for it. That is also why the feature term keeps weak perspective: with the camera in
-    /// it too (a throwaway build, lift along the ray and pinhole projection, checked to
-    /// invert each other) pan fell to 4.97°; lifting onto the posed ellipsoid as well brought
-    /// pan back to 3.9° and, with the feature term weak, 2.6°, nod 1.6°, sum 56.6 (seed 0),
-    /// which would need the posed model on the GPU. The car, a box, loses with the camera in
-    /// every form (see [`crate::pose::prior`]). So the camera stays opt-in: it is right for a
-    /// head whose camera is known, and the default is what a user without one gets. Real
-    /// footage is not affected (no camera given).
-    ///
-    /// The table above predates the fits' centre prior ([`TrackerConfig::fit_centre_sigma`]).
-    /// With it (measured 2026-12-02, filter seed 0), `--hfov 50` gives a sum of 54.1
-    /// against 46.8 without the camera: nod 1.6 / 1.2 / 1.2, pan 2.4 / 3.1 / 2.5 (gain 0.94
-    /// about y), combo 3.3 / 4.9 / 2.6, car 3.4 / 16.6 / 4.2. The camera still removes the
-    /// tilt's over-reading, and the pan's lag and the box's under-rotation still outweigh it.
-    ///
-    /// Measured again 2026-12-03, with the turn-back on the first view
-    /// ([`TrackerConfig::reanchor`]; filter seed 0): 51.7 against 46.2; nod 1.62 / 1.16 /
-    /// 1.21, pan 2.41 / 3.13 / 2.52 (gain 0.94 about y), combo 2.89 / 3.40 / 2.49 (gains
-    /// 1.07 / 0.90 about x / y), car 3.60 / 16.6 / 4.11. The pan's lag did not give way to a
-    /// weaker rotation prior (`fit_pixel_sigma` 0.5: pan gain 0.947), a free or tighter centre
-    /// (0.955 and 0.941), the turned first view off (0.958), the template off (0.969), or new
-    /// keyframes recorded at the frame's keyframe fit instead of the filter's estimate
-    /// (0.937; without the camera that sum was 45.3, within noise of 46.2).
-    ///
     /// **Since 2026-12-04 the camera also changes two things that were right only for weak
     /// perspective**, and with them it meets the heads' targets:
     /// - the feature term lifts the matches onto the object's ellipsoid turned to the
@@ -452,28 +280,8 @@ pub struct TrackerConfig {
     /// - the turned first view weighs 80 instead of 40 ([`TemplateTerm::anchor_weight_camera`]):
     ///   projected through the camera it is an unbiased measure of the rotation.
     ///
-    /// Per-axis RMSE in degrees, scenario seeds 0-11, filter seed 0 (`scripts/eval_seeds.sh
-    /// synth`, where the camera now comes from the init file `pftrack synth` writes, and
-    /// `-- --weak-perspective` for the first row):
-    ///
-    /// | camera | nod | pan | roll | combo | depth | car | sum |
-    /// |---|---|---|---|---|---|---|---|
-    /// | none | 3.50 / 1.12 / 1.12 | 2.16 / 2.30 / 2.47 | 1.11 / 1.04 / 1.02 | 4.17 / 2.77 / 2.79 | 1.45 / 1.28 / 1.01 | 2.88 / 10.2 / 3.76 | 46.2 |
-    /// | 50° (before) | 1.62 / 1.16 / 1.21 | 2.41 / 3.13 / 2.52 | 1.07 / 1.02 / 0.91 | 2.89 / 3.40 / 2.49 | 1.41 / 1.19 / 0.94 | 3.60 / 16.6 / 4.11 | 51.7 |
-    /// | 50°, turned lift only | 1.51 / 1.11 / 1.23 | 2.25 / 2.75 / 2.43 | 1.05 / 1.08 / 0.94 | 2.74 / 3.02 / 2.60 | 1.40 / 1.24 / 0.95 | 3.69 / 16.3 / 3.74 | 50.0 |
-    /// | 50°, anchor 80 only | 1.47 / 1.06 / 1.11 | 1.84 / 2.46 / 2.21 | 1.08 / 1.05 / 0.93 | 2.35 / 2.52 / 1.89 | 1.47 / 1.25 / 0.97 | 3.04 / 16.0 / 4.09 | 46.8 |
-    /// | **50°, both** | **1.41 / 1.12 / 1.11** | **2.04 / 2.08 / 2.01** | **1.06 / 1.05 / 0.88** | **2.39 / 2.57 / 2.00** | **1.44 / 1.24 / 0.97** | **3.39 / 16.6 / 3.94** | **47.3** |
-    ///
-    /// With each scenario's own seed as the filter seed, both: nod 1.39 / 1.11 / 1.12, pan
-    /// 2.06 / 2.15 / 2.10, roll 1.07 / 1.05 / 0.94, combo 2.49 / 2.58 / 2.09, depth 1.38 /
-    /// 1.23 / 0.94, car 3.93 / 16.9 / 4.23 (sum 48.8); the anchor alone gave pan 2.78 and
-    /// combo 2.74 / 2.95 / 2.41 there. Every head axis is within 2.6°, the gains within 6 %
-    /// of 1 (tilt 1.02 on nod, pan 0.98 on pan). On fresh scenario seeds 12-23 (filter seed
-    /// 0): nod 1.51 / 1.07 / 1.13, pan 2.32 / 2.85 / 2.19, combo 2.81 / 3.73 / 2.25 (the pan
-    /// lagging on seeds 16, 19 and 20, gains 0.74-0.85, where the head pans 1.6° a frame),
-    /// sum 50.3 against 46.5 without the camera (nod 3.65 about x, combo 4.40 / 3.47 / 2.75). The box `car` is worse with the camera, as
-    /// before: the ellipsoid, not the filter, is what under-rotates it (see
-    /// [`crate::pose::prior`]).
+    /// The measurements behind it, and what was tried and not kept:
+    /// `docs/measurements.md`, under "TrackerConfig::camera_hfov_deg".
     pub camera_hfov_deg: Option<f64>,
     /// σ of a matched point's position (pixels) in the keyframe fits' rotation prior
     /// ([`crate::pose::prior::MotionPrior`]): each fit's rotation is held to the previous
@@ -484,24 +292,8 @@ pub struct TrackerConfig {
     /// RMSE over seeds 0-5 was 77, 71, 76 and 83 degrees at 0.7, 0.95, 1.0 and 1.15 px,
     /// against 83.5 without the prior (over seeds 0-11 at 1 px: 84 against 98).
     ///
-    /// The prior's mean is the previous estimate: no motion. Tried 2026-12-03 in a
-    /// throwaway build and not kept: a constant-velocity mean (the previous estimate turned
-    /// on by the last step's change of rotation, identity after a reset, also as the start
-    /// of the fit between successive frames). With the camera (`--hfov 50`) and the feature
-    /// term and turned first view off, the chain followed 0.84 of the pan instead of 0.76
-    /// (seeds 0-5), but with every term on the six scenarios' sum went 46.2 → 46.9 without
-    /// the camera (nod about x 3.50 → 3.79, pan about y 2.30 → 2.59; car 10.2 → 9.6 about y)
-    /// and 51.7 → 50.9 with it, and nod, pan and combo with filter seed 1 and the camera
-    /// 20.0 → 20.9. The velocity taken from successive estimates is as noisy as the
-    /// estimates (a degree or two a frame on the axes that do not move); smoothed
-    /// exponentially (a third of each new step), the three scenarios summed 22.3 against
-    /// 22.4 without the camera. Real footage was unchanged (girl 0.659 ± 0.011, car4
-    /// 0.798 ± 0.003 over filter seeds 0-15).
-    ///
-    /// Nor is the prior too sure of the previous estimate: widening its σ by the particles'
-    /// own spread about the estimate, as a Kalman prediction would (`sqrt(σ_P² +
-    /// σ_post²)`), changed nothing (2026-12-05: sum 43.5 -> 43.6), the spread being about
-    /// 0.015 rad per axis against σ_P's 0.05.
+    /// The measurements behind it, and what was tried and not kept:
+    /// `docs/measurements.md`, under "TrackerConfig::fit_pixel_sigma".
     pub fit_pixel_sigma: Option<f64>,
     /// σ (pixels, per image axis) of the keyframe fits' centre about the centre predicted for
     /// the frame (the previous estimate moved by block matching), in the fits' motion prior
@@ -519,20 +311,8 @@ pub struct TrackerConfig {
     /// term on, measured 2026-12-02 (CPU backend, per-axis RMSE summed over the six
     /// scenarios, mean over scenario seeds 0-11):
     ///
-    /// | σ (px) | filter seed 0 | filter seed 1 | seeds 12-23 |
-    /// |---|---|---|---|
-    /// | free (`None`) | 53.7 | 50.8 | 56.9 |
-    /// | 1.5 | 49.6 | | |
-    /// | 0.5 (default) | 46.8 | 46.7 | 49.6 |
-    /// | 0.25 | 46.8 | | |
-    /// | 0.1 | 47.0 | | |
-    ///
-    /// Most of the gain is on `car` (about y 11.3° → 9.4°, about x 4.8° → 2.9° at filter seed
-    /// 0) and on `pan` (2.7 / 2.5 / 2.8° → 2.2 / 2.3 / 2.5°); `nod`, `roll` and `depth` are
-    /// within noise. Real footage is unchanged: success AUC over filter seeds 0-15, girl
-    /// 0.537 → 0.539, car4 0.797 → 0.798. Half a pixel is about how well block matching
-    /// places the region it matched; from 0.1 to 0.5 px the figures are alike, so the
-    /// value is not tuned finer than that.
+    /// The measurements behind it, and what was tried and not kept:
+    /// `docs/measurements.md`, under "TrackerConfig::fit_centre_sigma".
     pub fit_centre_sigma: Option<f64>,
     /// Loop closure against the first view: each frame is also fitted against the anchor
     /// keyframe, whose pose is the initial one and so carries no drift, without the rotation
@@ -570,111 +350,8 @@ pub struct TrackerConfig {
     /// newest view goes to the filter in place of its fit (not held to the previous estimate:
     /// that prior, centred on the under-read turn, had kept single fits from catching up).
     ///
-    /// Measured 2026-12-05 with `scripts/eval_seeds.sh synth` (scenario seeds 0-11, filter
-    /// seed 0, camera 50°), per-axis RMSE without and with it: `car` 3.07 / 16.3 / 3.92 ->
-    /// 4.36 / 8.91 / 4.60 (centre 2.08 -> 1.44 px), `nod` 1.41 / 1.07 / 1.09 -> 1.58 /
-    /// 1.22 / 1.12, `pan` 2.17 / 2.33 / 2.22 -> 2.13 / 2.31 / 2.08, `roll` 1.11 / 1.10 / 0.91
-    /// -> 1.24 / 1.43 / 0.92, `combo` 2.49 / 2.74 / 1.99 -> 2.66 / 2.91 / 2.30, `depth`
-    /// 1.41 / 1.27 / 0.94 -> 1.46 / 1.27 / 0.97: the sum 47.5 -> 43.5. Real footage (filter
-    /// seeds 0-15): girl 0.653 -> 0.654, car4 0.798 -> 0.798. With each scenario's seed as
-    /// the filter's the sum went 48.3 -> 44.1 (`combo` 2.54 / 2.89 / 2.23 -> 2.93 / 3.27 /
-    /// 2.73), on fresh scenario seeds 12-23 48.1 -> 45.2 (`car` 2.34 / 16.1 / 3.74 -> 3.78 /
-    /// 9.76 / 4.57, `combo` 2.87 / 3.10 / 2.31 -> 2.84 / 3.71 / 2.17), and under weak
-    /// perspective 45.9 -> 45.5 (`car` 2.93 / 9.71 / 3.56 -> 4.84 / 5.21 / 4.84). The cost:
-    /// the 200 frames of `car` take 0.94 s instead of 0.87 s on two threads; the step on
-    /// `nod` is unchanged within the noise (`pftrack bench --step`). The settings were chosen
-    /// on `car`, `nod`, `pan` and `combo`:
-    /// - the anchor adjusted too: `car` 5.28 / 9.84 / 4.70; its views during the car's
-    ///   translation read 1-8 degrees of tilt that the adjustment keeps;
-    /// - from 4 views instead of 7: `combo` 3.16 / 3.58 / 3.00 and one car4 seed lost
-    ///   (0.757 ± 0.043); from 10: `car` 4.73 / 9.08 / 4.70, `combo` 2.86 / 3.07 / 2.50;
-    /// - the rotation's random walk at 0.05 a frame: `pan` 1.99 / 3.33 / 2.05 (the fast pans
-    ///   under-read, gain 0.94); at 0.1: `car` 5.79 / 9.60 / 5.05;
-    /// - the depth prior at 6 px instead of 12: `car` 5.50 / 9.67 / 4.80;
-    /// - adjusting only once the views span 8.6 degrees: `car` 3.88 / 12.6 / 4.19;
-    /// - the adjusted pose proposed beside the fit's (half the particles each) instead of in
-    ///   its place: `car` 3.71 / 14.3 / 4.11, the likelihoods, which see the ellipsoid,
-    ///   preferring the fit's;
-    /// - the feature term's matches lifted to the adjusted depths as well: `car` 5.58 / 10.1 /
-    ///   4.91, `combo` 2.78 / 3.65 / 2.54;
-    /// - the adjusted pose taken only within 3 or 8 degrees of the frame's fit: `car` pan 14.0
-    ///   and 13.8, `combo` 2.97 / 3.13 / 2.27 and 2.83 / 2.97 / 2.48 (with each scenario's
-    ///   seed 2.73 / 2.98 / 2.04 and 2.76 / 2.98 / 2.46): the car's correction comes a few
-    ///   degrees at a time, and bounding it takes most of it away.
-    ///
-    /// Where the car's remaining lag comes from (seed 0, frames 110-150, 2026-12-05): each
-    /// adjustment moves the newest view's pan 4-11 degrees towards the truth, and the next
-    /// frame's fit, on the adjusted points, falls back by 3-6 degrees. The single fit holds
-    /// its centre to block matching's prediction ([`TrackerConfig::fit_centre_sigma`]) and
-    /// its rotation to the lagging estimate; the adjustment leaves both free, and also reads
-    /// 3-7 degrees of tilt the truth does not have. Tried then and not kept (sum over the six
-    /// scenarios 43.5 at the time):
-    /// - adjusting at every view: sum 49.0, `car` 7.10 / 6.26 / 5.48, `combo` 3.62 / 3.79 /
-    ///   2.84;
-    /// - the depth prior at 24 or 48 px: `car` 4.93 / 9.58 / 4.73 and 4.26 / 10.9 / 4.45,
-    ///   `combo` pan 3.44 and 4.30;
-    /// - a new keyframe inheriting the adjusted depths of the features it shares with the
-    ///   keyframe of the frame's fit (placed on its own rays, the rest lifted): sum 43.5,
-    ///   `car` 4.13 / 9.05 / 4.56. The handed-over depths did differ from the lift (a slanted
-    ///   plane across the box's side where the ellipsoid has a dome, 5-8 px apart at the
-    ///   ends), but the lag comes from the fits, not from the depths;
-    /// - a new keyframe taking its rotation from the frame's fit instead of the filter's
-    ///   estimate (which lags the fit): `car` 5.61 / 9.71 / 4.42;
-    /// - the fits' prior centred on the previous frame's fit instead of the estimate: its
-    ///   rotation, sum 47.7 (`car` 5.85 / 9.59 / 5.30); its centre, 50.2 (`car` 7.69 / 6.00 /
-    ///   5.81); both, 66.3 (`combo` 9.01 / 9.49 / 8.21: the chain ran away on one seed).
-    /// - Without the centre prior altogether (`--no-fit-centre-prior`) `car` reads 5.94 /
-    ///   5.76 / 4.98 and `combo` 3.14 / 3.56 / 2.57, sum 44.3; without it only on adjusted
-    ///   keyframes, 44.6 (`car` 4.89 / 7.49 / 4.86, `combo` pan 4.09).
-    /// - The keyframe fits and their adjustment under weak perspective, everything else with
-    ///   the camera: `car` 4.16 / 5.12 / 4.36 and the sum 40.5, but every head worse (`pan`
-    ///   2.15 / 2.61 / 2.09, `roll` 1.35 / 1.59 / 0.96, `combo` 3.13 / 3.00 / 2.33, its tilt's
-    ///   gain 1.09). Weak perspective over-reads a near object's turn (the heads' gains, see
-    ///   [`TrackerConfig::camera_hfov_deg`]), and on the box that error happens to offset the
-    ///   ellipsoid's under-reading: two wrong models cancelling on one object, where the
-    ///   camera is right for every head. The adjustment alone under weak perspective (the
-    ///   fits with the camera): sum 44.1, `car` 4.73 / 7.55 / 4.49, `combo` 3.11 / 3.45 / 2.28.
-    /// - The filter's other cues are not what holds the car back: with the feature term, the
-    ///   turned first view, both, or the template off, `car` reads 6.48 / 9.91 / 5.24,
-    ///   3.32 / 8.99 / 4.49, 6.14 / 8.86 / 5.49 and 4.05 / 7.48 / 5.61.
-    ///
-    /// On seed 0 one keyframe (frame 109) carried the fits from frame 110 to 138 while the
-    /// truth turned from -8 to -32 degrees about y. Its single fits stayed at -12 to -17
-    /// throughout, the adjustments every third view read -16 to -25, and the keyframe taken
-    /// at frame 138 inherited the estimate's -16: the turn each keyframe's fits miss is
-    /// passed on, and after the turn ends (frame 175) the estimate holds at -40 against -57.
-    /// Tried on 2026-12-05 (second session) against that, not kept:
-    /// - the adjustment's rotation prior on the change of angular velocity between views
-    ///   (σ 0.003-0.03 rad a frame), with its random walk loosened to 1 or 0.15 rad a frame
-    ///   or kept at 0.07, since a random walk from the keyframe holds a steady turn back:
-    ///   `car` pan 8.08-8.42, but the sum 44.1-48.0 (at 0.07 and 0.01: `car` 3.76 / 8.36 /
-    ///   4.26, `combo` 3.20 / 3.69 / 2.75; loosened, the heads over-read, `combo` tilt's gain
-    ///   1.09-1.12);
-    /// - features no view saw given the mean depth correction of their seen neighbours
-    ///   (Gaussian weights, 4, 8 or 16 px) rather than the lift's: `car` 4.87 / 9.11 / 4.61,
-    ///   4.08 / 10.0 / 4.52, 4.45 / 9.59 / 4.58;
-    /// - a new keyframe taking its rotation from an adjustment of the old keyframe run on
-    ///   that frame (the view it was last seen in included) instead of from the estimate:
-    ///   `car` 5.61 / 6.76 / 4.52, but sum 43.8 (`pan` 2.47 / 2.69 / 2.15, `combo` 2.83 /
-    ///   3.04 / 2.34), and with each scenario's own filter seed 46.7 against 44.1 (`car`
-    ///   7.01 / 6.29 / 5.22). A keyframe is replaced when its features are leaving, which is
-    ///   when its adjustment has the fewest of them (`examples/bundle_bias.rs` gives what
-    ///   limits it).
-    ///
-    /// Tried on 2026-12-05 (fourth session) and not kept: the single fits' scale held by a
-    /// log-normal prior, since the box's turn shows in part as a horizontal stretch that the
-    /// fit's free, isotropic scale absorbs ([`crate::pose::prior`]). Held to the previous
-    /// view's scale when that view was the frame before (else the ellipse's size ratio, the
-    /// fit's start) at σ 0.02 a frame: `car` 4.48 / 8.17 / 4.52, but `combo` 2.86 / 3.20 /
-    /// 2.54 and the sum 43.7 against 43.6; at σ 0.005, `car` 4.97 / 8.16 / 4.83; held to the
-    /// ellipse's size ratio alone at σ 0.02, `car` 4.25 / 9.98 / 4.65 (the outline of a
-    /// turning box changes its area, its projection's scale does not). The scale takes up
-    /// less of the missing turn than the depths do. Nor, the same day, the later fits on an
-    /// adjusted keyframe held to block matching's centre moved by the offset the adjustment
-    /// found between it and the adjusted view's centre (about 1 px on the car during its
-    /// turn, the fits' centres left of the prediction): `car` 6.62 / 7.16 / 5.17 and `combo`
-    /// 3.50 / 3.60 / 2.67; half the offset, 6.50 / 7.33 / 5.28 and 3.00 / 3.53 / 2.38. The
-    /// pan gained what the tilt lost.
+    /// The measurements behind it, and what was tried and not kept:
+    /// `docs/measurements.md`, under "TrackerConfig::bundle".
     pub bundle: Option<BundleAdjust>,
     /// Loop closure on appearance: on a confident frame the first view's template is looked
     /// for, unturned, beside the estimate; when it is found there clearly better than the
@@ -696,44 +373,6 @@ pub struct TrackerConfig {
     /// hangs below her chin: the ellipse sat about 10 px low and a third too tall (frames
     /// 260-420). Re-anchored, it sits on her face.
     ///
-    /// Measured 2026-12-02 (`scripts/eval_seeds.sh`, success AUC, mean ± standard error; CPU
-    /// backend, one thread per run):
-    ///
-    /// | filter seeds | without (`--no-reanchor`) | with (default) |
-    /// |---|---|---|
-    /// | girl, 0-15 | 0.547 ± 0.003 | 0.614 ± 0.015 |
-    /// | girl, 16-31 | 0.546 ± 0.003 | 0.600 ± 0.010 |
-    /// | car4, 0-15 | 0.798 ± 0.003 | 0.800 ± 0.002 |
-    /// | car4, 16-31 | 0.772 ± 0.031 | 0.772 ± 0.031 |
-    ///
-    /// On girl, frames 260-420 (frontal again after her turn), the mean IoU over seeds 0-15
-    /// rises from 0.53 to 0.72 and the centre's offset from +10 to +1 px below the truth's;
-    /// frames 420-500 (the occluding face) from 0.31 to 0.67; the mean centre error from 11.2
-    /// to 7.0 px. The spread between seeds grows: most seeds reach 0.57-0.71, the weakest
-    /// of 32 (11) 0.45, a false re-acquisition that the bar of [`TrackerConfig::found_above`]
-    /// now refuses (0.65 with it; the table's right column is before that change). On car4
-    /// every seed is within 0.01 of its track without it, seed 31
-    /// lost in both. The synthetic scenarios re-anchor only on frames where the head or box
-    /// is frontal again (checked on the triggers of `car` seeds 5, 7, 8, 10 and `depth` 9,
-    /// 10; the truth there is within 2° of the first pose), and the angle RMSE summed over
-    /// scenarios and axes goes from 46.8 to 47.7 degrees (filter seed 0): `depth` 1.49 /
-    /// 1.36 / 1.04 to 1.45 / 1.28 / 1.01, `car` 2.87 / 9.37 / 3.54 to 2.88 / 10.21 / 3.76,
-    /// the others identical. The `car` change is the chaos of the box's under-read turn
-    /// after frame 100 taking another course, not the re-anchoring itself: with each
-    /// scenario's own seed as the filter seed, `car` goes the other way, 2.96 / 10.13 / 3.63
-    /// without to 2.85 / 9.78 / 3.56 with (`depth` 1.51 / 1.35 / 1.01 to 1.46 / 1.34 /
-    /// 1.04). It costs 0.35 ms of a 3.8 ms step on the synthetic `nod` at 160x120 with 200
-    /// particles (`cargo bench --bench filter`), the search skipped when the estimate
-    /// explains the first view within the margin of a perfect correlation.
-    ///
-    /// A first form searched the first view on a grid of the search's step and took the
-    /// size it found there (girl 0.552, seeds 0-15); the size the correlation prefers is too
-    /// small (a face's middle correlates highly with the whole first view), so the
-    /// estimate's area is kept. Comparing the estimate's pose with the first pose each at
-    /// its own best placement instead (a test of the pose alone) gave girl 0.554: what the
-    /// estimate gets wrong on girl is mostly where it is, and the test here is of the
-    /// estimate as it stands.
-    ///
     /// The same thresholds also turn the estimate back in tilt and pan (since 2026-12-03):
     /// on a confident frame whose estimate explains the turned first view less than
     /// [`Reanchor::min_ncc`], the first view is turned to tilts and pans 5° apart, up to 30°
@@ -748,6 +387,9 @@ pub struct TrackerConfig {
     /// small shift (on car4 seed 7 a turn of 2.5° in tilt and pan at frame 3, which lifted
     /// the correlation from 0.40 to 0.76, lost the car; the figures are in
     /// `docs/measurements.md`).
+    ///
+    /// The measurements behind it, and what was tried and not kept:
+    /// `docs/measurements.md`, under "TrackerConfig::reanchor".
     pub reanchor: Option<Reanchor>,
     /// How the colour model follows the target's appearance; `None` keeps the first frame's
     /// histogram throughout, as the paper does. On by default ([`ColourUpdate::default`]):
@@ -807,18 +449,6 @@ pub struct TrackerConfig {
     /// ([`crate::filter::SizeRange`]); `None` leaves them free, as the paper does. 1.2 by
     /// default.
     ///
-    /// The hold began below [`TrackerConfig::lost_below`] until 2026-12-03. On OTB girl, as
-    /// she turns her back (frames 60-180), the confidence sits at 0.35-0.5 for a hundred
-    /// frames, above the lost bar, and the ellipse shrank onto a patch of her hair, 9x13 to
-    /// 4x6 px in ten frames, before the track was lost at all (filter seeds 32, 43, 46).
-    /// Held from `found_above` (`pftrack eval`, success AUC, mean ± standard error over
-    /// filter seeds): girl 0.647 ± 0.008 over seeds 0-31 against 0.637 ± 0.009 (0-15) and
-    /// 0.611 ± 0.012 (16-31) before, 0.645 ± 0.009 over 32-47 against 0.601 ± 0.008; car4
-    /// 0.799 ± 0.003 over 0-31 against 0.786, its seed 31 no longer lost (0.72; it was lost
-    /// from frame 304 on), and 0.799 ± 0.002 over 32-47; the synthetic scenarios the same
-    /// (47.7 degrees summed, scenario seeds 0-11). In a throwaway build that held from 0.4
-    /// girl 32-47 reached 0.624 ± 0.010, from 0.6 0.648 ± 0.012.
-    ///
     /// Why: a likelihood that has lost its target still ranks sizes, and the colour term
     /// ranks a small ellipse on a few pixels of the right colour above a large one half on
     /// the target. On OTB girl, where every filter seed loses the head while she turns her
@@ -828,18 +458,8 @@ pub struct TrackerConfig {
     /// size in place of the estimate's, the same centres reached 0.59 against 0.42 as they
     /// were (seeds 0-15).
     ///
-    /// Measured with `pftrack track --backend cpu` and `pftrack eval` (success AUC, mean over
-    /// filter seeds 0-15): girl 0.47 with the hold against 0.41 without, every seed at least
-    /// 0.38 against 0.18 before; car4 0.58 against 0.57 (one seed gains, the others fail by
-    /// drifting while confident and are unchanged); these figures are with the fixed colour
-    /// model. With the model adapting (`--colour-rate 0.1`) girl went from 0.53 to 0.54; with `--edge-threshold 0.1` from 0.43 to 0.49. In a throwaway build that
-    /// clamped after the aspect range instead of before it, girl reached 0.49 at factors 1.0
-    /// (the size frozen) and 1.2, 0.45 at 1.1 and 0.44 at 1.5, car4 0.56-0.58, and holding the
-    /// size only once the target was declared lost did as well (0.49 and 0.58): the factor's
-    /// effect is within the seed noise (a 16-seed mean moves by about ±0.03), and 1.2 leaves
-    /// room for a target that comes nearer or goes away while it is missed. The synthetic
-    /// scenarios, where the confidence does not fall that low, are unchanged (angle RMSE
-    /// summed over scenarios and axes 64.9 degrees, seeds 0-11, filter seed 0).
+    /// The measurements behind it, and what was tried and not kept:
+    /// `docs/measurements.md`, under "TrackerConfig::size_hold".
     pub size_hold: Option<f64>,
     /// The contrast term ([`crate::likelihood::TERM_CONTRAST`]): the target's colours
     /// against those of a ring around it, summed over each particle's pixels. It is the
@@ -870,42 +490,8 @@ pub struct TrackerConfig {
     /// The appearance-template term ([`crate::likelihood::template`]); `None` for the
     /// histogram, contour and feature terms alone.
     ///
-    /// Measured 2026-12-01 (`scripts/eval_seeds.sh real`, success AUC, mean ± standard error
-    /// over filter seeds 0-15; synthetic: the per-axis angle RMSE summed over the six
-    /// scenarios, seeds 0-11, filter seed 0):
-    ///
-    /// | weight, rate | girl | car4 | synthetic |
-    /// |---|---|---|---|
-    /// | off | 0.536 ± 0.004 | 0.578 ± 0.047 | 64.5 |
-    /// | 10, 0.05 | 0.531 ± 0.003 | 0.763 ± 0.019 | – |
-    /// | **20, 0.05** (default) | 0.530 ± 0.003 | 0.795 ± 0.003 | 65.1 |
-    /// | 40, 0.05 | 0.531 ± 0.003 | 0.797 ± 0.003 | – |
-    /// | 20, 0.02 | 0.530 ± 0.004 | 0.799 ± 0.002 | – |
-    /// | 20, 0.15 | 0.523 ± 0.004 | 0.729 ± 0.029 | – |
-    ///
-    /// Held-out filter seeds 16-31 at the default: girl 0.526 ± 0.002, car4 0.792 ± 0.006.
-    /// A template that learns faster learns the background as the estimate slides (rate
-    /// 0.15 lost car4 in four seeds); one that learns more slowly is as good on these two
-    /// sequences, and 0.05 (a memory of about 20 frames) is kept for targets that turn.
-    ///
-    /// Tried first and not kept: hedging the proposal instead, a fifth of the proposals kept
-    /// at their parent's centre (a mixture proposal weighed by its density), without the
-    /// template. girl fell to 0.500 ± 0.027 (two seeds lost her) and car4 to 0.521 ± 0.035:
-    /// at car4's pan it was the likelihood that preferred the background, not the proposal
-    /// that kept the particles from the car.
-    ///
-    /// Also tried (2026-12-01, throwaway build, feature weight 10): the first frame's template
-    /// kept beside the learning one, as a second term. On girl its correlation at the truth
-    /// box is 0.4-0.7 on frontal frames after frame 280, where at the estimate (too tall and
-    /// too low, over the hair below the chin) it is about 0. Weighted by `w · NCC` it lifted
-    /// girl to 0.549 and 0.544 at w = 40 (filter seeds 0-15 and 16-31, against 0.525 and
-    /// 0.523) but lost car4 seeds (0.778 ± 0.039 and 0.707 ± 0.061). Counted only above
-    /// recognition, `w · max(0, NCC − 0.5)` with w = 100, it gave girl 0.537 and 0.541 and
-    /// car4 0.808 and 0.790, but the synthetic heads lost more: the RMSE summed over
-    /// scenarios and axes rose from 58.7 to 65.5 and from 61.8 to 66.9 (filter seeds 0 and 1)
-    /// and nod's centre error from 0.40 to 0.65 px, because on a turning head the frontal
-    /// template is matched where the texture went, not where the head is. Not kept; the
-    /// first view turned with each particle's rotation is ([`TemplateTerm::anchor_weight`]).
+    /// The measurements behind it, and what was tried and not kept:
+    /// `docs/measurements.md`, under "TrackerConfig::template".
     pub template: Option<TemplateTerm>,
 }
 
@@ -935,33 +521,8 @@ pub struct TemplateTerm {
     /// The particle gains `anchor_weight · max(0, NCC − anchor_threshold)`: the first view
     /// counts only where it is recognised. 40 by default (threshold 0.65); 0 turns it off.
     ///
-    /// Measured 2026-12-01 (feature weight 10, `scripts/eval_seeds.sh`), without it, with it
-    /// at 40 and threshold 0.5, and at 40 and 0.65 (the default):
-    ///
-    /// | footage | without | 0.5 | 0.65 |
-    /// |---|---|---|---|
-    /// | synthetic, summed RMSE, scenario seeds 0-11, filter seed 0 | 58.7 | 51.2 | 53.7 |
-    /// | the same, filter seed 1 | 61.8 | 50.5 | 50.8 |
-    /// | the same, scenario seeds 12-23, filter seed 0 | 64.6 | 53.2 | 56.9 |
-    /// | girl, filter seeds 0-15 / 16-31 | 0.525 / 0.523 | 0.536 / 0.533 | 0.537 / 0.531 |
-    /// | car4, filter seeds 0-15 / 16-31 / 32-47 | 0.797 / 0.801 / 0.781 | 0.799 / 0.758 / 0.748 | 0.797 / 0.796 / 0.796 |
-    ///
-    /// At 0.5 car4 lost one seed in each held-out block (seeds 31 and one of 32-47 slid off
-    /// the car around frame 250 and were never found again, the fragility the feature
-    /// weight's documentation describes, [`TrackerConfig::feature_weight`]; at weight 25 two
-    /// other seeds of 16-31 were lost, so the weight does not govern it). On car4 the first
-    /// view, twice the size and in other light, correlates 0.25-0.5 wherever the car is, so
-    /// at 0.5 it still pulled; at 0.65 it is silent there and every car4 seed of the 48 kept
-    /// the car, while on the sharp synthetic heads it still speaks. The threshold was chosen
-    /// on those car4 blocks, so no block is held out for it. At 0.65 pan comes within 3° on
-    /// every axis with both filter seeds (2.68, 2.52, 2.82 and 2.38, 2.39, 2.60; on seeds
-    /// 12-23 its pan is 3.23), `combo`'s pan goes from 7.3 to 3.7 degrees (filter seed 0),
-    /// and nod's tilt does not improve (3.4-3.8). Without the threshold (`40 · NCC`) the
-    /// synthetic sum was 49.0 but car4 lost seeds (0.730 ± 0.049 over 0-15). The first view
-    /// unturned (the learning
-    /// template's own sampling, kept fixed) helped girl as well but cost the synthetic heads
-    /// (see the notes on [`TrackerConfig::template`]): unturned, it is matched where the
-    /// texture went rather than where the head is.
+    /// The measurements behind it, and what was tried and not kept:
+    /// `docs/measurements.md`, under "TrackerConfig::anchor_weight".
     pub anchor_weight: f64,
     /// The weight of the turned first view, in place of `anchor_weight`, when the camera is
     /// known ([`TrackerConfig::camera_hfov_deg`]); 80 by default.
@@ -1065,22 +626,8 @@ impl TemplateTerm {
 /// the right colour. The contrast sum instead is largest for the ellipse holding the
 /// target's pixels and no more.
 ///
-/// Measured (success AUC with `pftrack eval`, filter seeds 0-7): girl 0.43 and car4 0.33
-/// with the defaults of the time (with [`TrackerConfig::motion_scale`] on, as all the figures
-/// here), against 0.40 and 0.23 without the term. The settings were chosen in a
-/// prototype on the same two sequences (seeds 0-3 unless said): weight 60 with the first
-/// frame's background gave 0.40 and 0.29 (seeds 0-7); letting the background follow at 0.02
-/// per frame added car4's changing surroundings (0.41 and 0.33, seeds 0-7); weights 30 and
-/// 120 did worse on both than 60 (girl 0.38 and 0.41 against 0.47, car4 0.25 and 0.27
-/// against 0.34); a background rate of 0.1 or 0.05 helped car4 (0.43) but cost girl (0.28,
-/// 0.33). The ring and the limit were set once and not varied. Only the filter seeds differ
-/// between the runs the settings were picked on and the figures reported, so take these as
-/// tuned on the footage. On the synthetic scenarios, which took no part in the choice, the
-/// mean centre error fell in every scenario (seeds 0-5: `pan` 1.66 to 0.39 px, `combo` 1.71
-/// to 0.50, `car` 4.67 to 3.78; seeds 6-11 alike), and the `depth` scenario's mean error of
-/// the ellipse's size from 2.4 % to 1.1 %. The angles gained less: the RMSE summed over
-/// scenarios and axes went from 73.4 to 64.5 degrees on seeds 0-5 but only from 78.5 to 77.6
-/// on seeds 6-11, where `combo` got worse (19.1 to 25.7) and the rest better.
+/// The measurements behind it, and what was tried and not kept:
+/// `docs/measurements.md`, under "Contrast".
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Contrast {
     /// The term's weight: the log-likelihood of an ellipse is `weight` times the mean log-odds
