@@ -4,7 +4,8 @@
 use super::{DESCRIPTOR_LEN, FeatureError, Features};
 
 /// Parameters of [`match_features`].
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default, deny_unknown_fields)]
 pub struct MatchParams {
     /// Lowe's ratio: a match is kept when `d1 < ratio · d2` (nearest and second nearest
     /// distances). 0.8 by default; 1 or more disables the test.

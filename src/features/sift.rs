@@ -77,7 +77,8 @@ const DESCR_INT_FCTR: f32 = 512.0;
 pub const DESCRIPTOR_LEN: usize = DESCR_WIDTH * DESCR_WIDTH * DESCR_BINS;
 
 /// How the doubled first octave ([`SiftParams::upsample`]) lies on the input's pixel grid.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
 pub enum UpsampleGrid {
     /// Pixel `2x` of the doubled image is input pixel `x` and a keypoint at `u` in the doubled
     /// image is at `u / 2` in the input: positions are exact (the default).
@@ -93,7 +94,8 @@ pub enum UpsampleGrid {
 }
 
 /// Parameters of [`Sift`]. The defaults are Lowe's and OpenCV's.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default, deny_unknown_fields)]
 pub struct SiftParams {
     /// Scales per octave at which extrema are searched (Lowe's s = 3).
     pub n_octave_layers: usize,

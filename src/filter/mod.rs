@@ -33,6 +33,23 @@ use rotation_mean::{exp_so3, log_so3, weighted_mean};
 /// plan, and is refused with an error instead of failing to allocate.
 pub const MAX_PARTICLES: usize = 10_000_000;
 
+/// A bound that may be infinite, serialised as a number or, for no bound, `null` (JSON has
+/// no infinity).
+mod unbounded {
+    pub fn serialize<S: serde::Serializer>(v: &f64, s: S) -> Result<S::Ok, S::Error> {
+        if *v == f64::INFINITY {
+            s.serialize_none()
+        } else {
+            s.serialize_some(v)
+        }
+    }
+
+    pub fn deserialize<'de, D: serde::Deserializer<'de>>(d: D) -> Result<f64, D::Error> {
+        let v: Option<f64> = serde::Deserialize::deserialize(d)?;
+        Ok(v.unwrap_or(f64::INFINITY))
+    }
+}
+
 /// Errors of the particle filter.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 #[non_exhaustive]
@@ -102,7 +119,8 @@ impl Hypothesis {
 
 /// Standard deviations of a Gaussian over the state: centre and semi-axes in pixels, the
 /// rotation as a rotation vector about the camera axes (radians).
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct StateSigma {
     /// σ of cx and cy (pixels).
     pub centre: f64,
@@ -142,7 +160,8 @@ impl StateSigma {
 }
 
 /// Settings of the filter.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default, deny_unknown_fields)]
 pub struct FilterParams {
     /// Number of particles N (the paper uses 200).
     pub particles: usize,
@@ -156,6 +175,7 @@ pub struct FilterParams {
     pub min_axis: f64,
     /// Largest semi-axis a particle may take (pixels); proposals are clamped to it and to the
     /// frame set by [`ParticleFilter::set_frame`].
+    #[serde(with = "unbounded")]
     pub max_axis: f64,
 }
 

@@ -6,7 +6,8 @@
 /// `a` is the semi-axis along the image x axis and `b` along y when `theta = 0`; `theta`
 /// (radians) turns the ellipse clockwise on screen (from +x towards +y, the image's v-down
 /// sense), matching a positive roll `rz`.
-#[derive(Debug, Clone, Copy, PartialEq, Default)]
+#[derive(Debug, Clone, Copy, PartialEq, Default, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct Ellipse {
     /// Centre, image x (pixels).
     pub cx: f64,
@@ -16,7 +17,8 @@ pub struct Ellipse {
     pub a: f64,
     /// Semi-axis along the ellipse's own y axis (pixels).
     pub b: f64,
-    /// Orientation in radians.
+    /// Orientation in radians (0 when left out of a serialised ellipse).
+    #[serde(default)]
     pub theta: f64,
 }
 

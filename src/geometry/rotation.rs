@@ -36,7 +36,8 @@ pub fn rot_z(t: f64) -> Matrix3<f64> {
 }
 
 /// Euler angles (radians) in the project's order: `R = Rx(rx) · Ry(ry) · Rz(rz)`.
-#[derive(Debug, Clone, Copy, PartialEq, Default)]
+#[derive(Debug, Clone, Copy, PartialEq, Default, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct Euler {
     /// Tilt: rotation about the camera x axis.
     pub rx: f64,

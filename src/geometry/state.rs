@@ -7,7 +7,8 @@ use super::rotation::Euler;
 /// (radians, `R = Rx(rx) · Ry(ry) · Rz(rz)`) relative to the reference pose of frame 0.
 ///
 /// The ellipse drawn for this state has orientation `theta0 + rz` (see [`PoseState::ellipse`]).
-#[derive(Debug, Clone, Copy, PartialEq, Default)]
+#[derive(Debug, Clone, Copy, PartialEq, Default, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct PoseState {
     /// Centre x (pixels).
     pub cx: f64,

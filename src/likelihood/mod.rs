@@ -210,7 +210,8 @@ pub struct FrameInput<'a> {
 
 /// Constants of the likelihood model. Mirrored in WGSL (as a uniform).
 #[repr(C)]
-#[derive(Debug, Clone, Copy, PartialEq, Pod, Zeroable)]
+#[derive(Debug, Clone, Copy, PartialEq, Pod, Zeroable, serde::Serialize, serde::Deserialize)]
+#[serde(default, deny_unknown_fields)]
 pub struct LikelihoodParams {
     /// σc of the colour term: `ln p_colour = -(1 - ρ) / (2 σc²)`.
     pub sigma_colour: f32,

@@ -59,7 +59,8 @@ use crate::geometry::Ellipse;
 /// 8-px blocks split down to 4 px, a ±10 px search. [`AbmParams::for_target`] scales the
 /// block sizes and the search radius with the target's size; the intensity thresholds
 /// (`max_sad`, `min_texture`, `ambiguity_ratio`) are per pixel and do not depend on it.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default, deny_unknown_fields)]
 pub struct AbmParams {
     /// Side of the initial blocks (pixels).
     pub block_size: u32,

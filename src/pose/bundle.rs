@@ -62,7 +62,8 @@ pub struct Adjusted {
 /// they are pinned: on exact views of a box corner turning 30° (every third frame, depth σ
 /// 100 px) the default rotation σ left about a tenth of the turn unread (measured), where
 /// priors too weak to matter recover it to 0.01° (tested).
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default, deny_unknown_fields)]
 pub struct BundleParams {
     /// σ of the depth prior about the lifted depth (pixels).
     pub depth_sigma: f64,

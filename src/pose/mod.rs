@@ -347,7 +347,8 @@ pub fn interframe(
 /// to 64.9 degrees with filter seed 0, and from 68.3 to 63.9 with the filter seed equal to
 /// the scene's; nearly all of it on `combo` (its worst seed from 60.7 to 23.9, and from 48.9
 /// to 20.7), the rest within 0.1 degree.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default, deny_unknown_fields)]
 pub struct Consensus {
     /// Inlier threshold on the affine transfer error (pixels); 1 by default, about two to
     /// three times SIFT's localisation error at the tracker's scales.

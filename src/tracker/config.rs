@@ -10,7 +10,8 @@ use crate::pose::Consensus;
 use crate::pose::bundle::BundleParams;
 
 /// Which of the paper's systems to run.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
 pub enum Mode {
     /// The full system: Sylvester (SEA) rotation in the proposal, rotation in the filtered
     /// state, colour, gradient and feature likelihoods.
@@ -49,13 +50,15 @@ impl Mode {
 }
 
 /// Where tracking starts: the target's ellipse in the first frame and its pose there.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct Init {
     /// The ellipse around the target in the first frame, as seen there: its orientation
     /// `theta` is `theta0 + rz` of the pose (SPEC), so the reference orientation `theta0` the
     /// track turns from is `theta - pose.rz` (`theta` itself for a frontal start).
     pub ellipse: Ellipse,
     /// The pose in the first frame (frontal, all zero, by default).
+    #[serde(default)]
     pub pose: Euler,
 }
 
@@ -70,7 +73,14 @@ impl Init {
 }
 
 /// Settings of a tracker.
-#[derive(Debug, Clone, PartialEq)]
+///
+/// They serialise with serde (JSON, TOML, ...) under the field names here: a file may give
+/// only what it changes, the rest taking the defaults, and a name that is not a setting is
+/// refused. Angles are in radians, as stored; `filter.max_axis` is `null` for no bound; an
+/// optional part is `null` when off. What is read is checked as any configuration is
+/// ([`TrackerConfig::check`], which [`super::Tracker::new`] runs).
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default, deny_unknown_fields)]
 pub struct TrackerConfig {
     /// The system to run.
     pub mode: Mode,
@@ -497,7 +507,8 @@ pub struct TrackerConfig {
 
 /// The appearance-template term's settings ([`crate::likelihood::template`]): each particle's
 /// log-likelihood gains `weight · NCC` with the template, which learns from confident frames.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default, deny_unknown_fields)]
 pub struct TemplateTerm {
     /// The log-likelihood per unit of correlation; 20 by default, about the spread of the
     /// contour term between a good and a poor ellipse on car4. 0 drops the template's own
@@ -628,7 +639,8 @@ impl TemplateTerm {
 ///
 /// The measurements behind it, and what was tried and not kept:
 /// `docs/measurements.md`, under "Contrast".
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default, deny_unknown_fields)]
 pub struct Contrast {
     /// The term's weight: the log-likelihood of an ellipse is `weight` times the mean log-odds
     /// over an area equal to the previous estimate's. 60 by default.
@@ -723,7 +735,8 @@ pub(crate) fn weight_ok(w: f64) -> bool {
 /// the shirt below the face were "re-anchored" on patches of it (in a form that took the
 /// size the search found: girl 0.552 without the gate, 0.607 ± 0.018 with it, filter seeds
 /// 0-15).
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default, deny_unknown_fields)]
 pub struct Reanchor {
     /// Least correlation of the first view where it is found; 0.7 by default.
     pub min_ncc: f64,
@@ -769,7 +782,8 @@ impl Reanchor {
 }
 
 /// When and how a keyframe's depths are adjusted with its views ([`TrackerConfig::bundle`]).
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default, deny_unknown_fields)]
 pub struct BundleAdjust {
     /// The adjustment itself: the depth prior's σ (12 px), the rotation's random walk
     /// between views (0.07 rad a frame, a little looser than the filter's 0.05, which
@@ -837,7 +851,8 @@ impl BundleAdjust {
 }
 
 /// When a free fit against the anchor keyframe is taken ([`TrackerConfig::anchor_refit`]).
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default, deny_unknown_fields)]
 pub struct AnchorRefit {
     /// Largest RMS reprojection error (pixels) over the inliers; 0.5 by default.
     pub max_residual: f64,
@@ -876,7 +891,8 @@ impl AnchorRefit {
 /// The adaptive colour model (Nummiaro, Koller-Meier and Van Gool, 2003): after a confident
 /// frame the model moves a share of the way towards the histogram inside the estimate,
 /// `q ← (1 − rate) q + rate p`.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default, deny_unknown_fields)]
 pub struct ColourUpdate {
     /// The share per frame, in `(0, 1]`; 0.1 by default (a memory of about ten frames).
     pub rate: f64,

@@ -25,7 +25,8 @@ use crate::likelihood::cpu::{EllipseF32, colour};
 use crate::tracker::TrackError;
 
 /// How the initial ellipse is refined ([`refine_ellipse`]).
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default, deny_unknown_fields)]
 pub struct InitRefine {
     /// Farthest the centre may move, as a share of the initial smaller semi-axis (0.3).
     pub max_shift: f64,

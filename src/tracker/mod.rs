@@ -122,7 +122,7 @@ pub struct Weighing<'a> {
 }
 
 /// What the tracker says about one frame.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Estimate {
     /// Frame index (0 for the first frame).
     pub frame: usize,
