@@ -1461,3 +1461,93 @@ fn cli_out_dash_is_standard_output() {
     assert!(!dir.join("-").exists());
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+/// `track --config FILE` takes the tracker's settings from JSON: the same track as the flags
+/// that say the same, a misspelt or out-of-range setting refused naming the file, and no
+/// tuning flag beside it.
+#[test]
+fn cli_track_takes_its_settings_from_a_json_file() {
+    let dir = tmp_dir("config");
+    let seq = dir.join("seq");
+    let s = seq.to_str().unwrap();
+    pftrack_ok(&["synth", s, "--scenario", "roll", "--frames", "6"]);
+    let file = |name: &str, text: &str| {
+        let p = dir.join(name);
+        std::fs::write(&p, text).unwrap();
+        p.to_str().unwrap().to_string()
+    };
+    let csv = |name: &str| dir.join(name).to_str().unwrap().to_string();
+    let settings = file(
+        "a.json",
+        r#"{"seed": 3, "filter": {"particles": 60}, "bundle": null, "coast_rate": null}"#,
+    );
+    let (from_file, from_flags) = (csv("file.csv"), csv("flags.csv"));
+    pftrack_ok(&[
+        "track",
+        s,
+        "--backend",
+        "cpu",
+        "--config",
+        &settings,
+        "-o",
+        &from_file,
+    ]);
+    pftrack_ok(&[
+        "track",
+        s,
+        "--backend",
+        "cpu",
+        "--seed",
+        "3",
+        "--particles",
+        "60",
+        "--no-bundle",
+        "--no-coast",
+        "-o",
+        &from_flags,
+    ]);
+    assert_eq!(
+        std::fs::read(&from_file).unwrap(),
+        std::fs::read(&from_flags).unwrap()
+    );
+    // A different seed from the file does change the track (the file is read).
+    let other = file("b.json", r#"{"seed": 4, "filter": {"particles": 60}}"#);
+    pftrack_ok(&[
+        "track",
+        s,
+        "--backend",
+        "cpu",
+        "--config",
+        &other,
+        "-o",
+        &from_file,
+    ]);
+    assert_ne!(
+        std::fs::read(&from_file).unwrap(),
+        std::fs::read(&from_flags).unwrap()
+    );
+    let unwritten = dir.join("none.csv");
+    let u = unwritten.to_str().unwrap();
+    let misspelt = file("c.json", r#"{"sead": 3}"#);
+    assert_one_line_error(
+        &["track", s, "--config", &misspelt, "-o", u],
+        "unknown field `sead`",
+        &unwritten,
+    );
+    let bad = file("d.json", r#"{"filter": {"particles": 0}}"#);
+    assert_one_line_error(
+        &["track", s, "--config", &bad, "-o", u],
+        "particles 0 must lie in 1..=",
+        &unwritten,
+    );
+    let out = pftrack(&["track", s, "--config", &settings, "--seed", "2", "-o", u]);
+    assert_eq!(out.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("cannot be used with '--seed"));
+    // The file is an input: the poses cannot overwrite it.
+    assert_one_line_error(
+        &["track", s, "--config", &settings, "-o", &settings],
+        "is an input",
+        &unwritten,
+    );
+    std::fs::remove_dir_all(&dir).unwrap();
+}

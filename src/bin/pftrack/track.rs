@@ -270,6 +270,26 @@ pub struct TrackArgs {
     /// (`TemplateTerm::anchor_weight_camera`).
     #[arg(long, value_name = "W")]
     pub anchor_weight: Option<f64>,
+    /// The tracker's settings from a JSON file, in place of the flags that tune them (which
+    /// it cannot be given with): the fields of the library's `TrackerConfig`, any left out
+    /// taking their defaults, e.g. `{"seed": 3, "filter": {"particles": 500}, "bundle":
+    /// null}`; a name that is not a setting is refused. The camera comes from the file when it
+    /// sets `camera_hfov_deg`, else from --hfov or the init file as without it.
+    #[arg(
+        long,
+        value_name = "FILE",
+        conflicts_with_all = [
+            "particles", "seed", "mode", "depth_ratio", "edge_threshold", "no_fit_prior",
+            "fit_centre_sigma", "no_fit_centre_prior", "no_anchor_refit", "no_bundle",
+            "no_coast", "colour_rate", "colour_max_ring", "aspect_slack", "no_aspect_bound",
+            "size_hold", "no_size_hold", "found_above", "reacquire_ncc",
+            "no_template_reacquire", "reanchor_ncc", "no_reanchor", "refine_init",
+            "sift_upsample_below", "sift_always_upsample", "no_interframe_consensus",
+            "motion_scale", "contrast_weight", "feature_weight", "template_weight",
+            "template_rate", "anchor_weight",
+        ]
+    )]
+    pub config: Option<PathBuf>,
     /// Resize every frame to WxH first. The start (--init-*) is read, and the poses are
     /// written, in the input's own pixels; the rendered frames (--render) are the resized ones.
     #[arg(long, value_name = "WxH", value_parser = values::size, allow_hyphen_values = true)]
@@ -399,6 +419,79 @@ fn given_init(a: &TrackArgs) -> anyhow::Result<Option<(InitFile, Option<Euler>)>
         }));
     }
     Ok(None)
+}
+
+/// The tracker's settings from the tuning flags, and the camera `hfov` (degrees; `None` for
+/// weak perspective).
+fn flag_config(a: &TrackArgs, hfov: Option<f64>) -> anyhow::Result<TrackerConfig> {
+    let mut cfg = config(a.mode, a.particles, a.seed)?;
+    apply_hfov(&mut cfg, hfov)?;
+    apply_depth_ratio(&mut cfg, a.depth_ratio)?;
+    apply_edge_threshold(&mut cfg, a.edge_threshold)?;
+    if a.no_fit_prior {
+        cfg.fit_pixel_sigma = None;
+    }
+    cfg.fit_centre_sigma = (!a.no_fit_centre_prior).then_some(a.fit_centre_sigma);
+    if a.no_anchor_refit {
+        cfg.anchor_refit = None;
+    }
+    if a.no_bundle {
+        cfg.bundle = None;
+    }
+    if a.no_coast {
+        cfg.coast_rate = None;
+    }
+    cfg.aspect_slack = (!a.no_aspect_bound).then_some(a.aspect_slack);
+    cfg.size_hold = (!a.no_size_hold).then_some(a.size_hold);
+    cfg.found_above = a.found_above;
+    cfg.reacquire_ncc = (!a.no_template_reacquire).then_some(a.reacquire_ncc);
+    cfg.reanchor = (!a.no_reanchor).then_some(pftrack::tracker::Reanchor {
+        min_ncc: a.reanchor_ncc,
+        ..Default::default()
+    });
+    cfg.sift_upsample_below = (!a.sift_always_upsample).then_some(a.sift_upsample_below);
+    cfg.init_refine = a.refine_init.then(pftrack::tracker::InitRefine::default);
+    cfg.motion_scale = a.motion_scale;
+    if a.no_interframe_consensus {
+        cfg.interframe_consensus = None;
+    }
+    cfg.contrast = if a.contrast_weight == 0.0 {
+        None
+    } else {
+        Some(pftrack::tracker::Contrast {
+            weight: a.contrast_weight,
+            ..Default::default()
+        })
+    };
+    apply_feature_weight(&mut cfg, a.feature_weight)?;
+    apply_template(
+        &mut cfg,
+        a.template_weight,
+        a.template_rate,
+        a.anchor_weight,
+    )?;
+    if !(0.0..=1.0).contains(&a.colour_max_ring) {
+        bail!("--colour-max-ring {} is not in [0, 1]", a.colour_max_ring);
+    }
+    cfg.colour_update = if a.colour_rate == 0.0 {
+        None
+    } else {
+        Some(ColourUpdate {
+            rate: a.colour_rate,
+            max_ring_similarity: a.colour_max_ring,
+            ..Default::default()
+        })
+    };
+    Ok(cfg)
+}
+
+/// The tracker's settings from `--config FILE` (JSON, with the defaults for what it leaves
+/// out).
+fn read_config(path: &Path) -> anyhow::Result<TrackerConfig> {
+    let text =
+        std::fs::read_to_string(path).with_context(|| format!("--config {}", path.display()))?;
+    let text = text.strip_prefix('\u{feff}').unwrap_or(&text);
+    serde_json::from_str(text).with_context(|| format!("--config {}", path.display()))
 }
 
 /// Builds the tracker configuration from the arguments.
@@ -597,6 +690,7 @@ pub fn run(mut a: TrackArgs) -> anyhow::Result<()> {
     }
     let (frames_path, synth_init) = resolve_input(&a.input);
     let read: Vec<&Path> = [
+        a.config.as_deref(),
         a.init_file.as_deref(),
         a.init_truth.as_deref(),
         synth_init.as_deref(),
@@ -628,73 +722,30 @@ pub fn run(mut a: TrackArgs) -> anyhow::Result<()> {
         ellipse: init_file.ellipse,
         pose,
     };
-    let mut cfg = config(a.mode, a.particles, a.seed)?;
-    apply_hfov(
-        &mut cfg,
-        if a.weak_perspective {
-            None
-        } else {
-            a.hfov.or(init_file.hfov_deg)
-        },
-    )?;
-    apply_depth_ratio(&mut cfg, a.depth_ratio)?;
-    apply_edge_threshold(&mut cfg, a.edge_threshold)?;
-    if a.no_fit_prior {
-        cfg.fit_pixel_sigma = None;
-    }
-    cfg.fit_centre_sigma = (!a.no_fit_centre_prior).then_some(a.fit_centre_sigma);
-    if a.no_anchor_refit {
-        cfg.anchor_refit = None;
-    }
-    if a.no_bundle {
-        cfg.bundle = None;
-    }
-    if a.no_coast {
-        cfg.coast_rate = None;
-    }
-    cfg.aspect_slack = (!a.no_aspect_bound).then_some(a.aspect_slack);
-    cfg.size_hold = (!a.no_size_hold).then_some(a.size_hold);
-    cfg.found_above = a.found_above;
-    cfg.reacquire_ncc = (!a.no_template_reacquire).then_some(a.reacquire_ncc);
-    cfg.reanchor = (!a.no_reanchor).then_some(pftrack::tracker::Reanchor {
-        min_ncc: a.reanchor_ncc,
-        ..Default::default()
-    });
-    cfg.sift_upsample_below = (!a.sift_always_upsample).then_some(a.sift_upsample_below);
-    cfg.init_refine = a.refine_init.then(pftrack::tracker::InitRefine::default);
-    cfg.motion_scale = a.motion_scale;
-    if a.no_interframe_consensus {
-        cfg.interframe_consensus = None;
-    }
-    cfg.contrast = if a.contrast_weight == 0.0 {
+    let camera = if a.weak_perspective {
         None
     } else {
-        Some(pftrack::tracker::Contrast {
-            weight: a.contrast_weight,
-            ..Default::default()
-        })
+        a.hfov.or(init_file.hfov_deg)
     };
-    apply_feature_weight(&mut cfg, a.feature_weight)?;
-    apply_template(
-        &mut cfg,
-        a.template_weight,
-        a.template_rate,
-        a.anchor_weight,
-    )?;
-    if !(0.0..=1.0).contains(&a.colour_max_ring) {
-        bail!("--colour-max-ring {} is not in [0, 1]", a.colour_max_ring);
+    let cfg = match &a.config {
+        Some(path) => {
+            let mut cfg = read_config(path)?;
+            if a.weak_perspective || a.hfov.is_some() || cfg.camera_hfov_deg.is_none() {
+                apply_hfov(&mut cfg, camera)?;
+            }
+            cfg
+        }
+        None => flag_config(&a, camera)?,
+    };
+    // A setting's error names its flag, or the file it came from.
+    match &a.config {
+        Some(p) => cfg
+            .check()
+            .with_context(|| format!("--config {}", p.display()))?,
+        None => cfg
+            .check()
+            .map_err(|e| anyhow::anyhow!(flag_error(&e.to_string())))?,
     }
-    cfg.colour_update = if a.colour_rate == 0.0 {
-        None
-    } else {
-        Some(ColourUpdate {
-            rate: a.colour_rate,
-            max_ring_similarity: a.colour_max_ring,
-            ..Default::default()
-        })
-    };
-    cfg.check()
-        .map_err(|e| anyhow::anyhow!(flag_error(&e.to_string())))?;
     let backend = a.backend;
     let resize = a.resize.as_deref().map(frames::parse_size).transpose()?;
     // Its errors name the input themselves.
