@@ -170,11 +170,14 @@ fn fig3_small_run_orders_the_solvers_and_repeats() {
     );
     assert_eq!(rows, fig3b(&cfg).unwrap(), "deterministic for a seed");
     let lam = fig3a(&cfg).unwrap();
-    assert!(lam[0].sea_deg > lam[1].sea_deg, "{lam:?}");
+    assert!(
+        lam[0].vs_unperturbed_deg > lam[1].vs_unperturbed_deg,
+        "{lam:?}"
+    );
     assert_eq!(lam, fig3a(&cfg).unwrap());
     for r in &lam {
         // Against the truth the input noise's own error (10 dB) is there at any Λ-SNR.
-        assert!(r.vs_truth_deg > r.sea_deg, "{r:?}");
+        assert!(r.vs_truth_deg > r.vs_unperturbed_deg, "{r:?}");
         assert_eq!(r.failures, 0, "{r:?}");
     }
     let no_perturbation = |lambda_snr_db: f64| {
@@ -189,7 +192,7 @@ fn fig3_small_run_orders_the_solvers_and_repeats() {
     // convergence tolerance: its block meets the constraint to about 1e-7 rad); the error
     // against the truth tends to SEA's own at the input SNR.
     let tiny = no_perturbation(200.0);
-    assert!(tiny.sea_deg < 1e-3, "{tiny:?}");
+    assert!(tiny.vs_unperturbed_deg < 1e-3, "{tiny:?}");
     let own = fig3b(&NoiseConfig {
         trials: 100,
         snr_db: vec![cfg.lambda_input_snr_db],

@@ -1265,3 +1265,35 @@ fn the_last_weighing_shows_each_particle_its_terms_and_log_weight() {
     t.reinit(&r.render(4).0, init).unwrap();
     assert!(t.last_weighing().is_none());
 }
+
+/// A step that re-acquires its target scores the found target on its own; the weighing of
+/// the step's particles stays whole (that single evaluation used to overwrite the terms with
+/// its own one).
+#[test]
+fn the_weighing_stays_whole_through_a_reacquisition() {
+    let r = Renderer::new(&SynthConfig::new(Scenario::Nod)).unwrap();
+    let jump = 6;
+    let cfg = TrackerConfig::default();
+    let n = cfg.filter.particles;
+    let (first, _) = jumped(&r, 0, jump);
+    let mut t = Tracker::new(cfg, &first, Init::frontal(r.init_ellipse())).unwrap();
+    let mut reacquired = 0;
+    let mut was_low = false;
+    for k in 1..jump + 4 {
+        let (img, _) = jumped(&r, k, jump);
+        let e = t.step(&img).unwrap();
+        let w = t.last_weighing().unwrap();
+        assert_eq!(
+            (w.particles.len(), w.terms.len(), w.totals.len()),
+            (n, n, n),
+            "frame {k}"
+        );
+        // Not one particle's terms repeated: each was scored where it stands.
+        assert!(w.terms.iter().any(|t| *t != w.terms[0]), "frame {k}");
+        if was_low && e.confidence >= 0.5 {
+            reacquired += 1;
+        }
+        was_low = e.confidence < 0.25;
+    }
+    assert_eq!(reacquired, 1, "the head was not re-acquired once");
+}

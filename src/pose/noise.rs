@@ -43,9 +43,10 @@
 //! from Sylvester's equation with `Λ* + N` (Kronecker solution, no further iteration) and scored
 //! against SEA's own unperturbed answer: the error that the evaluation of Λ adds. That is what
 //! the paper's figure shows: it quotes "about 5 degrees when SNR = 5 dB for Λ" at 10 dB input,
-//! and this gives 5.5 (3000 trials). Against the true rotation the error cannot fall below the
-//! input noise's own (16.7 degrees at 10 dB, Fig. 3b), and it only goes from 19 to 16.7 degrees
-//! from 0 to 40 dB of Λ-SNR; [`LambdaRow::vs_truth_deg`] reports it as well.
+//! and this gives 5.5 (`pftrack pose-noise`'s defaults, 5000 trials). Against the true
+//! rotation the error cannot fall below the input noise's own (16.8 degrees at 10 dB, Fig.
+//! 3b), and it only goes from 19.3 to 16.6 degrees from 0 to 40 dB of Λ-SNR;
+//! [`LambdaRow::vs_truth_deg`] reports it as well.
 //!
 //! Determinism: every trial draws from its own `StdRng` seeded from `(seed, series, trial)`;
 //! trials run in parallel (rayon) and are summed in trial order.
@@ -400,7 +401,7 @@ pub struct LambdaRow {
     pub lambda_snr_db: f64,
     /// Mean angle (degrees) between the rotation from the perturbed Λ and SEA's own answer
     /// from the unperturbed one: the error the perturbation adds (the paper's Fig. 3a).
-    pub sea_deg: f64,
+    pub vs_unperturbed_deg: f64,
     /// Mean error (degrees) of the rotation from the perturbed Λ against the true rotation
     /// (input noise and perturbation together).
     pub vs_truth_deg: f64,
@@ -453,7 +454,7 @@ pub fn fig3a(cfg: &NoiseConfig) -> Result<Vec<LambdaRow>, PoseError> {
             };
             LambdaRow {
                 lambda_snr_db: lsnr,
-                sea_deg: mean(|e| e.0),
+                vs_unperturbed_deg: mean(|e| e.0),
                 vs_truth_deg: mean(|e| e.1),
                 failures: per.len() - ok.len(),
             }

@@ -427,8 +427,8 @@ pub struct FitStart {
 /// a pan could also be a shift `t`. With the rotation held to its prior and `t` free, the fit
 /// takes the cheap explanation and the turn lags. The tracker centres `t0` on the block
 /// matching's prediction, which follows the matched region as a whole, not the texture
-/// sliding across it; see [`crate::tracker::TrackerConfig::fit_centre_sigma`] for what it
-/// measured.
+/// sliding across it; [`crate::tracker::TrackerConfig::fit_centre_sigma`] says why, and
+/// `docs/measurements.md` under its name what it measured.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct MotionPrior {
     /// The prior's mean (rotation from the keyframe's pose).

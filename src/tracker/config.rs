@@ -317,9 +317,7 @@ pub struct TrackerConfig {
     /// first view off (`--feature-weight 0 --anchor-weight 0`, scenario seeds 0-5) the
     /// keyframe chain followed 0.80 of the pan without this term, 0.81, 0.86 and 0.88 of it
     /// at 4, 1.5 and 0.5 px (the pan's RMSE about y 10.7°, 9.3°, 7.7° and 6.3°; without the
-    /// rotation prior at all the gain is 1.09, weak perspective's over-reading). With every
-    /// term on, measured 2026-12-02 (CPU backend, per-axis RMSE summed over the six
-    /// scenarios, mean over scenario seeds 0-11):
+    /// rotation prior at all the gain is 1.09, weak perspective's over-reading).
     ///
     /// The measurements behind it, and what was tried and not kept:
     /// `docs/measurements.md`, under "TrackerConfig::fit_centre_sigma".
@@ -533,7 +531,7 @@ pub struct TemplateTerm {
     /// counts only where it is recognised. 40 by default (threshold 0.65); 0 turns it off.
     ///
     /// The measurements behind it, and what was tried and not kept:
-    /// `docs/measurements.md`, under "TrackerConfig::anchor_weight".
+    /// `docs/measurements.md`, under "TemplateTerm::anchor_weight".
     pub anchor_weight: f64,
     /// The weight of the turned first view, in place of `anchor_weight`, when the camera is
     /// known ([`TrackerConfig::camera_hfov_deg`]); 80 by default.

@@ -107,12 +107,15 @@ pub enum TrackError {
 /// the filter (debugging, drawing the particle cloud). Index `i` of each slice is the same
 /// particle.
 #[derive(Debug, Clone, Copy)]
+#[non_exhaustive]
 pub struct Weighing<'a> {
     /// The particles as proposed and evaluated, before any resampling: state relative to the
     /// start's reference pose, as the likelihood engines take it.
     pub particles: &'a [Particle],
     /// Each particle's log-likelihood terms (colour, gradient, feature, contrast) from the
-    /// likelihood engine, unweighted.
+    /// likelihood engine, unweighted, under the step's own settings: [`Tracker::likelihood`]'s
+    /// with the contrast term added at that frame's scale when it is on, and without the
+    /// feature term on a frame without matches.
     pub terms: &'a [TermLogs],
     /// Each particle's log-weight as the filter took it: the enabled terms with the feature
     /// term's weight, plus the template terms ([`TrackerConfig::template`]). The filter adds
@@ -523,7 +526,9 @@ impl Tracker {
 
     /// The likelihood settings in use since the last start: the configuration's, with the
     /// luma bins ([`crate::likelihood::COLOUR_LUMA`]) where that start's frame was grey
-    /// ([`TrackerConfig::grey_luma`]).
+    /// ([`TrackerConfig::grey_luma`]). Each step starts from these and adds the contrast term
+    /// at its frame's scale when it is on ([`TrackerConfig::contrast`]), and leaves out the
+    /// feature term on a frame without matches.
     pub fn likelihood(&self) -> &LikelihoodParams {
         &self.likelihood
     }
@@ -533,7 +538,9 @@ impl Tracker {
     /// then reset the filter (re-anchored, re-acquired) reports the particles it weighed
     /// before the reset.
     pub fn last_weighing(&self) -> Option<Weighing<'_>> {
-        (!self.particles.is_empty()).then_some(Weighing {
+        let n = self.particles.len();
+        // (A step whose evaluation failed leaves particles without their terms: none.)
+        (n > 0 && self.terms.len() == n && self.totals.len() == n).then_some(Weighing {
             particles: &self.particles,
             terms: &self.terms,
             totals: &self.totals,
@@ -1196,7 +1203,8 @@ fn confidence(
 /// of confidence `c` that left the tracker `lost` or not: while the target is lost, or after
 /// a frame the tracker did not trust (below [`TrackerConfig::found_above`]). The size a
 /// frame that is not held ends with becomes the one later frames are held near. Why
-/// `found_above` and not [`TrackerConfig::lost_below`]: see [`TrackerConfig::size_hold`].
+/// `found_above` and not [`TrackerConfig::lost_below`]: see `docs/measurements.md`, under
+/// "TrackerConfig::size_hold".
 fn holds_size(cfg: &TrackerConfig, lost: bool, c: f64) -> bool {
     lost || c < cfg.found_above
 }

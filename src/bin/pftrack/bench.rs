@@ -135,7 +135,10 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
         Backend::Auto => match GpuEngine::new() {
             Ok(g) => Some(g),
             Err(e) => {
-                outln!("note: no GPU timings ({e})")?;
+                outln!(
+                    "note: no GPU timings ({})",
+                    crate::in_cli_terms(&e.to_string())
+                )?;
                 None
             }
         },
@@ -262,7 +265,7 @@ fn run_step(args: &BenchArgs) -> anyhow::Result<()> {
         Backend::Auto => match create_engine(Backend::Gpu) {
             Ok(_) => true,
             Err(e) => {
-                outln!("note: no GPU row ({e})")?;
+                outln!("note: no GPU row ({})", crate::in_cli_terms(&e.to_string()))?;
                 false
             }
         },

@@ -260,7 +260,7 @@ pub fn run(args: PoseNoiseArgs) -> anyhow::Result<()> {
         outln!(
             "{:>14.1} {:>9.4} {:>9.4}",
             r.lambda_snr_db,
-            r.sea_deg,
+            r.vs_unperturbed_deg,
             r.vs_truth_deg
         )?;
         if r.failures > 0 {
@@ -316,7 +316,7 @@ fn write_csv(
     }
     writeln!(fa, "lambda_snr_db,sea").with_context(|| err(&pa))?;
     for r in a {
-        writeln!(fa, "{},{}", r.lambda_snr_db, r.sea_deg).with_context(|| err(&pa))?;
+        writeln!(fa, "{},{}", r.lambda_snr_db, r.vs_unperturbed_deg).with_context(|| err(&pa))?;
     }
     Ok(())
 }
@@ -363,7 +363,7 @@ fn draw(buf: &mut [u8], b: &[SnrRow], a: &[LambdaRow], cfg: &NoiseConfig) -> any
     let xs: Vec<f64> = a.iter().map(|r| r.lambda_snr_db).collect();
     let ys: Vec<f64> = a
         .iter()
-        .flat_map(|r| [r.sea_deg, r.vs_truth_deg])
+        .flat_map(|r| [r.vs_unperturbed_deg, r.vs_truth_deg])
         .filter(|v| v.is_finite())
         .collect();
     let (x0, x1) = range(&xs);
@@ -398,7 +398,7 @@ fn draw(buf: &mut [u8], b: &[SnrRow], a: &[LambdaRow], cfg: &NoiseConfig) -> any
     mesh.draw().map_err(|e| anyhow::anyhow!("{e}"))?;
     type Curve = (RGBColor, &'static str, fn(&LambdaRow) -> f64);
     let curves: [Curve; 2] = [
-        (RED, "against unperturbed SEA", |r| r.sea_deg),
+        (RED, "against unperturbed SEA", |r| r.vs_unperturbed_deg),
         (BLACK, "against the truth", |r| r.vs_truth_deg),
     ];
     for (c, name, value) in curves {
