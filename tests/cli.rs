@@ -1511,8 +1511,11 @@ fn cli_track_takes_its_settings_from_a_json_file() {
         std::fs::read(&from_flags).unwrap()
     );
     // A different seed from the file does change the track (the file is read).
-    let other = file("b.json", r#"{"seed": 4, "filter": {"particles": 60}}"#);
-    pftrack_ok(&[
+    let other = file(
+        "b.json",
+        r#"{"seed": 4, "mode": "tpe", "filter": {"particles": 60}}"#,
+    );
+    let out = pftrack_ok(&[
         "track",
         s,
         "--backend",
@@ -1522,6 +1525,9 @@ fn cli_track_takes_its_settings_from_a_json_file() {
         "-o",
         &from_file,
     ]);
+    // The summary names the file's mode (it named the flag's default, sea).
+    let said = String::from_utf8_lossy(&out.stderr);
+    assert!(said.contains("(tpe, camera hfov 50°)"), "{said}");
     assert_ne!(
         std::fs::read(&from_file).unwrap(),
         std::fs::read(&from_flags).unwrap()

@@ -42,9 +42,25 @@ fn a_partial_configuration_takes_the_defaults_for_the_rest() {
     want.filter.particles = 500;
     assert_eq!(cfg, want);
     assert!(cfg.check().is_ok());
-    // Read values are still checked before a tracker is built from them.
-    let bad: TrackerConfig = serde_json::from_str(r#"{"filter": {"particles": 0}}"#).unwrap();
-    assert!(bad.check().is_err());
+    // Read values are still checked before a tracker is built from them, the object model's
+    // depth and the edge threshold whatever terms are on (1e30 made every confidence 0).
+    for (text, named) in [
+        (r#"{"filter": {"particles": 0}}"#, "particles 0"),
+        (r#"{"likelihood": {"depth_ratio": 1e30}}"#, "depth_ratio"),
+        (
+            r#"{"likelihood": {"depth_ratio": -100, "terms": 3}}"#,
+            "depth_ratio",
+        ),
+        (
+            r#"{"likelihood": {"edge_threshold": -50}}"#,
+            "edge_threshold",
+        ),
+        (r#"{"likelihood": {"edge_threshold": 2}}"#, "edge_threshold"),
+    ] {
+        let bad: TrackerConfig = serde_json::from_str(text).unwrap();
+        let err = bad.check().unwrap_err().to_string();
+        assert!(err.contains(named), "{text}: {err}");
+    }
 }
 
 #[test]

@@ -246,7 +246,9 @@ pub struct LikelihoodParams {
     /// [`ContrastTable`]. The tracker sets it every frame to its weight divided by the area
     /// of the previous estimate, so that the term is a share of that area: per particle it
     /// is the same sum at every size, which is what lets it prefer the ellipse that holds the
-    /// target's pixels and no more.
+    /// target's pixels and no more. Not serialised (read back, it is the default's): a
+    /// tracker's setting would be overwritten on its first frame.
+    #[serde(skip)]
     pub contrast_scale: f32,
 }
 

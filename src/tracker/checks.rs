@@ -3,7 +3,7 @@
 
 use nalgebra::Matrix3;
 
-use super::{Init, TrackError, TrackerConfig};
+use super::{Init, MAX_DEPTH_RATIO, TrackError, TrackerConfig};
 
 impl Init {
     /// Checks the start against a `w x h` frame, as [`super::Tracker::new`] and
@@ -106,6 +106,20 @@ impl TrackerConfig {
             ..self.likelihood
         };
         likelihood.check().map_err(|e| bad(e.to_string()))?;
+        // The object model's depth shapes the aspect bound, the keyframe fits and the turned
+        // first view whatever the terms; the edge threshold is on gradients scaled to [0, 1].
+        let depth = f64::from(self.likelihood.depth_ratio);
+        if !(0.0..=MAX_DEPTH_RATIO).contains(&depth) {
+            return Err(bad(format!(
+                "likelihood.depth_ratio {depth} is not in [0, {MAX_DEPTH_RATIO}]"
+            )));
+        }
+        let edge = f64::from(self.likelihood.edge_threshold);
+        if !(0.0..=1.0).contains(&edge) {
+            return Err(bad(format!(
+                "likelihood.edge_threshold {edge} is not in [0, 1]"
+            )));
+        }
         self.sift.check().map_err(|e| bad(e.to_string()))?;
         self.matching.check().map_err(|e| bad(e.to_string()))?;
         self.abm.check().map_err(|e| bad(e.to_string()))?;

@@ -74,11 +74,16 @@ impl Init {
 
 /// Settings of a tracker.
 ///
-/// They serialise with serde (JSON, TOML, ...) under the field names here: a file may give
-/// only what it changes, the rest taking the defaults, and a name that is not a setting is
-/// refused. Angles are in radians, as stored; `filter.max_axis` is `null` for no bound; an
-/// optional part is `null` when off. What is read is checked as any configuration is
-/// ([`TrackerConfig::check`], which [`super::Tracker::new`] runs).
+/// They serialise with serde under the field names here (JSON; a format without a null, such
+/// as TOML, cannot switch an optional part off): a file may give only what it changes, the
+/// rest taking the defaults, and a name that is not a setting is refused. A nested part given
+/// in part takes its own type's defaults for the rest of it: `bundle.params` those of
+/// `BundleParams::default`, whose rotation σ (0.05) is not the tracker's (0.07, as
+/// [`BundleAdjust::default`] sets it), and a `StateSigma` is given whole (`pftrack track
+/// --config` lays a file over these defaults field by field instead). Angles are in radians,
+/// as stored; `filter.max_axis` is `null` for no bound; an optional part is `null` when off.
+/// What is read is checked as any configuration is ([`TrackerConfig::check`], which
+/// [`super::Tracker::new`] runs).
 #[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct TrackerConfig {
@@ -717,6 +722,11 @@ pub const HFOV_RANGE_DEG: std::ops::RangeInclusive<f64> = 0.1..=179.9;
 /// weight would leave the other terms nothing to decide (`--contrast-weight 1e300` overflowed
 /// mid-run, 1e39 gave the GPU and the CPU different tracks).
 pub const MAX_WEIGHT: f64 = 1e6;
+
+/// The largest depth ratio of the object model ([`LikelihoodParams::depth_ratio`]): ten times
+/// deeper than wide, far past any rigid object the tracker follows (a head is 1, a flat box
+/// about 0.6). Larger ones made every confidence 0.
+pub const MAX_DEPTH_RATIO: f64 = 10.0;
 
 /// A weight in `[0, MAX_WEIGHT]`.
 pub(crate) fn weight_ok(w: f64) -> bool {

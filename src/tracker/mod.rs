@@ -45,8 +45,8 @@ mod recovery;
 mod spin;
 
 pub use config::{
-    AnchorRefit, BundleAdjust, ColourUpdate, Contrast, HFOV_RANGE_DEG, Init, MAX_WEIGHT, Mode,
-    Reanchor, TemplateTerm, TrackerConfig,
+    AnchorRefit, BundleAdjust, ColourUpdate, Contrast, HFOV_RANGE_DEG, Init, MAX_DEPTH_RATIO,
+    MAX_WEIGHT, Mode, Reanchor, TemplateTerm, TrackerConfig,
 };
 pub use init_refine::{InitRefine, refine_ellipse};
 

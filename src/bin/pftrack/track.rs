@@ -273,8 +273,10 @@ pub struct TrackArgs {
     /// The tracker's settings from a JSON file, in place of the flags that tune them (which
     /// it cannot be given with): the fields of the library's `TrackerConfig`, any left out
     /// taking their defaults, e.g. `{"seed": 3, "filter": {"particles": 500}, "bundle":
-    /// null}`; a name that is not a setting is refused. The camera comes from the file when it
-    /// sets `camera_hfov_deg`, else from --hfov or the init file as without it.
+    /// null}`; a name that is not a setting is refused, and a nested part given in part
+    /// keeps the defaults of the rest of it. --hfov and --weak-perspective still choose the
+    /// camera; without them it is the file's `camera_hfov_deg`, or where the file gives none
+    /// (or `null`) the init file's, as without --config.
     #[arg(
         long,
         value_name = "FILE",
@@ -485,13 +487,58 @@ fn flag_config(a: &TrackArgs, hfov: Option<f64>) -> anyhow::Result<TrackerConfig
     Ok(cfg)
 }
 
-/// The tracker's settings from `--config FILE` (JSON, with the defaults for what it leaves
-/// out).
+/// The most a `--config` file may hold (a whole configuration is about 3 KiB): `/dev/zero`
+/// given as one used to be read until memory ran out.
+const MAX_CONFIG_BYTES: u64 = 1 << 20;
+
+/// The tracker's settings from `--config FILE`: a JSON object laid over the defaults, nested
+/// objects field by field, so that a part given in part keeps the defaults of the rest of it
+/// (`{"bundle": {"params": {"huber": 2}}}` keeps the tracker's rotation σ, not
+/// `BundleParams`'s own default).
 fn read_config(path: &Path) -> anyhow::Result<TrackerConfig> {
-    let text =
-        std::fs::read_to_string(path).with_context(|| format!("--config {}", path.display()))?;
+    use std::io::Read;
+    let ctx = || format!("--config {}", path.display());
+    let mut bytes = Vec::new();
+    std::fs::File::open(path)
+        .and_then(|f| f.take(MAX_CONFIG_BYTES + 1).read_to_end(&mut bytes))
+        .with_context(ctx)?;
+    if bytes.len() as u64 > MAX_CONFIG_BYTES {
+        bail!(
+            "--config {}: more than {} bytes, not a settings file",
+            path.display(),
+            MAX_CONFIG_BYTES
+        );
+    }
+    let text = String::from_utf8(bytes).with_context(ctx)?;
     let text = text.strip_prefix('\u{feff}').unwrap_or(&text);
-    serde_json::from_str(text).with_context(|| format!("--config {}", path.display()))
+    let given: serde_json::Value = serde_json::from_str(text).with_context(ctx)?;
+    // serde would also take a struct as a list of its fields in order: `[]` was the defaults.
+    if !given.is_object() {
+        bail!(
+            "--config {}: the settings must be a JSON object, {{\"name\": value, ...}}",
+            path.display()
+        );
+    }
+    let mut merged = serde_json::to_value(TrackerConfig::default()).with_context(ctx)?;
+    overlay(&mut merged, given);
+    serde_json::from_value(merged).with_context(ctx)
+}
+
+/// Lays `given` over `base`: objects field by field, anything else replaced.
+fn overlay(base: &mut serde_json::Value, given: serde_json::Value) {
+    match (base, given) {
+        (serde_json::Value::Object(b), serde_json::Value::Object(g)) => {
+            for (k, v) in g {
+                match b.get_mut(&k) {
+                    Some(slot) => overlay(slot, v),
+                    None => {
+                        b.insert(k, v);
+                    }
+                }
+            }
+        }
+        (slot, v) => *slot = v,
+    }
 }
 
 /// Builds the tracker configuration from the arguments.
@@ -527,8 +574,9 @@ pub fn apply_hfov(cfg: &mut TrackerConfig, hfov: Option<f64>) -> anyhow::Result<
 
 /// Checks and applies `--depth-ratio`.
 pub fn apply_depth_ratio(cfg: &mut TrackerConfig, r: f64) -> anyhow::Result<()> {
-    if !(r.is_finite() && (0.0..=10.0).contains(&r)) {
-        bail!("--depth-ratio must lie between 0 and 10, got {r}");
+    let max = pftrack::tracker::MAX_DEPTH_RATIO;
+    if !(r.is_finite() && (0.0..=max).contains(&r)) {
+        bail!("--depth-ratio must lie between 0 and {max}, got {r}");
     }
     cfg.likelihood.depth_ratio = r as f32;
     Ok(())
@@ -777,6 +825,7 @@ pub fn run(mut a: TrackArgs) -> anyhow::Result<()> {
         Some(h) => format!("camera hfov {h}°"),
         None => "weak perspective".to_string(),
     };
+    let mode = cfg.mode;
     let mut tracker = Tracker::with_engine(cfg, engine, &first, init)?;
     // On an error the staging folder is dropped with the frames drawn so far, which would
     // read as a whole track's, as the pose CSV is never moved into place.
@@ -803,7 +852,7 @@ pub fn run(mut a: TrackArgs) -> anyhow::Result<()> {
         "pftrack: tracked {written} frame{} with {} ({}, {}){}",
         if written == 1 { "" } else { "s" },
         tracker.engine_name(),
-        a.mode.name(),
+        mode.name(),
         camera,
         a.out
             .as_ref()
@@ -965,6 +1014,54 @@ fn run_loop(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A `--config` file is laid over the tracker's defaults field by field, and must be an
+    /// object of settings of bounded size.
+    #[test]
+    fn a_settings_file_is_laid_over_the_defaults() {
+        let dir = std::env::temp_dir().join(format!("pftrack-config-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let file = |name: &str, text: &[u8]| {
+            let p = dir.join(name);
+            std::fs::write(&p, text).unwrap();
+            p
+        };
+        // A part given in part keeps the tracker's defaults for the rest of it: the bundle
+        // adjustment's rotation σ stays the tracker's (0.07), not `BundleParams`'s own.
+        let cfg = read_config(&file(
+            "a.json",
+            br#"{"bundle": {"params": {"huber": 2.0}}}"#,
+        ))
+        .unwrap();
+        let want = pftrack::tracker::BundleAdjust::default();
+        let got = cfg.bundle.unwrap();
+        assert_eq!(got.params.huber, 2.0);
+        assert_eq!(got.params.rotation_sigma, want.params.rotation_sigma);
+        assert_eq!(got.min_views, want.min_views);
+        // `null` switches a part off; a number replaces the default's `null`.
+        let cfg = read_config(&file(
+            "b.json",
+            br#"{"bundle": null, "camera_hfov_deg": 40}"#,
+        ))
+        .unwrap();
+        assert_eq!((cfg.bundle, cfg.camera_hfov_deg), (None, Some(40.0)));
+        assert_eq!(
+            read_config(&file("c.json", b"{}")).unwrap(),
+            TrackerConfig::default()
+        );
+        // A list of fields in order is not taken for the settings.
+        for text in [&b"[]"[..], b"[\"tpe\", 5]", b"7"] {
+            let err = read_config(&file("d.json", text)).unwrap_err();
+            assert!(format!("{err:#}").contains("a JSON object"), "{err:#}");
+        }
+        let err = read_config(&file(
+            "e.json",
+            &vec![b' '; (MAX_CONFIG_BYTES + 1) as usize],
+        ))
+        .unwrap_err();
+        assert!(format!("{err:#}").contains("more than"), "{err:#}");
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
 
     #[test]
     fn depth_ratio_is_checked_and_applied() {
