@@ -1549,6 +1549,25 @@ fn cli_track_takes_its_settings_from_a_json_file() {
     let out = pftrack(&["track", s, "--config", &settings, "--seed", "2", "-o", u]);
     assert_eq!(out.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&out.stderr).contains("cannot be used with '--seed"));
+    // `pftrack settings` prints every setting at its default: as a file, the flags' track.
+    let all = pftrack_ok(&["settings"]);
+    let all = file("all.json", &String::from_utf8(all.stdout).unwrap());
+    let plain = csv("plain.csv");
+    pftrack_ok(&[
+        "track",
+        s,
+        "--backend",
+        "cpu",
+        "--config",
+        &all,
+        "-o",
+        &from_file,
+    ]);
+    pftrack_ok(&["track", s, "--backend", "cpu", "-o", &plain]);
+    assert_eq!(
+        std::fs::read(&from_file).unwrap(),
+        std::fs::read(&plain).unwrap()
+    );
     // The file is an input: the poses cannot overwrite it.
     assert_one_line_error(
         &["track", s, "--config", &settings, "-o", &settings],

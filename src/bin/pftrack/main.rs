@@ -34,6 +34,7 @@ mod eval;
 mod paths;
 mod pose;
 mod pose_noise;
+mod settings;
 mod sift;
 mod synth;
 mod track;
@@ -89,6 +90,8 @@ enum Command {
     PoseNoise(pose_noise::PoseNoiseArgs),
     /// Time the likelihood pass stage by stage on the CPU and the GPU.
     Bench(bench::BenchArgs),
+    /// Print the tracker's default settings as JSON, to edit for `track --config`.
+    Settings(settings::SettingsArgs),
 }
 
 fn main() {
@@ -114,6 +117,7 @@ fn main() {
         Command::Pose(a) => pose::run(a),
         Command::PoseNoise(a) => pose_noise::run(a),
         Command::Bench(a) => bench::run(a),
+        Command::Settings(a) => settings::run(a),
     };
     // What is still buffered is written now, where its error can be reported.
     let result = result.and_then(|()| std::io::stdout().flush().map_err(|e| StdoutError(e).into()));
