@@ -29,6 +29,9 @@ pub use error::{Error, Result};
 /// The `image` crate whose `RgbImage` frames the tracker takes, re-exported so that an
 /// embedding program uses the same version.
 pub use image;
+/// The `wgpu` crate the GPU engine runs on, re-exported so that an application that opens its
+/// own device for it ([`likelihood::gpu::GpuDevice::from_wgpu`]) uses the same version.
+pub use wgpu;
 
 // The README's library example is compiled as a doctest.
 #[cfg(doctest)]

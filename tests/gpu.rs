@@ -1214,3 +1214,74 @@ fn a_frame_beyond_the_buffer_limits_fails_evaluate_before_any_allocation() {
     .unwrap();
     assert_eq!(out.len(), 1);
 }
+
+/// An engine on a device the application opened itself (`GpuDevice::from_wgpu`) gives the
+/// same terms as one on a device the engine opened, on the same adapter.
+#[test]
+fn an_engine_on_the_applications_own_device_gives_the_same_terms() {
+    use pftrack::wgpu;
+    let Some(mut own) = engine() else { return };
+    let mut desc = wgpu::InstanceDescriptor::new_without_display_handle();
+    desc.backends = wgpu::Backends::VULKAN;
+    let instance = wgpu::Instance::new(desc);
+    let adapters = pollster::block_on(instance.enumerate_adapters(wgpu::Backends::VULKAN));
+    let name = own.name();
+    let adapter = adapters
+        .into_iter()
+        .find(|a| name.contains(&a.get_info().name))
+        .expect("the engine's adapter is listed");
+    let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
+        label: Some("the application's device"),
+        required_limits: adapter.limits(),
+        ..Default::default()
+    }))
+    .unwrap();
+    let gpu = GpuDevice::from_wgpu(device, queue);
+    assert!(name.contains(&gpu.info.name), "{name} / {:?}", gpu.info);
+    let mut theirs = GpuEngine::with_device(gpu).unwrap();
+
+    let r = pftrack::synth::Renderer::new(&pftrack::synth::SynthConfig::new(
+        pftrack::synth::Scenario::Nod,
+    ))
+    .unwrap();
+    let (img, t) = r.render(3);
+    let e = particle(t.cx as f32, t.cy as f32, t.a as f32, t.b as f32);
+    let model = ColourHistogram::from_ellipse(
+        &img,
+        &pftrack::geometry::Ellipse::new(t.cx, t.cy, t.a, t.b),
+        COLOUR_RGB,
+    )
+    .unwrap();
+    let ps: Vec<Particle> = (0..50)
+        .map(|i| {
+            let d = i as f32 * 0.37;
+            particle(
+                e.cx + d.sin() * 4.0,
+                e.cy + d.cos() * 3.0,
+                e.a,
+                e.b + d % 2.0,
+            )
+        })
+        .collect();
+    let frame = FrameInput {
+        image: &img,
+        features: &[],
+        depths: None,
+        prev: e,
+        theta0: 0.0,
+    };
+    let params = LikelihoodParams {
+        terms: TERM_COLOUR | TERM_GRADIENT,
+        ..Default::default()
+    };
+    let (mut a, mut b) = (Vec::new(), Vec::new());
+    for (engine, out) in [
+        (&mut *own as &mut dyn LikelihoodEngine, &mut a),
+        (&mut theirs, &mut b),
+    ] {
+        engine.set_colour_model(&model).unwrap();
+        engine.evaluate(&frame, &params, &ps, out).unwrap();
+    }
+    assert_eq!(a.len(), ps.len());
+    assert_eq!(a, b);
+}

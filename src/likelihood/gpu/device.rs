@@ -151,7 +151,35 @@ impl GpuDevice {
             trace: wgpu::Trace::Off,
         }))
         .map_err(|e| LikelihoodError::Gpu(format!("requesting a device: {e}")))?;
+        Ok(Self::wrap(device, queue, info, limits, timestamps))
+    }
 
+    /// Wraps a device the application opened itself (with the `wgpu` this crate re-exports,
+    /// [`crate::wgpu`]), so that an engine ([`crate::likelihood::gpu::GpuEngine::with_device`])
+    /// runs on it instead of opening its own. The device keeps the limits and features it was
+    /// created with (the engine needs 9 storage buffers per shader stage, and uses timestamp
+    /// queries when they are on).
+    ///
+    /// wgpu keeps one device-lost callback and one uncaptured-error handler per device: this
+    /// installs the engine's, which turn a lost device and validation errors into
+    /// [`LikelihoodError`]s of the engine's next call, replacing any the application had set.
+    /// Give the engine a device whose error handling it may own. Tested on Vulkan, the one
+    /// backend this crate builds wgpu with.
+    pub fn from_wgpu(device: wgpu::Device, queue: wgpu::Queue) -> Self {
+        let info = device.adapter_info();
+        let limits = device.limits();
+        let timestamps = device.features().contains(wgpu::Features::TIMESTAMP_QUERY);
+        Self::wrap(device, queue, info, limits, timestamps)
+    }
+
+    /// The device with the engine's lost-device and error handlers installed.
+    fn wrap(
+        device: wgpu::Device,
+        queue: wgpu::Queue,
+        info: wgpu::AdapterInfo,
+        limits: wgpu::Limits,
+        timestamps: bool,
+    ) -> Self {
         let lost = Arc::new(Mutex::new(None));
         let lost_flag = Arc::new(AtomicBool::new(false));
         {
@@ -179,7 +207,7 @@ impl GpuDevice {
                 }
             }));
         }
-        Ok(Self {
+        Self {
             device,
             queue,
             info,
@@ -188,7 +216,7 @@ impl GpuDevice {
             lost,
             uncaptured,
             lost_flag,
-        })
+        }
     }
 
     /// `adapter name (backend)`, e.g. `llvmpipe (LLVM 15.0.6, 256 bits) (Vulkan)`.
