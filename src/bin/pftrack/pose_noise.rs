@@ -356,105 +356,112 @@ fn draw(buf: &mut [u8], b: &[SnrRow], a: &[LambdaRow], cfg: &NoiseConfig) -> any
     let root = BitMapBackend::with_buffer(buf, PLOT_SIZE).into_drawing_area();
     root.fill(&WHITE).map_err(|e| anyhow::anyhow!("{e}"))?;
     let (left, right) = root.split_horizontally(700);
-    let colours = [RED, BLUE, GREEN, MAGENTA];
-    let names = ["SEA", "Optimal", "LSM", "RLS"];
 
     // panel (a)
-    let xs: Vec<f64> = a.iter().map(|r| r.lambda_snr_db).collect();
-    let ys: Vec<f64> = a
-        .iter()
-        .flat_map(|r| [r.vs_unperturbed_deg, r.vs_truth_deg])
-        .filter(|v| v.is_finite())
-        .collect();
-    let (x0, x1) = range(&xs);
-    let (_, y1) = range(&ys);
-    let mut builder = ChartBuilder::on(&left);
-    builder
-        .margin(20)
-        .x_label_area_size(45)
-        .y_label_area_size(60);
-    if text {
-        builder.caption(
-            format!(
-                "(a) SEA, perturbed Λ (input SNR {} dB)",
-                cfg.lambda_input_snr_db
-            ),
-            ("sans-serif", 22),
-        );
-    }
-    let mut chart = builder
-        .build_cartesian_2d(x0..x1, 0.0..y1 * 1.1)
-        .map_err(|e| anyhow::anyhow!("{e}"))?;
-    let mut mesh = chart.configure_mesh();
-    if text {
-        mesh.x_desc("SNR of Λ (dB)")
-            .y_desc("mean rotation error (deg)");
-    } else {
-        mesh.disable_x_mesh()
-            .disable_y_mesh()
-            .x_labels(0)
-            .y_labels(0);
-    }
-    mesh.draw().map_err(|e| anyhow::anyhow!("{e}"))?;
-    type Curve = (RGBColor, &'static str, fn(&LambdaRow) -> f64);
-    let curves: [Curve; 2] = [
+    type LambdaCurve = (RGBColor, &'static str, fn(&LambdaRow) -> f64);
+    let lambda_curves: [LambdaCurve; 2] = [
         (RED, "against unperturbed SEA", |r| r.vs_unperturbed_deg),
         (BLACK, "against the truth", |r| r.vs_truth_deg),
     ];
-    for (c, name, value) in curves {
-        let pts: Vec<(f64, f64)> = a
-            .iter()
-            .filter(|r| value(r).is_finite())
-            .map(|r| (r.lambda_snr_db, value(r)))
-            .collect();
-        let series = chart
-            .draw_series(LineSeries::new(pts.clone(), c.stroke_width(2)))
-            .map_err(|e| anyhow::anyhow!("{e}"))?;
-        if text {
-            series
-                .label(name)
-                .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], c));
-        }
-        chart
-            .draw_series(pts.iter().map(|p| Circle::new(*p, 4, c.filled())))
-            .map_err(|e| anyhow::anyhow!("{e}"))?;
-    }
-    if text {
-        chart
-            .configure_series_labels()
-            .background_style(WHITE.mix(0.8))
-            .border_style(BLACK)
-            .draw()
-            .map_err(|e| anyhow::anyhow!("{e}"))?;
-    }
+    let curves: Vec<Curve> = lambda_curves
+        .iter()
+        .map(|&(colour, name, value)| Curve {
+            colour,
+            name,
+            points: a.iter().map(|r| (r.lambda_snr_db, value(r))).collect(),
+        })
+        .collect();
+    panel(
+        &left,
+        &format!(
+            "(a) SEA, perturbed Λ (input SNR {} dB)",
+            cfg.lambda_input_snr_db
+        ),
+        "SNR of Λ (dB)",
+        &a.iter().map(|r| r.lambda_snr_db).collect::<Vec<_>>(),
+        &curves,
+        4,
+        text,
+    )?;
 
     // panel (b)
-    let xs: Vec<f64> = b.iter().map(|r| r.snr_db).collect();
-    let ys: Vec<f64> = b
+    let solvers = [
+        (RED, "SEA"),
+        (BLUE, "Optimal"),
+        (GREEN, "LSM"),
+        (MAGENTA, "RLS"),
+    ];
+    let curves: Vec<Curve> = solvers
         .iter()
-        .flat_map(|r| r.mean_deg)
-        .filter(|v| v.is_finite())
+        .enumerate()
+        .map(|(i, &(colour, name))| Curve {
+            colour,
+            name,
+            points: b.iter().map(|r| (r.snr_db, r.mean_deg[i])).collect(),
+        })
         .collect();
-    let (x0, x1) = range(&xs);
+    panel(
+        &right,
+        &format!("(b) error vs input SNR ({} points)", cfg.points),
+        "input SNR (dB)",
+        &b.iter().map(|r| r.snr_db).collect::<Vec<_>>(),
+        &curves,
+        3,
+        text,
+    )?;
+    root.present().map_err(|e| anyhow::anyhow!("{e}"))?;
+    Ok(())
+}
+
+/// One named curve of a panel: `(x, mean error)` per row, drawn where the error is finite.
+struct Curve {
+    colour: plotters::style::RGBColor,
+    name: &'static str,
+    points: Vec<(f64, f64)>,
+}
+
+/// One panel of the plot: the rows' x range, the curves' errors from 0 up, a line and a dot
+/// of `radius` per point of each curve and, with `text`, the caption, axis names and legend.
+fn panel(
+    area: &plotters::drawing::DrawingArea<
+        plotters::backend::BitMapBackend<'_>,
+        plotters::coord::Shift,
+    >,
+    caption: &str,
+    x_desc: &str,
+    xs: &[f64],
+    curves: &[Curve],
+    radius: i32,
+    text: bool,
+) -> anyhow::Result<()> {
+    use plotters::prelude::*;
+    let finite = |c: &Curve| -> Vec<(f64, f64)> {
+        c.points
+            .iter()
+            .copied()
+            .filter(|p| p.1.is_finite())
+            .collect()
+    };
+    let ys: Vec<f64> = curves
+        .iter()
+        .flat_map(|c| finite(c).into_iter().map(|p| p.1))
+        .collect();
+    let (x0, x1) = range(xs);
     let (_, y1) = range(&ys);
-    let mut builder = ChartBuilder::on(&right);
+    let mut builder = ChartBuilder::on(area);
     builder
         .margin(20)
         .x_label_area_size(45)
         .y_label_area_size(60);
     if text {
-        builder.caption(
-            format!("(b) error vs input SNR ({} points)", cfg.points),
-            ("sans-serif", 22),
-        );
+        builder.caption(caption, ("sans-serif", 22));
     }
     let mut chart = builder
         .build_cartesian_2d(x0..x1, 0.0..y1 * 1.1)
         .map_err(|e| anyhow::anyhow!("{e}"))?;
     let mut mesh = chart.configure_mesh();
     if text {
-        mesh.x_desc("input SNR (dB)")
-            .y_desc("mean rotation error (deg)");
+        mesh.x_desc(x_desc).y_desc("mean rotation error (deg)");
     } else {
         mesh.disable_x_mesh()
             .disable_y_mesh()
@@ -462,23 +469,19 @@ fn draw(buf: &mut [u8], b: &[SnrRow], a: &[LambdaRow], cfg: &NoiseConfig) -> any
             .y_labels(0);
     }
     mesh.draw().map_err(|e| anyhow::anyhow!("{e}"))?;
-    for (i, (c, name)) in colours.iter().zip(names).enumerate() {
-        let pts: Vec<(f64, f64)> = b
-            .iter()
-            .filter(|r| r.mean_deg[i].is_finite())
-            .map(|r| (r.snr_db, r.mean_deg[i]))
-            .collect();
+    for c in curves {
+        let pts = finite(c);
+        let colour = c.colour;
         let series = chart
-            .draw_series(LineSeries::new(pts.clone(), c.stroke_width(2)))
+            .draw_series(LineSeries::new(pts.clone(), colour.stroke_width(2)))
             .map_err(|e| anyhow::anyhow!("{e}"))?;
         if text {
-            let c = *c;
             series
-                .label(name)
-                .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], c));
+                .label(c.name)
+                .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], colour));
         }
         chart
-            .draw_series(pts.iter().map(|p| Circle::new(*p, 3, c.filled())))
+            .draw_series(pts.iter().map(|p| Circle::new(*p, radius, colour.filled())))
             .map_err(|e| anyhow::anyhow!("{e}"))?;
     }
     if text {
@@ -489,7 +492,6 @@ fn draw(buf: &mut [u8], b: &[SnrRow], a: &[LambdaRow], cfg: &NoiseConfig) -> any
             .draw()
             .map_err(|e| anyhow::anyhow!("{e}"))?;
     }
-    root.present().map_err(|e| anyhow::anyhow!("{e}"))?;
     Ok(())
 }
 
