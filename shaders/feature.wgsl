@@ -8,8 +8,9 @@
 @group(0) @binding(6) var<storage, read> features: array<LiftedFeature>;
 @group(0) @binding(7) var<storage, read_write> terms: array<TermLogs>;
 
-// 3x3 matrices as arrays of rows; the products are written out term by term in the order of
-// the CPU twin (`cpu::feature::mat_mul`), so only sin/cos differ between the two.
+// 3x3 matrices as arrays of rows; the products are written out term by term, each entry
+// summed as (a0 b0 + a1 b1) + a2 b2, the order of the CPU twin's glam products, so only
+// sin/cos differ between the two.
 fn mat_mul(a: array<vec3<f32>, 3>, b: array<vec3<f32>, 3>) -> array<vec3<f32>, 3> {
     var m: array<vec3<f32>, 3>;
     for (var i = 0; i < 3; i++) {

@@ -223,7 +223,7 @@ impl Template {
         out: &mut Vec<f32>,
     ) {
         let (first, depth_ratio) = (&view.particle, view.depth_ratio);
-        use crate::likelihood::cpu::feature::{mat_mul, prior_depth, rotation, transpose};
+        use crate::likelihood::cpu::feature::{prior_depth, rotation};
         use rayon::prelude::*;
         out.clear();
         if !self.usable {
@@ -263,13 +263,14 @@ impl Template {
                 .collect();
         }
         let camera = view.camera.as_ref().map(CameraF32::from);
-        let r0t = transpose(&rotation(first.rx, first.ry, first.rz));
+        let r0t = rotation(first.rx, first.ry, first.rz).transpose();
         let ab0 = first.a * first.b;
         let n = self.pts.len();
         particles
             .par_iter()
             .map(|p| {
-                let dr = mat_mul(&rotation(p.rx, p.ry, p.rz), &r0t);
+                let dr = rotation(p.rx, p.ry, p.rz) * r0t;
+                let (r0, r1, r2) = (dr.row(0), dr.row(1), dr.row(2));
                 let k = ((p.a * p.b) / ab0).sqrt();
                 // One pass: the sums the correlation over the visible points needs.
                 let (mut m, mut sb, mut sbb, mut st, mut stt, mut sbt) =
@@ -280,9 +281,8 @@ impl Template {
                 let mut seen = [0f32; CHUNK];
                 for (chunk, raw) in lifted.chunks(CHUNK).zip(self.raw.chunks(CHUNK)) {
                     for (j, x) in chunk.iter().enumerate() {
-                        let z = dr[2][0] * x[0] + dr[2][1] * x[1] + dr[2][2] * x[2];
-                        let px = dr[0][0] * x[0] + dr[0][1] * x[1] + dr[0][2] * x[2];
-                        let py = dr[1][0] * x[0] + dr[1][1] * x[1] + dr[1][2] * x[2];
+                        let x = glam::Vec3::from_array(*x);
+                        let (px, py, z) = (r0.dot(x), r1.dot(x), r2.dot(x));
                         [xs[j], ys[j]] = match &camera {
                             None => [p.cx + k * px, p.cy + k * py],
                             Some(cam) => cam.project([p.cx, p.cy], [k * px, k * py, k * z]),
@@ -421,21 +421,18 @@ mod tests {
     }
 
     /// The texture of the test spheres at the camera-frame point `p` of an object turned by
-    /// `rot` (rows): the object point `X = Rᵀ p`.
-    fn shade(p: [f32; 3], rot: &[[f32; 3]; 3]) -> f32 {
-        let o: Vec<f32> = (0..3)
-            .map(|j| rot[0][j] * p[0] + rot[1][j] * p[1] + rot[2][j] * p[2])
-            .collect();
-        let (x, y, z) = (o[0], o[1], o[2]);
+    /// `rot`: the object point `X = Rᵀ p`.
+    fn shade(p: [f32; 3], rot: &glam::Mat3) -> f32 {
+        let [x, y, z] = rot.transpose_mul_vec3(glam::Vec3::from_array(p)).to_array();
         0.5 + 0.2 * (0.45 * x).sin() * (0.35 * y).cos()
             + 0.15 * (0.3 * y + 0.25 * z).sin()
             + 0.1 * (0.2 * x - 0.4 * z).cos()
     }
 
-    /// A textured sphere of radius `r` centred at `(cx, cy)`, turned by `rot` (rows), on a flat
+    /// A textured sphere of radius `r` centred at `(cx, cy)`, turned by `rot`, on a flat
     /// background: each pixel inside the outline shows the texture at the object point its
     /// ray meets first (weak perspective, depth towards the camera negative).
-    fn sphere(w: u32, h: u32, cx: f32, cy: f32, r: f32, rot: &[[f32; 3]; 3]) -> GrayF32 {
+    fn sphere(w: u32, h: u32, cx: f32, cy: f32, r: f32, rot: &glam::Mat3) -> GrayF32 {
         let mut g = GrayF32::new(w, h);
         for y in 0..h {
             for x in 0..w {
@@ -502,7 +499,7 @@ mod tests {
         (cx, cy, r): (f32, f32, f32),
         f: f32,
         pp: [f32; 2],
-        rot: &[[f32; 3]; 3],
+        rot: &glam::Mat3,
     ) -> GrayF32 {
         let c = [cx - pp[0], cy - pp[1], f];
         let mut g = GrayF32::new(w, h);

@@ -11,43 +11,17 @@
 //! `s = sqrt((a b) / (a_prev b_prev))`; `q̂ = (cx, cy) + s (ΔR X)_xy`;
 //! `ln p_feature = ln Σ_j 1 / (ε + ‖q_j − q̂_j‖)`; no features: 0.
 
+use glam::{Mat3, Vec3};
+
 use super::EllipseF32;
 use crate::likelihood::{FeaturePair, LiftedFeature, LikelihoodParams, Particle};
 
-/// A 3×3 matrix, row-major, `f32`.
-pub type Mat3 = [[f32; 3]; 3];
-
-/// `a · b`, each entry summed as `(a0 b0 + a1 b1) + a2 b2`.
-pub fn mat_mul(a: &Mat3, b: &Mat3) -> Mat3 {
-    let mut m = [[0.0f32; 3]; 3];
-    for (i, row) in m.iter_mut().enumerate() {
-        for (j, v) in row.iter_mut().enumerate() {
-            *v = a[i][0] * b[0][j] + a[i][1] * b[1][j] + a[i][2] * b[2][j];
-        }
-    }
-    m
-}
-
-/// Transpose.
-pub fn transpose(a: &Mat3) -> Mat3 {
-    let mut m = [[0.0f32; 3]; 3];
-    for (i, row) in m.iter_mut().enumerate() {
-        for (j, v) in row.iter_mut().enumerate() {
-            *v = a[j][i];
-        }
-    }
-    m
-}
-
 /// `R = (Rx(rx) · Ry(ry)) · Rz(rz)` in `f32` (the project's convention, `geometry::Euler`).
+///
+/// glam's products sum each entry as `(a0 b0 + a1 b1) + a2 b2`, the order `feature.wgsl`'s
+/// `mat_mul` writes out, so the two engines differ only in `sin` and `cos`.
 pub fn rotation(rx: f32, ry: f32, rz: f32) -> Mat3 {
-    let (sa, ca) = rx.sin_cos();
-    let (sb, cb) = ry.sin_cos();
-    let (sc, cc) = rz.sin_cos();
-    let mx = [[1.0, 0.0, 0.0], [0.0, ca, -sa], [0.0, sa, ca]];
-    let my = [[cb, 0.0, sb], [0.0, 1.0, 0.0], [-sb, 0.0, cb]];
-    let mz = [[cc, -sc, 0.0], [sc, cc, 0.0], [0.0, 0.0, 1.0]];
-    mat_mul(&mat_mul(&mx, &my), &mz)
+    (Mat3::from_rotation_x(rx) * Mat3::from_rotation_y(ry)) * Mat3::from_rotation_z(rz)
 }
 
 /// What the feature term needs per frame: the lifted features and `R_prevᵀ`.
@@ -104,7 +78,7 @@ impl FeatureFrame {
             .collect();
         Self {
             lifted,
-            r_prev_t: transpose(&rotation(prev.rx, prev.ry, prev.rz)),
+            r_prev_t: rotation(prev.rx, prev.ry, prev.rz).transpose(),
             ab_prev: prev.a * prev.b,
         }
     }
@@ -114,16 +88,15 @@ impl FeatureFrame {
         if self.lifted.is_empty() {
             return 0.0;
         }
-        let dr = mat_mul(
-            &rotation(particle.rx, particle.ry, particle.rz),
-            &self.r_prev_t,
-        );
+        let dr = rotation(particle.rx, particle.ry, particle.rz) * self.r_prev_t;
+        // Only the image rows of `ΔR X` are needed.
+        let (r0, r1) = (dr.row(0), dr.row(1));
         let s = ((particle.a * particle.b) / self.ab_prev).sqrt();
         let mut sum = 0.0f32;
         for f in &self.lifted {
-            let [x, y, z] = f.x;
-            let px = dr[0][0] * x + dr[0][1] * y + dr[0][2] * z;
-            let py = dr[1][0] * x + dr[1][1] * y + dr[1][2] * z;
+            let x = Vec3::from_array(f.x);
+            let px = r0.dot(x);
+            let py = r1.dot(x);
             let qx = particle.cx + s * px;
             let qy = particle.cy + s * py;
             let ex = f.q[0] - qx;
@@ -158,7 +131,7 @@ mod tests {
             let r = Euler::new(rx as f64, ry as f64, rz as f64).matrix();
             for i in 0..3 {
                 for j in 0..3 {
-                    assert!((m[i][j] as f64 - r[(i, j)]).abs() < 1e-6);
+                    assert!((m.col(j)[i] as f64 - r[(i, j)]).abs() < 1e-6);
                 }
             }
         }
