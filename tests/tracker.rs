@@ -1,10 +1,11 @@
 //! The whole tracker on short synthetic sequences with exact truth: it must follow the target
 //! and its rotation, deterministically for a seed, and reject bad input without panicking.
 
-use pftrack::geometry::{Ellipse, Euler, angle_between, rot_x};
+use pftrack::eval::gain;
+use pftrack::geometry::{Ellipse, Euler, PoseState, angle_between, rot_x};
 use pftrack::motion::AbmParams;
 use pftrack::pose::bundle::BundleParams;
-use pftrack::synth::{Renderer, Scenario, SynthConfig};
+use pftrack::synth::{HFOV_DEG, Renderer, Scenario, SynthConfig};
 use pftrack::tracker::{
     AnchorRefit, BundleAdjust, ColourUpdate, Contrast, Init, TemplateTerm, TrackError, Tracker,
     TrackerConfig,
@@ -45,33 +46,94 @@ fn run_with(cfg: SynthConfig, steps: usize, tc: TrackerConfig) -> Track {
     (est, truth)
 }
 
-#[test]
-fn follows_a_nodding_head() {
-    // The first 40 frames of `nod` tilt the head to about 30 degrees.
-    let (est, truth) = run(Scenario::Nod, 40, 0);
+/// Per axis (tilt, pan, roll) over frames 1.., the RMSE of the estimate against the truth and
+/// its gain (`eval::gain`: the slope of the estimate against the truth, in degrees; `None`
+/// where that axis hardly moves), and the worst centre error (pixels).
+fn axis_scores(
+    est: &[pftrack::tracker::Estimate],
+    truth: &[PoseState],
+) -> ([f64; 3], [Option<f64>; 3], f64) {
+    let mut pairs: [Vec<(f64, f64)>; 3] = Default::default();
     let mut worst_centre: f64 = 0.0;
-    for (e, t) in est.iter().zip(&truth) {
-        worst_centre =
-            worst_centre.max(((e.state.cx - t.cx).powi(2) + (e.state.cy - t.cy).powi(2)).sqrt());
+    for (e, t) in est.iter().zip(truth).skip(1) {
         assert!(!e.lost, "frame {} declared lost", e.frame);
         assert!((0.0..=1.0).contains(&e.confidence));
+        worst_centre =
+            worst_centre.max(((e.state.cx - t.cx).powi(2) + (e.state.cy - t.cy).powi(2)).sqrt());
+        let (es, ts) = ([e.state.rx, e.state.ry, e.state.rz], [t.rx, t.ry, t.rz]);
+        for a in 0..3 {
+            pairs[a].push((ts[a].to_degrees(), (es[a] - ts[a]).to_degrees()));
+        }
     }
-    assert!(worst_centre < 5.0, "centre off by {worst_centre:.2} px");
+    let rmse = pairs
+        .each_ref()
+        .map(|p| (p.iter().map(|&(_, d)| d * d).sum::<f64>() / p.len() as f64).sqrt());
+    (rmse, pairs.each_ref().map(|p| gain(p)), worst_centre)
+}
+
+#[test]
+fn follows_each_axis_with_the_camera() {
+    // The first 60 frames of `nod`, `pan` and `roll` (to 35, 60 and 45 degrees about x, y and
+    // z by frames 45, 45 and 37, then back a little), tracked through the camera the frames were
+    // rendered with, as `pftrack track` does with `synth`'s init file. Measured 2026-12-06 on
+    // scenario and filter seeds 0-2: gains 0.99-1.05 about x on `nod`, 0.97-0.99 about y on
+    // `pan`, 1.00-1.01 about z on `roll`; every axis's RMSE 0.8-2.9 degrees; the centre within
+    // 1.1 px. A sign error on an axis gives a gain near -1, and a turn half read 0.5.
+    for scenario in [Scenario::Nod, Scenario::Pan, Scenario::Roll] {
+        let axis = match scenario {
+            Scenario::Nod => 0,
+            Scenario::Pan => 1,
+            _ => 2,
+        };
+        for seed in 0..3 {
+            let cfg = SynthConfig {
+                seed,
+                ..SynthConfig::new(scenario)
+            };
+            let tc = TrackerConfig {
+                seed,
+                camera_hfov_deg: Some(HFOV_DEG),
+                ..TrackerConfig::default()
+            };
+            let (est, truth) = run_with(cfg, 60, tc);
+            let (rmse, gains, centre) = axis_scores(&est, &truth);
+            let what = format!("{scenario:?} seed {seed}: RMSE {rmse:.2?}, gains {gains:.3?}");
+            let g = gains[axis].unwrap_or_else(|| panic!("{what}: the axis did not turn"));
+            assert!((0.9..=1.1).contains(&g), "{what}");
+            assert!(rmse.iter().all(|&e| e < 4.0), "{what}");
+            assert!(centre < 2.0, "{what}: centre off by {centre:.2} px");
+            for other in (0..3).filter(|&a| a != axis) {
+                assert!(
+                    gains[other].is_none(),
+                    "{what}: axis {other} should not turn"
+                );
+            }
+        }
+    }
+}
+
+#[test]
+fn follows_a_nodding_head() {
+    // The first 40 frames of `nod` tilt the head to about 34 degrees, tracked with the default
+    // settings: weak perspective, the paper's model, which reads a near head's tilt about 1.13
+    // times too far (`TrackerConfig::camera_hfov_deg`). Measured 2026-12-06 (seed 0): gain
+    // 1.16 about x, RMSE 3.25 / 0.87 / 0.99 degrees, centre within 0.9 px; seeds 1 and 2 gain
+    // 1.05 and 1.13.
+    let (est, truth) = run(Scenario::Nod, 40, 0);
+    let (rmse, gains, centre) = axis_scores(&est, &truth);
+    let what = format!("RMSE {rmse:.2?}, gains {gains:.3?}");
+    let g = gains[0].unwrap_or_else(|| panic!("{what}: no tilt"));
+    assert!((0.95..=1.3).contains(&g), "{what}");
+    assert!(rmse.iter().all(|&e| e < 5.0), "{what}");
+    assert!(centre < 2.0, "centre off by {centre:.2} px");
     let (e, t) = (est.last().unwrap(), truth.last().unwrap());
     let err = angle_between(&e.state.euler().matrix(), &t.euler().matrix()).to_degrees();
     assert!(t.rx.to_degrees() > 25.0, "the scenario should have tilted");
-    // Tilted the right way (its Necker mirror would be ~60 degrees off) and within 25 degrees:
-    // what the tracker reaches today (it overshoots large tilts; issue 4's 3-degree target is
-    // not met yet). Tighten this bound as the tracker improves.
-    assert!(
-        e.state.rx > 0.0 && err < 25.0,
-        "final rotation off by {err:.1} deg: {:?}",
-        e.angles_deg()
-    );
+    // Tilted the right way: its Necker mirror is about 60 degrees off.
     let mirror = angle_between(&e.state.euler().matrix(), &rot_x(-t.rx)).to_degrees();
     assert!(
-        mirror > err,
-        "closer to the mirror ({mirror:.1}) than to the truth ({err:.1}): {:?}",
+        e.state.rx > 0.0 && err < 8.0 && mirror > 40.0,
+        "final rotation {:?}: {err:.1} deg from the truth, {mirror:.1} from its mirror",
         e.angles_deg()
     );
 }
@@ -93,17 +155,26 @@ fn comes_back_to_frontal_after_nodding_out_and_back() {
         truth[45].rx.to_degrees().abs() < 2.0,
         "frame 45 should be near frontal"
     );
-    // Around the return (frames 40-50, truth within 7 degrees of frontal), the median error.
-    let mut errs: Vec<f64> = (40..=50)
+    // Around the return (frames 40-50, the truth from +10.9 to -13.3 degrees), the RMS of the
+    // rotation's error and the gain about x. Measured 2026-12-06 on seeds 0-2: RMS 2.2, 2.3
+    // and 2.2 degrees, gain about 1.2 on seed 0 (weak perspective's over-read). A tracker
+    // that held still there would score 7.6 degrees; one reading half the turn, 3.8.
+    let errs: Vec<f64> = (40..=50)
         .map(|k| {
             angle_between(&est[k].state.euler().matrix(), &truth[k].euler().matrix()).to_degrees()
         })
         .collect();
-    let all = format!("{errs:.1?}");
-    errs.sort_by(f64::total_cmp);
+    let rms = (errs.iter().map(|e| e * e).sum::<f64>() / errs.len() as f64).sqrt();
+    let pairs: Vec<(f64, f64)> = (40..=50)
+        .map(|k| {
+            let t = truth[k].rx.to_degrees();
+            (t, est[k].state.rx.to_degrees() - t)
+        })
+        .collect();
+    let g = gain(&pairs).expect("the head turns through frontal there");
     assert!(
-        errs[errs.len() / 2] < 4.0,
-        "back near frontal the rotation is off by (frames 40-50) {all} deg"
+        rms < 3.0 && (0.8..=1.4).contains(&g),
+        "back near frontal (frames 40-50) the rotation is off by {errs:.1?} deg, gain {g:.3}"
     );
 }
 
