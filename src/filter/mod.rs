@@ -1050,6 +1050,107 @@ mod tests {
         assert!((w[0] / w[1] - (0.01f64).exp()).abs() < 1e-4);
     }
 
+    /// `ln N(x; 0, σ)` without its constant, written out apart from the module's helpers.
+    fn gauss(x: f64, sigma: f64) -> f64 {
+        -0.5 * (x * x) / (sigma * sigma) - sigma.ln()
+    }
+
+    /// The rotation vector of `m`, through nalgebra rather than the module's `log_so3`.
+    fn rotvec(m: &Matrix3<f64>) -> Vector3<f64> {
+        nalgebra::Rotation3::from_matrix_unchecked(*m).scaled_axis()
+    }
+
+    #[test]
+    fn proposal_ratio_is_the_dynamics_over_the_candidates_mixture() {
+        // ln p(x | parent) - ln q(x | parent, motion) by hand, with a motion that shifts and
+        // scales, two rotation candidates of probability 0.3 and 0.7, proposal and dynamics
+        // σ that differ, and spread 1.5 (which scales the proposal's σ).
+        let p = FilterParams {
+            particles: 4,
+            proposal: StateSigma {
+                centre: 2.0,
+                axes: 1.0,
+                rotation: [0.02, 0.03, 0.04],
+            },
+            dynamics: StateSigma {
+                centre: 3.0,
+                axes: 0.5,
+                rotation: [0.05, 0.06, 0.07],
+            },
+            ..FilterParams::default()
+        };
+        let parent = Hypothesis {
+            rot: rot_x(0.2),
+            ..init()
+        };
+        let mut f = ParticleFilter::new(p, 3, &parent).unwrap();
+        let (r1, r2) = (rot_x(0.05), crate::geometry::rot_y(-0.04));
+        let m = Motion {
+            dx: 2.0,
+            dy: -1.0,
+            scale: 1.1,
+            rotations: vec![(0.3, r1), (0.7, r2)],
+        };
+        f.propose(&m, 1.5);
+        for (x, &ratio) in f.particles().iter().zip(&f.log_ratio) {
+            let g = |s: f64| 1.5 * s;
+            let lin_q = gauss(x.cx - 52.0, g(2.0))
+                + gauss(x.cy - 39.0, g(2.0))
+                + gauss(x.a - 22.0, g(1.0))
+                + gauss(x.b - 27.5, g(1.0));
+            let rot_q = |r: &Matrix3<f64>| {
+                let w = rotvec(&(x.rot * (r * parent.rot).transpose()));
+                gauss(w.x, g(0.02)) + gauss(w.y, g(0.03)) + gauss(w.z, g(0.04))
+            };
+            let ln_q = lin_q + (0.3 * rot_q(&r1).exp() + 0.7 * rot_q(&r2).exp()).ln();
+            let w = rotvec(&(x.rot * parent.rot.transpose()));
+            let ln_p = gauss(x.cx - 50.0, 3.0)
+                + gauss(x.cy - 40.0, 3.0)
+                + gauss(x.a - 20.0, 0.5)
+                + gauss(x.b - 25.0, 0.5)
+                + gauss(w.x, 0.05)
+                + gauss(w.y, 0.06)
+                + gauss(w.z, 0.07);
+            assert!(
+                (ratio - (ln_p - ln_q)).abs() < 1e-6 * (1.0 + ratio.abs()),
+                "{ratio} against {}",
+                ln_p - ln_q
+            );
+        }
+    }
+
+    #[test]
+    fn weights_accumulate_over_updates_without_resampling() {
+        // Without resampling a particle's weight is the product over frames of its likelihood
+        // and its proposal ratio (eq. 27): ∝ exp(l1 + l2 + r1 + r2).
+        let mut f = ParticleFilter::new(
+            FilterParams {
+                particles: 3,
+                resample_below: 0.0,
+                ..FilterParams::default()
+            },
+            7,
+            &init(),
+        )
+        .unwrap();
+        let mut total = [0.0f64; 3];
+        for l in [[-1.0f32, -0.5, -2.0], [-0.3, -1.2, -0.1]] {
+            f.propose(&Motion::still(), 1.0);
+            for (t, (&li, &ri)) in total.iter_mut().zip(l.iter().zip(&f.log_ratio)) {
+                *t += li as f64 + ri;
+            }
+            assert!(!f.update(&l).resampled);
+        }
+        let z: f64 = total.iter().map(|t| t.exp()).sum();
+        for (w, t) in f.weights().iter().zip(&total) {
+            assert!(
+                (w - t.exp() / z).abs() < 1e-9,
+                "{w} against {}",
+                t.exp() / z
+            );
+        }
+    }
+
     #[test]
     fn weighted_mean_estimate_uses_weights() {
         let mut f = ParticleFilter::new(

@@ -590,7 +590,10 @@ mod tests {
         c1[4] = 10;
         let rho = bhattacharyya(&c1, 20, &m);
         assert!((rho - 0.5f32.sqrt()).abs() < 1e-6, "{rho}");
-        assert!((log_from_rho(rho, 0.5) + (1.0 - rho) / 0.5).abs() < 1e-7);
+        // SPEC: ln p_colour = -(1 - rho) / (2 sigma_c^2); at sigma_c 0.3, 2 sigma_c^2 = 0.18 (at
+        // 0.5 it would equal sigma_c, and a division by sigma_c alone would pass).
+        let expected = -(1.0 - 0.5f64.sqrt()) / 0.18;
+        assert!((log_from_rho(rho, 0.3) as f64 - expected).abs() < 1e-5);
         // And back.
         for (r, sc) in [(rho, 0.5), (0.9, 0.1), (0.0, 0.1), (1.0, 0.3)] {
             let back = rho_from_log(log_from_rho(r, sc), sc);

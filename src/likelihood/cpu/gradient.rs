@@ -546,5 +546,21 @@ mod tests {
         assert!((l0 - (1.0 + k).ln()).abs() < 1e-6);
         let l3 = line_log(Some(3), k, p.sigma_z);
         assert!(l0 > l3 && l3 > 0.0);
+        // Known answers (SPEC section 3) with numbers of their own, where a missing 2, a σz
+        // in place of σz² or a dropped factor of the clutter gain would show:
+        // k = 1 / (sqrt(2π) σz p0 γ) = 1 / (sqrt(2π) · 2 · 0.1 · 0.05).
+        let q = LikelihoodParams {
+            sigma_z: 2.0,
+            p_no_contour: 0.1,
+            clutter_density: 0.05,
+            ..LikelihoodParams::default()
+        };
+        let k = clutter_gain(&q);
+        let expected_k = 1.0 / ((2.0 * std::f64::consts::PI).sqrt() * 0.01);
+        assert!((k as f64 / expected_k - 1.0).abs() < 1e-6, "{k}");
+        // ln(1 + k exp(-d² / (2 σz²))) at d = 3: exp(-9 / 8).
+        let l3 = line_log(Some(3), k, 2.0) as f64;
+        let expected = (1.0 + expected_k * (-9.0f64 / 8.0).exp()).ln();
+        assert!((l3 - expected).abs() < 1e-5, "{l3} against {expected}");
     }
 }
