@@ -1,6 +1,7 @@
 //! `pftrack eval`: exact answers on known perturbations, box truth, and the CLI.
 
-use std::io::Write;
+mod shared_data;
+
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
@@ -222,15 +223,10 @@ fn otb_box_truth_against_the_same_boxes() {
 
 #[test]
 fn real_girl_truth_against_itself() {
-    let p = Path::new(concat!(
-        env!("CARGO_MANIFEST_DIR"),
-        "/../shared/data/girl/groundtruth_rect.txt"
-    ));
-    if !p.exists() {
-        let _ = writeln!(std::io::stderr(), "skip: {} missing", p.display());
+    let Some(p) = shared_data::path("girl/groundtruth_rect.txt") else {
         return;
-    }
-    let truth = load_truth(p).unwrap();
+    };
+    let truth = load_truth(&p).unwrap();
     let Truth::Boxes(boxes) = &truth else {
         panic!("girl truth read as poses")
     };

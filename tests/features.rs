@@ -1,7 +1,6 @@
 //! Known answers and invariants of SIFT and matching (`pftrack::features`).
 
 use std::f32::consts::{FRAC_PI_2, TAU};
-use std::io::Write;
 
 use pftrack::features::{
     FeatureError, Features, Keypoint, MatchParams, Sift, SiftParams, UpsampleGrid, match_features,
@@ -12,21 +11,12 @@ use pftrack::geometry::BoxRect;
 use rand::rngs::StdRng;
 use rand::{Rng, SeedableRng};
 
-const DATA: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../shared/data");
-
-fn skip(reason: &str) {
-    let _ = writeln!(std::io::stderr(), "skipped: {reason}");
-}
+mod shared_data;
 
 fn load(rel: &str) -> Option<GrayF32> {
-    let path = format!("{DATA}/{rel}");
-    match image::open(&path) {
-        Ok(img) => Some(GrayF32::from_rgb(&img.to_rgb8())),
-        Err(e) => {
-            skip(&format!("{path}: {e}"));
-            None
-        }
-    }
+    let path = shared_data::path(rel)?;
+    let img = image::open(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    Some(GrayF32::from_rgb(&img.to_rgb8()))
 }
 
 /// A smooth random scene: a sum of Gaussian blobs, evaluable anywhere (so it can be rendered

@@ -3,6 +3,8 @@
 //! Real data comes from `../shared/data` (skipped with a printed reason when absent).
 //! ffmpeg-dependent tests skip when ffmpeg is not on PATH, except under `CI`, where they fail.
 
+mod shared_data;
+
 use std::io::Write;
 use std::path::{Path, PathBuf};
 
@@ -17,13 +19,7 @@ fn say(msg: &str) {
 
 /// A path under `../shared/data`, or `None` (with a printed reason) when it is absent.
 fn data(rel: &str) -> Option<PathBuf> {
-    let p = Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/../shared/data")).join(rel);
-    if p.exists() {
-        Some(p)
-    } else {
-        say(&format!("skip: {} missing", p.display()));
-        None
-    }
+    shared_data::path(rel)
 }
 
 /// Whether ffmpeg can be used; under `CI` its absence is a failure, not a skip.

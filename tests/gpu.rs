@@ -15,6 +15,7 @@ use pftrack::likelihood::{
 };
 
 mod common;
+mod shared_data;
 use common::{engine, engine_alone, skip};
 
 fn particle(cx: f32, cy: f32, a: f32, b: f32) -> Particle {
@@ -384,17 +385,6 @@ const TOL_CONTRAST_REL: f32 = 1e-5;
 /// the limit), so its rounding is well within this.
 const TOL_CONTRAST_ABS: f32 = 2e-3;
 
-fn data_dir() -> Option<std::path::PathBuf> {
-    [
-        concat!(env!("CARGO_MANIFEST_DIR"), "/../shared/data"),
-        // A worktree one level deeper than the main checkout.
-        concat!(env!("CARGO_MANIFEST_DIR"), "/../../shared/data"),
-    ]
-    .iter()
-    .map(std::path::PathBuf::from)
-    .find(|p| p.join("girl").is_dir())
-}
-
 /// Random particles around an ellipse (centre ±15 %, axes ×0.6..1.4, angles ±0.5 rad), plus a
 /// few degenerate and off-frame ones.
 fn random_particles(rng: &mut StdRng, e: &Particle, n: usize) -> Vec<Particle> {
@@ -639,7 +629,7 @@ fn assert_agreement(what: &str, a: &Agreement) {
 
 /// `(frame path, OTB box)` pairs of a sequence, every `step`-th frame.
 fn sequence(name: &str, step: usize, count: usize) -> Option<Vec<(std::path::PathBuf, Particle)>> {
-    let dir = data_dir()?.join(name);
+    let dir = shared_data::path(name)?;
     let boxes = std::fs::read_to_string(dir.join("groundtruth_rect.txt")).ok()?;
     let rows: Vec<Vec<f32>> = boxes
         .lines()

@@ -1,8 +1,7 @@
 //! The CPU likelihood engine and its stages on real and synthetic frames (issue 4, CPU path;
 //! the reference of the GPU engine, issue 5).
 
-use std::io::Write;
-use std::path::PathBuf;
+mod shared_data;
 
 use image::{Rgb, RgbImage};
 use pftrack::geometry::{Ellipse, Euler};
@@ -14,31 +13,11 @@ use pftrack::likelihood::{
 };
 use rand::{Rng, SeedableRng, rngs::StdRng};
 
-/// `../shared/data` beside the checkout (CI, main), or two levels up (a worktree under `wt/`).
-fn data_dir() -> Option<PathBuf> {
-    let root = env!("CARGO_MANIFEST_DIR");
-    [
-        format!("{root}/../shared/data"),
-        format!("{root}/../../shared/data"),
-    ]
-    .into_iter()
-    .map(PathBuf::from)
-    .find(|p| p.join("girl").is_dir())
-}
-
 /// Girl frame 1 and its ground-truth ellipse, or `None` (with a printed reason).
 fn girl_first() -> Option<(RgbImage, Ellipse)> {
-    let Some(dir) = data_dir() else {
-        let _ = writeln!(
-            std::io::stderr(),
-            "skipping: ../shared/data/girl not found beside the checkout"
-        );
-        return None;
-    };
-    let img = image::open(dir.join("girl/img/0001.jpg"))
-        .unwrap()
-        .to_rgb8();
-    let boxes = pftrack::io::read_otb_boxes(&dir.join("girl/groundtruth_rect.txt")).unwrap();
+    let dir = shared_data::path("girl")?;
+    let img = image::open(dir.join("img/0001.jpg")).unwrap().to_rgb8();
+    let boxes = pftrack::io::read_otb_boxes(&dir.join("groundtruth_rect.txt")).unwrap();
     Some((img, Ellipse::from_box(&boxes[0])))
 }
 

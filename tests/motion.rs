@@ -1,5 +1,7 @@
 //! Adaptive block matching on synthetic textures with known motion and on real footage.
 
+mod shared_data;
+
 use std::path::Path;
 
 use pftrack::frames::GrayF32;
@@ -245,19 +247,8 @@ fn marked_points_fit_an_init_ellipse() {
     );
 }
 
-fn girl_dir() -> Option<&'static Path> {
-    let p = Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/../shared/data/girl"));
-    if p.join("img/0001.jpg").exists() {
-        Some(p)
-    } else {
-        use std::io::Write;
-        let _ = writeln!(
-            std::io::stderr(),
-            "skipping: real footage not found at {}",
-            p.display()
-        );
-        None
-    }
+fn girl_dir() -> Option<std::path::PathBuf> {
+    shared_data::path("girl")
 }
 
 fn load_gray(path: &Path) -> GrayF32 {

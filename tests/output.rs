@@ -1,5 +1,7 @@
 //! Rendered output frames: ellipse on its contour, bars, text, lost colour, PNG writing.
 
+mod shared_data;
+
 use std::path::{Path, PathBuf};
 
 use image::{Rgb, RgbImage};
@@ -322,12 +324,9 @@ fn png_round_trip_and_errors() {
 
 #[test]
 fn renders_a_real_frame() {
-    let dir = Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/../shared/data/girl"));
-    if !dir.join("img/0001.jpg").exists() {
-        use std::io::Write;
-        let _ = writeln!(std::io::stderr(), "skipping: {} not found", dir.display());
+    let Some(dir) = shared_data::path("girl") else {
         return;
-    }
+    };
     let src = image::open(dir.join("img/0001.jpg")).unwrap().to_rgb8();
     let boxes = pftrack::io::read_otb_boxes(&dir.join("groundtruth_rect.txt")).unwrap();
     let mut e = Ellipse::from_box(&boxes[0]);
