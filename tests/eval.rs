@@ -127,6 +127,34 @@ fn check_perturbed(r: &Report) {
 }
 
 #[test]
+fn centre_error_takes_both_axes_and_precision_counts_20_px() {
+    // Frame 0 off by (12, 16): 20 px exactly, within the precision threshold (≤ 20); frame 1
+    // by (12, 16.001): 20.0008 px, outside; frame 2 by 3 px in y alone; the rest exact.
+    let off = |mut r: PoseRecord, dx: f64, dy: f64| {
+        r.state.cx += dx;
+        r.state.cy += dy;
+        r
+    };
+    let est: Vec<PoseRecord> = truth_records()
+        .into_iter()
+        .map(|r| match r.frame {
+            0 => off(r, 12.0, 16.0),
+            1 => off(r, 12.0, 16.001),
+            2 => off(r, 0.0, 3.0),
+            _ => r,
+        })
+        .collect();
+    let r = evaluate(&Truth::Poses(truth_records()), &est).unwrap();
+    let second = (12.0f64 * 12.0 + 16.001 * 16.001).sqrt();
+    close(
+        r.mean_centre_error_px,
+        (20.0 + second + 3.0) / 10.0,
+        "centre error",
+    );
+    close(r.precision_20px, 0.9, "precision");
+}
+
+#[test]
 fn known_perturbation_gives_known_numbers() {
     let truth = Truth::Poses(truth_records());
     check_perturbed(&evaluate(&truth, &perturbed()).unwrap());

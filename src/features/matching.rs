@@ -435,6 +435,23 @@ mod tests {
     }
 
     #[test]
+    fn ratio_test_compares_distances_not_squared_distances() {
+        // Lowe's ratio is on distances: nearest over second nearest 85 / 100 fails 0.8 (its
+        // square, 0.72, would pass), 75 / 100 passes (compared with 0.8² it would fail).
+        let a = feats(&[desc(&[(20, 100)]), desc(&[(30, 100)])]);
+        let b = feats(&[
+            desc(&[(20, 100), (21, 85)]),
+            desc(&[(20, 100), (22, 100)]),
+            desc(&[(30, 100), (31, 75)]),
+            desc(&[(30, 100), (32, 100)]),
+        ]);
+        let m = match_features(&a, &b, &MatchParams::default());
+        assert_eq!(m.len(), 1, "{m:?}");
+        assert_eq!((m[0].query, m[0].train), (1, 2));
+        assert_eq!(m[0].distance, 75.0);
+    }
+
+    #[test]
     fn mutual_check_drops_one_sided_matches() {
         // Both queries' nearest train is train 0, but train 0's nearest query is query 0.
         let a = feats(&[desc(&[(0, 100)]), desc(&[(0, 60)])]);

@@ -198,6 +198,29 @@ mod tests {
     }
 
     #[test]
+    fn the_orientation_turns_the_a_axis_as_rz_turns_the_camera_x_axis() {
+        // SPEC section 1: orientation theta0 + rz, and Rz turns x towards y, which points down
+        // in the image. At 30 degrees the end of the a axis lies down and to the right.
+        let theta = 30f64.to_radians();
+        let e = Ellipse {
+            cx: 10.0,
+            cy: 20.0,
+            a: 2.0,
+            b: 1.0,
+            theta,
+        };
+        let (x, y) = e.point_at(0.0);
+        assert!((x - (10.0 + 3f64.sqrt())).abs() < 1e-12 && (y - 21.0).abs() < 1e-12);
+        let (x, y) = e.point_at(std::f64::consts::FRAC_PI_2);
+        assert!((x - 9.5).abs() < 1e-12 && (y - (20.0 + 3f64.sqrt() / 2.0)).abs() < 1e-12);
+        let turned = crate::geometry::rot_z(theta) * nalgebra::Vector3::new(2.0, 0.0, 0.0);
+        let (x, y) = e.point_at(0.0);
+        assert!((x - 10.0 - turned.x).abs() < 1e-12 && (y - 20.0 - turned.y).abs() < 1e-12);
+        let (u, v) = e.to_unit(x, y);
+        assert!((u - 1.0).abs() < 1e-12 && v.abs() < 1e-12, "({u}, {v})");
+    }
+
+    #[test]
     fn bounding_box_of_rotated_ellipse() {
         let e = Ellipse {
             cx: 0.0,

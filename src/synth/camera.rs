@@ -76,6 +76,21 @@ mod tests {
     }
 
     #[test]
+    fn camera_axes_point_right_down_and_forward() {
+        // SPEC section 1: x right, y down, z forward; u right, v down.
+        let c = Camera::new(160, 120);
+        let (u0, v0) = c.project(&Vector3::new(0.0, 0.0, 1.0));
+        assert_eq!((u0, v0), (c.pu, c.pv));
+        let (u_right, v) = c.project(&Vector3::new(0.1, 0.0, 1.0));
+        assert!(u_right > u0 && v == v0, "x right: ({u_right}, {v})");
+        let (u, v) = c.project(&Vector3::new(0.0, 0.1, 1.0));
+        assert!(v > v0 && u == u0, "y down: ({u}, {v})");
+        // Farther along z, the same offset moves the image less.
+        let (u_far, _) = c.project(&Vector3::new(0.1, 0.0, 2.0));
+        assert!(u0 < u_far && u_far < u_right);
+    }
+
+    #[test]
     fn ray_and_projection_are_inverse() {
         let c = Camera::new(160, 120);
         // 50° horizontal field of view: the left and right image borders at ±25°.
