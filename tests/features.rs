@@ -415,6 +415,32 @@ fn degenerate_images_do_not_panic() {
         sift.detect(&g, Some(BoxRect::new(0.0, 0.0, -5.0, 5.0))),
         Err(FeatureError::BadRegion(_))
     ));
+    // A scale space over the budget is refused before it is built, by window: the whole
+    // 300x300 image upsampled (4 · 90,000 px · 11 images · 4 bytes · 4/3 = 21.1 MB) is over
+    // 10 MB; without the upsampled octave (5.3 MB), or within a region, it is not.
+    let budget = SiftParams {
+        max_scale_space_bytes: 10_000_000,
+        ..SiftParams::default()
+    };
+    assert_eq!(budget.scale_space_bytes(300, 300), 21_120_000);
+    let big = GrayF32::new(300, 300);
+    match Sift::new(budget.clone()).detect(&big, None) {
+        Err(FeatureError::TooLarge {
+            width: 300,
+            height: 300,
+            upsampled: true,
+            bytes: 21_120_000,
+            limit: 10_000_000,
+        }) => {}
+        other => panic!("{other:?}"),
+    }
+    let region = Some(BoxRect::new(100.0, 100.0, 50.0, 50.0));
+    assert!(Sift::new(budget.clone()).detect(&big, region).is_ok());
+    let plain = SiftParams {
+        upsample: false,
+        ..budget
+    };
+    assert!(Sift::new(plain).detect(&big, None).is_ok());
     let odd = Sift::new(SiftParams {
         sigma: -1.0,
         ..SiftParams::default()

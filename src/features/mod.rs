@@ -80,4 +80,25 @@ pub enum FeatureError {
     /// Matching parameters out of range ([`MatchParams::check`]).
     #[error("bad matching parameters: {0}")]
     BadMatching(String),
+    /// The scale space of the detection window would exceed
+    /// [`SiftParams::max_scale_space_bytes`].
+    #[error(
+        "SIFT on a {width}x{height} window{} needs about {:.1} GB for its scale space, more than the {:.1} GB allowed (SiftParams::max_scale_space_bytes){}",
+        if *upsampled { " with the upsampled first octave" } else { "" },
+        *bytes as f64 / 1e9,
+        *limit as f64 / 1e9,
+        if *upsampled { "; detect without the upsampled first octave or within a region" } else { "; detect within a region" }
+    )]
+    TooLarge {
+        /// Width of the window (pixels).
+        width: usize,
+        /// Height of the window (pixels).
+        height: usize,
+        /// Whether the first octave was to be upsampled.
+        upsampled: bool,
+        /// The scale space's bytes ([`SiftParams::scale_space_bytes`]).
+        bytes: u64,
+        /// The limit.
+        limit: u64,
+    },
 }

@@ -255,6 +255,7 @@ fn one_line_chain(chain: impl Iterator<Item = String>) -> String {
 fn in_cli_terms(msg: &str) -> String {
     msg.replace("Backend::Cpu", "`--backend cpu`")
         .replace("Backend::Gpu", "`--backend gpu`")
+        .replace(" (SiftParams::max_scale_space_bytes)", "")
 }
 
 /// The message with every number written in more than 24 characters put in exponent form:

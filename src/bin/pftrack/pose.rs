@@ -113,9 +113,32 @@ pub fn run(a: PoseArgs) -> anyhow::Result<()> {
             pftrack::tracker::TrackError::BadInit(why) => anyhow::anyhow!("--ellipse: {why}"),
             other => other.into(),
         })?;
-    let sift = Sift::new(SiftParams::default());
-    let fa = sift.detect(&GrayF32::from_rgb(&ia), None)?;
-    let fb = sift.detect(&GrayF32::from_rgb(&ib), None)?;
+    // On images too large for the upsampled first octave's scale space, SIFT goes on without
+    // that octave (saying so); too large even without it, the error says what to do.
+    let (ga, gb) = (GrayF32::from_rgb(&ia), GrayF32::from_rgb(&ib));
+    let (w, h) = (ga.width as usize, ga.height as usize);
+    let mut params = SiftParams::default();
+    if params.check_window(w, h).is_err() {
+        let with = params.scale_space_bytes(w, h);
+        params.upsample = false;
+        if params.check_window(w, h).is_err() {
+            bail!(
+                "SIFT on {w}x{h} images needs about {:.1} GB for its scale space even without \
+                 the upsampled first octave, more than the {:.1} GB allowed: scale them down",
+                params.scale_space_bytes(w, h) as f64 / 1e9,
+                params.max_scale_space_bytes as f64 / 1e9
+            );
+        }
+        errln!(
+            "pftrack: note: SIFT's upsampled first octave on {w}x{h} images would need about \
+             {:.1} GB; detecting without it (about {:.1} GB)",
+            with as f64 / 1e9,
+            params.scale_space_bytes(w, h) as f64 / 1e9
+        );
+    }
+    let sift = Sift::new(params);
+    let fa = sift.detect(&ga, None)?;
+    let fb = sift.detect(&gb, None)?;
     let mut p = Vec::new();
     let mut q = Vec::new();
     for m in match_features(&fa, &fb, &MatchParams::default()) {

@@ -75,7 +75,18 @@ pub fn run(args: SiftArgs) -> anyhow::Result<()> {
         },
         ..SiftParams::default()
     });
-    let mut feats = sift.detect(&gray, args.region)?;
+    // The library's advice on a window too large, in this command's flags.
+    let mut feats = sift.detect(&gray, args.region).map_err(|e| {
+        let msg = e.to_string();
+        anyhow::anyhow!(
+            "{}",
+            msg.replace(
+                "detect without the upsampled first octave or within a region",
+                "use --no-upsample or --region"
+            )
+            .replace("detect within a region", "use --region")
+        )
+    })?;
     let mut times = Vec::with_capacity(args.repeat as usize);
     for _ in 0..args.repeat {
         let t0 = Instant::now();
