@@ -214,6 +214,20 @@ fn directory_errors() {
     let e = res[1].as_ref().unwrap_err().to_string();
     assert!(e.contains("2.jpg") && e.contains("truncated JPEG"), "{e}");
 
+    // A header claiming more pixels than a frame may have is refused before decoding: 23
+    // bytes of PGM claiming 10000x10000 (on its own, `frames::open` reads the size from it).
+    let huge = d.join("huge");
+    std::fs::create_dir(&huge).unwrap();
+    std::fs::write(huge.join("1.pgm"), b"P5\n10000 10000\n255\nabc").unwrap();
+    let e = match frames::dir::decode_rgb(&huge.join("1.pgm")) {
+        Ok(_) => panic!("a 10000x10000 claim decoded"),
+        Err(e) => e.to_string(),
+    };
+    assert!(
+        e.contains("1.pgm") && e.contains("10000x10000 is larger than a frame may be"),
+        "{e}"
+    );
+
     // Frames of different sizes: the frame and both sizes named.
     let mixed = d.join("mixed");
     std::fs::create_dir(&mixed).unwrap();
@@ -240,10 +254,14 @@ fn bad_resize_and_sizes() {
     assert_eq!(frames::parse_size("160x120").unwrap(), (160, 120));
     let e = frames::parse_size("160by120").unwrap_err();
     assert!(e.to_string().contains("160by120"));
-    assert_eq!(frames::parse_size("8192x8192").unwrap(), (8192, 8192));
-    assert_eq!(frames::parse_size("32768x2048").unwrap(), (32768, 2048));
-    let e = frames::parse_size("32768x32768").unwrap_err().to_string();
-    assert!(e.contains("pixels in all"), "{e}");
+    // At most 2^25 pixels: 8K UHD fits, 8192x8192 does not.
+    assert_eq!(frames::parse_size("7680x4320").unwrap(), (7680, 4320));
+    assert_eq!(frames::parse_size("8192x4096").unwrap(), (8192, 4096));
+    assert_eq!(frames::parse_size("32768x1024").unwrap(), (32768, 1024));
+    for big in ["8192x4097", "8192x8192", "32768x2048", "32768x32768"] {
+        let e = frames::parse_size(big).unwrap_err().to_string();
+        assert!(e.contains("pixels in all"), "{big}: {e}");
+    }
     let d = scratch("badresize");
     save_flat(&d.join("1.png"), 4, 3, 1);
     // Zero, and (as parse_size bounds them) more than 32768 a side: 100000x100000 once

@@ -133,6 +133,18 @@ pub fn decode_rgb(p: &Path) -> Result<Frame, FrameError> {
         }
         Some(_) => {}
     }
+    // The size from the header first: a few bytes can claim a size whose pixels, and the
+    // tracker's images of them, would not fit in memory.
+    if let Some(format) = reader.format() {
+        let (w, h) = image::ImageReader::with_format(std::io::Cursor::new(&bytes), format)
+            .into_dimensions()
+            .map_err(dec)?;
+        if let Some(limit) = super::size_limit(w, h) {
+            return Err(bad(&format!(
+                "{w}x{h} is larger than a frame may be ({limit})"
+            )));
+        }
+    }
     let img = reader.decode().map_err(dec)?.into_rgb8();
     if img.width() == 0 || img.height() == 0 {
         return Err(FrameError::Decode {

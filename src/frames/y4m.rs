@@ -29,8 +29,12 @@ const MAX_LINE: u64 = 4096;
 /// The largest width or height accepted.
 pub const MAX_SIDE: u32 = 1 << 15;
 
-/// The most pixels per frame accepted (a header cannot make the reader allocate gigabytes).
-pub const MAX_PIXELS: u64 = 1 << 26;
+/// The most pixels per frame any source accepts (2^25, 33.5 million: 8K UHD's 7680x4320 fits),
+/// so that neither a header nor `--resize` can make the reader and the tracker allocate more
+/// than a few gigabytes. The tracker holds about 60 bytes a pixel of its frame (measured peak
+/// resident memory of `pftrack track` at 2000x1500: 197 MB), about 2 GB at this bound; at
+/// 2^26, the bound before, an 8192x8192 track failed to allocate under a 4 GB limit.
+pub const MAX_PIXELS: u64 = 1 << 25;
 
 /// The chroma layout of a y4m stream (the `C` tag).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
