@@ -449,7 +449,7 @@ fn more_particles_than_the_gpu_buffers_hold_are_refused_when_the_tracker_is_buil
         matches!(err, LikelihoodError::TooManyParticles { .. }),
         "{err}"
     );
-    // The most the filter takes, 32 bytes each (320 MB), is beyond lavapipe's 128 MiB binding: the tracker
+    // The most the filter takes, 32 bytes each (160 MB), is beyond lavapipe's 128 MiB binding: the tracker
     // refuses it before its filter allocates anything, with the error the first frame gave.
     let n = pftrack::filter::MAX_PARTICLES;
     if gpu.engine.check_capacity(n, w, h, &params).is_ok() {
