@@ -21,8 +21,10 @@ pub fn pixel_to_otb(b: &BoxRect) -> [f64; 4] {
     [b.x + 1.5, b.y + 1.5, b.w, b.h]
 }
 
-/// Reads an OTB box file, converting every box with [`otb_to_pixel`]. Blank lines are
-/// ignored; any other line must hold exactly four finite numbers.
+/// Reads an OTB box file, converting every box with [`otb_to_pixel`]. Blank lines before the
+/// first box and after the last are ignored; one between boxes is an error, since the box of
+/// line k is frame k's and a skipped line would move every later box onto the wrong frame.
+/// Any other line must hold exactly four finite numbers.
 pub fn read_otb_boxes(path: &Path) -> Result<Vec<BoxRect>, FormatError> {
     let text = super::read_text(path).map_err(|e| FormatError::io(path, e))?;
     parse_otb_boxes(&text, path)
@@ -31,10 +33,25 @@ pub fn read_otb_boxes(path: &Path) -> Result<Vec<BoxRect>, FormatError> {
 /// Parses the text of an OTB box file; `path` only names the source in errors.
 pub fn parse_otb_boxes(text: &str, path: &Path) -> Result<Vec<BoxRect>, FormatError> {
     let mut out = Vec::new();
+    let mut blank_after_box = None;
     for (i, line) in text.lines().enumerate() {
         let line = line.trim();
         if line.is_empty() {
+            if !out.is_empty() && blank_after_box.is_none() {
+                blank_after_box = Some(i + 1);
+            }
             continue;
+        }
+        if let Some(at) = blank_after_box {
+            return Err(FormatError::parse(
+                path,
+                at,
+                format!(
+                    "a blank line after box {} of the boxes, one per frame: every frame up \
+                     to the last needs its box",
+                    out.len()
+                ),
+            ));
         }
         let f: Vec<&str> = line
             .split(|c: char| c == ',' || c.is_whitespace())
@@ -87,6 +104,14 @@ mod tests {
         assert!(parse_otb_boxes("1,2,3\n", Path::new("x")).is_err());
         assert!(parse_otb_boxes("1,2,3,x\n", Path::new("x")).is_err());
         assert!(parse_otb_boxes("\n\n", Path::new("x")).is_err());
+        // Blank lines before and after the boxes are fine; between them, each later box
+        // would be read as the frame before its own.
+        let b = parse_otb_boxes("\n1,2,3,4\n5,6,7,8\n\n\n", Path::new("x")).unwrap();
+        assert_eq!(b.len(), 2);
+        let e = parse_otb_boxes("1,2,3,4\r\n\r\n5,6,7,8\r\n", Path::new("gap.txt"))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("gap.txt:2") && e.contains("after box 1"), "{e}");
         let e = parse_otb_boxes("1,2,3,4\n60,40,-40,50\n", Path::new("n")).unwrap_err();
         assert_eq!(e.to_string(), "n:2: w -40 is negative");
         assert!(parse_otb_boxes("0,0,0,0\n", Path::new("z")).is_ok());
