@@ -12,6 +12,9 @@
 //!   such a target cannot be replaced by a rename and is read as a stream anyway. A write
 //!   error there (`/dev/full`) is reported as for any file.
 //!
+//! A regular file replaced keeps its permissions; being a new file, it no longer shares
+//! the old one's hard links, nor its owner when another user's file is replaced.
+//!
 //! Every error names the target, never the partial file. The partial file is registered
 //! while it exists ([`super::partial`]), so a signal handler can remove it too.
 
@@ -93,6 +96,14 @@ impl AtomicFile {
         let (registered, file) =
             Partial::create(&partial, PartialKind::File, || File::create(&partial))
                 .map_err(|e| FormatError::io(target, e))?;
+        // A file replaced keeps its permissions (a private file must not come back readable
+        // by all), set before anything is written.
+        if let Ok(old) = std::fs::symlink_metadata(&to)
+            && old.is_file()
+        {
+            file.set_permissions(old.permissions())
+                .map_err(|e| FormatError::io(target, e))?;
+        }
         Ok(Self {
             target: target.to_path_buf(),
             rename: Some(Rename {
@@ -293,6 +304,25 @@ mod tests {
         f.commit().unwrap();
         assert_eq!(std::fs::read_to_string(&p).unwrap(), "whole\n");
         assert_eq!(entries(&d), ["out.csv"]);
+        std::fs::remove_dir_all(&d).unwrap();
+    }
+
+    #[cfg(unix)]
+    #[test]
+    fn a_replaced_file_keeps_its_permissions() {
+        use std::os::unix::fs::PermissionsExt;
+        let d = dir("mode");
+        let p = d.join("mine.csv");
+        std::fs::write(&p, "old\n").unwrap();
+        for mode in [0o600, 0o640] {
+            std::fs::set_permissions(&p, std::fs::Permissions::from_mode(mode)).unwrap();
+            let mut f = AtomicFile::create(&p).unwrap();
+            writeln!(f, "new").unwrap();
+            f.commit().unwrap();
+            let got = std::fs::metadata(&p).unwrap().permissions().mode() & 0o777;
+            assert_eq!(got, mode, "{got:o}");
+        }
+        assert_eq!(std::fs::read_to_string(&p).unwrap(), "new\n");
         std::fs::remove_dir_all(&d).unwrap();
     }
 
