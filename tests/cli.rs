@@ -1546,6 +1546,16 @@ fn cli_track_takes_its_settings_from_a_json_file() {
         "particles 0 must lie in 1..=",
         &unwritten,
     );
+    // A key given twice is refused, not read as its last value (which hid the first's 0).
+    let twice = file(
+        "e.json",
+        r#"{"filter": {"particles": 0, "particles": 300}}"#,
+    );
+    assert_one_line_error(
+        &["track", s, "--config", &twice, "-o", u],
+        "`particles` is given twice in one object at line 1 column",
+        &unwritten,
+    );
     let out = pftrack(&["track", s, "--config", &settings, "--seed", "2", "-o", u]);
     assert_eq!(out.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&out.stderr).contains("cannot be used with '--seed"));

@@ -511,7 +511,7 @@ fn read_config(path: &Path) -> anyhow::Result<TrackerConfig> {
     }
     let text = String::from_utf8(bytes).with_context(ctx)?;
     let text = text.strip_prefix('\u{feff}').unwrap_or(&text);
-    let given: serde_json::Value = serde_json::from_str(text).with_context(ctx)?;
+    let NoRepeats(given) = serde_json::from_str(text).with_context(ctx)?;
     // serde would also take a struct as a list of its fields in order: `[]` was the defaults.
     if !given.is_object() {
         bail!(
@@ -522,6 +522,75 @@ fn read_config(path: &Path) -> anyhow::Result<TrackerConfig> {
     let mut merged = serde_json::to_value(TrackerConfig::default()).with_context(ctx)?;
     overlay(&mut merged, given);
     serde_json::from_value(merged).with_context(ctx)
+}
+
+/// A JSON value whose objects name each key once: serde_json keeps the last of a repeated
+/// key, so `{"filter": {"particles": 0, "particles": 300}}` ran, its invalid first value
+/// unseen. A repeat is an error naming the key (serde_json adds its line and column).
+struct NoRepeats(serde_json::Value);
+
+impl<'de> serde::Deserialize<'de> for NoRepeats {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        d.deserialize_any(NoRepeatsVisitor).map(NoRepeats)
+    }
+}
+
+struct NoRepeatsVisitor;
+
+impl<'de> serde::de::Visitor<'de> for NoRepeatsVisitor {
+    type Value = serde_json::Value;
+
+    fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+        f.write_str("a JSON value")
+    }
+
+    fn visit_bool<E>(self, v: bool) -> Result<Self::Value, E> {
+        Ok(v.into())
+    }
+
+    fn visit_i64<E>(self, v: i64) -> Result<Self::Value, E> {
+        Ok(v.into())
+    }
+
+    fn visit_u64<E>(self, v: u64) -> Result<Self::Value, E> {
+        Ok(v.into())
+    }
+
+    fn visit_f64<E: serde::de::Error>(self, v: f64) -> Result<Self::Value, E> {
+        serde_json::Number::from_f64(v)
+            .map(serde_json::Value::Number)
+            .ok_or_else(|| E::custom(format!("{v} is not a finite number")))
+    }
+
+    fn visit_str<E>(self, v: &str) -> Result<Self::Value, E> {
+        Ok(v.into())
+    }
+
+    fn visit_unit<E>(self) -> Result<Self::Value, E> {
+        Ok(serde_json::Value::Null)
+    }
+
+    fn visit_seq<A: serde::de::SeqAccess<'de>>(self, mut seq: A) -> Result<Self::Value, A::Error> {
+        let mut items = Vec::new();
+        while let Some(NoRepeats(v)) = seq.next_element()? {
+            items.push(v);
+        }
+        Ok(serde_json::Value::Array(items))
+    }
+
+    fn visit_map<A: serde::de::MapAccess<'de>>(self, mut map: A) -> Result<Self::Value, A::Error> {
+        let mut out = serde_json::Map::new();
+        while let Some(key) = map.next_key::<String>()? {
+            if out.contains_key(&key) {
+                return Err(serde::de::Error::custom(format!(
+                    "`{key}` is given twice in one object"
+                )));
+            }
+            let NoRepeats(v) = map.next_value()?;
+            out.insert(key, v);
+        }
+        Ok(serde_json::Value::Object(out))
+    }
 }
 
 /// Lays `given` over `base`: objects field by field, anything else replaced.
