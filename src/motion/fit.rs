@@ -67,7 +67,11 @@ pub fn fit_ellipse(points: &[[f64; 2]]) -> Result<Ellipse, MotionError> {
     // Collinear points make S3 (the scatter of [x, y, 1]) singular.
     let s3_inv = match s3.try_inverse() {
         Some(m) if s3.determinant().abs() > 1e-10 * n.powi(3) => m,
-        _ => return Err(MotionError::Degenerate("points are collinear")),
+        _ => {
+            return Err(MotionError::Degenerate(
+                "points are collinear, or nearly so at their scale",
+            ));
+        }
     };
     let t = -(s3_inv * s2.transpose());
     let m = s1 + s2 * t;

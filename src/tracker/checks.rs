@@ -16,7 +16,7 @@ impl Init {
         check_ellipse(e)?;
         if e.a < 2.0 || e.b < 2.0 {
             return Err(TrackError::BadInit(format!(
-                "semi-axes {:.1} x {:.1} px: at least 2 px each",
+                "semi-axes {} x {} px: at least 2 px each",
                 e.a, e.b
             )));
         }

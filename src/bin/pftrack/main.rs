@@ -236,7 +236,8 @@ fn closed_pipe(e: &(dyn std::error::Error + 'static)) -> bool {
 
 /// An error and its causes joined with `: `, leaving out a cause whose text the message
 /// already ends with (some errors, the image crate's among them, repeat their source's text
-/// in their own).
+/// in their own), and with control characters escaped: a file name holding a newline split
+/// the message over two lines.
 fn one_line_chain(chain: impl Iterator<Item = String>) -> String {
     let mut msg = String::new();
     for c in chain {
@@ -247,7 +248,15 @@ fn one_line_chain(chain: impl Iterator<Item = String>) -> String {
             msg.push_str(&c);
         }
     }
-    msg
+    msg.chars()
+        .map(|c| {
+            if c.is_control() {
+                c.escape_default().to_string()
+            } else {
+                c.to_string()
+            }
+        })
+        .collect()
 }
 
 /// The library's messages name its API where a user of the command line wants the flag:
@@ -417,6 +426,12 @@ mod tests {
         assert_eq!(
             one_line_chain(chain.iter().map(|s| s.to_string())),
             "reading the truth: t.csv: no such file"
+        );
+        // A name with a newline or a tab stays on the line, escaped; other text as it is.
+        let chain = ["cannot read a\nb.png\t", "naïve: no such file"];
+        assert_eq!(
+            one_line_chain(chain.iter().map(|s| s.to_string())),
+            "cannot read a\\nb.png\\t: naïve: no such file"
         );
     }
 
