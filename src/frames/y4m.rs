@@ -126,10 +126,17 @@ impl Y4mHeader {
             aspect: None,
             interlace: None,
         };
+        let mut seen = String::new();
         for tag in parts.filter(|t| !t.is_empty()) {
             let mut cs = tag.chars();
             let letter = cs.next().unwrap_or(' ');
             let v = cs.as_str();
+            // Each tag once (`X`, the application's own, may repeat): `W160 H120 W320` was
+            // read as 320 wide.
+            if letter != 'X' && seen.contains(letter) {
+                return Err(format!("tag {tag}: {letter} is given twice in the header"));
+            }
+            seen.push(letter);
             match letter {
                 'W' | 'H' => {
                     let n: u32 = v
@@ -471,6 +478,10 @@ mod tests {
         assert_eq!(h.aspect, Some((1, 1)));
         assert_eq!(h.interlace, Some('p'));
         assert_eq!(h.frame_bytes(), 176 * 144 * 3 / 2);
+        // A tag given twice is refused; the application's X tags may repeat.
+        let e = Y4mHeader::parse("YUV4MPEG2 W160 H120 W320").unwrap_err();
+        assert!(e.contains("W320: W is given twice"), "{e}");
+        assert!(Y4mHeader::parse("YUV4MPEG2 W160 H120 XA=1 XB=2").is_ok());
         let d = Y4mHeader::parse("YUV4MPEG2 H3 W5").unwrap();
         assert_eq!(d.chroma, Chroma::C420Jpeg);
         assert_eq!(d.chroma_size(), (3, 2));
