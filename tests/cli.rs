@@ -1235,8 +1235,9 @@ fn cli_demo_checks_before_rendering() {
     }
 }
 
-/// `--init-truth` on a pose CSV starts from its first row's pose as well as its ellipse,
-/// unless `--init-pose` says otherwise; a start beyond the frame or a turn is refused.
+/// `--init-truth` on a pose CSV starts from its frame 0 row's pose as well as its ellipse,
+/// unless `--init-pose` says otherwise; a start beyond the frame or a turn, or a CSV with no
+/// row for frame 0, is refused.
 #[test]
 fn cli_init_truth_starts_from_the_first_rows_pose() {
     let dir = synth_dir("init-truth", 2, "64x48");
@@ -1276,6 +1277,21 @@ fn cli_init_truth_starts_from_the_first_rows_pose() {
         a.extend(bad);
         assert_one_line_error(&a, needle, &csv);
     }
+    // Rows that begin after frame 0 hold no start for it.
+    let late = dir.join("late.csv");
+    pftrack::io::write_pose_csv(&late, &rows[1..], false).unwrap();
+    assert_one_line_error(
+        &[
+            "track",
+            d,
+            "--init-truth",
+            late.to_str().unwrap(),
+            "--out",
+            c,
+        ],
+        "no row for frame 0 (the first is frame 1)",
+        &csv,
+    );
     std::fs::remove_dir_all(&dir).unwrap();
 }
 

@@ -56,12 +56,12 @@ pub struct TrackArgs {
     /// An init file `cx,cy,a,b[,angle]` (what `pftrack synth` writes).
     #[arg(long, value_name = "FILE", group = "init")]
     pub init_file: Option<PathBuf>,
-    /// Ground truth to start from: the first row of a pose CSV (its ellipse and pose) or of
-    /// an OTB box file (its box).
+    /// Ground truth to start from: the frame-0 row of a pose CSV (its ellipse and pose) or
+    /// the first box of an OTB box file.
     #[arg(long, value_name = "FILE", group = "init")]
     pub init_truth: Option<PathBuf>,
     /// Initial pose `rx,ry,rz` in degrees, each within 360 either way [default: frontal
-    /// 0,0,0, or the first row's with `--init-truth` on a pose CSV].
+    /// 0,0,0, or the frame-0 row's with `--init-truth` on a pose CSV].
     #[arg(
         long,
         value_name = "RX,RY,RZ",
@@ -358,7 +358,7 @@ pub fn initial_ellipse(
 }
 
 /// The initial ellipse of the option given (`None` for none), with the camera when it is an
-/// init file that gives one, and the pose of `--init-truth`'s first row when it is a pose
+/// init file that gives one, and the pose of `--init-truth`'s frame-0 row when it is a pose
 /// CSV.
 fn given_init(a: &TrackArgs) -> anyhow::Result<Option<(InitFile, Option<Euler>)>> {
     let no_camera = |ellipse| InitFile {
@@ -404,7 +404,17 @@ fn given_init(a: &TrackArgs) -> anyhow::Result<Option<(InitFile, Option<Euler>)>
     }
     if let Some(p) = &a.init_truth {
         return Ok(Some(match pftrack::eval::load_truth(p)? {
-            pftrack::eval::Truth::Poses(r) => (no_camera(r[0].ellipse()), Some(r[0].state.euler())),
+            // The start is the first frame's: a CSV whose rows begin later (a track's tail)
+            // has no start for it.
+            pftrack::eval::Truth::Poses(r) => match r.iter().find(|row| row.frame == 0) {
+                Some(row) => (no_camera(row.ellipse()), Some(row.state.euler())),
+                None => bail!(
+                    "--init-truth {}: no row for frame 0 (the first is frame {}), the frame \
+                     tracking starts on",
+                    p.display(),
+                    r[0].frame
+                ),
+            },
             pftrack::eval::Truth::Boxes(b) => {
                 // OTB marks a frame without the target by a box of no size.
                 if !(b[0].w > 0.0 && b[0].h > 0.0) {
