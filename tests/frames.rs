@@ -690,6 +690,27 @@ fn a_truncated_video_says_it_is_short() {
     };
     assert!(said, "a cut video passed for a whole one");
 
+    // Matroska declares no frame count: cut, the frames decoded come with ffmpeg's complaint.
+    let mkv = d.join("full.mkv");
+    encode(&mkv, &[]);
+    let mut whole = frames::open(&mkv, &SourceOptions::default()).unwrap();
+    assert_eq!(whole.by_ref().map(Result::unwrap).count(), 6);
+    assert_eq!((whole.len_hint(), whole.shortfall()), (None, None));
+    let bytes = std::fs::read(&mkv).unwrap();
+    let cut_mkv = d.join("cut.mkv");
+    std::fs::write(&cut_mkv, &bytes[..bytes.len() / 2]).unwrap();
+    if let Ok(mut src) = frames::open(&cut_mkv, &SourceOptions::default()) {
+        let results: Vec<_> = src.by_ref().collect();
+        let n = results.iter().filter(|r| r.is_ok()).count();
+        assert!(n < 6, "{n} frames from half the file");
+        let short = src.shortfall();
+        assert!(
+            results.iter().any(Result::is_err)
+                || short.as_ref().is_some_and(|s| s.contains("declares no frame count")),
+            "a cut Matroska file passed for a whole one: {n} frames, {short:?}"
+        );
+    }
+
     // A clip cut without re-encoding keeps samples before its start that ffmpeg decodes but
     // never shows: fewer frames than declared, no complaint, no shortfall.
     let mp4 = d.join("full.mp4");

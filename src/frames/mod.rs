@@ -374,20 +374,30 @@ impl FrameSource {
     /// for the other sources, whose reading fails on a bad frame. A caller that reports the
     /// frames as the whole video should say this too: ffmpeg ends a damaged file with success.
     /// Fewer frames without a complaint are no shortfall: a clip cut without re-encoding
-    /// keeps samples before its start that are decoded but never shown.
+    /// keeps samples before its start that are decoded but never shown. A container that
+    /// declares no count (Matroska, MPEG-TS) cannot be compared: there any complaint is said,
+    /// since the frames decoded may not be all of it (a Matroska file cut in half gave 57 of
+    /// 180 frames, with success).
     pub fn shortfall(&self) -> Option<String> {
         let Inner::Ffmpeg(f) = &self.inner else {
             return None;
         };
-        let declared = f.len_hint()?;
         let complaint = f.complaint()?;
-        if !self.ended || self.produced >= declared {
+        if !self.ended {
             return None;
         }
-        Some(format!(
-            "{}: ffmpeg decoded {} of the {declared} frames the file declares ({complaint})",
-            self.path, self.produced
-        ))
+        match f.len_hint() {
+            Some(declared) if self.produced < declared => Some(format!(
+                "{}: ffmpeg decoded {} of the {declared} frames the file declares ({complaint})",
+                self.path, self.produced
+            )),
+            Some(_) => None,
+            None => Some(format!(
+                "{}: ffmpeg reported an error ({complaint}) and the file declares no frame \
+                 count: the {} frames decoded may not be all of it",
+                self.path, self.produced
+            )),
+        }
     }
 
     /// One line saying what this source is.
