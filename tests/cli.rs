@@ -555,7 +555,8 @@ fn cli_sift_and_pose_reject_bad_input_in_one_line() {
 
 /// A track that fails part-way (a frame of another size) leaves neither a pose CSV nor the
 /// frames it had drawn: nothing that reads as a whole track, and what the render folder held
-/// before (here a file of the name frame 0 would take) stays as it was.
+/// before stays as it was. A folder holding frames no render of pftrack's left is refused
+/// before tracking.
 #[test]
 fn cli_a_failed_track_leaves_no_render() {
     let dir = synth_dir("failed-render", 5, "64x48");
@@ -577,6 +578,7 @@ fn cli_a_failed_track_leaves_no_render() {
     assert_eq!(
         names(&render),
         [
+            ".pftrack-render",
             "00000.png",
             "00001.png",
             "00002.png",
@@ -587,14 +589,22 @@ fn cli_a_failed_track_leaves_no_render() {
     std::fs::remove_dir_all(&render).unwrap();
     std::fs::remove_file(&csv).unwrap();
     std::fs::create_dir(&render).unwrap();
+    // Frames of the user's own: refused before anything is tracked or drawn.
     std::fs::write(render.join("00000.png"), b"the user's").unwrap();
+    assert_one_line_error(
+        &args,
+        "holds 00000.png, a frame pftrack did not render there (no .pftrack-render)",
+        &csv,
+    );
+    assert_eq!(names(&render), ["00000.png"]);
+    std::fs::rename(render.join("00000.png"), render.join("notes.txt")).unwrap();
     image::RgbImage::new(32, 24)
         .save(dir.join("frames/00003.png"))
         .unwrap();
     assert_one_line_error(&args, "frame 3", &csv);
-    assert_eq!(names(&render), ["00000.png"]);
+    assert_eq!(names(&render), ["notes.txt"]);
     assert_eq!(
-        std::fs::read(render.join("00000.png")).unwrap(),
+        std::fs::read(render.join("notes.txt")).unwrap(),
         b"the user's"
     );
     std::fs::remove_dir_all(&dir).unwrap();
@@ -693,7 +703,7 @@ fn cli_a_render_replaces_an_earlier_longer_one() {
     let r = render.to_str().unwrap();
     let args = ["track", d, "--backend", "cpu", "--render", r, "-o", "-"];
     pftrack_ok(&args);
-    assert_eq!(names(&render).len(), 5);
+    assert_eq!(names(&render).len(), 6, "five frames and .pftrack-render");
     for keep in [
         "notes.txt",
         "0001.png",
@@ -713,6 +723,7 @@ fn cli_a_render_replaces_an_earlier_longer_one() {
     assert_eq!(
         names(&render),
         [
+            ".pftrack-render",
             "00000.png",
             "000005.png",
             "00001.png",
@@ -1139,7 +1150,7 @@ fn cli_tracks_a_one_frame_sequence() {
     assert_eq!((s.rx, s.ry, s.rz), (0.0, 0.0, 0.0));
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(stderr.contains("tracked 1 frame with"), "{stderr}");
-    assert_eq!(std::fs::read_dir(&render).unwrap().count(), 1);
+    assert_eq!(names(&render), [".pftrack-render", "00000.png"]);
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
@@ -1385,6 +1396,8 @@ fn cli_a_render_that_cannot_be_moved_in_changes_nothing() {
     let d = dir.to_str().unwrap();
     let render = dir.join("render");
     std::fs::create_dir_all(render.join("00002.png")).unwrap();
+    // As an earlier render left it, with a frame edited since.
+    std::fs::write(render.join(".pftrack-render"), b"").unwrap();
     std::fs::write(render.join("00000.png"), b"the user's").unwrap();
     let csv = dir.join("poses.csv");
     let r = render.to_str().unwrap();
@@ -1399,7 +1412,7 @@ fn cli_a_render_that_cannot_be_moved_in_changes_nothing() {
         csv.to_str().unwrap(),
     ];
     assert_one_line_error(&args, "00002.png is a folder", &csv);
-    assert_eq!(names(&render), ["00000.png", "00002.png"]);
+    assert_eq!(names(&render), [".pftrack-render", "00000.png", "00002.png"]);
     assert_eq!(
         std::fs::read(render.join("00000.png")).unwrap(),
         b"the user's"

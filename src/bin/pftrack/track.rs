@@ -307,7 +307,9 @@ pub struct TrackArgs {
     /// here. The frames are drawn into a hidden folder inside and moved into place when the
     /// whole track is done: a run that fails leaves the folder as it found it, as it writes no
     /// pose CSV. One that succeeds replaces an earlier render there: its frames that follow
-    /// this track's last are removed. Frames under 320 px wide are drawn scaled up (160x120 twice).
+    /// this track's last are removed. A folder holding frames that no render of pftrack's
+    /// left (no `.pftrack-render` in it) is refused. Frames under 320 px wide are drawn
+    /// scaled up (160x120 twice).
     #[arg(long, value_name = "DIR")]
     pub render: Option<PathBuf>,
 }
@@ -957,10 +959,27 @@ struct RenderStaging {
 }
 
 impl RenderStaging {
-    /// Creates the render folder (if need be) and an empty staging folder inside it.
+    /// Creates the render folder (if need be) and an empty staging folder inside it. A folder
+    /// that holds frames (`NNNNN.png`) without [`RENDER_MARK`] is refused: those frames are
+    /// not a render of pftrack's, and replacing or trimming them would destroy them.
     fn create(dir: &Path) -> anyhow::Result<Self> {
         if dir.exists() && !dir.is_dir() {
             bail!("--render {}: not a folder", dir.display());
+        }
+        if dir.is_dir() && !dir.join(RENDER_MARK).exists() {
+            let listing = || format!("--render {}", dir.display());
+            for entry in std::fs::read_dir(dir).with_context(listing)? {
+                let name = entry.with_context(listing)?.file_name();
+                if name.to_str().is_some_and(is_frame_name) {
+                    bail!(
+                        "--render {}: holds {}, a frame pftrack did not render there (no {}): \
+                         give an empty or a new folder",
+                        dir.display(),
+                        name.to_string_lossy(),
+                        RENDER_MARK
+                    );
+                }
+            }
         }
         // What it makes is registered: an interrupt never removes a folder the user made,
         // empty or not.
@@ -1022,8 +1041,27 @@ impl RenderStaging {
             })?;
             removed += 1;
         }
+        let mark = self.dir.join(RENDER_MARK);
+        std::fs::write(&mark, RENDER_MARK_TEXT)
+            .with_context(|| format!("writing {}", mark.display()))?;
         Ok(removed)
     }
+}
+
+/// The file that marks a folder as rendered by `track --render`, so that a later render may
+/// replace its frames.
+const RENDER_MARK: &str = ".pftrack-render";
+
+/// What [`RENDER_MARK`] says to a reader who finds it.
+const RENDER_MARK_TEXT: &str = "The frames here were rendered by `pftrack track --render`; a \
+                                later render into this folder replaces them.\n";
+
+/// Whether `name` is a rendered frame's name, `frame_name(n)` for some `n`.
+fn is_frame_name(name: &str) -> bool {
+    name.strip_suffix(".png")
+        .filter(|d| d.bytes().all(|b| b.is_ascii_digit()))
+        .and_then(|d| d.parse::<usize>().ok())
+        .is_some_and(|n| frame_name(n) == name)
 }
 
 fn run_loop(
