@@ -1412,7 +1412,10 @@ fn cli_a_render_that_cannot_be_moved_in_changes_nothing() {
         csv.to_str().unwrap(),
     ];
     assert_one_line_error(&args, "00002.png is a folder", &csv);
-    assert_eq!(names(&render), [".pftrack-render", "00000.png", "00002.png"]);
+    assert_eq!(
+        names(&render),
+        [".pftrack-render", "00000.png", "00002.png"]
+    );
     assert_eq!(
         std::fs::read(render.join("00000.png")).unwrap(),
         b"the user's"

@@ -706,7 +706,9 @@ fn a_truncated_video_says_it_is_short() {
         let short = src.shortfall();
         assert!(
             results.iter().any(Result::is_err)
-                || short.as_ref().is_some_and(|s| s.contains("declares no frame count")),
+                || short
+                    .as_ref()
+                    .is_some_and(|s| s.contains("declares no frame count")),
             "a cut Matroska file passed for a whole one: {n} frames, {short:?}"
         );
     }
