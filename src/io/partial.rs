@@ -176,6 +176,38 @@ impl StagingDir {
         &self.path
     }
 
+    /// Removes the staging folders `.PREFIX-*.partial` in `parent` untouched for `idle` or
+    /// longer, and returns how many it removed. A run killed outright (SIGKILL, out of memory)
+    /// cannot remove its own, and each run's has a name of its own, so they stayed for good.
+    /// A running one is spared: it adds a file (a frame) far more often than any sensible
+    /// `idle`, and each addition renews the folder's modification time. Errors (an
+    /// unreadable folder, a folder removed meanwhile) are passed over: this is tidying.
+    pub fn sweep_stale(parent: &Path, prefix: &str, idle: std::time::Duration) -> usize {
+        let Ok(entries) = std::fs::read_dir(parent) else {
+            return 0;
+        };
+        let head = format!(".{prefix}-");
+        let mut removed = 0;
+        for entry in entries.flatten() {
+            let name = entry.file_name();
+            let Some(name) = name.to_str() else { continue };
+            if !(name.starts_with(&head) && name.ends_with(".partial")) {
+                continue;
+            }
+            let stale = entry
+                .metadata()
+                .ok()
+                .filter(std::fs::Metadata::is_dir)
+                .and_then(|m| m.modified().ok())
+                .and_then(|t| t.elapsed().ok())
+                .is_some_and(|age| age >= idle);
+            if stale && std::fs::remove_dir_all(entry.path()).is_ok() {
+                removed += 1;
+            }
+        }
+        removed
+    }
+
     /// Runs `move_in` (which moves the output out of the staging folder into place) under the
     /// registry's lock, so that an interrupt finds all of it moved or none, and forgets the
     /// folder; on success the folders made for the output are kept.
@@ -231,6 +263,47 @@ mod tests {
 
     fn registered(path: &Path) -> bool {
         registry().entries.iter().any(|e| e.path == path)
+    }
+
+    #[test]
+    fn stale_staging_folders_are_swept_and_running_ones_spared() {
+        use std::time::{Duration, SystemTime};
+        let root = std::env::temp_dir().join(format!("pftrack-sweep-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&root);
+        std::fs::create_dir_all(&root).unwrap();
+        let two_hours_ago = SystemTime::now() - Duration::from_secs(7200);
+        let age = |p: &Path| {
+            std::fs::File::open(p)
+                .unwrap()
+                .set_modified(two_hours_ago)
+                .unwrap()
+        };
+        // A killed run's (old, with a frame in it), a running one's, another prefix's, an old
+        // file of the pattern, and the user's own hidden folder.
+        let killed = root.join(".pftrack-render-123-456.partial");
+        std::fs::create_dir(&killed).unwrap();
+        std::fs::write(killed.join("00000.png"), b"x").unwrap();
+        age(&killed);
+        let running = root.join(".pftrack-render-124-457.partial");
+        std::fs::create_dir(&running).unwrap();
+        let other = root.join(".other-1-2.partial");
+        std::fs::create_dir(&other).unwrap();
+        age(&other);
+        let file = root.join(".pftrack-render-5-6.partial");
+        std::fs::write(&file, b"x").unwrap();
+        age(&file);
+        let mine = root.join(".pftrack-render-notes");
+        std::fs::create_dir(&mine).unwrap();
+        age(&mine);
+        let idle = Duration::from_secs(3600);
+        assert_eq!(StagingDir::sweep_stale(&root, "pftrack-render", idle), 1);
+        assert!(!killed.exists());
+        assert!(running.exists() && other.exists() && file.exists() && mine.exists());
+        assert_eq!(
+            StagingDir::sweep_stale(&root.join("none"), "pftrack-render", idle),
+            0
+        );
+        std::fs::remove_dir_all(&root).unwrap();
     }
 
     #[test]

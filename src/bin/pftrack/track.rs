@@ -981,6 +981,16 @@ impl RenderStaging {
                 }
             }
         }
+        // Staging folders of runs killed outright, left for an hour.
+        let swept = StagingDir::sweep_stale(dir, "pftrack-render", STALE_STAGING);
+        if swept > 0 {
+            errln!(
+                "pftrack: removed {swept} staging folder{} left in {} by an earlier run that \
+                 was killed",
+                if swept == 1 { "" } else { "s" },
+                dir.display()
+            );
+        }
         // What it makes is registered: an interrupt never removes a folder the user made,
         // empty or not.
         let stage = StagingDir::create(dir, "pftrack-render")
@@ -1047,6 +1057,10 @@ impl RenderStaging {
         Ok(removed)
     }
 }
+
+/// How long a render's staging folder must have been left untouched to be taken for a killed
+/// run's: a running render adds a frame every few milliseconds to seconds.
+const STALE_STAGING: std::time::Duration = std::time::Duration::from_secs(3600);
 
 /// The file that marks a folder as rendered by `track --render`, so that a later render may
 /// replace its frames.
