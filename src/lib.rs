@@ -26,6 +26,10 @@ pub mod synth;
 pub mod tracker;
 
 pub use error::{Error, Result};
+/// The `glam` crate whose `f32` matrices the CPU likelihood's feature term uses
+/// ([`likelihood::cpu::feature::rotation`], column-major), re-exported so that a caller of it
+/// uses the same version.
+pub use glam;
 /// The `image` crate whose `RgbImage` frames the tracker takes, re-exported so that an
 /// embedding program uses the same version.
 pub use image;

@@ -16,7 +16,9 @@ use glam::{Mat3, Vec3};
 use super::EllipseF32;
 use crate::likelihood::{FeaturePair, LiftedFeature, LikelihoodParams, Particle};
 
-/// `R = (Rx(rx) · Ry(ry)) · Rz(rz)` in `f32` (the project's convention, `geometry::Euler`).
+/// `R = (Rx(rx) · Ry(ry)) · Rz(rz)` in `f32` (the project's convention, `geometry::Euler`), as
+/// a glam [`Mat3`] (re-exported as `pftrack::glam`): column-major, so entry (i, j) is
+/// `m.col(j)[i]` (or `m.row(i)[j]`).
 ///
 /// glam's products sum each entry as `(a0 b0 + a1 b1) + a2 b2`, the order `feature.wgsl`'s
 /// `mat_mul` writes out, so the two engines differ only in `sin` and `cos`.
