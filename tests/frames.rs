@@ -214,19 +214,36 @@ fn directory_errors() {
     let e = res[1].as_ref().unwrap_err().to_string();
     assert!(e.contains("2.jpg") && e.contains("truncated JPEG"), "{e}");
 
-    // A header claiming more pixels than a frame may have is refused before decoding: 23
-    // bytes of PGM claiming 10000x10000 (on its own, `frames::open` reads the size from it).
+    // A header claiming more pixels than an image may have is refused before decoding: 23
+    // bytes of PGM claiming 20000x10000.
     let huge = d.join("huge");
     std::fs::create_dir(&huge).unwrap();
-    std::fs::write(huge.join("1.pgm"), b"P5\n10000 10000\n255\nabc").unwrap();
+    std::fs::write(huge.join("1.pgm"), b"P5\n20000 10000\n255\nabc").unwrap();
     let e = match frames::dir::decode_rgb(&huge.join("1.pgm")) {
-        Ok(_) => panic!("a 10000x10000 claim decoded"),
+        Ok(_) => panic!("a 20000x10000 claim decoded"),
         Err(e) => e.to_string(),
     };
     assert!(
-        e.contains("1.pgm") && e.contains("10000x10000 is larger than a frame may be"),
+        e.contains("1.pgm") && e.contains("20000x10000 is more than the 134217728 pixels"),
         "{e}"
     );
+    // Frames stored larger than the tracker takes (8000x5000, 40 megapixels, over 2^25) are
+    // read only when scaled down (the size comes from the first file's header).
+    let photos = d.join("photos");
+    std::fs::create_dir(&photos).unwrap();
+    std::fs::write(photos.join("1.pgm"), b"P5\n8000 5000\n255\nabc").unwrap();
+    let e = frames::open(&photos, &SourceOptions::default())
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("frames of 8000x5000 are more than the 33554432 pixels")
+            && e.contains("scale them down"),
+        "{e}"
+    );
+    let scaled = SourceOptions {
+        resize: Some((800, 500)),
+    };
+    assert_eq!(frames::open(&photos, &scaled).unwrap().size(), (800, 500));
 
     // Frames of different sizes: the frame and both sizes named.
     let mixed = d.join("mixed");
@@ -699,6 +716,7 @@ fn a_truncated_video_says_it_is_short() {
     let bytes = std::fs::read(&mkv).unwrap();
     let cut_mkv = d.join("cut.mkv");
     std::fs::write(&cut_mkv, &bytes[..bytes.len() / 2]).unwrap();
+    // Refused at open says it too.
     if let Ok(mut src) = frames::open(&cut_mkv, &SourceOptions::default()) {
         let results: Vec<_> = src.by_ref().collect();
         let n = results.iter().filter(|r| r.is_ok()).count();

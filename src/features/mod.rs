@@ -83,10 +83,10 @@ pub enum FeatureError {
     /// The scale space of the detection window would exceed
     /// [`SiftParams::max_scale_space_bytes`].
     #[error(
-        "SIFT on a {width}x{height} window{} needs about {:.1} GB for its scale space, more than the {:.1} GB allowed (SiftParams::max_scale_space_bytes){}",
+        "SIFT on a {width}x{height} window{} needs about {} for its scale space, more than the {} allowed (SiftParams::max_scale_space_bytes){}",
         if *upsampled { " with the upsampled first octave" } else { "" },
-        *bytes as f64 / 1e9,
-        *limit as f64 / 1e9,
+        size_text(*bytes),
+        size_text(*limit),
         if *upsampled { "; detect without the upsampled first octave or within a region" } else { "; detect within a region" }
     )]
     TooLarge {
@@ -101,4 +101,18 @@ pub enum FeatureError {
         /// The limit.
         limit: u64,
     },
+}
+
+/// A size in bytes for people: `5.6 GB`, `176 MB`, `12 kB` or `1000 bytes`.
+pub(crate) fn size_text(bytes: u64) -> String {
+    let b = bytes as f64;
+    if b >= 1e9 {
+        format!("{:.1} GB", b / 1e9)
+    } else if b >= 1e6 {
+        format!("{:.0} MB", b / 1e6)
+    } else if b >= 1e3 {
+        format!("{:.0} kB", b / 1e3)
+    } else {
+        format!("{bytes} bytes")
+    }
 }

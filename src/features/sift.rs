@@ -127,13 +127,13 @@ pub struct SiftParams {
 }
 
 impl SiftParams {
-    /// An upper bound on the bytes of the scale space of a `w x h` detection window: the
-    /// `2s + 5` Gaussian and difference images of `f32` per octave (s =
-    /// [`SiftParams::n_octave_layers`]), the first octave twice the window's size when
-    /// [`SiftParams::upsample`] is on, each later octave a quarter of the one before (4/3 of
-    /// the first in all). Measured peak resident memory of `pftrack sift` on a 2000x1500
-    /// image: 762 MB with the upsampled octave, 212 MB without (this bound: 704 and 176 MB,
-    /// the rest being the image, the keypoints and the program).
+    /// The bytes of the scale space of a `w x h` detection window: the `2s + 5` Gaussian and
+    /// difference images of `f32` per octave (s = [`SiftParams::n_octave_layers`]), the first
+    /// octave twice the window's size when [`SiftParams::upsample`] is on, each later octave a
+    /// quarter of the one before (4/3 of the first in all, counted as that). The input, the
+    /// pool's spare room, the keypoints and the program come on top: measured peak resident
+    /// memory of `pftrack sift` on a 2000x1500 image, 762 MB with the upsampled octave and 212
+    /// MB without, against 704 and 176 MB here.
     pub fn scale_space_bytes(&self, w: usize, h: usize) -> u64 {
         let k = if self.upsample { 4 } else { 1 };
         let first = (w as u64).saturating_mul(h as u64).saturating_mul(k);

@@ -133,15 +133,16 @@ pub fn decode_rgb(p: &Path) -> Result<Frame, FrameError> {
         }
         Some(_) => {}
     }
-    // The size from the header first: a few bytes can claim a size whose pixels, and the
-    // tracker's images of them, would not fit in memory.
+    // The size from the header first: a few bytes can claim a size whose pixels would not
+    // fit in memory.
     if let Some(format) = reader.format() {
         let (w, h) = image::ImageReader::with_format(std::io::Cursor::new(&bytes), format)
             .into_dimensions()
             .map_err(dec)?;
-        if let Some(limit) = super::size_limit(w, h) {
+        if u64::from(w) * u64::from(h) > super::y4m::MAX_DECODE_PIXELS {
             return Err(bad(&format!(
-                "{w}x{h} is larger than a frame may be ({limit})"
+                "{w}x{h} is more than the {} pixels an image may have",
+                super::y4m::MAX_DECODE_PIXELS
             )));
         }
     }

@@ -126,6 +126,24 @@ pub enum FrameError {
         /// The input.
         path: String,
     },
+    /// Frames larger than a source reads ([`y4m::MAX_DECODE_PIXELS`], as stored) or than it
+    /// delivers ([`y4m::MAX_PIXELS`], after [`SourceOptions::resize`]).
+    #[error(
+        "{path}: frames of {}x{} are more than the {limit} pixels a frame may have{}",
+        size.0,
+        size.1,
+        if *resizable { "; scale them down (SourceOptions::resize)" } else { "" }
+    )]
+    TooLarge {
+        /// The input.
+        path: String,
+        /// The frames' size.
+        size: (u32, u32),
+        /// The bound passed.
+        limit: u64,
+        /// Whether scaling the frames down would do (the stored size was within bounds).
+        resizable: bool,
+    },
     /// A bad `WxH` size.
     #[error("bad size '{input}': {msg}")]
     BadSize {
@@ -260,8 +278,30 @@ pub fn open(path: &Path, opts: &SourceOptions) -> Result<FrameSource, FrameError
 }
 
 impl FrameSource {
-    fn new(inner: Inner, path: &Path, native: (u32, u32), opts: &SourceOptions) -> Self {
-        Self {
+    /// The source over `inner`, whose frames are stored at `native` size: an error when that is
+    /// more than [`y4m::MAX_DECODE_PIXELS`], or the size delivered (after the resize) more than
+    /// [`y4m::MAX_PIXELS`].
+    fn new(
+        inner: Inner,
+        path: &Path,
+        native: (u32, u32),
+        opts: &SourceOptions,
+    ) -> Result<Self, FrameError> {
+        let out = opts.resize.unwrap_or(native);
+        let pixels = |(w, h): (u32, u32)| u64::from(w) * u64::from(h);
+        let too_large = |size, limit, resizable| FrameError::TooLarge {
+            path: path.display().to_string(),
+            size,
+            limit,
+            resizable,
+        };
+        if pixels(native) > y4m::MAX_DECODE_PIXELS {
+            return Err(too_large(native, y4m::MAX_DECODE_PIXELS, false));
+        }
+        if pixels(out) > y4m::MAX_PIXELS {
+            return Err(too_large(out, y4m::MAX_PIXELS, opts.resize.is_none()));
+        }
+        Ok(Self {
             inner,
             path: path.display().to_string(),
             native,
@@ -269,7 +309,7 @@ impl FrameSource {
             produced: 0,
             done: false,
             ended: false,
-        }
+        })
     }
 
     /// An image directory (see [`dir`]).
@@ -277,7 +317,7 @@ impl FrameSource {
         check_resize(opts)?;
         let d = dir::DirSource::open(path)?;
         let size = d.size();
-        Ok(Self::new(Inner::Dir(d), path, size, opts))
+        Self::new(Inner::Dir(d), path, size, opts)
     }
 
     /// A y4m file (see [`y4m`]).
@@ -323,12 +363,7 @@ impl FrameSource {
         let hint = len.map(|n| {
             (n as usize).saturating_sub(r.header_len()) / (h.frame_bytes() + "FRAME\n".len())
         });
-        Ok(Self::new(
-            Inner::Y4m(Box::new(r), hint),
-            Path::new(name),
-            size,
-            opts,
-        ))
+        Self::new(Inner::Y4m(Box::new(r), hint), Path::new(name), size, opts)
     }
 
     /// Any video ffmpeg reads, with the given programs (see [`ffmpeg`]).
@@ -340,7 +375,7 @@ impl FrameSource {
         check_resize(opts)?;
         let f = ffmpeg::FfmpegSource::open(path, tools)?;
         let size = f.size();
-        Ok(Self::new(Inner::Ffmpeg(Box::new(f)), path, size, opts))
+        Self::new(Inner::Ffmpeg(Box::new(f)), path, size, opts)
     }
 
     /// Output frame size `(width, height)`, after any resize.

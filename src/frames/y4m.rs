@@ -29,12 +29,17 @@ const MAX_LINE: u64 = 4096;
 /// The largest width or height accepted.
 pub const MAX_SIDE: u32 = 1 << 15;
 
-/// The most pixels per frame any source accepts (2^25, 33.5 million: 8K UHD's 7680x4320 fits),
-/// so that neither a header nor `--resize` can make the reader and the tracker allocate more
-/// than a few gigabytes. The tracker holds about 60 bytes a pixel of its frame (measured peak
-/// resident memory of `pftrack track` at 2000x1500: 197 MB), about 2 GB at this bound; at
-/// 2^26, the bound before, an 8192x8192 track failed to allocate under a 4 GB limit.
+/// The most pixels a frame delivered to the tracker may have, after any resize (2^25, 33.5
+/// million: 8K UHD's 7680x4320 fits). The tracker holds about 60 bytes a pixel of its frame
+/// (measured peak resident memory of `pftrack track` at 2000x1500: 197 MB), so about 2 GB at
+/// this bound; at 2^26, the bound before, an 8192x8192 track failed to allocate under a 4 GB
+/// limit. Larger footage is read when scaled down to it ([`super::SourceOptions::resize`]).
 pub const MAX_PIXELS: u64 = 1 << 25;
+
+/// The most pixels a frame may have as stored (2^27, 134 million), so that neither a header
+/// nor a file can make the reader allocate more than a few hundred megabytes for one: frames
+/// up to this size are read, and scaled down to [`MAX_PIXELS`] by a resize.
+pub const MAX_DECODE_PIXELS: u64 = 1 << 27;
 
 /// The chroma layout of a y4m stream (the `C` tag).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -170,9 +175,9 @@ impl Y4mHeader {
         }
         hdr.width = w.ok_or("header has no width (W)")?;
         hdr.height = h.ok_or("header has no height (H)")?;
-        if hdr.width as u64 * hdr.height as u64 > MAX_PIXELS {
+        if hdr.width as u64 * hdr.height as u64 > MAX_DECODE_PIXELS {
             return Err(format!(
-                "frame size {}x{} is larger than {MAX_PIXELS} pixels",
+                "frame size {}x{} is larger than {MAX_DECODE_PIXELS} pixels",
                 hdr.width, hdr.height
             ));
         }

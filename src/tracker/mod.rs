@@ -194,8 +194,10 @@ pub struct Tracker {
     likelihood: LikelihoodParams,
     engine: Box<dyn LikelihoodEngine + Send>,
     sift: Sift,
-    /// SIFT without the doubled first octave, for targets of at least
-    /// [`TrackerConfig::sift_upsample_below`]; `None` when every target gets `sift`.
+    /// SIFT without the doubled first octave: for targets of at least
+    /// [`TrackerConfig::sift_upsample_below`], and for a window whose doubled scale space
+    /// would pass [`crate::features::SiftParams::max_scale_space_bytes`]; `None` when `sift`
+    /// has no doubled octave.
     sift_large: Option<Sift>,
     filter: ParticleFilter,
     size: (u32, u32),
@@ -290,6 +292,30 @@ fn search_region(e: &Ellipse, w: u32, h: u32) -> BoxRect {
     BoxRect::new(x0, y0, (x1 - x0).max(0.0), (y1 - y0).max(0.0))
 }
 
+/// SIFT with `sift` within `region` of `gray`. A window whose scale space would pass
+/// [`crate::features::SiftParams::max_scale_space_bytes`] (a large target in a large frame) is
+/// searched with `plain`, the same without the doubled first octave, and when even that would
+/// pass, the frame goes without features: colour, contour and template weigh it, as they do a
+/// frame without texture, and the track goes on.
+fn detect_within_budget(
+    sift: &Sift,
+    plain: Option<&Sift>,
+    gray: &GrayF32,
+    region: BoxRect,
+) -> Result<crate::features::Features, crate::features::FeatureError> {
+    use crate::features::{FeatureError, Features};
+    match sift.detect(gray, Some(region)) {
+        Err(FeatureError::TooLarge {
+            upsampled: true, ..
+        }) if plain.is_some() => match plain.map(|p| p.detect(gray, Some(region))) {
+            Some(Err(FeatureError::TooLarge { .. })) | None => Ok(Features::default()),
+            Some(r) => r,
+        },
+        Err(FeatureError::TooLarge { .. }) => Ok(Features::default()),
+        r => r,
+    }
+}
+
 /// [`TrackError::EmptyFrame`] for a frame to start on without pixels.
 fn not_empty(width: u32, height: u32) -> crate::Result<()> {
     if width == 0 || height == 0 {
@@ -341,7 +367,7 @@ impl Tracker {
         engine.check_capacity(cfg.filter.particles, w, h, &cfg.likelihood)?;
         let likelihood = cfg.likelihood;
         let sift = Sift::new(cfg.sift.clone());
-        let sift_large = (cfg.sift.upsample && cfg.sift_upsample_below.is_some()).then(|| {
+        let sift_large = cfg.sift.upsample.then(|| {
             Sift::new(crate::features::SiftParams {
                 upsample: false,
                 ..cfg.sift.clone()
@@ -483,9 +509,7 @@ impl Tracker {
         self.terms.clear();
         self.totals.clear();
         let region = search_region(&init.ellipse, w, h);
-        self.prev_features = self
-            .sift_for(&init.ellipse)
-            .detect(&self.prev_gray, Some(region))?;
+        self.prev_features = self.detect_features(&init.ellipse, &self.prev_gray, region)?;
         // The object model's reference outline: the start's ellipse unrolled, since the model
         // is turned by the pose (roll included) on top of it.
         self.reference = Ellipse {
@@ -612,9 +636,9 @@ impl Tracker {
         // not depend on each other: on two cores they run side by side.
         let region = search_region(&prev_ellipse, w, h);
         let abm = self.cfg.abm.scaled_to(&prev_ellipse);
-        let sift = self.sift_for(&prev_ellipse);
+        let (sift, plain) = (self.sift_for(&prev_ellipse), self.sift_large.as_ref());
         let (features, abm_result) = rayon::join(
-            || sift.detect(&gray, Some(region)),
+            || detect_within_budget(sift, plain, &gray, region),
             || block_match(&self.prev_gray, &gray, &prev_ellipse, &abm),
         );
         let features = features?;
@@ -918,6 +942,17 @@ impl Tracker {
 
     /// The SIFT detector for a target the size of `e`: without the doubled first octave from
     /// [`TrackerConfig::sift_upsample_below`] on.
+    /// SIFT around a target `e` within `region` of `gray`, within the scale-space budget
+    /// ([`detect_within_budget`]).
+    fn detect_features(
+        &self,
+        e: &Ellipse,
+        gray: &GrayF32,
+        region: BoxRect,
+    ) -> Result<crate::features::Features, crate::features::FeatureError> {
+        detect_within_budget(self.sift_for(e), self.sift_large.as_ref(), gray, region)
+    }
+
     fn sift_for(&self, e: &Ellipse) -> &Sift {
         match (&self.sift_large, self.cfg.sift_upsample_below) {
             (Some(large), Some(min)) if 2.0 * (e.a * e.b).sqrt() >= min => large,
@@ -1455,8 +1490,57 @@ mod tests {
         ] {
             let want = cfg.sift.upsample;
             let (t, _, _) = nod_tracker(cfg);
-            assert!(t.sift_large.is_none());
+            assert_eq!(t.sift_large.is_some(), want, "kept for windows over budget");
             assert_eq!(t.sift_for(&wide).params().upsample, want);
+        }
+    }
+
+    #[test]
+    fn sift_over_its_budget_degrades_instead_of_failing() {
+        use crate::features::SiftParams;
+        let (first, e) = nod_first();
+        let gray = GrayF32::from_rgb(&first);
+        let (w, h) = first.dimensions();
+        let region = search_region(&e, w, h);
+        let with = |upsample: bool, budget: u64| {
+            Sift::new(SiftParams {
+                upsample,
+                max_scale_space_bytes: budget,
+                ..SiftParams::default()
+            })
+        };
+        let plain = with(false, u64::MAX).detect(&gray, Some(region)).unwrap();
+        assert!(!plain.is_empty());
+        // The doubled window's budget passed, the plain one's not: SIFT without the doubling.
+        let window = with(false, 0)
+            .params()
+            .scale_space_bytes(w as usize, h as usize);
+        let (up, down) = (with(true, window), with(false, window));
+        let got = detect_within_budget(&up, Some(&down), &gray, region).unwrap();
+        assert_eq!(got, plain);
+        // Both passed, or no plain twin: no features, and no error.
+        let (up, down) = (with(true, 1000), with(false, 1000));
+        assert!(
+            detect_within_budget(&up, Some(&down), &gray, region)
+                .unwrap()
+                .is_empty()
+        );
+        assert!(
+            detect_within_budget(&up, None, &gray, region)
+                .unwrap()
+                .is_empty()
+        );
+        // A tracker whose SIFT budget no window meets tracks on colour, contour and template.
+        let mut cfg = TrackerConfig::default();
+        cfg.sift.max_scale_space_bytes = 1000;
+        let (mut t, _, _) = nod_tracker(cfg);
+        let r = crate::synth::Renderer::new(&crate::synth::SynthConfig::new(
+            crate::synth::Scenario::Nod,
+        ))
+        .unwrap();
+        for k in 1..4 {
+            let est = t.step(&r.render(k).0).unwrap();
+            assert!(!est.lost, "frame {k}");
         }
     }
 
@@ -1533,8 +1617,13 @@ mod tests {
 
     #[test]
     fn search_region_is_clipped() {
+        // The bounding box with a margin of half the longer semi-axis plus 8 px (13 px here),
+        // cut to the frame at the top left, at the bottom right, and not at all inside.
         let r = search_region(&Ellipse::new(5.0, 5.0, 10.0, 10.0), 100, 80);
-        assert_eq!((r.x, r.y), (0.0, 0.0));
-        assert!(r.w <= 100.0 && r.h <= 80.0);
+        assert_eq!(r, BoxRect::new(0.0, 0.0, 28.0, 28.0));
+        let r = search_region(&Ellipse::new(95.0, 75.0, 10.0, 10.0), 100, 80);
+        assert_eq!(r, BoxRect::new(72.0, 52.0, 28.0, 28.0));
+        let r = search_region(&Ellipse::new(50.0, 40.0, 10.0, 5.0), 100, 80);
+        assert_eq!(r, BoxRect::new(27.0, 22.0, 46.0, 36.0));
     }
 }

@@ -344,7 +344,7 @@ impl Tracker {
         // by both templates (above).
         let e = found.to_state().ellipse(self.theta0);
         let region = search_region(&e, w, h);
-        let features = self.sift_for(&e).detect(gray, Some(region))?;
+        let features = self.detect_features(&e, gray, region)?;
         let camera = self.camera();
         let ctx = FitContext {
             // Any pose, with no prior: the candidate's rotation is unknown.

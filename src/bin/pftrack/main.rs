@@ -265,6 +265,7 @@ fn in_cli_terms(msg: &str) -> String {
     msg.replace("Backend::Cpu", "`--backend cpu`")
         .replace("Backend::Gpu", "`--backend gpu`")
         .replace(" (SiftParams::max_scale_space_bytes)", "")
+        .replace("(SourceOptions::resize)", "(--resize)")
 }
 
 /// The message with every number written in more than 24 characters put in exponent form:
