@@ -591,22 +591,28 @@ fn cli_a_failed_track_leaves_no_render() {
     std::fs::create_dir(&render).unwrap();
     // Frames of the user's own: refused before anything is tracked or drawn.
     std::fs::write(render.join("00000.png"), b"the user's").unwrap();
-    assert_one_line_error(
-        &args,
-        "holds 00000.png, a frame pftrack did not render there (no .pftrack-render)",
-        &csv,
-    );
+    assert_one_line_error(&args, "holds 00000.png but no .pftrack-render", &csv);
     assert_eq!(names(&render), ["00000.png"]);
-    std::fs::rename(render.join("00000.png"), render.join("notes.txt")).unwrap();
+    // A failed run changes nothing: neither an earlier render's folder (its frame 0 edited
+    // since) nor names a render cannot reach (a date is no frame number of five digits).
+    std::fs::write(render.join(".pftrack-render"), b"").unwrap();
+    std::fs::write(render.join("20240101.png"), b"the user's").unwrap();
     image::RgbImage::new(32, 24)
         .save(dir.join("frames/00003.png"))
         .unwrap();
     assert_one_line_error(&args, "frame 3", &csv);
-    assert_eq!(names(&render), ["notes.txt"]);
     assert_eq!(
-        std::fs::read(render.join("notes.txt")).unwrap(),
+        names(&render),
+        [".pftrack-render", "00000.png", "20240101.png"]
+    );
+    assert_eq!(
+        std::fs::read(render.join("00000.png")).unwrap(),
         b"the user's"
     );
+    std::fs::remove_file(render.join(".pftrack-render")).unwrap();
+    std::fs::remove_file(render.join("00000.png")).unwrap();
+    assert_one_line_error(&args, "frame 3", &csv);
+    assert_eq!(names(&render), ["20240101.png"]);
     std::fs::remove_dir_all(&dir).unwrap();
 }
 

@@ -630,7 +630,7 @@ fn assert_agreement(what: &str, a: &Agreement) {
 /// `(frame path, OTB box)` pairs of a sequence, every `step`-th frame.
 fn sequence(name: &str, step: usize, count: usize) -> Option<Vec<(std::path::PathBuf, Particle)>> {
     let dir = shared_data::path(name)?;
-    let boxes = std::fs::read_to_string(dir.join("groundtruth_rect.txt")).ok()?;
+    let boxes = std::fs::read_to_string(dir.join("groundtruth_rect.txt")).unwrap();
     let rows: Vec<Vec<f32>> = boxes
         .lines()
         .map(|l| {

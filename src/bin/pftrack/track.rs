@@ -966,14 +966,15 @@ impl RenderStaging {
         if dir.exists() && !dir.is_dir() {
             bail!("--render {}: not a folder", dir.display());
         }
-        if dir.is_dir() && !dir.join(RENDER_MARK).exists() {
+        if dir.is_dir() && !dir.join(RENDER_MARK).is_file() {
             let listing = || format!("--render {}", dir.display());
             for entry in std::fs::read_dir(dir).with_context(listing)? {
                 let name = entry.with_context(listing)?.file_name();
                 if name.to_str().is_some_and(is_frame_name) {
                     bail!(
-                        "--render {}: holds {}, a frame pftrack did not render there (no {}): \
-                         give an empty or a new folder",
+                        "--render {}: holds {} but no {}, which a render by pftrack leaves \
+                         (those before 2026-12-06 did not): remove its frames, or give an \
+                         empty or a new folder",
                         dir.display(),
                         name.to_string_lossy(),
                         RENDER_MARK
@@ -994,6 +995,10 @@ impl RenderStaging {
         // What it makes is registered: an interrupt never removes a folder the user made,
         // empty or not.
         let stage = StagingDir::create(dir, "pftrack-render")
+            .with_context(|| format!("cannot write rendered frames into {}", dir.display()))?;
+        // The mark moves in with the frames, all of them or none.
+        let mark = stage.path().join(RENDER_MARK);
+        std::fs::write(&mark, RENDER_MARK_TEXT)
             .with_context(|| format!("cannot write rendered frames into {}", dir.display()))?;
         Ok(Self {
             dir: dir.to_path_buf(),
@@ -1051,9 +1056,6 @@ impl RenderStaging {
             })?;
             removed += 1;
         }
-        let mark = self.dir.join(RENDER_MARK);
-        std::fs::write(&mark, RENDER_MARK_TEXT)
-            .with_context(|| format!("writing {}", mark.display()))?;
         Ok(removed)
     }
 }
@@ -1070,12 +1072,16 @@ const RENDER_MARK: &str = ".pftrack-render";
 const RENDER_MARK_TEXT: &str = "The frames here were rendered by `pftrack track --render`; a \
                                 later render into this folder replaces them.\n";
 
-/// Whether `name` is a rendered frame's name, `frame_name(n)` for some `n`.
+/// Whether `name` is a rendered frame's name, `frame_name(n)` for an `n` of five digits: a
+/// render replaces and trims frames counting from 0, so a longer name (`20240101.png`, a
+/// date) is out of its reach.
 fn is_frame_name(name: &str) -> bool {
-    name.strip_suffix(".png")
-        .filter(|d| d.bytes().all(|b| b.is_ascii_digit()))
-        .and_then(|d| d.parse::<usize>().ok())
-        .is_some_and(|n| frame_name(n) == name)
+    name.len() == "00000.png".len()
+        && name
+            .strip_suffix(".png")
+            .filter(|d| d.bytes().all(|b| b.is_ascii_digit()))
+            .and_then(|d| d.parse::<usize>().ok())
+            .is_some_and(|n| frame_name(n) == name)
 }
 
 fn run_loop(
