@@ -7,6 +7,7 @@ use std::process::Command;
 
 use pftrack::eval::{Report, Truth, evaluate, load_truth};
 use pftrack::geometry::{BoxRect, Ellipse, Euler, PoseState, rad};
+use pftrack::io::boxes::parse_otb_boxes;
 use pftrack::io::pose_csv::write_pose_csv;
 use pftrack::io::{PoseRecord, read_pose_csv};
 
@@ -152,6 +153,53 @@ fn centre_error_takes_both_axes_and_precision_counts_20_px() {
         "centre error",
     );
     close(r.precision_20px, 0.9, "precision");
+}
+
+#[test]
+fn frames_without_the_target_are_not_scored() {
+    // An OTB box of no size marks a frame without the target: the report of a truth with one
+    // is that of the truth without it, but for the count of such frames.
+    let boxes = "10,10,20,30\n12,10,20,30\n0,0,0,0\n14,10,20,30\n";
+    let truth = Truth::Boxes(parse_otb_boxes(boxes, Path::new("t.txt")).unwrap());
+    let est: Vec<PoseRecord> = (0..4)
+        .map(|k| {
+            let mut r = truth_records()[0].clone();
+            r.frame = k;
+            (r.state.cx, r.state.cy, r.state.a, r.state.b) = (20.0 + k as f64, 23.5, 10.0, 15.0);
+            r
+        })
+        .collect();
+    let r = evaluate(&truth, &est).unwrap();
+    assert_eq!(
+        (r.truth_frames, r.absent, r.evaluated, r.missing),
+        (4, 1, 3, 0)
+    );
+    let present = Truth::Boxes(
+        parse_otb_boxes(
+            "10,10,20,30\n12,10,20,30\n14,10,20,30\n",
+            Path::new("p.txt"),
+        )
+        .unwrap(),
+    );
+    let kept: Vec<PoseRecord> = [0, 1, 3]
+        .iter()
+        .enumerate()
+        .map(|(i, &k)| {
+            let mut e = est[k].clone();
+            e.frame = i;
+            e
+        })
+        .collect();
+    let p = evaluate(&present, &kept).unwrap();
+    close(
+        r.mean_centre_error_px,
+        p.mean_centre_error_px,
+        "centre error",
+    );
+    close(r.success_auc, p.success_auc, "auc");
+    close(r.precision_20px, p.precision_20px, "precision");
+    close(r.mean_iou, p.mean_iou, "mean iou");
+    assert!(r.to_table().contains("absent"), "{}", r.to_table());
 }
 
 #[test]
