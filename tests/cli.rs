@@ -1250,6 +1250,18 @@ fn cli_demo_checks_before_rendering() {
         a.extend(bad);
         assert_one_line_error(&a, needle, &out);
     }
+    // A file given as the output folder is refused by name, and left as it was.
+    std::fs::create_dir_all(&dir).unwrap();
+    let file = dir.join("file");
+    std::fs::write(&file, b"the user's").unwrap();
+    let f = file.to_str().unwrap();
+    assert_one_line_error(
+        &["demo", "--out", f],
+        &format!("--out {f}: not a folder"),
+        &out,
+    );
+    assert_eq!(std::fs::read(&file).unwrap(), b"the user's");
+    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 /// `--init-truth` on a pose CSV starts from its frame 0 row's pose as well as its ellipse,

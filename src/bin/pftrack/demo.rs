@@ -56,6 +56,9 @@ pub fn run(a: DemoArgs) -> anyhow::Result<()> {
     }
     // Every argument checked before anything is rendered or written.
     cfg.validate()?;
+    if a.out.exists() && !a.out.is_dir() {
+        anyhow::bail!("--out {}: not a folder", a.out.display());
+    }
     let backend = a.backend;
     let mut tcfg = config(Mode::Sea, a.particles, a.seed)?;
     // The engine too: one that cannot open fails the demo before anything is written.
