@@ -128,7 +128,7 @@ pub fn decode_rgb(p: &Path) -> Result<Frame, FrameError> {
         // The JPEG decoder fills a cut-off scan with grey and reports success.
         Some(image::ImageFormat::Jpeg) if !jpeg_scan_ends(&bytes) => {
             return Err(bad(
-                "a truncated JPEG: its last scan has no end-of-image marker",
+                "a truncated or damaged JPEG: walking its markers never reaches the end of its image",
             ));
         }
         Some(_) => {}
