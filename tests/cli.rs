@@ -1438,6 +1438,13 @@ fn cli_a_render_that_cannot_be_moved_in_changes_nothing() {
         std::fs::read(render.join("00000.png")).unwrap(),
         b"the user's"
     );
+    // A folder where the mark would go is refused before tracking.
+    let marked = dir.join("marked");
+    std::fs::create_dir_all(marked.join(".pftrack-render")).unwrap();
+    let m = marked.to_str().unwrap();
+    let args_m = ["track", d, "--backend", "cpu", "--render", m];
+    assert_one_line_error(&args_m, ".pftrack-render is not a file", &csv);
+    assert_eq!(names(&marked), [".pftrack-render"]);
     // A render folder made by a run that fails is gone with it.
     let fresh = dir.join("fresh/render");
     std::fs::write(dir.join("frames/00002.png"), b"not a png").unwrap();

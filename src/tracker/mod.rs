@@ -214,6 +214,8 @@ pub struct Tracker {
     spin: Vector3<f64>,
     low_count: usize,
     lost: bool,
+    /// Frames stepped without SIFT, its scale space over budget ([`detect_within_budget`]).
+    frames_without_sift: usize,
     /// The semi-axes of the last trusted estimate (confidence at least
     /// [`TrackerConfig::found_above`]), which the filter's proposals are held near while the
     /// tracker is unsure ([`TrackerConfig::size_hold`]).
@@ -295,24 +297,24 @@ fn search_region(e: &Ellipse, w: u32, h: u32) -> BoxRect {
 /// SIFT with `sift` within `region` of `gray`. A window whose scale space would pass
 /// [`crate::features::SiftParams::max_scale_space_bytes`] (a large target in a large frame) is
 /// searched with `plain`, the same without the doubled first octave, and when even that would
-/// pass, the frame goes without features: colour, contour and template weigh it, as they do a
-/// frame without texture, and the track goes on.
+/// pass, the frame goes without features (`None`): colour, contour and template weigh it, as
+/// they do a frame without texture, and the track goes on.
 fn detect_within_budget(
     sift: &Sift,
     plain: Option<&Sift>,
     gray: &GrayF32,
     region: BoxRect,
-) -> Result<crate::features::Features, crate::features::FeatureError> {
-    use crate::features::{FeatureError, Features};
+) -> Result<Option<crate::features::Features>, crate::features::FeatureError> {
+    use crate::features::FeatureError;
     match sift.detect(gray, Some(region)) {
         Err(FeatureError::TooLarge {
             upsampled: true, ..
         }) if plain.is_some() => match plain.map(|p| p.detect(gray, Some(region))) {
-            Some(Err(FeatureError::TooLarge { .. })) | None => Ok(Features::default()),
-            Some(r) => r,
+            Some(Err(FeatureError::TooLarge { .. })) | None => Ok(None),
+            Some(r) => r.map(Some),
         },
-        Err(FeatureError::TooLarge { .. }) => Ok(Features::default()),
-        r => r,
+        Err(FeatureError::TooLarge { .. }) => Ok(None),
+        r => r.map(Some),
     }
 }
 
@@ -398,6 +400,7 @@ impl Tracker {
             spin: Vector3::zeros(),
             low_count: 0,
             lost: false,
+            frames_without_sift: 0,
             held_axes: (1.0, 1.0),
             prev_confidence: 1.0,
             particles: Vec::new(),
@@ -542,6 +545,15 @@ impl Tracker {
         self.first
     }
 
+    /// How many frames [`Tracker::step`] has tracked without SIFT because the scale space
+    /// around the target would have passed [`crate::features::SiftParams::max_scale_space_bytes`]
+    /// even without the doubled first octave: those frames were weighed by colour, contour and
+    /// template alone. With the default budget no frame a source delivers (2^25 pixels at most)
+    /// comes to this; a lower budget can.
+    pub fn frames_without_sift(&self) -> usize {
+        self.frames_without_sift
+    }
+
     /// The configuration as it was given: a tracker built from a clone of it tracks as this
     /// one would. What a start changed for its own frames is in [`Tracker::likelihood`].
     pub fn config(&self) -> &TrackerConfig {
@@ -641,7 +653,10 @@ impl Tracker {
             || detect_within_budget(sift, plain, &gray, region),
             || block_match(&self.prev_gray, &gray, &prev_ellipse, &abm),
         );
-        let features = features?;
+        let features = features?.unwrap_or_else(|| {
+            self.frames_without_sift += 1;
+            crate::features::Features::default()
+        });
 
         // Rotation candidates from Sylvester's equation: against the keyframe when it still
         // matches (both members of the Necker pair, and "no change"), else between successive
@@ -951,6 +966,7 @@ impl Tracker {
         region: BoxRect,
     ) -> Result<crate::features::Features, crate::features::FeatureError> {
         detect_within_budget(self.sift_for(e), self.sift_large.as_ref(), gray, region)
+            .map(Option::unwrap_or_default)
     }
 
     fn sift_for(&self, e: &Ellipse) -> &Sift {
@@ -1517,18 +1533,16 @@ mod tests {
             .scale_space_bytes(w as usize, h as usize);
         let (up, down) = (with(true, window), with(false, window));
         let got = detect_within_budget(&up, Some(&down), &gray, region).unwrap();
-        assert_eq!(got, plain);
+        assert_eq!(got, Some(plain));
         // Both passed, or no plain twin: no features, and no error.
         let (up, down) = (with(true, 1000), with(false, 1000));
-        assert!(
-            detect_within_budget(&up, Some(&down), &gray, region)
-                .unwrap()
-                .is_empty()
+        assert_eq!(
+            detect_within_budget(&up, Some(&down), &gray, region).unwrap(),
+            None
         );
-        assert!(
-            detect_within_budget(&up, None, &gray, region)
-                .unwrap()
-                .is_empty()
+        assert_eq!(
+            detect_within_budget(&up, None, &gray, region).unwrap(),
+            None
         );
         // A tracker whose SIFT budget no window meets tracks on colour, contour and template.
         let mut cfg = TrackerConfig::default();
@@ -1542,6 +1556,7 @@ mod tests {
             let est = t.step(&r.render(k).0).unwrap();
             assert!(!est.lost, "frame {k}");
         }
+        assert_eq!(t.frames_without_sift(), 3);
     }
 
     /// The first frame of the synthetic `nod` and its true ellipse.

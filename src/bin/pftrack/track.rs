@@ -944,6 +944,16 @@ pub fn run(mut a: TrackArgs) -> anyhow::Result<()> {
     if let Some(short) = source.shortfall() {
         errln!("pftrack: warning: {short}");
     }
+    let unseen = tracker.frames_without_sift();
+    if unseen > 0 {
+        errln!(
+            "pftrack: warning: {unseen} frame{} tracked without SIFT: its scale space around \
+             the target would pass sift.max_scale_space_bytes ({}), so colour, contour and \
+             template alone weighed them",
+            if unseen == 1 { " was" } else { "s were" },
+            tracker.config().sift.max_scale_space_bytes
+        );
+    }
     Ok(())
 }
 
@@ -966,7 +976,15 @@ impl RenderStaging {
         if dir.exists() && !dir.is_dir() {
             bail!("--render {}: not a folder", dir.display());
         }
-        if dir.is_dir() && !dir.join(RENDER_MARK).is_file() {
+        let mark = dir.join(RENDER_MARK);
+        if std::fs::symlink_metadata(&mark).is_ok_and(|m| !m.is_file()) {
+            bail!(
+                "--render {}: {} is not a file (a render leaves a file of that name there)",
+                dir.display(),
+                mark.display()
+            );
+        }
+        if dir.is_dir() && !mark.is_file() {
             let listing = || format!("--render {}", dir.display());
             for entry in std::fs::read_dir(dir).with_context(listing)? {
                 let name = entry.with_context(listing)?.file_name();
@@ -1027,6 +1045,8 @@ impl RenderStaging {
             }
             moves.push((entry.path(), to));
         }
+        // The mark first: a move that fails part-way leaves it with the frames moved.
+        moves.sort_by_key(|(from, _)| from.file_name() != Some(std::ffi::OsStr::new(RENDER_MARK)));
         Ok(moves)
     }
 
