@@ -200,6 +200,18 @@ fn frames_without_the_target_are_not_scored() {
     close(r.precision_20px, p.precision_20px, "precision");
     close(r.mean_iou, p.mean_iou, "mean iou");
     assert!(r.to_table().contains("absent"), "{}", r.to_table());
+    // Only absent frames in common, or none present at all: said as such.
+    let e = evaluate(&truth, &est[2..3]).unwrap_err().to_string();
+    assert_eq!(
+        e,
+        "no frames in common: the truth has the target in frames 0..=3, the estimate frames 2..=2"
+    );
+    let none = Truth::Boxes(parse_otb_boxes("0,0,0,0\n0,0,0,0\n", Path::new("z.txt")).unwrap());
+    let e = evaluate(&none, &est).unwrap_err().to_string();
+    assert!(
+        e.contains("every truth frame marks the target absent"),
+        "{e}"
+    );
 }
 
 #[test]

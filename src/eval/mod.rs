@@ -26,8 +26,9 @@
 //!
 //! A box of no size in an OTB file (`0,0,0,0`) is how OTB marks a frame without the target:
 //! such a frame is not scored at all, neither in the averages nor in the shares, and
-//! [`Report::absent`] counts them. (Scored as a box at the origin, one such row among girl's
-//! first 15 boxes moved a track's mean centre error from 1.73 to 7.64 px.)
+//! [`Report::absent`] counts them. (Scored as a box at the origin, one such row written into a
+//! copy of girl's first 15 boxes moved a track's mean centre error from 1.73 to 7.64 px;
+//! girl's and car4's own files have none.)
 //!
 //! The averages (RMSE, MAE, mean centre error, mean IoU over evaluated frames) cover the frames
 //! present; [`Report::missing`] says how many truth frames had no estimate. Estimate frames
@@ -83,9 +84,13 @@ pub enum EvalError {
         /// The frame.
         frame: usize,
     },
+    /// Every frame of the truth marks the target absent (OTB boxes of no size): nothing to
+    /// score.
+    #[error("every truth frame marks the target absent (a box of no size): nothing to score")]
+    AllAbsent,
     /// Truth and estimate share no frame.
     #[error(
-        "no frames in common: the truth has frames {}, the estimate {}",
+        "no frames in common: the truth has the target in frames {}, the estimate frames {}",
         span(*truth), span(*estimate)
     )]
     NoCommonFrames {
@@ -264,7 +269,9 @@ pub fn gain(pairs: &[(f64, f64)]) -> Option<f64> {
 pub struct Report {
     /// What the truth holds (`poses` or `boxes`).
     pub truth_kind: TruthKind,
-    /// Frames in the truth.
+    /// Frames in the truth, those marking the target [`Report::absent`] included (before
+    /// 2026-12-06 no frame was absent: this was the number scored). The shares (precision,
+    /// success) are over `truth_frames − absent`.
     pub truth_frames: usize,
     /// Truth frames with an estimate.
     pub evaluated: usize,
@@ -388,9 +395,13 @@ pub fn evaluate(truth: &Truth, est: &[PoseRecord]) -> Result<Report, EvalError> 
         }
     }
     let evaluated = centre_errs.len();
+    if n == 0 {
+        return Err(EvalError::AllAbsent);
+    }
     if evaluated == 0 {
+        // The truth's frames with the target present, which are the ones scored.
         return Err(EvalError::NoCommonFrames {
-            truth: first_last(seen.iter().copied()),
+            truth: first_last(tf.iter().filter(|t| !t.absent).map(|t| t.frame)),
             estimate: first_last(by_frame.keys().copied()),
         });
     }
@@ -637,7 +648,7 @@ mod tests {
         assert!(matches!(e, EvalError::NoCommonFrames { .. }));
         assert_eq!(
             e.to_string(),
-            "no frames in common: the truth has frames 0..=1, the estimate 5..=9"
+            "no frames in common: the truth has the target in frames 0..=1, the estimate frames 5..=9"
         );
         let e = evaluate(&truth, &[]).unwrap_err();
         assert!(e.to_string().contains("(none)"), "{e}");

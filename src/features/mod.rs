@@ -105,14 +105,32 @@ pub enum FeatureError {
 
 /// A size in bytes for people: `5.6 GB`, `176 MB`, `12 kB` or `1000 bytes`.
 pub(crate) fn size_text(bytes: u64) -> String {
+    // Each unit from where the one below would round to 1000.
     let b = bytes as f64;
-    if b >= 1e9 {
+    if b >= 999.5e6 {
         format!("{:.1} GB", b / 1e9)
-    } else if b >= 1e6 {
+    } else if b >= 999.5e3 {
         format!("{:.0} MB", b / 1e6)
-    } else if b >= 1e3 {
+    } else if b >= 999.5 {
         format!("{:.0} kB", b / 1e3)
     } else {
         format!("{bytes} bytes")
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn sizes_are_written_in_the_unit_they_round_to() {
+        for (bytes, text) in [
+            (999, "999 bytes"),
+            (999_499, "999 kB"),
+            (999_500, "1 MB"),
+            (176_000_000, "176 MB"),
+            (999_999_999, "1.0 GB"),
+            (5_632_000_000, "5.6 GB"),
+        ] {
+            assert_eq!(super::size_text(bytes), text);
+        }
     }
 }

@@ -146,6 +146,10 @@ pub fn decode_rgb(p: &Path) -> Result<Frame, FrameError> {
             )));
         }
     }
+    // Within the size checked above, the decoder's own default cap (512 MiB) is lifted: a
+    // 16-bit RGB image of 10000x9000 needs 540 MB and was refused as "Memory limit exceeded".
+    let mut reader = reader;
+    reader.no_limits();
     let img = reader.decode().map_err(dec)?.into_rgb8();
     if img.width() == 0 || img.height() == 0 {
         return Err(FrameError::Decode {
