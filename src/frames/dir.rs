@@ -115,14 +115,14 @@ pub fn decode_rgb(p: &Path) -> Result<Frame, FrameError> {
     if let Ok(f) = image::ImageFormat::from_path(p) {
         reader.set_format(f);
     }
-    let reader = reader
+    let mut reader = reader
         .with_guessed_format()
         .map_err(|e| FrameError::io(p, e))?;
     let bad = |msg: &str| FrameError::Decode {
         path: p.display().to_string(),
         msg: msg.into(),
     };
-    match reader.format() {
+    let format = match reader.format() {
         // Neither the content nor the extension names a format.
         None => return Err(bad("not an image (png, jpg, jpeg, bmp, pgm, ppm)")),
         // The JPEG decoder fills a cut-off scan with grey and reports success.
@@ -131,24 +131,21 @@ pub fn decode_rgb(p: &Path) -> Result<Frame, FrameError> {
                 "a truncated or damaged JPEG: walking its markers never reaches the end of its image",
             ));
         }
-        Some(_) => {}
-    }
+        Some(f) => f,
+    };
     // The size from the header first: a few bytes can claim a size whose pixels would not
     // fit in memory.
-    if let Some(format) = reader.format() {
-        let (w, h) = image::ImageReader::with_format(std::io::Cursor::new(&bytes), format)
-            .into_dimensions()
-            .map_err(dec)?;
-        if u64::from(w) * u64::from(h) > super::y4m::MAX_DECODE_PIXELS {
-            return Err(bad(&format!(
-                "{w}x{h} is more than the {} pixels an image may have",
-                super::y4m::MAX_DECODE_PIXELS
-            )));
-        }
+    let (w, h) = image::ImageReader::with_format(std::io::Cursor::new(&bytes), format)
+        .into_dimensions()
+        .map_err(dec)?;
+    if u64::from(w) * u64::from(h) > super::y4m::MAX_DECODE_PIXELS {
+        return Err(bad(&format!(
+            "{w}x{h} is more than the {} pixels an image may have",
+            super::y4m::MAX_DECODE_PIXELS
+        )));
     }
     // Within the size checked above, the decoder's own default cap (512 MiB) is lifted: a
     // 16-bit RGB image of 10000x9000 needs 540 MB and was refused as "Memory limit exceeded".
-    let mut reader = reader;
     reader.no_limits();
     let img = reader.decode().map_err(dec)?.into_rgb8();
     if img.width() == 0 || img.height() == 0 {
