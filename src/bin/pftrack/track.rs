@@ -1096,10 +1096,10 @@ const RENDER_MARK_TEXT: &str = "The frames here were rendered by `pftrack track 
 /// render replaces and trims frames counting from 0, so a longer name (`20240101.png`, a
 /// date) is out of its reach.
 fn is_frame_name(name: &str) -> bool {
+    // `frame_name(n) == name` already refuses a sign or a number written otherwise.
     name.len() == "00000.png".len()
         && name
             .strip_suffix(".png")
-            .filter(|d| d.bytes().all(|b| b.is_ascii_digit()))
             .and_then(|d| d.parse::<usize>().ok())
             .is_some_and(|n| frame_name(n) == name)
 }
