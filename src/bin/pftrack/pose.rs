@@ -6,7 +6,9 @@ use std::path::PathBuf;
 use anyhow::bail;
 use clap::Args;
 use image::{Rgb, RgbImage};
-use pftrack::features::{MatchParams, Sift, SiftParams, keep_slope_length, match_features};
+use pftrack::features::{
+    FeatureError, MatchParams, Sift, SiftParams, keep_slope_length, match_features,
+};
 use pftrack::frames::GrayF32;
 use pftrack::frames::dir::decode_rgb;
 use pftrack::geometry::{Ellipse, Euler};
@@ -118,22 +120,22 @@ pub fn run(a: PoseArgs) -> anyhow::Result<()> {
     let (ga, gb) = (GrayF32::from_rgb(&ia), GrayF32::from_rgb(&ib));
     let (w, h) = (ga.width as usize, ga.height as usize);
     let mut params = SiftParams::default();
-    if params.check_window(w, h).is_err() {
-        let with = params.scale_space_bytes(w, h);
+    if let Err(FeatureError::TooLarge { bytes: with, .. }) = params.check_window(w, h) {
         params.upsample = false;
-        if params.check_window(w, h).is_err() {
+        let without = params.scale_space_bytes(w, h);
+        if let Err(FeatureError::TooLarge { limit, .. }) = params.check_window(w, h) {
             bail!(
                 "SIFT on {w}x{h} images needs about {:.1} GB for its scale space even without \
                  the upsampled first octave, more than the {:.1} GB allowed: scale them down",
-                params.scale_space_bytes(w, h) as f64 / 1e9,
-                params.max_scale_space_bytes as f64 / 1e9
+                without as f64 / 1e9,
+                limit as f64 / 1e9
             );
         }
         errln!(
             "pftrack: note: SIFT's upsampled first octave on {w}x{h} images would need about \
              {:.1} GB; detecting without it (about {:.1} GB)",
             with as f64 / 1e9,
-            params.scale_space_bytes(w, h) as f64 / 1e9
+            without as f64 / 1e9
         );
     }
     let sift = Sift::new(params);
