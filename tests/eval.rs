@@ -314,11 +314,15 @@ fn real_girl_truth_against_itself() {
     let Some(p) = shared_data::path("girl/groundtruth_rect.txt") else {
         return;
     };
+    // Read as `io::read_otb_boxes` reads it (CRLF, tabs): 500 boxes, each with a size.
+    let read = pftrack::io::read_otb_boxes(&p).unwrap();
+    assert_eq!(read.len(), 500);
+    assert!(read.iter().all(|r| r.w > 0.0 && r.h > 0.0));
     let truth = load_truth(&p).unwrap();
     let Truth::Boxes(boxes) = &truth else {
         panic!("girl truth read as poses")
     };
-    assert_eq!(boxes.len(), 500);
+    assert_eq!(boxes, &read);
     let r = evaluate(&truth, &from_boxes(boxes)).unwrap();
     assert_eq!(r.evaluated, 500);
     assert!(r.mean_centre_error_px < 1e-12);

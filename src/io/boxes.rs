@@ -116,36 +116,4 @@ mod tests {
         assert_eq!(e.to_string(), "n:2: w -40 is negative");
         assert!(parse_otb_boxes("0,0,0,0\n", Path::new("z")).is_ok());
     }
-
-    #[test]
-    fn reads_the_real_girl_truth() {
-        // Beside the checkout, or two levels up from a worktree, as the integration tests'
-        // `shared_data` looks.
-        let root = env!("CARGO_MANIFEST_DIR");
-        let found = ["..", "../.."]
-            .map(|up| {
-                Path::new(root)
-                    .join(up)
-                    .join("shared/data/girl/groundtruth_rect.txt")
-            })
-            .into_iter()
-            .find(|p| p.exists());
-        let Some(p) = found.as_deref() else {
-            let p = Path::new(root).join("../shared/data/girl/groundtruth_rect.txt");
-            // As the integration tests' `shared_data`: CI, which has the folder, requires it.
-            assert!(
-                std::env::var("PFTRACK_REQUIRE_DATA").as_deref() != Ok("1"),
-                "PFTRACK_REQUIRE_DATA=1 but {} is missing",
-                p.display()
-            );
-            let _ = std::io::Write::write_all(
-                &mut std::io::stderr(),
-                b"SKIPPED: ../shared/data missing\n",
-            );
-            return;
-        };
-        let b = read_otb_boxes(p).unwrap();
-        assert_eq!(b.len(), 500);
-        assert!(b.iter().all(|r| r.w > 0.0 && r.h > 0.0));
-    }
 }
