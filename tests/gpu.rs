@@ -1196,23 +1196,9 @@ fn a_frame_beyond_the_buffer_limits_fails_evaluate_before_any_allocation() {
 /// same terms as one on a device the engine opened, on the same adapter.
 #[test]
 fn an_engine_on_the_applications_own_device_gives_the_same_terms() {
-    use pftrack::wgpu;
     let Some(mut own) = engine() else { return };
-    let mut desc = wgpu::InstanceDescriptor::new_without_display_handle();
-    desc.backends = wgpu::Backends::VULKAN;
-    let instance = wgpu::Instance::new(desc);
-    let adapters = pollster::block_on(instance.enumerate_adapters(wgpu::Backends::VULKAN));
     let name = own.name();
-    let adapter = adapters
-        .into_iter()
-        .find(|a| name.contains(&a.get_info().name))
-        .expect("the engine's adapter is listed");
-    let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
-        label: Some("the application's device"),
-        required_limits: adapter.limits(),
-        ..Default::default()
-    }))
-    .unwrap();
+    let (device, queue) = app_device(&name);
     let gpu = GpuDevice::from_wgpu(device, queue);
     assert!(name.contains(&gpu.info.name), "{name} / {:?}", gpu.info);
     let mut theirs = GpuEngine::with_device(gpu).unwrap();
@@ -1261,4 +1247,98 @@ fn an_engine_on_the_applications_own_device_gives_the_same_terms() {
     }
     assert_eq!(a.len(), ps.len());
     assert_eq!(a, b);
+}
+
+/// A device opened as an application would, on the adapter an engine named `name` runs on.
+fn app_device(name: &str) -> (pftrack::wgpu::Device, pftrack::wgpu::Queue) {
+    use pftrack::wgpu;
+    let mut desc = wgpu::InstanceDescriptor::new_without_display_handle();
+    desc.backends = wgpu::Backends::VULKAN;
+    let instance = wgpu::Instance::new(desc);
+    let adapters = pollster::block_on(instance.enumerate_adapters(wgpu::Backends::VULKAN));
+    let adapter = adapters
+        .into_iter()
+        .find(|a| name.contains(&a.get_info().name))
+        .expect("the engine's adapter is listed");
+    pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
+        label: Some("the application's device"),
+        required_limits: adapter.limits(),
+        ..Default::default()
+    }))
+    .unwrap()
+}
+
+/// On the application's own device the engine leaves the application's uncaptured-error
+/// handler and device-lost callback in place: an error of the application's work reaches its
+/// handler (not the engine's next call), and a lost device reaches both.
+#[test]
+fn the_applications_error_handlers_stay_in_place() {
+    use pftrack::wgpu;
+    use std::sync::atomic::{AtomicUsize, Ordering};
+    use std::sync::{Arc, Mutex};
+    let Some(own) = engine() else { return };
+    let (device, queue) = app_device(&own.name());
+    drop(own);
+    let errors = Arc::new(Mutex::new(Vec::<String>::new()));
+    let lost = Arc::new(AtomicUsize::new(0));
+    {
+        let errors = errors.clone();
+        device.on_uncaptured_error(Arc::new(move |e: wgpu::Error| {
+            errors.lock().unwrap().push(e.to_string());
+        }));
+        let lost = lost.clone();
+        device.set_device_lost_callback(move |_, _| {
+            lost.fetch_add(1, Ordering::SeqCst);
+        });
+    }
+    let app = device.clone();
+    let mut e = GpuEngine::with_device(GpuDevice::from_wgpu(device, queue)).unwrap();
+    let img = RgbImage::from_pixel(16, 16, Rgb([1, 2, 3]));
+    e.set_colour_model(&one_hot(bin_of(Rgb([1, 2, 3]))))
+        .unwrap();
+    let frame = FrameInput {
+        image: &img,
+        features: &[],
+        depths: None,
+        prev: particle(8.0, 8.0, 3.0, 3.0),
+        theta0: 0.0,
+    };
+    let params = LikelihoodParams {
+        terms: TERM_COLOUR,
+        ..Default::default()
+    };
+    let mut out = Vec::new();
+    e.evaluate(&frame, &params, &[frame.prev], &mut out)
+        .unwrap();
+    assert_eq!(out.len(), 1);
+    assert!(errors.lock().unwrap().is_empty(), "{:?}", errors.lock());
+
+    // The application's mistake: a buffer both mapped for reading and for writing.
+    let _bad = app.create_buffer(&wgpu::BufferDescriptor {
+        label: Some("the application's mistake"),
+        size: 16,
+        usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::MAP_WRITE,
+        mapped_at_creation: false,
+    });
+    assert_eq!(
+        errors.lock().unwrap().len(),
+        1,
+        "the application's handler saw it"
+    );
+    let again = e.evaluate(&frame, &params, &[frame.prev], &mut out);
+    assert!(again.is_ok(), "not the engine's error: {again:?}");
+
+    app.destroy();
+    let _ = app.poll(wgpu::PollType::wait_indefinitely());
+    assert_eq!(
+        lost.load(Ordering::SeqCst),
+        1,
+        "the application's callback ran"
+    );
+    for _ in 0..2 {
+        let r = e.evaluate(&frame, &params, &[frame.prev], &mut out);
+        assert!(matches!(r, Err(LikelihoodError::DeviceLost(_))), "{r:?}");
+    }
+    assert!(e.device().is_lost());
+    assert_eq!(errors.lock().unwrap().len(), 1, "{:?}", errors.lock());
 }

@@ -25,6 +25,14 @@ pub struct GpuDevice {
     lost_flag: Arc<AtomicBool>,
 }
 
+/// The error scopes of [`GpuDevice::push_scopes`]. Fields drop in declaration order, the
+/// reverse of the pushing, so an unwind that drops them unpopped keeps wgpu's order.
+pub(crate) struct Scopes {
+    internal: wgpu::ErrorScopeGuard,
+    memory: wgpu::ErrorScopeGuard,
+    validation: wgpu::ErrorScopeGuard,
+}
+
 impl std::fmt::Debug for GpuDevice {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.debug_struct("GpuDevice")
@@ -151,7 +159,7 @@ impl GpuDevice {
             trace: wgpu::Trace::Off,
         }))
         .map_err(|e| LikelihoodError::Gpu(format!("requesting a device: {e}")))?;
-        Ok(Self::wrap(device, queue, info, limits, timestamps))
+        Ok(Self::wrap(device, queue, info, limits, timestamps, true))
     }
 
     /// Wraps a device the application opened itself (with the `wgpu` this crate re-exports,
@@ -160,29 +168,33 @@ impl GpuDevice {
     /// created with (the engine needs 9 storage buffers per shader stage, and uses timestamp
     /// queries when they are on).
     ///
-    /// wgpu keeps one device-lost callback and one uncaptured-error handler per device: this
-    /// installs the engine's, which turn a lost device and validation errors into
-    /// [`LikelihoodError`]s of the engine's next call, replacing any the application had set.
-    /// Give the engine a device whose error handling it may own. Tested on Vulkan, the one
-    /// backend this crate builds wgpu with.
+    /// The application's device-lost callback and uncaptured-error handler stay as they were
+    /// (wgpu keeps one of each per device): the engine installs neither. It catches the errors
+    /// of its own work in wgpu error scopes pushed around each of its calls, on the calling
+    /// thread, and returns them as that call's [`LikelihoodError`]; it sees a lost device when
+    /// reading its results back fails, and returns [`LikelihoodError::DeviceLost`] from then on.
+    /// Tested on Vulkan, the one backend this crate builds wgpu with.
     pub fn from_wgpu(device: wgpu::Device, queue: wgpu::Queue) -> Self {
         let info = device.adapter_info();
         let limits = device.limits();
         let timestamps = device.features().contains(wgpu::Features::TIMESTAMP_QUERY);
-        Self::wrap(device, queue, info, limits, timestamps)
+        Self::wrap(device, queue, info, limits, timestamps, false)
     }
 
-    /// The device with the engine's lost-device and error handlers installed.
+    /// The device, with the engine's lost-device and error handlers installed when
+    /// `install` (a device the engine opened, whose handlers no one else sets).
     fn wrap(
         device: wgpu::Device,
         queue: wgpu::Queue,
         info: wgpu::AdapterInfo,
         limits: wgpu::Limits,
         timestamps: bool,
+        install: bool,
     ) -> Self {
         let lost = Arc::new(Mutex::new(None));
         let lost_flag = Arc::new(AtomicBool::new(false));
-        {
+        let uncaptured = Arc::new(Mutex::new(None));
+        if install {
             let lost = lost.clone();
             let flag = lost_flag.clone();
             device.set_device_lost_callback(move |reason, msg| {
@@ -195,11 +207,8 @@ impl GpuDevice {
                     });
                 }
             });
-        }
-        // Validation and out-of-memory errors become typed errors of the next call, not
-        // panics (wgpu's default handler panics).
-        let uncaptured = Arc::new(Mutex::new(None));
-        {
+            // Errors outside the engine's error scopes become typed errors of the next call,
+            // not panics (wgpu's default handler panics).
             let uncaptured = uncaptured.clone();
             device.on_uncaptured_error(Arc::new(move |e: wgpu::Error| {
                 if let Ok(mut u) = uncaptured.lock() {
@@ -240,6 +249,55 @@ impl GpuDevice {
             return Err(LikelihoodError::Gpu(e));
         }
         Ok(())
+    }
+
+    /// Pushes wgpu error scopes for validation, out-of-memory and internal errors on this
+    /// thread, around a piece of the engine's work; [`Self::pop_scopes`] ends them. An error of
+    /// that work so becomes the typed error of the engine's call and never reaches the device's
+    /// uncaptured-error handler (the application's, on a device from [`Self::from_wgpu`]).
+    pub(crate) fn push_scopes(&self) -> Scopes {
+        let validation = self.device.push_error_scope(wgpu::ErrorFilter::Validation);
+        let memory = self.device.push_error_scope(wgpu::ErrorFilter::OutOfMemory);
+        let internal = self.device.push_error_scope(wgpu::ErrorFilter::Internal);
+        Scopes {
+            internal,
+            memory,
+            validation,
+        }
+    }
+
+    /// Ends the scopes of [`Self::push_scopes`]: the work's `result`, or the wgpu error they
+    /// caught. A [`LikelihoodError::DeviceLost`] marks the device lost, so that every later
+    /// [`Self::check`] fails.
+    pub(crate) fn pop_scopes<T>(
+        &self,
+        scopes: Scopes,
+        result: Result<T, LikelihoodError>,
+    ) -> Result<T, LikelihoodError> {
+        let Scopes {
+            internal,
+            memory,
+            validation,
+        } = scopes;
+        // Popped in the reverse order of their pushing, as wgpu requires.
+        let caught = [internal.pop(), memory.pop(), validation.pop()]
+            .into_iter()
+            .find_map(pollster::block_on);
+        let result = match (result, caught) {
+            (Err(e @ LikelihoodError::DeviceLost(_)), _) => Err(e),
+            (_, Some(wgpu::Error::OutOfMemory { .. })) => Err(LikelihoodError::Gpu(
+                "the GPU ran out of memory".to_string(),
+            )),
+            (_, Some(e)) => Err(LikelihoodError::Gpu(e.to_string())),
+            (result, None) => result,
+        };
+        if let Err(LikelihoodError::DeviceLost(msg)) = &result {
+            if let Ok(mut l) = self.lost.lock() {
+                l.get_or_insert_with(|| msg.clone());
+            }
+            self.lost_flag.store(true, Ordering::SeqCst);
+        }
+        result
     }
 
     /// Whether the device has been lost.

@@ -125,6 +125,15 @@ struct Timestamps {
     read: wgpu::Buffer,
 }
 
+/// What [`GpuEngine::build`] makes: the bind group layout, the pipelines in [`KERNELS`]
+/// order, the buffers and the timestamp queries.
+type Built = (
+    wgpu::BindGroupLayout,
+    Vec<wgpu::ComputePipeline>,
+    Buffers,
+    Option<Timestamps>,
+);
+
 /// The GPU likelihood engine: one device, pipelines and buffers created once.
 pub struct GpuEngine {
     gpu: GpuDevice,
@@ -215,13 +224,36 @@ impl GpuEngine {
 
     /// Builds the engine on an opened device.
     pub fn with_device(gpu: GpuDevice) -> Result<Self, LikelihoodError> {
-        let device = &gpu.device;
         if gpu.limits.max_storage_buffers_per_shader_stage < 9 {
             return Err(LikelihoodError::Gpu(format!(
                 "the adapter binds {} storage buffers per stage, the engine needs 9",
                 gpu.limits.max_storage_buffers_per_shader_stage
             )));
         }
+        // Shaders, pipelines and buffers, built inside error scopes: a shader the driver
+        // refuses is this call's error.
+        let scopes = gpu.push_scopes();
+        let built = Self::build(&gpu);
+        let (layout, pipelines, bufs, timestamps) = gpu.pop_scopes(scopes, built)?;
+        gpu.check()?;
+        Ok(Self {
+            gpu,
+            layout,
+            pipelines,
+            bufs,
+            bind_group: None,
+            has_model: false,
+            has_contrast: false,
+            q_sum: 0.0,
+            timestamps,
+            pixel_scratch: Vec::new(),
+            trig_scratch: Vec::new(),
+        })
+    }
+
+    /// The engine's bind group layout, pipelines, buffers and timestamp queries.
+    fn build(gpu: &GpuDevice) -> Result<Built, LikelihoodError> {
+        let device = &gpu.device;
         let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
             label: Some("likelihood"),
             entries: &[
@@ -322,20 +354,7 @@ impl GpuEngine {
                 }),
             }
         });
-        gpu.check()?;
-        Ok(Self {
-            gpu,
-            layout,
-            pipelines,
-            bufs,
-            bind_group: None,
-            has_model: false,
-            has_contrast: false,
-            q_sum: 0.0,
-            timestamps,
-            pixel_scratch: Vec::new(),
-            trig_scratch: Vec::new(),
-        })
+        Ok((layout, pipelines, bufs, timestamps))
     }
 
     /// The opened device (adapter description, limits).
@@ -436,6 +455,8 @@ impl GpuEngine {
         Ok(dbg)
     }
 
+    /// Evaluates the particles inside the device's error scopes
+    /// ([`GpuDevice::push_scopes`]).
     fn run(
         &mut self,
         frame: &FrameInput<'_>,
@@ -445,8 +466,23 @@ impl GpuEngine {
         debug: Option<&mut DebugOutput>,
         timing: Option<&mut StageTimes>,
     ) -> Result<(), LikelihoodError> {
-        let t_start = Instant::now();
         self.gpu.check()?;
+        let scopes = self.gpu.push_scopes();
+        let result = self.run_scoped(frame, params, particles, out, debug, timing);
+        self.gpu.pop_scopes(scopes, result)?;
+        self.gpu.check()
+    }
+
+    fn run_scoped(
+        &mut self,
+        frame: &FrameInput<'_>,
+        params: &LikelihoodParams,
+        particles: &[Particle],
+        out: &mut Vec<TermLogs>,
+        debug: Option<&mut DebugOutput>,
+        timing: Option<&mut StageTimes>,
+    ) -> Result<(), LikelihoodError> {
+        let t_start = Instant::now();
         // The same input checks, and so the same errors, as the CPU engine.
         cpu::validate(frame, params)?;
         let colour_on = params.terms & TERM_COLOUR != 0;
@@ -688,7 +724,7 @@ impl GpuEngine {
             }
             times.total = t_start.elapsed();
         }
-        self.gpu.check()
+        Ok(())
     }
 }
 
@@ -733,10 +769,13 @@ impl LikelihoodEngine for GpuEngine {
     fn set_colour_model(&mut self, model: &ColourHistogram) -> Result<(), LikelihoodError> {
         self.gpu.check()?;
         // Same checks as the CPU engine, and the same f32 sum in bin order.
-        self.q_sum = cpu::colour::Model::checked(&model.0)?.q_sum;
+        let q_sum = cpu::colour::Model::checked(&model.0)?.q_sum;
+        let scopes = self.gpu.push_scopes();
         self.gpu
             .queue
             .write_buffer(&self.bufs.model, 0, bytemuck::cast_slice(&model.0));
+        self.gpu.pop_scopes(scopes, Ok(()))?;
+        self.q_sum = q_sum;
         self.has_model = true;
         Ok(())
     }
@@ -744,11 +783,13 @@ impl LikelihoodEngine for GpuEngine {
     fn set_contrast_table(&mut self, table: &ContrastTable) -> Result<(), LikelihoodError> {
         self.gpu.check()?;
         table.check()?;
+        let scopes = self.gpu.push_scopes();
         self.gpu.queue.write_buffer(
             &self.bufs.model,
             (HIST_BINS * 4) as u64,
             bytemuck::cast_slice(&table.0),
         );
+        self.gpu.pop_scopes(scopes, Ok(()))?;
         self.has_contrast = true;
         Ok(())
     }
