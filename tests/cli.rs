@@ -1643,3 +1643,61 @@ fn cli_track_takes_its_settings_from_a_json_file() {
     );
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+/// `track` warns, before tracking, that a y4m's frames are interlaced and its pixels 12:11,
+/// naming the `--resize` that squares them; given that resize, only the fields are left to say.
+#[test]
+fn track_warns_of_interlaced_frames_and_non_square_pixels() {
+    let d = tmp_dir("layout");
+    std::fs::create_dir_all(&d).unwrap();
+    let y4m = d.join("fields.y4m");
+    let mut bytes = b"YUV4MPEG2 W64 H48 F25:1 It A12:11 Cmono\n".to_vec();
+    for k in 0..3i32 {
+        bytes.extend_from_slice(b"FRAME\n");
+        for y in 0..48i32 {
+            for x in 0..64i32 {
+                let r2 = (x - 30 - k).pow(2) + (y - 24).pow(2);
+                let texture = 16 + ((x * 7 + y * 13) % 50) as u8;
+                bytes.push(if r2 < 100 { 200 - texture / 2 } else { texture });
+            }
+        }
+    }
+    std::fs::write(&y4m, bytes).unwrap();
+    let (input, out) = (y4m.to_str().unwrap(), d.join("poses.csv"));
+    let args = [
+        "track",
+        input,
+        "--backend",
+        "cpu",
+        "--init-ellipse",
+        "30,24,10,10",
+        "--out",
+        out.to_str().unwrap(),
+    ];
+    let o = pftrack_ok(&args);
+    let err = String::from_utf8_lossy(&o.stderr);
+    let warnings: Vec<&str> = err
+        .lines()
+        .filter(|l| l.starts_with("pftrack: warning: "))
+        .collect();
+    assert_eq!(warnings.len(), 2, "{err}");
+    assert!(warnings[0].contains("interlaced, top field first"), "{err}");
+    assert!(warnings[1].contains("--resize 70x48"), "{err}");
+    assert_eq!(
+        std::fs::read_to_string(&out).unwrap().lines().count(),
+        4,
+        "a header and three frames"
+    );
+
+    let mut resized = args.to_vec();
+    resized.extend(["--resize", "70x48"]);
+    let o = pftrack_ok(&resized);
+    let err = String::from_utf8_lossy(&o.stderr);
+    let warnings: Vec<&str> = err
+        .lines()
+        .filter(|l| l.starts_with("pftrack: warning: "))
+        .collect();
+    assert_eq!(warnings.len(), 1, "{err}");
+    assert!(warnings[0].contains("interlaced"), "{err}");
+    std::fs::remove_dir_all(&d).unwrap();
+}

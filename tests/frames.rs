@@ -1052,3 +1052,128 @@ mod fake {
         std::fs::remove_dir_all(&d).unwrap();
     }
 }
+
+// ---------------------------------------------------------------- interlacing, pixel shape
+
+/// A y4m whose header says it is interlaced top field first, of 12:11 pixels, warns of both;
+/// resized to square pixels (the size the warning names) it warns of the fields alone.
+#[test]
+fn interlaced_y4m_and_non_square_pixels_are_said() {
+    let d = scratch("layout-y4m");
+    let p = d.join("il.y4m");
+    write_y4m(&p, 16, 12, "444", &[planes(16, 12, "444", &ramp(0.0))]);
+    let bytes = std::fs::read(&p).unwrap();
+    let header_end = bytes.iter().position(|&b| b == b'\n').unwrap();
+    let header = String::from_utf8(bytes[..header_end].to_vec()).unwrap();
+    assert!(header.contains(" Ip A1:1 "), "{header}");
+    let plain = frames::open(&p, &SourceOptions::default()).unwrap();
+    assert_eq!(plain.caveats(), Vec::<String>::new(), "progressive, square");
+
+    let mut changed = header.replace(" Ip A1:1 ", " It A12:11 ").into_bytes();
+    changed.extend_from_slice(&bytes[header_end..]);
+    std::fs::write(&p, changed).unwrap();
+    let src = frames::open(&p, &SourceOptions::default()).unwrap();
+    assert_eq!(
+        src.layout(),
+        frames::Layout {
+            interlaced: Some(frames::FieldOrder::TopFirst),
+            pixel_aspect: Some((12, 11)),
+        }
+    );
+    let c = src.caveats();
+    assert_eq!(c.len(), 2, "{c:?}");
+    assert!(c[0].contains("interlaced, top field first"), "{}", c[0]);
+    // 16 × 12/11 = 17.45.
+    assert!(
+        c[1].contains("12:11, not square") && c[1].contains("--resize 17x12"),
+        "{}",
+        c[1]
+    );
+    assert!(c.iter().all(|l| !l.contains('\n')));
+    let resized = frames::open(
+        &p,
+        &SourceOptions {
+            resize: Some((17, 12)),
+        },
+    )
+    .unwrap();
+    let c = resized.caveats();
+    assert_eq!(c.len(), 1, "square after the resize: {c:?}");
+    assert!(c[0].contains("interlaced"), "{}", c[0]);
+    // The frame itself reads as before: the two fields interleaved.
+    assert_eq!(collect(src).unwrap().len(), 1);
+    std::fs::remove_dir_all(&d).unwrap();
+}
+
+/// ffprobe's field order and sample aspect ratio reach the source's caveats: an interlaced
+/// MPEG-2 file, an MPEG-4 file of 12:11 pixels, and carphone, stored in 128:117 pixels.
+#[test]
+fn interlaced_video_and_non_square_pixels_are_said() {
+    if !have_ffmpeg() {
+        return;
+    }
+    let d = scratch("layout-video");
+    let source = [
+        "-f",
+        "lavfi",
+        "-i",
+        "testsrc=size=64x48:rate=25",
+        "-frames:v",
+        "3",
+    ];
+    let arg = |s: &str| std::ffi::OsString::from(s);
+    let run = |extra: &[&str], out: &Path| {
+        let mut args: Vec<std::ffi::OsString> = source.iter().map(|s| arg(s)).collect();
+        args.extend(extra.iter().map(|s| arg(s)));
+        args.push(out.as_os_str().to_owned());
+        let refs: Vec<&std::ffi::OsStr> = args.iter().map(|a| a.as_os_str()).collect();
+        ffmpeg(&refs);
+    };
+    let fields = d.join("fields.mpg");
+    run(
+        &[
+            "-vf",
+            "setfield=bff",
+            "-flags",
+            "+ildct+ilme",
+            "-c:v",
+            "mpeg2video",
+        ],
+        &fields,
+    );
+    let src = frames::open(&fields, &SourceOptions::default()).unwrap();
+    assert_eq!(
+        src.layout().interlaced,
+        Some(frames::FieldOrder::BottomFirst)
+    );
+    let c = src.caveats();
+    assert_eq!(c.len(), 1, "{c:?}");
+    assert!(c[0].contains("bottom field first"), "{}", c[0]);
+
+    let wide = d.join("wide.avi");
+    run(&["-vf", "setsar=12/11", "-c:v", "mpeg4"], &wide);
+    let src = frames::open(&wide, &SourceOptions::default()).unwrap();
+    assert_eq!(
+        src.layout(),
+        frames::Layout {
+            interlaced: None,
+            pixel_aspect: Some((12, 11)),
+        }
+    );
+    let c = src.caveats();
+    assert_eq!(c.len(), 1, "{c:?}");
+    // 64 × 12/11 = 69.8.
+    assert!(c[0].contains("--resize 70x48"), "{}", c[0]);
+    std::fs::remove_dir_all(&d).unwrap();
+
+    if let Some(p) = data("carphone/carphone_pristine.mp4") {
+        let src = frames::open(&p, &SourceOptions::default()).unwrap();
+        assert_eq!(src.layout().pixel_aspect, Some((128, 117)));
+        // 176 × 128/117 = 192.5.
+        assert!(
+            src.caveats().iter().any(|l| l.contains("--resize 193x144")),
+            "{:?}",
+            src.caveats()
+        );
+    }
+}

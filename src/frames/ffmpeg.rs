@@ -25,7 +25,7 @@ use std::path::{Path, PathBuf};
 use std::process::{Child, ChildStdout, Command, Stdio};
 use std::thread::JoinHandle;
 
-use super::{Frame, FrameError};
+use super::{FieldOrder, Frame, FrameError, Layout};
 
 /// The most stderr text kept from a child (the tail), bytes.
 const STDERR_KEEP: usize = 16 * 1024;
@@ -106,12 +106,42 @@ fn last_line(text: &str) -> String {
         .to_string()
 }
 
-/// Width, height and (when the container says) frame count of the first video stream.
-pub fn probe(tools: &FfmpegTools, path: &Path) -> Result<(u32, u32, Option<usize>), FrameError> {
+/// What ffprobe says of a video's first stream.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Probe {
+    /// Width in pixels.
+    pub width: u32,
+    /// Height in pixels.
+    pub height: u32,
+    /// The frame count, when the container states one.
+    pub frames: Option<usize>,
+    /// Interlaced fields and the shape of a pixel, where ffprobe reports them.
+    pub layout: Layout,
+}
+
+/// Reads ffprobe's `field_order` (`progressive`, `tt`, `bb`, `tb`, `bt`, `unknown`): the
+/// field displayed first (`tb` is coded top first, displayed bottom first).
+fn field_order(v: &str) -> Option<FieldOrder> {
+    match v {
+        "tt" | "bt" => Some(FieldOrder::TopFirst),
+        "bb" | "tb" => Some(FieldOrder::BottomFirst),
+        _ => None,
+    }
+}
+
+/// Reads ffprobe's `sample_aspect_ratio` (`n:d`; `0:1` and `N/A` when unknown).
+fn sample_aspect(v: &str) -> Option<(u32, u32)> {
+    let (n, d) = v.split_once(':')?;
+    let (n, d) = (n.parse::<u32>().ok()?, d.parse::<u32>().ok()?);
+    (n > 0 && d > 0).then_some((n, d))
+}
+
+/// Width, height, frame count (when the container says) and layout of the first video stream.
+pub fn probe(tools: &FfmpegTools, path: &Path) -> Result<Probe, FrameError> {
     let out = Command::new(&tools.ffprobe)
         .args(["-v", "error", "-select_streams", "v:0", "-show_entries"])
         .args([
-            "stream=width,height,nb_frames",
+            "stream=width,height,nb_frames,field_order,sample_aspect_ratio",
             "-of",
             "default=noprint_wrappers=1",
         ])
@@ -132,16 +162,24 @@ pub fn probe(tools: &FfmpegTools, path: &Path) -> Result<(u32, u32, Option<usize
     }
     let text = String::from_utf8_lossy(&out.stdout);
     let (mut w, mut h, mut n) = (None, None, None);
+    let mut layout = Layout::default();
     for line in text.lines() {
         match line.trim().split_once('=') {
             Some(("width", v)) => w = v.parse::<u32>().ok(),
             Some(("height", v)) => h = v.parse::<u32>().ok(),
             Some(("nb_frames", v)) => n = v.parse::<usize>().ok(),
+            Some(("field_order", v)) => layout.interlaced = field_order(v),
+            Some(("sample_aspect_ratio", v)) => layout.pixel_aspect = sample_aspect(v),
             _ => {}
         }
     }
     match (w, h) {
-        (Some(w), Some(h)) if w > 0 && h > 0 => Ok((w, h, n)),
+        (Some(w), Some(h)) if w > 0 && h > 0 => Ok(Probe {
+            width: w,
+            height: h,
+            frames: n,
+            layout,
+        }),
         _ if text.trim().is_empty() => Err(err("no video stream".into())),
         _ => Err(err(format!(
             "ffprobe reports no frame size ({})",
@@ -224,6 +262,8 @@ pub(crate) struct FfmpegSource {
     stderr: Option<JoinHandle<String>>,
     size: (u32, u32),
     frames_hint: Option<usize>,
+    /// Interlacing and pixel shape, from the probe.
+    layout: Layout,
     frames: usize,
     /// The child has been waited for.
     reaped: bool,
@@ -250,7 +290,12 @@ impl FfmpegSource {
                 ),
             });
         }
-        let (w, h, n) = probe(tools, path)?;
+        let Probe {
+            width: w,
+            height: h,
+            frames: n,
+            layout,
+        } = probe(tools, path)?;
         let (child, stdout, stderr) = spawn_decoder(&tools.ffmpeg, path, false)?;
         Ok(Self {
             path: path.to_path_buf(),
@@ -261,6 +306,7 @@ impl FfmpegSource {
             stderr: Some(stderr),
             size: (w, h),
             frames_hint: n,
+            layout,
             frames: 0,
             reaped: false,
             complaint: None,
@@ -275,6 +321,11 @@ impl FfmpegSource {
     /// The container's frame count, when it states one.
     pub(crate) fn len_hint(&self) -> Option<usize> {
         self.frames_hint
+    }
+
+    /// Interlacing and pixel shape, as ffprobe reported them.
+    pub(crate) fn layout(&self) -> Layout {
+        self.layout
     }
 
     /// The earliest line kept of what ffmpeg wrote to stderr (the last 16 KiB) in a decode
@@ -394,7 +445,28 @@ impl Drop for FfmpegSource {
 
 #[cfg(test)]
 mod tests {
-    use super::without_address;
+    use super::{FieldOrder, field_order, sample_aspect, without_address};
+
+    #[test]
+    fn ffprobe_layout_fields_read_as_displayed() {
+        // tb: top coded first, bottom displayed first.
+        for (v, want) in [
+            ("tt", Some(FieldOrder::TopFirst)),
+            ("bt", Some(FieldOrder::TopFirst)),
+            ("bb", Some(FieldOrder::BottomFirst)),
+            ("tb", Some(FieldOrder::BottomFirst)),
+            ("progressive", None),
+            ("unknown", None),
+            ("", None),
+        ] {
+            assert_eq!(field_order(v), want, "{v}");
+        }
+        assert_eq!(sample_aspect("128:117"), Some((128, 117)));
+        assert_eq!(sample_aspect("1:1"), Some((1, 1)));
+        for unknown in ["0:1", "1:0", "N/A", "", "12/11", "-1:2"] {
+            assert_eq!(sample_aspect(unknown), None, "{unknown}");
+        }
+    }
 
     #[test]
     fn log_lines_lose_their_address() {

@@ -277,6 +277,74 @@ pub fn open(path: &Path, opts: &SourceOptions) -> Result<FrameSource, FrameError
     }
 }
 
+/// Which field of an interlaced frame was taken first.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum FieldOrder {
+    /// The top field (the even rows, counting from 0).
+    TopFirst,
+    /// The bottom field.
+    BottomFirst,
+    /// Some frames interlaced, some not, or the order changing (y4m `Im`).
+    Mixed,
+}
+
+impl FieldOrder {
+    fn describe(self) -> &'static str {
+        match self {
+            Self::TopFirst => "interlaced, top field first",
+            Self::BottomFirst => "interlaced, bottom field first",
+            Self::Mixed => "interlaced in part",
+        }
+    }
+}
+
+/// How a source's pictures are stored, where that misleads the tracker unless the user acts:
+/// interlaced fields and pixels that are not square. Unknown reads as progressive and square.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct Layout {
+    /// The field order, when the frames are interlaced.
+    pub interlaced: Option<FieldOrder>,
+    /// A pixel's width to its height, `(n, d)` with both positive, when the source states it.
+    pub pixel_aspect: Option<(u32, u32)>,
+}
+
+impl Layout {
+    /// One line for each way `path`'s frames, stored at `native` size and delivered at `out`,
+    /// break the tracker's assumptions: each frame one instant, and pixels square after any
+    /// resize (within 1 %, or a pixel's rounding). Empty when neither applies.
+    pub fn caveats(&self, path: &str, native: (u32, u32), out: (u32, u32)) -> Vec<String> {
+        let mut lines = Vec::new();
+        if let Some(order) = self.interlaced {
+            lines.push(format!(
+                "{path}: the frames are {}: each is tracked as one picture, though its two \
+                 fields were taken half a frame apart; deinterlace a moving target first \
+                 (ffmpeg -vf bwdif)",
+                order.describe()
+            ));
+        }
+        if let Some((n, d)) = self.pixel_aspect.filter(|(n, d)| n != d) {
+            // The picture is W n/d by H in square units; delivered at w x h, its pixels are
+            // square when w/h matches, within 1 % or the rounding of either side to whole
+            // pixels.
+            let (nw, nh) = (f64::from(native.0), f64::from(native.1));
+            let (w, h) = (f64::from(out.0), f64::from(out.1));
+            let picture = nw * f64::from(n) / f64::from(d) / nh;
+            let square = ((w / h) / picture - 1.0).abs() <= 0.01
+                || (w - h * picture).abs() <= 0.5
+                || (h - w / picture).abs() <= 0.5;
+            if !square {
+                let square = (nw * f64::from(n) / f64::from(d)).round().max(1.0);
+                lines.push(format!(
+                    "{path}: its pixels are {n}:{d}, not square, and the ellipse and the \
+                     rotation assume square ones; --resize {square}x{} makes them square",
+                    native.1
+                ));
+            }
+        }
+        lines
+    }
+}
+
 impl FrameSource {
     /// The source over `inner`, whose frames are stored at `native` size: an error when that is
     /// more than [`y4m::MAX_DECODE_PIXELS`], or the size delivered (after the resize) more than
@@ -435,6 +503,23 @@ impl FrameSource {
         }
     }
 
+    /// Interlaced fields and the shape of a pixel, where the source states them (y4m's `I` and
+    /// `A` tags, ffprobe's field order and sample aspect ratio); image folders read as
+    /// progressive and square.
+    pub fn layout(&self) -> Layout {
+        match &self.inner {
+            Inner::Dir(_) => Layout::default(),
+            Inner::Y4m(r, _) => r.header().layout(),
+            Inner::Ffmpeg(f) => f.layout(),
+        }
+    }
+
+    /// One warning line for each way this source's frames break the tracker's assumptions
+    /// (see [`Layout::caveats`]): say them before tracking.
+    pub fn caveats(&self) -> Vec<String> {
+        self.layout().caveats(&self.path, self.native, self.out)
+    }
+
     /// One line saying what this source is.
     pub fn describe(&self) -> String {
         let (w, h) = self.native;
@@ -534,6 +619,48 @@ impl std::iter::FusedIterator for FrameSource {}
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn caveats_follow_the_pixel_shape_after_the_resize() {
+        let wide = Layout {
+            interlaced: None,
+            pixel_aspect: Some((12, 11)),
+        };
+        // 352 × 12/11 = 384: stored at 352x288, the pixels are 12:11.
+        let c = wide.caveats("v", (352, 288), (352, 288));
+        assert_eq!(c.len(), 1, "{c:?}");
+        assert!(c[0].starts_with("v: its pixels are 12:11"), "{}", c[0]);
+        assert!(c[0].contains("--resize 384x288"), "{}", c[0]);
+        assert!(wide.caveats("v", (352, 288), (384, 288)).is_empty());
+        // Within 1 % of square: 383 wide is 0.3 % off.
+        assert!(wide.caveats("v", (352, 288), (383, 288)).is_empty());
+        // Halved on both axes, still 12:11.
+        assert_eq!(wide.caveats("v", (352, 288), (176, 144)).len(), 1);
+        // Tall pixels: 11:12 of 352 is 322.7.
+        let tall = Layout {
+            interlaced: None,
+            pixel_aspect: Some((11, 12)),
+        };
+        let c = tall.caveats("v", (352, 288), (352, 288));
+        assert!(c[0].contains("--resize 323x288"), "{}", c[0]);
+        // Square pixels, stated or not, say nothing; nor does an unknown field order.
+        for l in [
+            Layout::default(),
+            Layout {
+                interlaced: None,
+                pixel_aspect: Some((7, 7)),
+            },
+        ] {
+            assert!(l.caveats("v", (352, 288), (352, 288)).is_empty(), "{l:?}");
+        }
+        let mixed = Layout {
+            interlaced: Some(FieldOrder::Mixed),
+            pixel_aspect: None,
+        };
+        let c = mixed.caveats("v", (8, 8), (8, 8));
+        assert_eq!(c.len(), 1);
+        assert!(c[0].contains("interlaced in part"), "{}", c[0]);
+    }
 
     #[test]
     fn sources_can_move_to_another_thread() {

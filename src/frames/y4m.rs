@@ -1,8 +1,9 @@
 //! A YUV4MPEG2 (`.y4m`) reader, written for this project.
 //!
 //! Header: `YUV4MPEG2` then space-separated tags: `W` width, `H` height, `F` frame rate
-//! `n:d`, `I` interlacing (`p t b m ?`, read but not acted on: fields are delivered as the
-//! interleaved frame), `A` pixel aspect `n:d`, `C` colour space, `X` extensions (ignored).
+//! `n:d`, `I` interlacing (`p t b m ?`: fields are delivered as the interleaved frame, and
+//! [`super::FrameSource::caveats`] says so), `A` pixel aspect `n:d`, `C` colour space, `X`
+//! extensions (ignored).
 //! Colour spaces read: `420jpeg` (the default when `C` is absent), `420` (the same siting),
 //! `420mpeg2`, `420paldv`, `444`, and `mono`; all 8-bit. Anything else (`422`, `411`,
 //! `444alpha`, the high bit depths `...p10` etc.) is a clear [`FrameError::Y4m`] error.
@@ -116,6 +117,19 @@ fn ratio(v: &str, tag: char, zero_ok: bool) -> Result<(u32, u32), String> {
 }
 
 impl Y4mHeader {
+    /// The interlacing (`It`, `Ib`, `Im`) and a stated pixel aspect other than `0:0`.
+    pub fn layout(&self) -> super::Layout {
+        super::Layout {
+            interlaced: match self.interlace {
+                Some('t') => Some(super::FieldOrder::TopFirst),
+                Some('b') => Some(super::FieldOrder::BottomFirst),
+                Some('m') => Some(super::FieldOrder::Mixed),
+                _ => None,
+            },
+            pixel_aspect: self.aspect.filter(|&(n, d)| n > 0 && d > 0),
+        }
+    }
+
     /// Parses a header line (without its newline).
     pub fn parse(line: &str) -> Result<Self, String> {
         let mut parts = line.split(' ');
