@@ -1701,3 +1701,31 @@ fn track_warns_of_interlaced_frames_and_non_square_pixels() {
     assert!(warnings[0].contains("interlaced"), "{err}");
     std::fs::remove_dir_all(&d).unwrap();
 }
+
+/// `sift` on an image whose scale space, with the upsampled first octave, would pass the 2 GB
+/// budget refuses it in one line that names this command's flags (the library's advice
+/// reworded), before allocating; a small `--region` of the same image runs.
+#[test]
+fn sift_on_too_large_an_image_names_its_flags() {
+    let d = tmp_dir("sift-large");
+    std::fs::create_dir_all(&d).unwrap();
+    // 3600x2600 doubled: about 2.2 GB of scale space at the default three scales an octave.
+    let big = d.join("big.png");
+    image::GrayImage::from_pixel(3600, 2600, image::Luma([90]))
+        .save(&big)
+        .unwrap();
+    let b = big.to_str().unwrap();
+    let out = pftrack(&["sift", b]);
+    assert_eq!(out.status.code(), Some(1));
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(err.lines().count(), 1, "{err}");
+    assert!(
+        err.contains("3600x2600 window with the upsampled first octave")
+            && err.contains("use --no-upsample or --region"),
+        "{err}"
+    );
+    assert!(!err.contains("detect without"), "{err}");
+    let ok = pftrack_ok(&["sift", b, "--region", "100,100,200,150"]);
+    assert!(String::from_utf8_lossy(&ok.stdout).contains("keypoints"));
+    std::fs::remove_dir_all(&d).unwrap();
+}
