@@ -1251,6 +1251,14 @@ fn an_engine_on_the_applications_own_device_gives_the_same_terms() {
 
 /// A device opened as an application would, on the adapter an engine named `name` runs on.
 fn app_device(name: &str) -> (pftrack::wgpu::Device, pftrack::wgpu::Queue) {
+    app_device_limited(name, |l| l)
+}
+
+/// [`app_device`] with the adapter's limits changed by `limits`.
+fn app_device_limited(
+    name: &str,
+    limits: impl FnOnce(pftrack::wgpu::Limits) -> pftrack::wgpu::Limits,
+) -> (pftrack::wgpu::Device, pftrack::wgpu::Queue) {
     use pftrack::wgpu;
     let mut desc = wgpu::InstanceDescriptor::new_without_display_handle();
     desc.backends = wgpu::Backends::VULKAN;
@@ -1262,7 +1270,7 @@ fn app_device(name: &str) -> (pftrack::wgpu::Device, pftrack::wgpu::Queue) {
         .expect("the engine's adapter is listed");
     pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
         label: Some("the application's device"),
-        required_limits: adapter.limits(),
+        required_limits: limits(adapter.limits()),
         ..Default::default()
     }))
     .unwrap()
@@ -1341,4 +1349,66 @@ fn the_applications_error_handlers_stay_in_place() {
     }
     assert!(e.device().is_lost());
     assert_eq!(errors.lock().unwrap().len(), 1, "{:?}", errors.lock());
+}
+
+/// A buffer wgpu refuses to create (here more features than the device's 1 MB buffers hold;
+/// out of memory on a shared device does the same) fails that call only: the engine makes its
+/// buffers and bind group afresh on the next. And a frame whose gradient image, rounded up to
+/// the engine's 256-byte allocation, passes the limit is refused before anything is made.
+#[test]
+fn a_refused_allocation_fails_that_call_only() {
+    let Some(own) = engine() else { return };
+    let (device, queue) = app_device_limited(&own.name(), |l| pftrack::wgpu::Limits {
+        max_buffer_size: 1_000_001,
+        ..l
+    });
+    drop(own);
+    let mut e = GpuEngine::with_device(GpuDevice::from_wgpu(device, queue)).unwrap();
+    // 500 x 250 x 8 bytes is 1,000,000, allocated as 1,000,192.
+    assert!(matches!(
+        e.check_frame_size(500, 250),
+        Err(LikelihoodError::FrameTooLarge {
+            bytes: 1_000_192,
+            ..
+        })
+    ));
+    let img = RgbImage::from_pixel(16, 16, Rgb([1, 2, 3]));
+    e.set_colour_model(&one_hot(bin_of(Rgb([1, 2, 3]))))
+        .unwrap();
+    let frame = FrameInput {
+        image: &img,
+        features: &[],
+        depths: None,
+        prev: particle(8.0, 8.0, 3.0, 3.0),
+        theta0: 0.0,
+    };
+    let params = LikelihoodParams {
+        terms: TERM_COLOUR | TERM_GRADIENT,
+        ..Default::default()
+    };
+    let (mut before, mut after) = (Vec::new(), Vec::new());
+    e.evaluate(&frame, &params, &[frame.prev], &mut before)
+        .unwrap();
+    let many = vec![
+        FeaturePair {
+            p: [8.0, 8.0],
+            q: [8.0, 8.0],
+        };
+        60_000
+    ];
+    let heavy = FrameInput {
+        features: &many,
+        ..frame
+    };
+    let r = e.evaluate(&heavy, &params, &[frame.prev], &mut after);
+    let Err(LikelihoodError::Gpu(msg)) = r else {
+        panic!("{r:?}")
+    };
+    assert!(!msg.contains('\n') && msg.contains("features"), "{msg}");
+    assert!(!e.device().is_lost());
+    for _ in 0..2 {
+        e.evaluate(&frame, &params, &[frame.prev], &mut after)
+            .unwrap();
+        assert_eq!(after, before);
+    }
 }

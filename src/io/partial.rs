@@ -4,8 +4,10 @@
 //!
 //! Unwinding and `Drop` already remove a partial output on every error; a signal (Ctrl-C,
 //! `kill`) ends a process without either. A program that wants no stray `.NAME.partial` left by
-//! an interrupt calls [`remove_partial_outputs`] from its signal handler and then exits, as the
-//! `pftrack` command line does.
+//! an interrupt calls [`remove_partial_outputs`] when a signal arrives and then exits, as the
+//! `pftrack` command line does: from a thread that waits for signals (`signal_hook::iterator`,
+//! `ctrlc`), never inside an asynchronous signal handler, since it takes a lock, allocates and
+//! removes files.
 //!
 //! Creating a partial output and committing it (the rename into place) happen under the
 //! registry's lock, and [`remove_partial_outputs`] keeps the lock, so an interrupt sees every
@@ -230,8 +232,9 @@ impl Drop for StagingDir {
 }
 
 /// Removes every partial output of this process (files, then staging folders, then the
-/// folders created for them if empty, newest first) and returns how many it removed; meant for a signal
-/// handler that ends the process next. The registry stays locked until the process ends, so
+/// folders created for them if empty, newest first) and returns how many it removed; meant for
+/// a thread that handles a signal by ending the process next (not for an asynchronous signal
+/// handler itself: it takes a lock, allocates and removes files). The registry stays locked until the process ends, so
 /// no output is created or committed after this returns, and any thread that tries waits for
 /// ever: call it only on the way out, then end the process (never return to normal work).
 pub fn remove_partial_outputs() -> usize {

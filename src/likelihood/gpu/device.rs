@@ -25,6 +25,16 @@ pub struct GpuDevice {
     lost_flag: Arc<AtomicBool>,
 }
 
+/// wgpu's multi-line error text (`Validation Error`, `Caused by:`, the cause indented) as one
+/// line, its lines joined by `: `.
+fn one_line(text: &str) -> String {
+    text.lines()
+        .map(str::trim)
+        .filter(|l| !l.is_empty() && *l != "Caused by:")
+        .collect::<Vec<_>>()
+        .join(": ")
+}
+
 /// The error scopes of [`GpuDevice::push_scopes`]. Fields drop in declaration order, the
 /// reverse of the pushing, so an unwind that drops them unpopped keeps wgpu's order.
 pub(crate) struct Scopes {
@@ -234,7 +244,9 @@ impl GpuDevice {
     }
 
     /// An error if the device was lost or an uncaptured wgpu error happened since the last
-    /// check (which clears the latter).
+    /// check (which clears the latter). On a device from [`Self::from_wgpu`] the engine
+    /// installs no handlers: there a loss shows once an evaluation's readback failed, and
+    /// uncaptured errors go to the application's handler.
     pub fn check(&self) -> Result<(), LikelihoodError> {
         if self.lost_flag.load(Ordering::SeqCst) {
             let msg = self
@@ -288,7 +300,7 @@ impl GpuDevice {
             (_, Some(wgpu::Error::OutOfMemory { .. })) => Err(LikelihoodError::Gpu(
                 "the GPU ran out of memory".to_string(),
             )),
-            (_, Some(e)) => Err(LikelihoodError::Gpu(e.to_string())),
+            (_, Some(e)) => Err(LikelihoodError::Gpu(one_line(&e.to_string()))),
             (result, None) => result,
         };
         if let Err(LikelihoodError::DeviceLost(msg)) = &result {
@@ -305,8 +317,11 @@ impl GpuDevice {
         self.lost_flag.load(Ordering::SeqCst)
     }
 
-    /// Destroys the device (as a driver reset would): every later call fails with
-    /// [`LikelihoodError::DeviceLost`]. For tests of the lost-device path.
+    /// Destroys the device (as a driver reset would): every later engine call fails with
+    /// [`LikelihoodError::DeviceLost`], from the next one on a device the engine opened and
+    /// from the first that reads results back (an evaluation) on one from
+    /// [`Self::from_wgpu`], which has no device-lost callback of the engine's. For tests of the
+    /// lost-device path.
     pub fn destroy(&self) {
         self.device.destroy();
         let _ = self.device.poll(wgpu::PollType::wait_indefinitely());
@@ -329,6 +344,18 @@ mod tests {
         for t in [T::DiscreteGpu, T::IntegratedGpu, T::VirtualGpu, T::Other] {
             assert!(!refuses_software(true, false, t), "{t:?}");
         }
+    }
+
+    #[test]
+    fn wgpu_errors_read_as_one_line() {
+        let text = "Validation Error\n\nCaused by:\n  In Device::create_bind_group, label = \
+                    'likelihood'\n    Buffer with 'features' label is invalid\n";
+        assert_eq!(
+            one_line(text),
+            "Validation Error: In Device::create_bind_group, label = 'likelihood': Buffer \
+             with 'features' label is invalid"
+        );
+        assert_eq!(one_line("Out of Memory"), "Out of Memory");
     }
 
     #[test]

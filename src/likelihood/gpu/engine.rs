@@ -87,9 +87,15 @@ impl GrowBuf {
         }
     }
 
-    /// Makes room for `bytes`; true when the buffer was replaced.
+    /// The bytes a buffer asked to hold `bytes` is allocated with.
+    fn allocated(bytes: u64) -> u64 {
+        bytes.max(16).next_multiple_of(256)
+    }
+
+    /// Makes room for `bytes`; true when the buffer was replaced. The size is recorded before
+    /// wgpu says whether the allocation worked: a failed one must be [`Self::forget`]ten.
     fn ensure(&mut self, device: &wgpu::Device, bytes: u64) -> bool {
-        let bytes = bytes.max(16).next_multiple_of(256);
+        let bytes = Self::allocated(bytes);
         if bytes <= self.size {
             return false;
         }
@@ -101,6 +107,12 @@ impl GrowBuf {
         });
         self.size = bytes;
         true
+    }
+
+    /// Has the next [`Self::ensure`] allocate the buffer afresh, whatever it asks for: after
+    /// an error, this buffer may be one wgpu refused to create.
+    fn forget(&mut self) {
+        self.size = 0;
     }
 }
 
@@ -117,6 +129,25 @@ struct Buffers {
     line_d: GrowBuf,
     hist: GrowBuf,
     staging: GrowBuf,
+}
+
+impl Buffers {
+    /// Forgets every buffer that grows ([`GrowBuf::forget`]).
+    fn forget_grown(&mut self) {
+        for b in [
+            &mut self.pixels,
+            &mut self.grad,
+            &mut self.particles,
+            &mut self.trig,
+            &mut self.features,
+            &mut self.terms,
+            &mut self.line_d,
+            &mut self.hist,
+            &mut self.staging,
+        ] {
+            b.forget();
+        }
+    }
 }
 
 struct Timestamps {
@@ -368,7 +399,8 @@ impl GpuEngine {
     }
 
     /// Destroys the device, as a driver reset would; every later call returns
-    /// [`LikelihoodError::DeviceLost`]. For tests of that path.
+    /// [`LikelihoodError::DeviceLost`] (on an application's device, from the first
+    /// evaluation on: see [`GpuDevice::destroy`]). For tests of that path.
     pub fn simulate_device_loss(&self) {
         self.gpu.destroy();
     }
@@ -384,8 +416,9 @@ impl GpuEngine {
     /// before anything is allocated.
     pub fn check_frame_size(&self, width: u32, height: u32) -> Result<(), LikelihoodError> {
         let limit = self.max_binding();
-        // The gradient image (two i32 per pixel) is the largest per-frame buffer.
-        let bytes = width as u64 * height as u64 * 8;
+        // The gradient image (two i32 per pixel) is the largest per-frame buffer, allocated
+        // rounded up.
+        let bytes = GrowBuf::allocated(width as u64 * height as u64 * 8);
         let max_dim = self.gpu.limits.max_compute_workgroups_per_dimension;
         if bytes > limit
             || width.div_ceil(TILE) > max_dim
@@ -414,6 +447,7 @@ impl GpuEngine {
         if debug {
             bytes = bytes.max(n64 * HIST_BINS as u64 * 4);
         }
+        let bytes = GrowBuf::allocated(bytes);
         let max_dim = self.gpu.limits.max_compute_workgroups_per_dimension;
         let lines = n64 * num_lines as u64;
         let too_many = bytes > limit
@@ -469,8 +503,18 @@ impl GpuEngine {
         self.gpu.check()?;
         let scopes = self.gpu.push_scopes();
         let result = self.run_scoped(frame, params, particles, out, debug, timing);
-        self.gpu.pop_scopes(scopes, result)?;
-        self.gpu.check()
+        let result = self
+            .gpu
+            .pop_scopes(scopes, result)
+            .and_then(|()| self.gpu.check());
+        if result.is_err() {
+            // A buffer grown in this call may be one wgpu refused (out of memory on a device
+            // shared with the application), and the bind group may hold it: both are made
+            // afresh on the next call rather than failing every call from now on.
+            self.bufs.forget_grown();
+            self.bind_group = None;
+        }
+        result
     }
 
     fn run_scoped(
