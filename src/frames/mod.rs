@@ -308,10 +308,27 @@ pub struct Layout {
     pub pixel_aspect: Option<(u32, u32)>,
 }
 
+/// A frame size of square pixels for a picture `picture` times as wide as tall: at `height`
+/// rows, scaled down (both sides) where that would pass [`y4m::MAX_SIDE`] or
+/// [`y4m::MAX_PIXELS`], the sizes `--resize` takes.
+fn square_size(picture: f64, height: u32) -> (u32, u32) {
+    let h = f64::from(height);
+    let w = h * picture;
+    let side = f64::from(y4m::MAX_SIDE);
+    let fit = (side / w)
+        .min(side / h)
+        .min((y4m::MAX_PIXELS as f64 / (w * h)).sqrt())
+        .min(1.0);
+    let size = |v: f64| ((v * fit).round() as u32).max(1);
+    (size(w), size(h))
+}
+
 impl Layout {
     /// One line for each way `path`'s frames, stored at `native` size and delivered at `out`,
-    /// break the tracker's assumptions: each frame one instant, and pixels square after any
-    /// resize (within 1 %, or a pixel's rounding). Empty when neither applies.
+    /// break the tracker's assumptions: each frame one instant, and pixels square as tracked
+    /// (within 1 %, or a pixel's rounding), the stored pixels being of the stated shape or,
+    /// unstated, square; the line names a `--resize` that squares them at the delivered
+    /// height. Empty when neither applies.
     pub fn caveats(&self, path: &str, native: (u32, u32), out: (u32, u32)) -> Vec<String> {
         let mut lines = Vec::new();
         if let Some(order) = self.interlaced {
@@ -322,24 +339,31 @@ impl Layout {
                 order.describe()
             ));
         }
-        if let Some((n, d)) = self.pixel_aspect.filter(|(n, d)| n != d) {
-            // The picture is W n/d by H in square units; delivered at w x h, its pixels are
-            // square when w/h matches, within 1 % or the rounding of either side to whole
-            // pixels.
-            let (nw, nh) = (f64::from(native.0), f64::from(native.1));
-            let (w, h) = (f64::from(out.0), f64::from(out.1));
-            let picture = nw * f64::from(n) / f64::from(d) / nh;
-            let square = ((w / h) / picture - 1.0).abs() <= 0.01
-                || (w - h * picture).abs() <= 0.5
-                || (h - w / picture).abs() <= 0.5;
-            if !square {
-                let square = (nw * f64::from(n) / f64::from(d)).round().max(1.0);
-                lines.push(format!(
-                    "{path}: its pixels are {n}:{d}, not square, and the ellipse and the \
-                     rotation assume square ones; --resize {square}x{} makes them square",
-                    native.1
-                ));
-            }
+        // A stated shape, else square; the picture is W n/d by H in square units. Delivered
+        // at w x h its pixels are square when w/h matches, within 1 % or the rounding of
+        // either side to whole pixels.
+        let (n, d) = self.pixel_aspect.unwrap_or((1, 1));
+        let (nw, nh) = (f64::from(native.0), f64::from(native.1));
+        let (w, h) = (f64::from(out.0), f64::from(out.1));
+        let picture = nw * f64::from(n) / f64::from(d) / nh;
+        let square = ((w / h) / picture - 1.0).abs() <= 0.01
+            || (w - h * picture).abs() <= 0.5
+            || (h - w / picture).abs() <= 0.5;
+        if !square {
+            let shape = picture / (w / h);
+            let what = if out == native {
+                format!("its pixels are {n}:{d}")
+            } else {
+                format!(
+                    "resized to {}x{}, its pixels are {shape:.2} times as wide as tall",
+                    out.0, out.1
+                )
+            };
+            let (sw, sh) = square_size(picture, out.1);
+            lines.push(format!(
+                "{path}: {what}, not square, and the ellipse and the rotation assume square \
+                 ones; --resize {sw}x{sh} makes them square"
+            ));
         }
         lines
     }
@@ -634,8 +658,52 @@ mod tests {
         assert!(wide.caveats("v", (352, 288), (384, 288)).is_empty());
         // Within 1 % of square: 383 wide is 0.3 % off.
         assert!(wide.caveats("v", (352, 288), (383, 288)).is_empty());
-        // Halved on both axes, still 12:11.
-        assert_eq!(wide.caveats("v", (352, 288), (176, 144)).len(), 1);
+        // Halved on both axes, still 12:11: squared at the height the user chose.
+        let c = wide.caveats("v", (352, 288), (176, 144));
+        assert_eq!(c.len(), 1, "{c:?}");
+        assert!(
+            c[0].starts_with("v: resized to 176x144, its pixels are 1.09 times as wide as tall")
+                && c[0].contains("--resize 192x144"),
+            "{}",
+            c[0]
+        );
+        // A resize that distorts pixels stored square, stated so or not.
+        for l in [
+            Layout::default(),
+            Layout {
+                interlaced: None,
+                pixel_aspect: Some((1, 1)),
+            },
+        ] {
+            let c = l.caveats("v", (640, 480), (640, 240));
+            assert_eq!(c.len(), 1, "{c:?}");
+            assert!(
+                c[0].contains("0.50 times as wide as tall") && c[0].contains("--resize 320x240"),
+                "{}",
+                c[0]
+            );
+            assert!(l.caveats("v", (640, 480), (320, 240)).is_empty());
+        }
+        // The size named is one --resize takes: 8K at 4:3 pixels is 10240 wide, 44 million
+        // pixels; scaled down to 2^25 pixels in all.
+        let c = Layout {
+            interlaced: None,
+            pixel_aspect: Some((4, 3)),
+        }
+        .caveats("v", (7680, 4320), (7680, 4320));
+        let named = c[0]
+            .split("--resize ")
+            .nth(1)
+            .unwrap()
+            .split(' ')
+            .next()
+            .unwrap();
+        let (w, h) = parse_size(named).unwrap();
+        assert!(
+            (f64::from(w) / f64::from(h) - 10240.0 / 4320.0).abs() < 1e-3,
+            "{named}"
+        );
+        assert!(u64::from(w) * u64::from(h) > (1 << 25) - 10_000, "{named}");
         // Tall pixels: 11:12 of 352 is 322.7.
         let tall = Layout {
             interlaced: None,
