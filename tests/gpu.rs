@@ -1412,3 +1412,102 @@ fn a_refused_allocation_fails_that_call_only() {
         assert_eq!(after, before);
     }
 }
+
+/// `evaluate_batched` gives as many particles as asked for in batches the engine's buffers
+/// hold, the same terms bit for bit as one call on a device whose buffers hold them all.
+#[test]
+fn batched_evaluation_passes_the_buffer_limit_with_the_same_terms() {
+    let Some(mut own) = engine() else { return };
+    let (device, queue) = app_device_limited(&own.name(), |l| pftrack::wgpu::Limits {
+        max_storage_buffer_binding_size: 1 << 20,
+        ..l
+    });
+    let mut small = GpuEngine::with_device(GpuDevice::from_wgpu(device, queue)).unwrap();
+    let img = RgbImage::from_fn(64, 48, |x, y| Rgb([(x * 4) as u8, (y * 5) as u8, 90]));
+    let model = ColourHistogram::from_ellipse(
+        &img,
+        &pftrack::geometry::Ellipse::new(32.0, 24.0, 8.0, 6.0),
+        COLOUR_RGB,
+    )
+    .unwrap();
+    let frame = FrameInput {
+        image: &img,
+        features: &[],
+        depths: None,
+        prev: particle(32.0, 24.0, 8.0, 6.0),
+        theta0: 0.0,
+    };
+    let params = LikelihoodParams {
+        terms: TERM_COLOUR | TERM_GRADIENT,
+        ..Default::default()
+    };
+    // 1 MiB holds 32,768 particles of 32 bytes; with 24 lines each, 10,922.
+    let ps: Vec<Particle> = (0..40_000)
+        .map(|i| {
+            let t = i as f32 * 0.618;
+            particle(
+                32.0 + 20.0 * t.sin(),
+                24.0 + 15.0 * (1.3 * t).cos(),
+                3.0 + (i % 9) as f32,
+                3.0 + (i % 7) as f32,
+            )
+        })
+        .collect();
+    let (mut whole, mut batched) = (Vec::new(), Vec::new());
+    for e in [&mut *own as &mut dyn LikelihoodEngine, &mut small] {
+        e.set_colour_model(&model).unwrap();
+    }
+    let r = small.evaluate(&frame, &params, &ps, &mut batched);
+    assert!(
+        matches!(r, Err(LikelihoodError::TooManyParticles { .. })),
+        "{r:?}"
+    );
+    own.evaluate(&frame, &params, &ps, &mut whole).unwrap();
+    small
+        .evaluate_batched(&frame, &params, &ps, &mut batched)
+        .unwrap();
+    assert_eq!(batched.len(), ps.len());
+    assert!(whole == batched, "the batches' terms differ");
+    // Where one call fits, it is that call.
+    own.evaluate_batched(&frame, &params, &ps[..100], &mut batched)
+        .unwrap();
+    assert!(whole[..100] == batched[..], "one batch");
+}
+
+/// A target lost on a large frame is searched for over the whole frame, more candidates than
+/// the filter's particles: on a device whose buffers hold only a few thousand, the search runs
+/// in batches, where it failed every frame once the target was lost.
+#[test]
+fn a_lost_targets_search_fits_the_devices_buffers() {
+    use pftrack::geometry::Ellipse;
+    use pftrack::tracker::{Init, Tracker, TrackerConfig};
+    let Some(own) = engine() else { return };
+    let (device, queue) = app_device_limited(&own.name(), |l| pftrack::wgpu::Limits {
+        max_storage_buffer_binding_size: 1 << 20,
+        ..l
+    });
+    drop(own);
+    let gpu = GpuEngine::with_device(GpuDevice::from_wgpu(device, queue)).unwrap();
+    let first = RgbImage::from_fn(320, 240, |x, y| {
+        let r2 = (x as i32 - 160).pow(2) + (y as i32 - 120).pow(2);
+        if r2 <= 16 {
+            Rgb([220, 40, 40])
+        } else {
+            Rgb([(x % 7 * 9) as u8, (y % 5 * 11) as u8, 60])
+        }
+    });
+    let blank = RgbImage::from_pixel(320, 240, Rgb([60, 60, 60]));
+    let mut t = Tracker::with_engine(
+        TrackerConfig::default(),
+        Box::new(gpu),
+        &first,
+        Init::frontal(Ellipse::new(160.0, 120.0, 4.0, 4.0)),
+    )
+    .unwrap();
+    let mut lost = 0;
+    for k in 1..=8 {
+        let est = t.step(&blank).unwrap_or_else(|e| panic!("frame {k}: {e}"));
+        lost += usize::from(est.lost);
+    }
+    assert!(lost > 0, "the target was lost and searched for");
+}

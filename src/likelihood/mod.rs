@@ -584,6 +584,41 @@ pub trait LikelihoodEngine {
         out: &mut Vec<TermLogs>,
     ) -> Result<(), LikelihoodError>;
 
+    /// [`Self::evaluate`] on any number of particles: in batches of the most the engine's
+    /// buffers hold ([`Self::check_capacity`]: all at once on the CPU), the results in
+    /// order. The same results as one call where one call fits, each particle's terms being
+    /// its own. For a caller whose particle count has no bound, such as a search over a frame.
+    fn evaluate_batched(
+        &mut self,
+        frame: &FrameInput<'_>,
+        params: &LikelihoodParams,
+        particles: &[Particle],
+        out: &mut Vec<TermLogs>,
+    ) -> Result<(), LikelihoodError> {
+        let (w, h) = frame.image.dimensions();
+        let mut batch = particles.len().max(1);
+        loop {
+            match self.check_capacity(batch, w, h, params) {
+                Ok(()) => break,
+                Err(LikelihoodError::TooManyParticles { .. }) if batch > 1 => {
+                    batch = batch.div_ceil(2);
+                }
+                Err(e) => return Err(e),
+            }
+        }
+        if batch >= particles.len() {
+            return self.evaluate(frame, params, particles, out);
+        }
+        out.clear();
+        out.reserve(particles.len());
+        let mut part = Vec::with_capacity(batch);
+        for chunk in particles.chunks(batch) {
+            self.evaluate(frame, params, chunk, &mut part)?;
+            out.extend_from_slice(&part);
+        }
+        Ok(())
+    }
+
     /// A one-line notice the engine wants shown to the user since the last call (e.g. that it
     /// switched from a lost GPU to the CPU), taken once. None by default.
     fn take_notice(&mut self) -> Option<String> {

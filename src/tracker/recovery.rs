@@ -268,8 +268,9 @@ impl Tracker {
 
     /// Looks for the target over the whole frame: by colour first, ellipses at
     /// [`REACQUIRE_SCALES`] times the initial ellipse's size on a grid of half a semi-axis,
-    /// all evaluated in one engine call and ranked by the colour term plus, when it is on,
-    /// the contrast term (which prefers the size holding the target's colours and no more);
+    /// all evaluated together (in batches the engine's buffers hold) and ranked by the colour
+    /// term plus, when it is on, the contrast term (which prefers the size holding the
+    /// target's colours and no more);
     /// the best one, when its colour similarity reaches [`TrackerConfig::reacquire_rho`], is
     /// then verified by its features, which must fit one of the keyframes (any pose).
     /// With [`TrackerConfig::reacquire_ncc`], the candidate of the target's colours that
@@ -304,7 +305,11 @@ impl Tracker {
             theta0: self.theta0 as f32,
         };
         let mut out = Vec::new();
-        self.engine.evaluate(&input, &lp, &cands, &mut out)?;
+        // The grid covers the frame, so its size has no bound the filter's count sets: in
+        // batches the engine's buffers hold (a 4 px target on a 4K frame is 7.8 million
+        // candidates, 249 MB of GPU buffer).
+        self.engine
+            .evaluate_batched(&input, &lp, &cands, &mut out)?;
         let rhos: Vec<f64> = out
             .iter()
             .map(|t| rho_from_log(t.colour, lp.sigma_colour))
