@@ -1372,3 +1372,156 @@ fn the_weighing_stays_whole_through_a_reacquisition() {
     }
     assert_eq!(reacquired, 1, "the head was not re-acquired once");
 }
+
+/// A likelihood engine around the CPU's that fails, while armed, as a GPU fault would.
+struct Flaky {
+    inner: pftrack::likelihood::cpu::CpuEngine,
+    armed: std::sync::Arc<std::sync::atomic::AtomicBool>,
+}
+
+impl Flaky {
+    fn fault(&self) -> Result<(), pftrack::likelihood::LikelihoodError> {
+        if self.armed.load(std::sync::atomic::Ordering::SeqCst) {
+            Err(pftrack::likelihood::LikelihoodError::Gpu(
+                "armed fault".into(),
+            ))
+        } else {
+            Ok(())
+        }
+    }
+}
+
+impl pftrack::likelihood::LikelihoodEngine for Flaky {
+    fn name(&self) -> String {
+        "flaky".into()
+    }
+    fn set_colour_model(
+        &mut self,
+        model: &pftrack::likelihood::ColourHistogram,
+    ) -> Result<(), pftrack::likelihood::LikelihoodError> {
+        self.fault()?;
+        self.inner.set_colour_model(model)
+    }
+    fn set_contrast_table(
+        &mut self,
+        table: &pftrack::likelihood::ContrastTable,
+    ) -> Result<(), pftrack::likelihood::LikelihoodError> {
+        self.inner.set_contrast_table(table)
+    }
+    fn evaluate(
+        &mut self,
+        frame: &pftrack::likelihood::FrameInput<'_>,
+        params: &pftrack::likelihood::LikelihoodParams,
+        particles: &[pftrack::likelihood::Particle],
+        out: &mut Vec<pftrack::likelihood::TermLogs>,
+    ) -> Result<(), pftrack::likelihood::LikelihoodError> {
+        self.fault()?;
+        self.inner.evaluate(frame, params, particles, out)
+    }
+}
+
+/// A frame of the wrong size is refused and changes nothing: the track goes on as if it had
+/// not come, bit for bit.
+#[test]
+fn a_wrong_sized_frame_changes_nothing() {
+    let r = Renderer::new(&SynthConfig::new(Scenario::Nod)).unwrap();
+    let init = Init::frontal(r.init_ellipse());
+    let (first, _) = r.render(0);
+    let mut a = Tracker::new(TrackerConfig::default(), &first, init).unwrap();
+    let mut b = Tracker::new(TrackerConfig::default(), &first, init).unwrap();
+    let odd = image::RgbImage::new(first.width() + 1, first.height());
+    for k in 1..=6 {
+        let (img, _) = r.render(k);
+        if k == 3 {
+            let e = a.step(&odd).unwrap_err();
+            assert!(
+                matches!(
+                    e,
+                    pftrack::Error::Track(TrackError::FrameSize { frame: 3, .. })
+                ),
+                "{e}"
+            );
+        }
+        assert_eq!(a.step(&img).unwrap(), b.step(&img).unwrap(), "frame {k}");
+    }
+}
+
+/// A step or restart that fails part-way (the engine's fault) stops the tracker: every later
+/// step says so, naming the frame and the cause, with no weighing to read, until a restart
+/// succeeds; then it tracks as a tracker started on that frame does.
+#[test]
+fn a_failed_step_stops_the_tracker_until_reinit() {
+    use std::sync::Arc;
+    use std::sync::atomic::{AtomicBool, Ordering};
+    let r = Renderer::new(&SynthConfig::new(Scenario::Nod)).unwrap();
+    let init = Init::frontal(r.init_ellipse());
+    let (first, _) = r.render(0);
+    let armed = Arc::new(AtomicBool::new(false));
+    let engine = Flaky {
+        inner: pftrack::likelihood::cpu::CpuEngine::new(),
+        armed: armed.clone(),
+    };
+    let mut t =
+        Tracker::with_engine(TrackerConfig::default(), Box::new(engine), &first, init).unwrap();
+    for k in 1..=2 {
+        t.step(&r.render(k).0).unwrap();
+    }
+    assert!(t.last_weighing().is_some());
+    let (f3, _) = r.render(3);
+    armed.store(true, Ordering::SeqCst);
+    let e = t.step(&f3).unwrap_err();
+    assert!(matches!(e, pftrack::Error::Likelihood(_)), "{e}");
+    assert!(t.last_weighing().is_none());
+    armed.store(false, Ordering::SeqCst);
+    for _ in 0..2 {
+        let e = t.step(&f3).unwrap_err();
+        let pftrack::Error::Track(TrackError::Failed { frame, cause }) = &e else {
+            panic!("{e}")
+        };
+        assert_eq!(*frame, 3);
+        assert!(cause.contains("armed fault"), "{cause}");
+        assert!(e.to_string().contains("reinit"), "{e}");
+    }
+
+    // A restart that fails (setting the colour model) leaves it stopped too.
+    armed.store(true, Ordering::SeqCst);
+    assert!(t.reinit(&f3, init).is_err());
+    armed.store(false, Ordering::SeqCst);
+    let e = t.step(&r.render(4).0).unwrap_err();
+    assert!(
+        matches!(e, pftrack::Error::Track(TrackError::Failed { .. })),
+        "{e}"
+    );
+
+    // Restarted on frame 3, it tracks as a tracker built there.
+    t.reinit(&f3, init).unwrap();
+    let mut fresh = Tracker::new(TrackerConfig::default(), &f3, init).unwrap();
+    for k in 4..=6 {
+        let (img, _) = r.render(k);
+        let (a, b) = (t.step(&img).unwrap(), fresh.step(&img).unwrap());
+        assert_eq!(a.state, b.state, "frame {k}");
+    }
+}
+
+/// The start's refinement ([`TrackerConfig::init_refine`]) stays within the bounds a start is
+/// checked against: where it would shrink a 2 px start on a 1 px dot, the start is the one
+/// given.
+#[test]
+fn a_refined_start_stays_within_the_starts_bounds() {
+    let mut frame = image::RgbImage::from_pixel(48, 32, image::Rgb([40, 40, 40]));
+    for (x, y) in [(2, 16), (3, 16), (2, 17), (3, 17)] {
+        frame.put_pixel(x, y, image::Rgb([230, 230, 230]));
+    }
+    let cfg = TrackerConfig {
+        init_refine: Some(pftrack::tracker::InitRefine::default()),
+        ..TrackerConfig::default()
+    };
+    for cx in [2.0, 2.5, 3.0, 4.0] {
+        let init = Init::frontal(Ellipse::new(cx, 16.5, 2.0, 2.0));
+        init.check_for(&cfg, 48, 32).unwrap();
+        let t = Tracker::new(cfg.clone(), &frame, init).unwrap();
+        let used = t.initial_estimate().ellipse;
+        let start = Init::frontal(used);
+        assert!(start.check_for(&cfg, 48, 32).is_ok(), "{cx}: {used:?}");
+    }
+}

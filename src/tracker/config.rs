@@ -139,7 +139,9 @@ pub struct TrackerConfig {
     /// box `car` went 3.1/16.3/3.9° and 2.1 px to 5.0/14.7/4.2° and 2.9 px, the heads within
     /// noise (summed RMSE 47.5 -> 49.0 over the six scenarios), girl 0.653 either way and
     /// car4 0.798 -> 0.762 (one filter seed of sixteen lost; its OTB box's inscribed ellipse
-    /// grew 8 % onto the road). For a start drawn by hand, turn it on.
+    /// grew 8 % onto the road). For a start drawn by hand, turn it on. A refined ellipse that
+    /// [`Init::check_for`] would refuse (a semi-axis under 2 px, the centre off the frame) is
+    /// not used: the start is then the one given.
     pub init_refine: Option<super::InitRefine>,
     /// Feature matching.
     pub matching: MatchParams,

@@ -101,6 +101,19 @@ pub enum TrackError {
         /// The first frame's height.
         want_h: u32,
     },
+    /// An earlier step or restart failed part-way (the likelihood engine's error: a GPU fault
+    /// its fallback did not absorb), leaving the tracker's state partly advanced: it must be
+    /// started again with [`Tracker::reinit`].
+    #[error(
+        "the tracker failed on frame {frame} ({cause}) and must be started again (reinit) before \
+         it steps on"
+    )]
+    Failed {
+        /// The frame whose step or start failed.
+        frame: usize,
+        /// That failure's message.
+        cause: String,
+    },
 }
 
 /// How the last step weighed its particles ([`Tracker::last_weighing`]): for looking inside
@@ -193,6 +206,9 @@ pub struct Tracker {
     /// frame is grey ([`TrackerConfig::grey_luma`]).
     likelihood: LikelihoodParams,
     engine: Box<dyn LikelihoodEngine + Send>,
+    /// The frame and message of a step or restart that failed after changing the state, which
+    /// only a successful start clears ([`TrackError::Failed`]).
+    failed: Option<(usize, String)>,
     sift: Sift,
     /// SIFT without the doubled first octave: for targets of at least
     /// [`TrackerConfig::sift_upsample_below`], and for a window whose doubled scale space
@@ -401,6 +417,7 @@ impl Tracker {
             low_count: 0,
             lost: false,
             frames_without_sift: 0,
+            failed: None,
             held_axes: (1.0, 1.0),
             prev_confidence: 1.0,
             particles: Vec::new(),
@@ -434,13 +451,16 @@ impl Tracker {
     /// counting: `frame` is numbered one after the last frame stepped. With
     /// [`TrackerConfig::init_refine`] the ellipse is refined on `frame` first
     /// ([`refine_ellipse`]); [`Tracker::initial_estimate`] gives the one used. On an error
-    /// the frame is not counted.
+    /// the frame is not counted. An error in the checks of the frame, the start and the
+    /// engine's capacity leaves the tracker as it was; one after them (the likelihood
+    /// engine's, setting the new colour model) leaves it to be started again
+    /// ([`TrackError::Failed`]). A successful restart clears an earlier failure.
     pub fn reinit(&mut self, frame: &image::RgbImage, init: Init) -> crate::Result<()> {
         self.start(frame, init, self.frame + 1)
     }
 
     /// The common start of [`Tracker::new`] and [`Tracker::reinit`] on `frame`, numbered
-    /// `index`.
+    /// `index`: checks that change nothing, then the start, whose failure is recorded.
     fn start(&mut self, frame: &image::RgbImage, init: Init, index: usize) -> crate::Result<()> {
         let (w, h) = frame.dimensions();
         not_empty(w, h)?;
@@ -453,13 +473,50 @@ impl Tracker {
             likelihood.colour_bins = COLOUR_LUMA;
         }
         let init = match &self.cfg.init_refine {
-            Some(r) => Init {
-                ellipse: init_refine::refine_ellipse(frame, &init.ellipse, &likelihood, r)
-                    .map_err(track_err)?,
-                ..init
-            },
+            Some(r) => {
+                let refined = Init {
+                    ellipse: init_refine::refine_ellipse(frame, &init.ellipse, &likelihood, r)
+                        .map_err(track_err)?,
+                    ..init
+                };
+                // A refinement that leaves the start's bounds (a semi-axis under 2 px, the
+                // centre off the frame) is no refinement: the start as given.
+                if refined.check_for(&self.cfg, w, h).is_ok() {
+                    refined
+                } else {
+                    init
+                }
+            }
             None => init,
         };
+        let started = self.start_checked(frame, init, likelihood, index);
+        self.failed = match &started {
+            Ok(()) => None,
+            Err(e) => {
+                self.clear_weighing();
+                Some((index, e.to_string()))
+            }
+        };
+        started
+    }
+
+    /// Forgets the last step's weighing ([`Self::last_weighing`] gives `None`).
+    fn clear_weighing(&mut self) {
+        self.particles.clear();
+        self.terms.clear();
+        self.totals.clear();
+    }
+
+    /// [`Self::start`] once its checks passed: `init` is the start to use, `likelihood` the
+    /// settings for its frames.
+    fn start_checked(
+        &mut self,
+        frame: &image::RgbImage,
+        init: Init,
+        likelihood: LikelihoodParams,
+        index: usize,
+    ) -> crate::Result<()> {
+        let (w, h) = frame.dimensions();
         self.likelihood = likelihood;
         self.size = (w, h);
         // The start's ellipse is the one seen, turned by `theta0 + rz` (SPEC).
@@ -575,7 +632,7 @@ impl Tracker {
     /// before the reset.
     pub fn last_weighing(&self) -> Option<Weighing<'_>> {
         let n = self.particles.len();
-        // (A step whose evaluation failed leaves particles without their terms: none.)
+        // (A failed step or start clears all three: none.)
         (n > 0 && self.terms.len() == n && self.totals.len() == n).then_some(Weighing {
             particles: &self.particles,
             terms: &self.terms,
@@ -621,15 +678,21 @@ impl Tracker {
     /// `rayon::ThreadPoolBuilder::new().num_threads(n).build()`; the output is the same on
     /// any number of threads. [`crate::likelihood::cpu::CpuEngine::with_threads`] bounds only
     /// the likelihood pass.
+    ///
+    /// Errors: a frame of another size than the start's is refused and changes nothing (the
+    /// next frame steps as if it had not come). An error after that (the likelihood engine's:
+    /// a GPU fault that its CPU fallback, [`crate::likelihood::FallbackEngine`], did not
+    /// absorb) leaves the state partly advanced, so every later step returns
+    /// [`TrackError::Failed`] until [`Self::reinit`] starts again (from the last estimate, say).
     pub fn step(&mut self, frame: &image::RgbImage) -> crate::Result<Estimate> {
-        rayon::scope(|_| self.step_in_pool(frame))
-    }
-
-    /// [`Self::step`]'s work, on a thread of rayon's pool.
-    fn step_in_pool(&mut self, frame: &image::RgbImage) -> crate::Result<Estimate> {
+        if let Some((frame, cause)) = &self.failed {
+            return Err(track_err(TrackError::Failed {
+                frame: *frame,
+                cause: cause.clone(),
+            }));
+        }
         let (w, h) = frame.dimensions();
         let index = self.frame + 1;
-        self.keyframes.tick(index);
         if (w, h) != self.size {
             return Err(track_err(TrackError::FrameSize {
                 frame: index,
@@ -639,6 +702,18 @@ impl Tracker {
                 want_h: self.size.1,
             }));
         }
+        let stepped = rayon::scope(|_| self.step_in_pool(frame, index));
+        if let Err(e) = &stepped {
+            self.clear_weighing();
+            self.failed = Some((index, e.to_string()));
+        }
+        stepped
+    }
+
+    /// [`Self::step`]'s work on frame `index`, of the right size, on a thread of rayon's pool.
+    fn step_in_pool(&mut self, frame: &image::RgbImage, index: usize) -> crate::Result<Estimate> {
+        let (w, h) = frame.dimensions();
+        self.keyframes.tick(index);
         let gray = GrayF32::from_rgb(frame);
         let prev_state = self.prev.to_state();
         let prev_ellipse = prev_state.ellipse(self.theta0);
