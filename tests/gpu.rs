@@ -1249,6 +1249,20 @@ fn an_engine_on_the_applications_own_device_gives_the_same_terms() {
     assert_eq!(a, b);
 }
 
+/// A frame input on `img`, one flat colour, with the engine's colour model that colour's bin
+/// and the previous estimate a 3 px circle at (8, 8).
+fn flat_frame<'a>(e: &mut GpuEngine, img: &'a RgbImage) -> FrameInput<'a> {
+    e.set_colour_model(&one_hot(bin_of(*img.get_pixel(0, 0))))
+        .unwrap();
+    FrameInput {
+        image: img,
+        features: &[],
+        depths: None,
+        prev: particle(8.0, 8.0, 3.0, 3.0),
+        theta0: 0.0,
+    }
+}
+
 /// A device opened as an application would, on the adapter an engine named `name` runs on.
 fn app_device(name: &str) -> (pftrack::wgpu::Device, pftrack::wgpu::Queue) {
     app_device_limited(name, |l| l)
@@ -1302,15 +1316,7 @@ fn the_applications_error_handlers_stay_in_place() {
     let app = device.clone();
     let mut e = GpuEngine::with_device(GpuDevice::from_wgpu(device, queue)).unwrap();
     let img = RgbImage::from_pixel(16, 16, Rgb([1, 2, 3]));
-    e.set_colour_model(&one_hot(bin_of(Rgb([1, 2, 3]))))
-        .unwrap();
-    let frame = FrameInput {
-        image: &img,
-        features: &[],
-        depths: None,
-        prev: particle(8.0, 8.0, 3.0, 3.0),
-        theta0: 0.0,
-    };
+    let frame = flat_frame(&mut e, &img);
     let params = LikelihoodParams {
         terms: TERM_COLOUR,
         ..Default::default()
@@ -1373,15 +1379,7 @@ fn a_refused_allocation_fails_that_call_only() {
         })
     ));
     let img = RgbImage::from_pixel(16, 16, Rgb([1, 2, 3]));
-    e.set_colour_model(&one_hot(bin_of(Rgb([1, 2, 3]))))
-        .unwrap();
-    let frame = FrameInput {
-        image: &img,
-        features: &[],
-        depths: None,
-        prev: particle(8.0, 8.0, 3.0, 3.0),
-        theta0: 0.0,
-    };
+    let frame = flat_frame(&mut e, &img);
     let params = LikelihoodParams {
         terms: TERM_COLOUR | TERM_GRADIENT,
         ..Default::default()
