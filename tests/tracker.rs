@@ -1493,6 +1493,13 @@ fn a_failed_step_stops_the_tracker_until_reinit() {
         "{e}"
     );
 
+    // Restarted from where the track was, the start is that estimate.
+    let last = fresh_estimate(&r, 2);
+    t.reinit(&f3, last.to_init()).unwrap();
+    let again = t.initial_estimate();
+    assert_eq!((again.frame, again.state), (3, last.state));
+    assert_eq!(again.ellipse, last.ellipse);
+
     // Restarted on frame 3, it tracks as a tracker built there.
     t.reinit(&f3, init).unwrap();
     let mut fresh = Tracker::new(TrackerConfig::default(), &f3, init).unwrap();
@@ -1524,4 +1531,15 @@ fn a_refined_start_stays_within_the_starts_bounds() {
         let start = Init::frontal(used);
         assert!(start.check_for(&cfg, 48, 32).is_ok(), "{cx}: {used:?}");
     }
+}
+
+/// The estimate of frame `k` of `r`'s sequence by a default tracker started on frame 0.
+fn fresh_estimate(r: &Renderer, k: usize) -> pftrack::tracker::Estimate {
+    let init = Init::frontal(r.init_ellipse());
+    let mut t = Tracker::new(TrackerConfig::default(), &r.render(0).0, init).unwrap();
+    let mut est = t.initial_estimate();
+    for i in 1..=k {
+        est = t.step(&r.render(i).0).unwrap();
+    }
+    est
 }

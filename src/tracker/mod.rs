@@ -177,6 +177,16 @@ impl Estimate {
         [deg(self.state.rx), deg(self.state.ry), deg(self.state.rz)]
     }
 
+    /// A start at this estimate, its ellipse as seen and its pose: to start again from where
+    /// the track was ([`Tracker::reinit`] after a [`TrackError::Failed`], or on a later frame).
+    /// The angles then go on from the estimate's, the reference orientation staying the same.
+    pub fn to_init(&self) -> Init {
+        Init {
+            ellipse: self.ellipse,
+            pose: self.state.euler(),
+        }
+    }
+
     /// The estimate as a row of the pose CSV ([`crate::io::PoseCsvWriter`]), with its score,
     /// lost flag and ellipse orientation, as `pftrack track` writes it.
     pub fn to_record(&self) -> crate::io::PoseRecord {
