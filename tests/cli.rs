@@ -1689,6 +1689,15 @@ fn track_warns_of_interlaced_frames_and_non_square_pixels() {
         "a header and three frames"
     );
 
+    // A bad start is the only line printed: the warnings come once the start is good.
+    let mut bad = args.to_vec();
+    bad[5] = "999,24,10,10";
+    let o = pftrack(&bad);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success());
+    assert_eq!(err.lines().count(), 1, "{err}");
+    assert!(err.contains("invalid start"), "{err}");
+
     let mut resized = args.to_vec();
     resized.extend(["--resize", "70x48"]);
     let o = pftrack_ok(&resized);

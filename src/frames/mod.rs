@@ -317,9 +317,16 @@ fn square_size(picture: f64, height: u32) -> (u32, u32) {
     let side = f64::from(y4m::MAX_SIDE);
     let fit = (side / w)
         .min(side / h)
-        .min((y4m::MAX_PIXELS as f64 / (w * h)).sqrt())
-        .min(1.0);
-    let size = |v: f64| ((v * fit).round() as u32).max(1);
+        .min((y4m::MAX_PIXELS as f64 / (w * h)).sqrt());
+    // Scaled down, both sides round down, so that rounding cannot pass the limits again.
+    let size = |v: f64| {
+        let v = if fit < 1.0 {
+            (v * fit).floor()
+        } else {
+            v.round()
+        };
+        (v as u32).max(1)
+    };
     (size(w), size(h))
 }
 
@@ -704,6 +711,34 @@ mod tests {
             "{named}"
         );
         assert!(u64::from(w) * u64::from(h) > (1 << 25) - 10_000, "{named}");
+        // Whatever the shape, the size named is one --resize takes (12:11 at 8K rounded both
+        // sides up to 8067x4160, past 2^25), and its pixels are square.
+        for (n, d) in [
+            (12, 11),
+            (2, 1),
+            (64, 45),
+            (16, 15),
+            (5, 4),
+            (6, 5),
+            (32, 27),
+            (3, 2),
+        ] {
+            for native in [(7680, 4320), (6144, 3160), (8192, 4096), (5760, 5760)] {
+                let l = Layout {
+                    interlaced: None,
+                    pixel_aspect: Some((n, d)),
+                };
+                let c = l.caveats("v", native, native);
+                let named = c[0].split("--resize ").nth(1).unwrap();
+                let named = named.split(' ').next().unwrap();
+                let (w, h) =
+                    parse_size(named).unwrap_or_else(|e| panic!("{n}:{d} {native:?}: {e}"));
+                assert!(
+                    l.caveats("v", native, (w, h)).is_empty(),
+                    "{n}:{d} {native:?} -> {named}"
+                );
+            }
+        }
         // Tall pixels: 11:12 of 352 is 322.7.
         let tall = Layout {
             interlaced: None,

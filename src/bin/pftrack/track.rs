@@ -879,9 +879,6 @@ pub fn run(mut a: TrackArgs) -> anyhow::Result<()> {
     let resize = a.resize.as_deref().map(frames::parse_size).transpose()?;
     // Its errors name the input themselves.
     let mut source = frames::open(&frames_path, &SourceOptions { resize })?;
-    for caveat in source.caveats() {
-        errln!("pftrack: warning: {caveat}");
-    }
     // The start and the poses are in the input's own pixels; the tracker sees the resized
     // frames (`--resize`). The start is checked before the engine is opened, so a bad one is
     // the only line printed: first in the input's pixels, as given, then as the tracker will
@@ -898,6 +895,11 @@ pub fn run(mut a: TrackArgs) -> anyhow::Result<()> {
         checked?;
     } else {
         checked.with_context(|| format!("the start resized to {w}x{h} (--resize)"))?;
+    }
+    // What the frames' layout misleads (interlaced fields, pixels not square), once the
+    // start is known to be good.
+    for caveat in source.caveats() {
+        errln!("pftrack: warning: {caveat}");
     }
     let (engine, notice) = create_engine(backend)?;
     if let Some(n) = notice {

@@ -295,8 +295,10 @@ impl GpuDevice {
         let caught = [internal.pop(), memory.pop(), validation.pop()]
             .into_iter()
             .find_map(pollster::block_on);
+        // An error the scopes caught is the cause: a buffer wgpu refused also fails its
+        // mapping, which the readback reports as a lost device, and the device is not lost
+        // (a lost device's errors never reach a scope: wgpu leaves them to its callback).
         let result = match (result, caught) {
-            (Err(e @ LikelihoodError::DeviceLost(_)), _) => Err(e),
             (_, Some(wgpu::Error::OutOfMemory { .. })) => Err(LikelihoodError::Gpu(
                 "the GPU ran out of memory".to_string(),
             )),
@@ -344,6 +346,48 @@ mod tests {
         for t in [T::DiscreteGpu, T::IntegratedGpu, T::VirtualGpu, T::Other] {
             assert!(!refuses_software(true, false, t), "{t:?}");
         }
+    }
+
+    /// A device on any Vulkan adapter (lavapipe in CI), or `None` where there is none and
+    /// `PFTRACK_REQUIRE_GPU=1` is not set.
+    fn any_device() -> Option<GpuDevice> {
+        match GpuDevice::open_matching(None) {
+            Ok(d) => Some(d),
+            Err(e) if std::env::var("PFTRACK_REQUIRE_GPU").as_deref() == Ok("1") => {
+                panic!("PFTRACK_REQUIRE_GPU=1 but no device: {e}")
+            }
+            Err(_) => None,
+        }
+    }
+
+    /// A buffer wgpu refuses also fails its mapping, which the readback reports as a lost
+    /// device: the scopes' error wins, and the device is not marked lost. A lost-device error
+    /// with nothing caught stands, and marks it.
+    #[test]
+    fn a_caught_error_is_the_cause_not_a_lost_device() {
+        let Some(gpu) = any_device() else { return };
+        let scopes = gpu.push_scopes();
+        let _refused = gpu.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("refused"),
+            size: gpu.limits.max_buffer_size.saturating_add(1 << 20),
+            usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let mapping = Err::<(), _>(LikelihoodError::DeviceLost("mapping failed".into()));
+        let r = gpu.pop_scopes(scopes, mapping);
+        let Err(LikelihoodError::Gpu(msg)) = &r else {
+            panic!("{r:?}")
+        };
+        assert!(msg.contains("refused"), "{msg}");
+        assert!(!gpu.is_lost());
+        assert!(gpu.check().is_ok());
+
+        let scopes = gpu.push_scopes();
+        let lost = Err::<(), _>(LikelihoodError::DeviceLost("gone".into()));
+        let r = gpu.pop_scopes(scopes, lost);
+        assert!(matches!(r, Err(LikelihoodError::DeviceLost(_))), "{r:?}");
+        assert!(gpu.is_lost());
+        assert!(matches!(gpu.check(), Err(LikelihoodError::DeviceLost(_))));
     }
 
     #[test]
