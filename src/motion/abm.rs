@@ -304,7 +304,9 @@ struct Window {
     h: i64,
     data: Vec<u8>,
     /// Summed-area table, `(w + 1) × (h + 1)`: `sat[(y + 1)(w + 1) + x + 1]` is the sum of
-    /// the pixels above and left of `(x, y)` inclusive.
+    /// the pixels above and left of `(x, y)` inclusive, modulo 2^32. A window of more than
+    /// 16.8 million bright pixels passes 2^32, but the sums taken from it are of blocks (at
+    /// most 256 x 256 x 255, under 2^24), which modular arithmetic gives exactly.
     sat: Vec<u32>,
 }
 
@@ -327,8 +329,8 @@ impl Window {
         for y in 0..h as usize {
             let mut run = 0u32;
             for x in 0..w as usize {
-                run += data[y * w as usize + x] as u32;
-                sat[(y + 1) * sw + x + 1] = sat[y * sw + x + 1] + run;
+                run = run.wrapping_add(data[y * w as usize + x] as u32);
+                sat[(y + 1) * sw + x + 1] = sat[y * sw + x + 1].wrapping_add(run);
             }
         }
         Self {
@@ -341,12 +343,16 @@ impl Window {
         }
     }
 
-    /// Sum of the pixels of the rectangle `x, y, w, h` (image coordinates, inside).
+    /// Sum of the pixels of the rectangle `x, y, w, h` (image coordinates, inside), exact
+    /// when under 2^32 (the table wraps; see [`Window::sat`]).
     fn box_sum(&self, x: i64, y: i64, w: i64, h: i64) -> u32 {
         let sw = self.w + 1;
         let (x, y) = (x - self.x0, y - self.y0);
         let i = |xx: i64, yy: i64| self.sat[(yy * sw + xx) as usize];
-        i(x + w, y + h) + i(x, y) - i(x, y + h) - i(x + w, y)
+        i(x + w, y + h)
+            .wrapping_add(i(x, y))
+            .wrapping_sub(i(x, y + h))
+            .wrapping_sub(i(x + w, y))
     }
 
     /// Whether the rectangle `x, y, w, h` (image coordinates) lies inside the window.
@@ -869,6 +875,27 @@ pub fn block_match(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A bright window of more than 2^32 / 255 pixels wraps its summed-area table, and the
+    /// block sums taken from it are still exact (the table used to overflow: a panic in a
+    /// build with overflow checks, as the tests are).
+    #[test]
+    fn block_sums_are_exact_in_a_window_past_two_to_the_32() {
+        let (w, h) = (4200u32, 4200u32);
+        let mut img = GrayF32::new(w, h);
+        for (i, v) in img.data.iter_mut().enumerate() {
+            *v = 1.0 - 0.02 * ((i % 7) as f32 / 6.0);
+        }
+        let win = Window::new(&img, 0, 0, w as i64, h as i64);
+        assert!(win.data.iter().map(|&v| u64::from(v)).sum::<u64>() > u64::from(u32::MAX));
+        for (x, y, bw, bh) in [(0, 0, 16, 16), (4000, 4100, 64, 48), (4199, 4199, 1, 1)] {
+            let direct: u32 = (y..y + bh)
+                .flat_map(|yy| (x..x + bw).map(move |xx| (xx, yy)))
+                .map(|(xx, yy)| u32::from(win.data[win.offset(xx, yy)]))
+                .sum();
+            assert_eq!(win.box_sum(x, y, bw, bh), direct, "{x},{y} {bw}x{bh}");
+        }
+    }
 
     #[test]
     fn sad_and_texture_basics() {
