@@ -137,9 +137,12 @@ impl SiftParams {
     pub fn scale_space_bytes(&self, w: usize, h: usize) -> u64 {
         let k = if self.upsample { 4 } else { 1 };
         let first = (w as u64).saturating_mul(h as u64).saturating_mul(k);
-        let images = 2 * self.n_octave_layers as u64 + 5;
+        // Saturating: the settings may be unchecked (`check_window` is public).
+        let images = (self.n_octave_layers as u64)
+            .saturating_mul(2)
+            .saturating_add(5);
         first
-            .saturating_mul(images * 4)
+            .saturating_mul(images.saturating_mul(4))
             .saturating_mul(4)
             .div_ceil(3)
     }
@@ -1723,6 +1726,22 @@ fn descriptor(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Unchecked settings make the scale-space estimate saturate, not overflow.
+    #[test]
+    fn the_scale_space_estimate_saturates() {
+        let p = SiftParams {
+            n_octave_layers: usize::MAX,
+            ..SiftParams::default()
+        };
+        // Saturated at u64::MAX, then 4/3 of it divided down: at least a third of it.
+        assert!(p.scale_space_bytes(10, 10) >= u64::MAX / 3);
+        assert!(matches!(
+            p.check_window(10, 10),
+            Err(FeatureError::TooLarge { .. })
+        ));
+        assert!(SiftParams::default().scale_space_bytes(usize::MAX, usize::MAX) >= u64::MAX / 3);
+    }
 
     #[test]
     fn reflect101_maps_out_of_range() {

@@ -77,13 +77,15 @@ impl Euler {
         let sb = r[(0, 2)].clamp(-1.0, 1.0);
         let ry = sb.asin();
         let cb = (r[(0, 0)].powi(2) + r[(0, 1)].powi(2)).sqrt();
+        // atan2(-0, negative) is -π: the half-turn is given as +π, the range's closed end.
+        let half_open = |a: f64| if a == -std::f64::consts::PI { -a } else { a };
         if cb > 1e-9 {
-            let rx = (-r[(1, 2)]).atan2(r[(2, 2)]);
-            let rz = (-r[(0, 1)]).atan2(r[(0, 0)]);
+            let rx = half_open((-r[(1, 2)]).atan2(r[(2, 2)]));
+            let rz = half_open((-r[(0, 1)]).atan2(r[(0, 0)]));
             Self { rx, ry, rz }
         } else {
             // With rz = 0: r21 = sin rx, r11 = cos rx.
-            let rx = r[(2, 1)].atan2(r[(1, 1)]);
+            let rx = half_open(r[(2, 1)].atan2(r[(1, 1)]));
             Self { rx, ry, rz: 0.0 }
         }
     }
@@ -120,6 +122,27 @@ pub fn angle_between(a: &Matrix3<f64>, b: &Matrix3<f64>) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Half-turns about x and z come back as +π, not -π (atan2 of a negative zero).
+    #[test]
+    fn half_turns_read_as_plus_pi() {
+        use std::f64::consts::PI;
+        let rx = Euler::from_matrix(&Matrix3::from_diagonal(&nalgebra::Vector3::new(
+            1.0, -1.0, -1.0,
+        )));
+        assert_eq!((rx.rx, rx.ry, rx.rz), (PI, 0.0, 0.0));
+        let rz = Euler::from_matrix(&Matrix3::from_diagonal(&nalgebra::Vector3::new(
+            -1.0, -1.0, 1.0,
+        )));
+        assert_eq!((rz.rx, rz.rz), (0.0, PI));
+        assert_eq!(rz.ry.abs(), 0.0);
+        for e in [Euler::new(PI, 0.3, -0.2), Euler::new(0.1, -0.4, PI)] {
+            let back = Euler::from_matrix(&e.matrix());
+            for a in [back.rx, back.rz] {
+                assert!(a > -PI && a <= PI, "{back:?}");
+            }
+        }
+    }
 
     #[test]
     fn elementary_rotations_are_right_handed() {

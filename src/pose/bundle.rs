@@ -162,7 +162,9 @@ fn rotation_steps(
 /// after; `views` get the refined poses.
 ///
 /// Errors: settings [`BundleParams::check`] refuses, more than [`MAX_VIEWS`] views,
-/// non-finite input, a feature index out of range, or a singular system.
+/// non-finite input, or a feature index out of range. A system that stays singular however
+/// much it is damped is no error: the points and poses come back unchanged (the objective
+/// after equal to the one before).
 pub fn refine(
     x0: &[Vector3<f64>],
     key_centre: &Vector2<f64>,

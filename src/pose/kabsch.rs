@@ -39,28 +39,55 @@ fn moments3(p: &[[f64; 3]], q: &[[f64; 3]]) -> Result<(Matrix3<f64>, Matrix3<f64
     let mq = q.iter().map(|x| Vector3::from(*x)).sum::<Vector3<f64>>() / n;
     let mut a = Matrix3::zeros();
     let mut b = Matrix3::zeros();
+    let mut c = Matrix3::zeros();
     for (x, y) in p.iter().zip(q) {
         let pp = Vector3::from(*x) - mp;
         let qq = Vector3::from(*y) - mq;
         a += pp * pp.transpose();
         b += qq * pp.transpose();
+        c += qq * qq.transpose();
     }
-    let ta = a.trace();
-    if ta <= 0.0 {
-        return Err(PoseError::Degenerate("3D points coincide"));
+    // Finite coordinates as large as 1e200 overflow the moments.
+    if a.iter()
+        .chain(b.iter())
+        .chain(c.iter())
+        .any(|x| !x.is_finite())
+    {
+        return Err(PoseError::NonFinite);
     }
-    // rank of A at least 2 (not collinear)
-    let ev = a.symmetric_eigenvalues();
-    let mut e = [ev[0], ev[1], ev[2]];
-    e.sort_by(f64::total_cmp);
-    if e[1] <= 1e-10 * ta {
-        return Err(PoseError::Degenerate("3D points are collinear"));
+    // Each set spans at least a plane: coincident or collinear points leave a turn about
+    // their line undetermined, in either set.
+    for (scatter, coincide, collinear) in [
+        (
+            &a,
+            "the first 3D points coincide",
+            "the first 3D points are collinear",
+        ),
+        (
+            &c,
+            "the second 3D points coincide",
+            "the second 3D points are collinear",
+        ),
+    ] {
+        let t = scatter.trace();
+        if t <= 0.0 {
+            return Err(PoseError::Degenerate(coincide));
+        }
+        let ev = scatter.symmetric_eigenvalues();
+        let mut e = [ev[0], ev[1], ev[2]];
+        e.sort_by(f64::total_cmp);
+        if e[1] <= 1e-10 * t {
+            return Err(PoseError::Degenerate(collinear));
+        }
     }
     Ok((a, b))
 }
 
 /// Rotation minimising `Σ|q'_j - R p'_j|^2` (centred sets) by the SVD (Kabsch):
-/// `B = U S V^T`, `R = U diag(1, 1, det(U V^T)) V^T`.
+/// `B = U S V^T`, `R = U diag(1, 1, det(U V^T)) V^T`. Errors: sets of two lengths, fewer
+/// than 3 points, coordinates that are not finite or overflow the moments
+/// ([`PoseError::NonFinite`]), and either set coincident or collinear
+/// ([`PoseError::Degenerate`]).
 pub fn kabsch(p3: &[[f64; 3]], q3: &[[f64; 3]]) -> Result<Matrix3<f64>, PoseError> {
     let (_, b) = moments3(p3, q3)?;
     let svd = b.svd(true, true);
@@ -264,5 +291,20 @@ mod tests {
         let mut p = line.clone();
         p[1][1] = f64::NAN;
         assert_eq!(kabsch(&p, &line), Err(PoseError::NonFinite));
+        // The second set degenerate while the first spans space: it gave the identity (all one
+        // point) or an arbitrary rotation (collinear), where SEA's 3D solve refused.
+        let mut rng = StdRng::seed_from_u64(2);
+        let (cloud_p, _) = cloud(&mut rng, &Matrix3::identity(), 0.0);
+        let n = cloud_p.len();
+        let one = vec![[1.0, 2.0, 3.0]; n];
+        let on_line: Vec<[f64; 3]> = (0..n).map(|i| [i as f64, 2.0 * i as f64, 0.5]).collect();
+        for q in [&one, &on_line] {
+            for r in [kabsch(&cloud_p, q), sea_3d(&cloud_p, q)] {
+                assert!(matches!(r, Err(PoseError::Degenerate(_))), "{r:?}");
+            }
+        }
+        // Finite coordinates whose moments overflow.
+        let huge: Vec<[f64; 3]> = cloud_p.iter().map(|x| x.map(|v| v * 1e200)).collect();
+        assert_eq!(kabsch(&huge, &huge), Err(PoseError::NonFinite));
     }
 }

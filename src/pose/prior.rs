@@ -481,7 +481,10 @@ impl MotionPrior {
 /// starting from `start`, with an optional prior on the rotation and the centre
 /// ([`MotionPrior`]).
 /// Residuals beyond `3 × max(1 px, median)` are dropped after each of a few rounds (robust to
-/// mismatches). Needs at least 4 matches.
+/// mismatches). Needs at least 4 matches. Errors: [`PoseError::LengthMismatch`],
+/// [`PoseError::TooFewMatches`], [`PoseError::NonFinite`] input, and
+/// [`PoseError::Degenerate`] for a model without depth (a flat disc, from which a fit cannot
+/// leave the frontal pose: a turn out of its plane moves no point to first order).
 pub fn fit_with_depth_prior(
     p: &[[f64; 2]],
     q: &[[f64; 2]],
@@ -491,15 +494,25 @@ pub fn fit_with_depth_prior(
     prior: Option<&MotionPrior>,
 ) -> Result<PriorFit, PoseError> {
     check_sizes(p.len(), q.len())?;
-    if p.iter().any(|v| !v[0].is_finite() || !v[1].is_finite()) || !model.is_valid() {
+    if p.iter().any(|v| !v[0].is_finite() || !v[1].is_finite()) {
         return Err(PoseError::NonFinite);
+    }
+    if !model.is_valid() {
+        // A model of no depth, the flat disc that `lift` lifts onto its plane, gives a fit
+        // that cannot leave the frontal pose: there a turn out of the plane moves no point to
+        // first order (a disc turned 8° and 12° was fitted as a pure roll).
+        return Err(if model.semi.iter().all(|v| v.is_finite()) {
+            PoseError::Degenerate("the model has a semi-axis of 0 or less (a flat disc)")
+        } else {
+            PoseError::NonFinite
+        });
     }
     fit_points(&lift(p, model, camera), q, camera, start, prior)
 }
 
 fn check_sizes(np: usize, nq: usize) -> Result<(), PoseError> {
     if np != nq {
-        return Err(PoseError::Degenerate("p and q differ in length"));
+        return Err(PoseError::LengthMismatch { p: np, q: nq });
     }
     if np < 4 {
         return Err(PoseError::TooFewMatches { got: np, need: 4 });
@@ -786,7 +799,7 @@ mod tests {
         ));
         assert!(matches!(
             fit_points(&x, &q[..5], None, &start, None),
-            Err(PoseError::Degenerate(_))
+            Err(PoseError::LengthMismatch { q: 5, .. })
         ));
     }
 
@@ -797,6 +810,31 @@ mod tests {
             pixel_sigma: 1.0,
             centre_sigma: None,
         }
+    }
+
+    /// A model without depth (the flat disc) is refused as degenerate, not as non-finite
+    /// input, and point sets of two lengths are a length mismatch.
+    #[test]
+    fn a_flat_disc_is_degenerate_and_mismatched_lengths_say_so() {
+        let (p, q, key) = scene(
+            &Euler::from_degrees(8.0, -12.0, 15.0),
+            1.0,
+            Vector2::zeros(),
+        );
+        let t = Vector2::new(80.0, 60.0);
+        let disc = Ellipsoid::facing(&key, 0.0);
+        let r = fit_with_depth_prior(&p, &q, &disc, None, &at(t), None);
+        assert!(matches!(r, Err(PoseError::Degenerate(_))), "{r:?}");
+        let head = Ellipsoid::facing(&key, 1.0);
+        let r = fit_with_depth_prior(&p, &q[..30], &head, None, &at(t), None);
+        assert!(
+            matches!(r, Err(PoseError::LengthMismatch { p: 40, q: 30 })),
+            "{r:?}"
+        );
+        let mut bad = head;
+        bad.semi.x = f64::NAN;
+        let r = fit_with_depth_prior(&p, &q, &bad, None, &at(t), None);
+        assert!(matches!(r, Err(PoseError::NonFinite)), "{r:?}");
     }
 
     #[test]

@@ -50,7 +50,9 @@ fn affine3(p: &[[f64; 2]; 3], q: &[[f64; 2]; 3]) -> Option<(Matrix2<f64>, Vector
 /// number of iterations and ties); `true` marks an inlier. Deterministic for the seed.
 ///
 /// Errors: fewer than 3 matches, NaN/inf or degenerate points ([`moments`]), a threshold that
-/// is not positive, or no sample that fixes a map ([`PoseError::NoSolution`]).
+/// is not positive and finite, a confidence outside (0, 1) or `max_iter` out of range
+/// ([`PoseError::InvalidParameter`]), or no sample that fixes a map
+/// ([`PoseError::NoSolution`]).
 pub fn affine_consensus(
     p: &[[f64; 2]],
     q: &[[f64; 2]],
@@ -60,8 +62,10 @@ pub fn affine_consensus(
     seed: u64,
 ) -> Result<Vec<bool>, PoseError> {
     moments(p, q, 3)?;
-    if threshold.is_nan() || threshold <= 0.0 {
-        return Err(PoseError::NoSolution("RANSAC threshold must be positive"));
+    if !(threshold.is_finite() && threshold > 0.0) {
+        return Err(PoseError::InvalidParameter(
+            "RANSAC threshold must be positive and finite",
+        ));
     }
     // A confidence of 1 or more asks for every sample there is (with `max_iter` at
     // usize::MAX the loop never ended); NaN or 0 or less stopped after one sample.
@@ -205,6 +209,23 @@ mod tests {
                 ..r
             },
             Rls { max_iter: 0, ..r },
+            // A threshold of 0 or less, NaN or infinite (every match an inlier).
+            Rls {
+                threshold: 0.0,
+                ..r
+            },
+            Rls {
+                threshold: -1.0,
+                ..r
+            },
+            Rls {
+                threshold: f64::NAN,
+                ..r
+            },
+            Rls {
+                threshold: f64::INFINITY,
+                ..r
+            },
         ] {
             assert!(
                 matches!(bad.solve(&p, &q), Err(PoseError::InvalidParameter(_))),
