@@ -969,7 +969,7 @@ fn draw_on_both(
     let lc: Vec<f32> = c.iter().map(|t| t.total).collect();
     let lg: Vec<f32> = g.iter().map(|t| t.total).collect();
     let mut fg = fc.clone();
-    assert!(fc.update(&lc).resampled && fg.update(&lg).resampled);
+    assert!(fc.update(&lc).unwrap().resampled && fg.update(&lg).unwrap().resampled);
     let (rc, rg) = (fc.last_resampling().unwrap(), fg.last_resampling().unwrap());
     assert_eq!(rc.u0, rg.u0, "the same seed draws the same comb");
     let dcum = max_cumulative_difference(&rc.weights, &rg.weights);

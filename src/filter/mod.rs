@@ -59,6 +59,15 @@ pub enum FilterError {
     /// A setting is out of range; the message names it.
     #[error("invalid filter settings: {0}")]
     BadParams(String),
+    /// [`ParticleFilter::update`] was given a number of log-likelihoods other than the
+    /// particles'.
+    #[error("{got} log-likelihoods for {particles} particles")]
+    Length {
+        /// Log-likelihoods given.
+        got: usize,
+        /// Particles held.
+        particles: usize,
+    },
 }
 
 /// One particle: the ellipse centre and semi-axes (pixels) and the rotation relative to the
@@ -223,6 +232,26 @@ impl FilterParams {
         }
         self.proposal.check("proposal")?;
         self.dynamics.check("dynamics")?;
+        // A dynamics σ of 0 would hold the component fixed, so a proposal that moves it would
+        // give every moved particle no weight; the weights drop a zero σ's term instead, which
+        // reads as no constraint at all (a σ of 1e-9 next to it collapsed the filter to one
+        // particle). Refused rather than given either meaning.
+        let (p, d) = (&self.proposal, &self.dynamics);
+        for (name, ps, ds) in [
+            ("centre", p.centre, d.centre),
+            ("axes", p.axes, d.axes),
+            ("rotation[0]", p.rotation[0], d.rotation[0]),
+            ("rotation[1]", p.rotation[1], d.rotation[1]),
+            ("rotation[2]", p.rotation[2], d.rotation[2]),
+        ] {
+            if ds == 0.0 && ps > 0.0 {
+                return Err(FilterError::BadParams(format!(
+                    "dynamics.{name} is 0 where proposal.{name} is {ps}: a component the \
+                     proposal moves needs a random walk that allows it (or set both to 0 to \
+                     hold it fixed)"
+                )));
+            }
+        }
         if !(self.resample_below.is_finite() && self.resample_below >= 0.0) {
             return Err(FilterError::BadParams(format!(
                 "resample_below {} must be finite and at least 0",
@@ -393,7 +422,8 @@ impl AspectRange {
 }
 
 /// `ln N(x; 0, σ²)` up to the constant `-½ ln 2π`; a component with `σ = 0` is deterministic
-/// (held fixed by the proposal and the dynamics alike) and contributes nothing.
+/// and contributes nothing: held fixed by the proposal, or by the proposal and the dynamics
+/// alike ([`FilterParams::check`] refuses a dynamics σ of 0 where the proposal's is not).
 fn ln_gauss(x: f64, sigma: f64) -> f64 {
     if sigma > 0.0 {
         -0.5 * (x / sigma).powi(2) - sigma.ln()
@@ -643,11 +673,19 @@ impl ParticleFilter {
     /// particle order), resampling when the effective sample size is low. Returns what it did.
     /// The estimate ([`ParticleFilter::estimate`]) should be read before the next proposal;
     /// resampling keeps it unchanged in expectation.
-    pub fn update(&mut self, log_lik: &[f32]) -> UpdateInfo {
+    ///
+    /// Errors: a number of log-likelihoods other than the particles' ([`FilterError::Length`]),
+    /// before anything changes.
+    pub fn update(&mut self, log_lik: &[f32]) -> Result<UpdateInfo, FilterError> {
         let n = self.particles.len();
-        for i in 0..n {
-            let l = log_lik.get(i).copied().unwrap_or(f32::NEG_INFINITY) as f64;
-            self.log_w[i] += l + self.log_ratio[i];
+        if log_lik.len() != n {
+            return Err(FilterError::Length {
+                got: log_lik.len(),
+                particles: n,
+            });
+        }
+        for ((w, &l), r) in self.log_w.iter_mut().zip(log_lik).zip(&self.log_ratio) {
+            *w += l as f64 + r;
         }
         self.weights = resample::normalise_log_weights(&self.log_w);
         // Keep log-weights bounded: re-base them on the normalised weights.
@@ -674,7 +712,7 @@ impl ParticleFilter {
                 indices: idx,
             });
         }
-        UpdateInfo { ess, resampled }
+        Ok(UpdateInfo { ess, resampled })
     }
 
     fn weighted_estimate(&self) -> Hypothesis {
@@ -988,7 +1026,7 @@ mod tests {
             };
             f.propose(&m, 1.0);
             let l = loglik(&f, &t);
-            f.update(&l);
+            f.update(&l).unwrap();
         }
         let e = f.estimate();
         assert!(
@@ -1014,7 +1052,7 @@ mod tests {
             };
             f.propose(&m, 1.0);
             let l = loglik(&f, &t);
-            f.update(&l);
+            f.update(&l).unwrap();
         }
         assert!(angle_between(&f.estimate().rot, &t.rot) < 0.02);
     }
@@ -1027,7 +1065,7 @@ mod tests {
             for _ in 0..5 {
                 f.propose(&Motion::still(), 1.0);
                 let l = loglik(&f, &t);
-                f.update(&l);
+                f.update(&l).unwrap();
             }
             f.particles().to_vec()
         };
@@ -1047,7 +1085,7 @@ mod tests {
             .map(|i| -(i as f32) * 0.01)
             .collect();
         f.params.resample_below = 0.0;
-        f.update(&l);
+        f.update(&l).unwrap();
         let w = f.weights();
         assert!((w[0] / w[1] - (0.01f64).exp()).abs() < 1e-4);
     }
@@ -1141,7 +1179,7 @@ mod tests {
             for (t, (&li, &ri)) in total.iter_mut().zip(l.iter().zip(&f.log_ratio)) {
                 *t += li as f64 + ri;
             }
-            assert!(!f.update(&l).resampled);
+            assert!(!f.update(&l).unwrap().resampled);
         }
         let z: f64 = total.iter().map(|t| t.exp()).sum();
         for (w, t) in f.weights().iter().zip(&total) {
@@ -1151,6 +1189,58 @@ mod tests {
                 t.exp() / z
             );
         }
+    }
+
+    /// Log-likelihoods of another count than the particles' are refused, before anything
+    /// changes (they used to stand in as -inf, or be ignored).
+    #[test]
+    fn an_update_of_the_wrong_length_is_refused_and_changes_nothing() {
+        let mut f = ParticleFilter::new(
+            FilterParams {
+                particles: 4,
+                ..FilterParams::default()
+            },
+            7,
+            &init(),
+        )
+        .unwrap();
+        f.propose(&Motion::still(), 1.0);
+        let before = f.weights().to_vec();
+        for l in [&[0.0f32; 3][..], &[0.0; 5], &[]] {
+            let r = f.update(l);
+            assert!(
+                matches!(r, Err(FilterError::Length { got, particles: 4 }) if got == l.len()),
+                "{r:?}"
+            );
+            assert_eq!(f.weights(), &before[..]);
+        }
+        assert!(f.update(&[0.0; 4]).is_ok());
+    }
+
+    /// A dynamics σ of 0 where the proposal moves the component is refused; 0 in both holds
+    /// it fixed and is accepted.
+    #[test]
+    fn a_zero_random_walk_under_a_moving_proposal_is_refused() {
+        let d = FilterParams::default();
+        let bad = FilterParams {
+            dynamics: StateSigma {
+                rotation: [0.05, 0.0, 0.05],
+                ..d.dynamics
+            },
+            ..d
+        };
+        let Err(FilterError::BadParams(why)) = bad.check() else {
+            panic!("accepted")
+        };
+        assert!(why.contains("dynamics.rotation[1] is 0"), "{why}");
+        let held = FilterParams {
+            proposal: StateSigma {
+                rotation: [0.03, 0.0, 0.02],
+                ..d.proposal
+            },
+            ..bad
+        };
+        assert!(held.check().is_ok());
     }
 
     #[test]
@@ -1167,7 +1257,7 @@ mod tests {
         f.particles[1].cx = 60.0;
         f.log_ratio = vec![0.0, 0.0];
         f.params.resample_below = 0.0;
-        f.update(&[0.0, (3.0f32).ln()]);
+        f.update(&[0.0, (3.0f32).ln()]).unwrap();
         assert!((f.estimate().cx - (0.25 * 50.0 + 0.75 * 60.0)).abs() < 1e-5);
     }
 
@@ -1179,7 +1269,7 @@ mod tests {
         let t = Hypothesis { cx: 52.0, ..init() };
         let l = loglik(&f, &t);
         f.params.resample_below = 2.0; // always
-        let info = f.update(&l);
+        let info = f.update(&l).unwrap();
         assert!(info.resampled);
         let r = f.last_resampling().expect("resampled").clone();
         assert_eq!(
@@ -1193,7 +1283,7 @@ mod tests {
         f.params.resample_below = 0.0; // never
         f.propose(&Motion::still(), 1.0);
         let l = loglik(&f, &t);
-        assert!(!f.update(&l).resampled);
+        assert!(!f.update(&l).unwrap().resampled);
         assert!(f.last_resampling().is_none());
     }
 }

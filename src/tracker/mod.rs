@@ -884,7 +884,7 @@ impl Tracker {
             .evaluate(&input, &lp, &self.particles, &mut self.terms)?;
         self.correlate_template(&gray);
         self.totals = self.weighted_totals(&lp);
-        let info = self.filter.update(&self.totals);
+        let info = self.filter.update(&self.totals)?;
         let mut est = self.filter.estimate();
 
         // TPE: the rotation from the features of the tracked region, after tracking.
