@@ -181,9 +181,33 @@ pub struct Moments {
 }
 
 impl Moments {
-    /// The objective `f(R2) = Σ |q'_j - R2 p'_j|^2` from the moments.
+    /// The objective `f(R2) = Σ |q'_j - R2 p'_j|^2` from the moments. Its three terms are each
+    /// of the order of `K`, so near an exact fit it is rounding noise of that order (it can
+    /// come out below 0); [`Self::excess_over_lsm`] compares blocks there.
     pub fn objective(&self, r2: &Matrix2<f64>) -> f64 {
         self.k - 2.0 * (r2.transpose() * self.b).trace() + (r2 * self.a * r2.transpose()).trace()
+    }
+
+    /// `f(R2) − f(M)`, with `M = B A⁻¹` the unconstrained minimiser: `tr((R2 − M) A (R2 −
+    /// M)ᵀ)`, never below 0 and free of [`Self::objective`]'s cancellation, so that two blocks
+    /// near an exact fit compare by how far they are from it. ([`Self::objective`] where `A`
+    /// has no inverse, which [`moments`] does not return.)
+    pub fn excess_over_lsm(&self, r2: &Matrix2<f64>) -> f64 {
+        match self.a.try_inverse() {
+            Some(ai) => {
+                let d = r2 - self.b * ai;
+                (d * self.a * d.transpose()).trace().max(0.0)
+            }
+            None => self.objective(r2),
+        }
+    }
+
+    /// `f(M) = K − tr(B A⁻¹ Bᵀ)`, the unconstrained least-squares residual: the least any
+    /// block can reach, clamped at 0 (it cancels as [`Self::objective`] does).
+    pub fn lsm_floor(&self) -> f64 {
+        self.a.try_inverse().map_or(0.0, |ai| {
+            (self.k - (self.b * ai * self.b.transpose()).trace()).max(0.0)
+        })
     }
 }
 

@@ -54,7 +54,8 @@ use super::{BlockEstimate, Moments, PoseError, RotationSolver, estimate_from_blo
 pub struct Optimal {
     /// Certification tolerance relative to `K + tr A` (the objective's scale).
     pub eps_rel: f64,
-    /// Boxes examined at most; beyond, the best value so far is returned with its gap.
+    /// Boxes examined at most, the initial grid's aside (it is always examined: 72 boxes);
+    /// beyond, the best value so far is returned with its gap.
     pub max_boxes: usize,
 }
 
@@ -454,19 +455,22 @@ impl Optimal {
         }
         let mut gap = eps.max(best.1 - open_lb) * scale;
         let mut r2 = nearest_valid_block(&Trig::block(&best.0))?;
-        let mut value = mo.objective(&r2);
+        // Compared by their excess over the unconstrained fit: the objective from the moments
+        // cancels to rounding noise near an exact fit, where a block 1e-7 px off read as
+        // better than SEA's exact one (and the value as negative).
+        let mut excess = mo.excess_over_lsm(&r2);
         if let Some(sol) = sea {
-            let v = mo.objective(&sol.r2);
-            if v < value {
+            let v = mo.excess_over_lsm(&sol.r2);
+            if v < excess {
                 // Still certified: the global minimum is ≥ the old value - gap.
-                gap = (gap - (value - v)).max(0.0);
+                gap = (gap - (excess - v)).max(0.0);
                 r2 = sol.r2;
-                value = v;
+                excess = v;
             }
         }
         Ok(OptimalSolution {
             r2,
-            value,
+            value: mo.lsm_floor() + excess,
             gap,
             boxes,
         })
