@@ -220,7 +220,8 @@ impl Default for FilterParams {
 impl FilterParams {
     /// Checks the settings, as [`ParticleFilter::new`] does: from 1 to [`MAX_PARTICLES`]
     /// particles, finite σ of at least 0 ([`FilterParams::proposal`],
-    /// [`FilterParams::dynamics`]), a finite `resample_below` of at least 0 (above 1 the
+    /// [`FilterParams::dynamics`]; a dynamics σ of 0 only where the proposal's is 0 too, the
+    /// component then held fixed), a finite `resample_below` of at least 0 (above 1 the
     /// filter resamples on every update), and semi-axis bounds with
     /// `0 < min_axis <= max_axis` (`max_axis` may be infinite).
     pub fn check(&self) -> Result<(), FilterError> {
