@@ -996,3 +996,143 @@ fn stage_functions_take_inconsistent_inputs() {
     let v = gradient::log_likelihood_ellipse(&g, &e, &short, &LikelihoodParams::default());
     assert!(v.is_finite());
 }
+
+/// Settings whose 2σ² or 1/ε leave f32's normal range are refused: they scored the best
+/// particle as degenerate (a subnormal ε made an exact match infinite; σz of 1e-30 read 0/0 on
+/// a contour; σc of 1e-20 gave every imperfect colour match -inf).
+#[test]
+fn likelihood_settings_outside_f32s_range_are_refused() {
+    let d = LikelihoodParams::default();
+    assert!(d.check().is_ok());
+    for bad in [
+        LikelihoodParams {
+            feature_eps: 1e-39,
+            ..d
+        },
+        LikelihoodParams {
+            feature_eps: 1e-7,
+            ..d
+        },
+        LikelihoodParams {
+            sigma_z: 1e-30,
+            ..d
+        },
+        LikelihoodParams {
+            sigma_colour: 1e-20,
+            ..d
+        },
+    ] {
+        assert!(
+            matches!(bad.check(), Err(LikelihoodError::Invalid(_))),
+            "{bad:?}"
+        );
+    }
+    for ok in [
+        LikelihoodParams {
+            feature_eps: 1e-6,
+            ..d
+        },
+        LikelihoodParams {
+            sigma_colour: 1e-3,
+            ..d
+        },
+    ] {
+        assert!(ok.check().is_ok(), "{ok:?}");
+    }
+}
+
+/// A frame without pixels, and a previous estimate whose area underflows or overflows f32
+/// (which scored every particle, the perfect one too, as degenerate), are refused.
+#[test]
+fn an_empty_frame_and_an_unusable_previous_estimate_are_refused() {
+    let mut e = CpuEngine::new();
+    let img = RgbImage::from_pixel(32, 32, Rgb([100, 50, 20]));
+    let model =
+        ColourHistogram::from_ellipse(&img, &Ellipse::new(16.0, 16.0, 6.0, 6.0), COLOUR_RGB)
+            .unwrap();
+    e.set_colour_model(&model).unwrap();
+    let p = Particle {
+        cx: 16.0,
+        cy: 16.0,
+        a: 6.0,
+        b: 6.0,
+        ..Default::default()
+    };
+    let params = LikelihoodParams::default();
+    let mut out = Vec::new();
+    let empty = RgbImage::new(0, 0);
+    let frame = FrameInput {
+        image: &empty,
+        features: &[],
+        depths: None,
+        prev: p,
+        theta0: 0.0,
+    };
+    let r = e.evaluate(&frame, &params, &[p], &mut out);
+    assert!(matches!(r, Err(LikelihoodError::Invalid(_))), "{r:?}");
+    let features = [FeaturePair {
+        p: [16.0, 16.0],
+        q: [16.0, 16.0],
+    }];
+    for side in [1e-23f32, 1e20] {
+        let frame = FrameInput {
+            image: &img,
+            features: &features,
+            depths: None,
+            prev: Particle {
+                a: side,
+                b: side,
+                ..p
+            },
+            theta0: 0.0,
+        };
+        let r = e.evaluate(&frame, &params, &[p], &mut out);
+        assert!(
+            matches!(r, Err(LikelihoodError::Invalid(_))),
+            "{side}: {r:?}"
+        );
+    }
+}
+
+/// The template terms follow the engines' rule: a degenerate particle, or a degenerate first
+/// view, scores 0; a particle far off the frame (1e19 px, infinite) samples the edge without
+/// overflowing (it panicked); a template of non-finite grey levels is not usable.
+#[test]
+fn template_terms_take_degenerate_and_far_particles() {
+    use pftrack::frames::GrayF32;
+    use pftrack::likelihood::template::{FirstView, Template, normalise};
+    let img = RgbImage::from_fn(64, 64, |x, y| Rgb([(x * 4) as u8, (y * 3) as u8, 60]));
+    let gray = GrayF32::from_rgb(&img);
+    let p = Particle {
+        cx: 32.0,
+        cy: 32.0,
+        a: 15.0,
+        b: 15.0,
+        ..Default::default()
+    };
+    let t = Template::new(&gray, &p, 0.0, 12);
+    assert!(t.is_usable());
+    let far = [
+        Particle { cx: 1e19, ..p },
+        Particle {
+            cx: f32::INFINITY,
+            ..p
+        },
+        Particle { a: -15.0, ..p },
+        Particle { a: 0.0, ..p },
+        Particle { cx: f32::NAN, ..p },
+    ];
+    let mut out = Vec::new();
+    t.correlate(&gray, &far, 0.0, &mut out);
+    assert!(out[0].abs() <= 1.0 + 1e-6, "{out:?}");
+    assert_eq!(&out[1..], &[0.0; 4], "degenerate particles");
+    let mut turned = Vec::new();
+    t.correlate_turned(&gray, &far, 0.0, &FirstView::weak(p), &mut turned);
+    assert!(turned[0].abs() <= 1.0 + 1e-6, "{turned:?}");
+    assert_eq!(&turned[1..], &[0.0; 4]);
+    let flat_first = FirstView::weak(Particle { a: 0.0, ..p });
+    t.correlate_turned(&gray, &[p], 0.0, &flat_first, &mut turned);
+    assert_eq!(turned, vec![0.0]);
+    let mut nan = vec![1.0, f32::NAN, 3.0];
+    assert!(!normalise(&mut nan));
+}

@@ -103,6 +103,10 @@ impl GrayF32 {
     /// [`Self::sample`] with every pixel read through [`Self::get_clamped`]: its form at
     /// and beyond the border.
     fn sample_clamped(&self, x: f32, y: f32) -> f32 {
+        // Beyond a pixel past the border every neighbour is the edge's: held there, a far or
+        // infinite position cannot overflow the integer neighbours (it panicked at 1e19).
+        let x = x.clamp(-1.0, self.width as f32);
+        let y = y.clamp(-1.0, self.height as f32);
         let (x0, y0) = (x.floor(), y.floor());
         let (xi, yi) = (x0 as i64, y0 as i64);
         lerp_2x2(

@@ -255,11 +255,11 @@ pub struct LikelihoodParams {
 impl LikelihoodParams {
     /// Checks the settings of the enabled terms, as every evaluation does: known term flags
     /// and colour binning, a finite `contrast_scale` (contrast), a positive finite
-    /// `sigma_colour` (colour), positive finite `sigma_z` and
+    /// `sigma_colour` of at least 1e-19 (colour), positive finite `sigma_z` of at least 1e-19 and
     /// `clutter_density` with `p_no_contour` in `(0, 1]`, whose clutter gain neither overflows
     /// nor falls below `f32::EPSILON` (where the term would read 0 on every line), a finite `edge_threshold`,
-    /// `line_half_length` in `[0, 4096]` and at most 4096 lines (gradient), and a positive
-    /// finite `feature_eps` with a finite `depth_ratio` of at least 0 (feature).
+    /// `line_half_length` in `[0, 4096]` and at most 4096 lines (gradient), and a finite
+    /// `feature_eps` of at least 1e-6 with a finite `depth_ratio` of at least 0 (feature).
     pub fn check(&self) -> Result<(), LikelihoodError> {
         let bad = |what: &str| Err(LikelihoodError::Invalid(what.to_string()));
         let pos = |v: f32| v.is_finite() && v > 0.0;
@@ -269,8 +269,13 @@ impl LikelihoodParams {
         if self.terms & TERM_CONTRAST != 0 && !self.contrast_scale.is_finite() {
             return bad("contrast_scale is not finite");
         }
-        if self.terms & TERM_COLOUR != 0 && !pos(self.sigma_colour) {
-            return bad("sigma_colour must be positive and finite");
+        // The terms divide by 2σ²: below about 1e-19 it is no normal f32 (at 1e-30 the gradient
+        // term read 0/0 on a contour, at 1e-20 the colour term -inf on every imperfect match).
+        let sq_normal = |v: f32| (2.0 * v * v).is_normal();
+        if self.terms & TERM_COLOUR != 0
+            && !(pos(self.sigma_colour) && sq_normal(self.sigma_colour))
+        {
+            return bad("sigma_colour must be finite and at least 1e-19");
         }
         if self.colour_bins > COLOUR_LUMA {
             return bad("colour_bins must be COLOUR_RGB (0) or COLOUR_LUMA (1)");
@@ -280,6 +285,9 @@ impl LikelihoodParams {
                 return bad(
                     "sigma_z, p_no_contour and clutter_density must be positive and finite",
                 );
+            }
+            if !sq_normal(self.sigma_z) {
+                return bad("sigma_z must be at least 1e-19");
             }
             if self.p_no_contour > 1.0 {
                 return bad("p_no_contour is a probability: at most 1");
@@ -303,8 +311,10 @@ impl LikelihoodParams {
             }
         }
         if self.terms & TERM_FEATURE != 0 {
-            if !pos(self.feature_eps) {
-                return bad("feature_eps must be positive and finite");
+            // An exact match weighs 1 / feature_eps: below 1e-6 px one swamps the rest, and a
+            // subnormal one made it infinite, scoring the best particle as degenerate.
+            if !(pos(self.feature_eps) && self.feature_eps >= 1e-6) {
+                return bad("feature_eps must be finite and at least 1e-6");
             }
             if !(self.depth_ratio.is_finite() && self.depth_ratio >= 0.0) {
                 return bad("depth_ratio must be finite and non-negative");

@@ -27,6 +27,7 @@
 
 use crate::frames::GrayF32;
 use crate::likelihood::Particle;
+use crate::likelihood::cpu::is_degenerate;
 use crate::pose::prior::Pinhole;
 
 /// Most cells a side of [`disk_grid`]: a larger grid is taken as this (about 50 000 points;
@@ -78,7 +79,8 @@ pub fn normalise(values: &mut [f32]) -> bool {
     let n = values.len().max(1) as f64;
     let mean = values.iter().map(|&v| v as f64).sum::<f64>() / n;
     let ss: f64 = values.iter().map(|&v| (v as f64 - mean).powi(2)).sum();
-    if ss.sqrt() < 1e-6 * n.sqrt() {
+    // (`!(a >= b)`: NaN or infinite values give no usable vector either.)
+    if !(ss.is_finite() && ss.sqrt() >= 1e-6 * n.sqrt()) {
         values.iter_mut().for_each(|v| *v = 0.0);
         return false;
     }
@@ -188,6 +190,11 @@ impl Template {
             .map_init(
                 || Vec::with_capacity(n),
                 |buf, p| {
+                    // A degenerate particle (the engines' rule) sees nothing: a negative
+                    // semi-axis sampled the mirrored ellipse.
+                    if is_degenerate(p) {
+                        return 0.0;
+                    }
                     sample(gray, p, theta0, &self.pts, buf);
                     let (st, stt) = self.unit_sums;
                     correlate_raw(buf, &self.unit, st, stt)
@@ -226,7 +233,9 @@ impl Template {
         use crate::likelihood::cpu::feature::{prior_depth, rotation};
         use rayon::prelude::*;
         out.clear();
-        if !self.usable {
+        // A degenerate first view (a semi-axis of 0 made every turned point infinite) turns
+        // nothing.
+        if !self.usable || is_degenerate(first) || !(first.a * first.b).is_normal() {
             out.resize(particles.len(), 0.0);
             return;
         }
@@ -269,6 +278,9 @@ impl Template {
         particles
             .par_iter()
             .map(|p| {
+                if is_degenerate(p) {
+                    return 0.0;
+                }
                 let dr = rotation(p.rx, p.ry, p.rz) * r0t;
                 let (r0, r1, r2) = (dr.row(0), dr.row(1), dr.row(2));
                 let k = ((p.a * p.b) / ab0).sqrt();

@@ -314,9 +314,20 @@ pub fn validate(frame: &FrameInput<'_>, params: &LikelihoodParams) -> Result<(),
     if !frame.theta0.is_finite() {
         return bad("theta0 is not finite");
     }
+    let (w, h) = frame.image.dimensions();
+    if w == 0 || h == 0 {
+        return bad("the frame has no pixels");
+    }
     if params.terms & TERM_FEATURE != 0 && !frame.features.is_empty() {
         if is_degenerate(&frame.prev) {
             return bad("the previous estimate is degenerate");
+        }
+        // Its area scales every particle's lift, and its depth lifts the features: an area
+        // that underflows (semi-axes of 1e-23) or overflows (1e20) scored every particle,
+        // the perfect one too, as degenerate.
+        let (a, b) = (frame.prev.a, frame.prev.b);
+        if !((a * b).is_normal() && ((a * b).sqrt() * params.depth_ratio).is_finite()) {
+            return bad("the previous estimate's area a b is too small or too large for f32");
         }
         if frame
             .features
