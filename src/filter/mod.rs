@@ -142,16 +142,21 @@ pub struct StateSigma {
 }
 
 impl StateSigma {
-    /// Checks that every σ is finite and at least 0; `what` names the set in the error.
-    fn check(&self, what: &str) -> Result<(), FilterError> {
+    /// Each σ with the name its setting has in messages.
+    fn components(&self) -> [(&'static str, f64); 5] {
         let [rx, ry, rz] = self.rotation;
-        for (name, v) in [
+        [
             ("centre", self.centre),
             ("axes", self.axes),
             ("rotation[0]", rx),
             ("rotation[1]", ry),
             ("rotation[2]", rz),
-        ] {
+        ]
+    }
+
+    /// Checks that every σ is finite and at least 0; `what` names the set in the error.
+    fn check(&self, what: &str) -> Result<(), FilterError> {
+        for (name, v) in self.components() {
             if !(v.is_finite() && v >= 0.0) {
                 return Err(FilterError::BadParams(format!(
                     "{what}.{name} {v} must be finite and at least 0"
@@ -237,14 +242,8 @@ impl FilterParams {
         // give every moved particle no weight; the weights drop a zero σ's term instead, which
         // reads as no constraint at all (a σ of 1e-9 next to it collapsed the filter to one
         // particle). Refused rather than given either meaning.
-        let (p, d) = (&self.proposal, &self.dynamics);
-        for (name, ps, ds) in [
-            ("centre", p.centre, d.centre),
-            ("axes", p.axes, d.axes),
-            ("rotation[0]", p.rotation[0], d.rotation[0]),
-            ("rotation[1]", p.rotation[1], d.rotation[1]),
-            ("rotation[2]", p.rotation[2], d.rotation[2]),
-        ] {
+        let pairs = self.proposal.components().into_iter();
+        for ((name, ps), (_, ds)) in pairs.zip(self.dynamics.components()) {
             if ds == 0.0 && ps > 0.0 {
                 return Err(FilterError::BadParams(format!(
                     "dynamics.{name} is 0 where proposal.{name} is {ps}: a component the \

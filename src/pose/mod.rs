@@ -193,20 +193,20 @@ impl Moments {
     /// near an exact fit compare by how far they are from it. ([`Self::objective`] where `A`
     /// has no inverse, which [`moments`] does not return.)
     pub fn excess_over_lsm(&self, r2: &Matrix2<f64>) -> f64 {
-        match self.a.try_inverse() {
-            Some(ai) => {
-                let d = r2 - self.b * ai;
+        match lsm::lsm_block(self) {
+            Ok(m) => {
+                let d = r2 - m;
                 (d * self.a * d.transpose()).trace().max(0.0)
             }
-            None => self.objective(r2),
+            Err(_) => self.objective(r2),
         }
     }
 
     /// `f(M) = K − tr(B A⁻¹ Bᵀ)`, the unconstrained least-squares residual: the least any
     /// block can reach, clamped at 0 (it cancels as [`Self::objective`] does).
     pub fn lsm_floor(&self) -> f64 {
-        self.a.try_inverse().map_or(0.0, |ai| {
-            (self.k - (self.b * ai * self.b.transpose()).trace()).max(0.0)
+        lsm::lsm_block(self).map_or(0.0, |m| {
+            (self.k - (m * self.b.transpose()).trace()).max(0.0)
         })
     }
 }
