@@ -12,7 +12,8 @@ use std::hint::black_box;
 
 use criterion::{Criterion, criterion_group, criterion_main};
 use pftrack::features::{
-    Features, MatchParams, Sift, SiftParams, keep_slope_length, match_features,
+    Features, MatchParams, PAPER_ANGLE_TOL, PAPER_LENGTH_TOL, Sift, SiftParams, keep_slope_length,
+    match_features,
 };
 use pftrack::frames::GrayF32;
 use pftrack::geometry::BoxRect;
@@ -166,7 +167,7 @@ fn match_and_sea(
     let xy = |k: &pftrack::features::Keypoint| [f64::from(k.x), f64::from(k.y)];
     let pp: Vec<[f64; 2]> = m.iter().map(|m| xy(&fa.keypoints[m.query])).collect();
     let qq: Vec<[f64; 2]> = m.iter().map(|m| xy(&fb.keypoints[m.train])).collect();
-    let (pk, qk) = keep_slope_length(&pp, &qq, 0.2, 0.3);
+    let (pk, qk) = keep_slope_length(&pp, &qq, PAPER_ANGLE_TOL, PAPER_LENGTH_TOL);
     match interframe(&pk, &qk, centre, SolverKind::Sea) {
         Ok(i) => {
             black_box(i);

@@ -33,6 +33,10 @@ pub use glam;
 /// The `image` crate whose `RgbImage` frames the tracker takes, re-exported so that an
 /// embedding program uses the same version.
 pub use image;
+/// The `nalgebra` crate whose matrices the pose API takes and returns (rotation matrices, the
+/// 2x2 blocks of the solvers, translations), re-exported so that a caller names them in the
+/// same version.
+pub use nalgebra;
 /// The `wgpu` crate the GPU engine runs on, re-exported so that an application that opens its
 /// own device for it ([`likelihood::gpu::GpuDevice::from_wgpu`]) uses the same version.
 pub use wgpu;

@@ -206,6 +206,13 @@ mod avx2 {
     }
 }
 
+/// The paper's angle tolerance of [`reject_slope_length`]: a match's displacement within
+/// 0.2 rad of the mean direction (SPEC section 2).
+pub const PAPER_ANGLE_TOL: f64 = 0.2;
+/// The paper's length tolerance of [`reject_slope_length`]: a match's displacement within
+/// 30 % of the mean length (SPEC section 2).
+pub const PAPER_LENGTH_TOL: f64 = 0.3;
+
 /// Median length below which displacements count as "no motion" (see
 /// [`reject_slope_length`]).
 pub const STILL_LENGTH_PX: f64 = 0.5;
@@ -286,7 +293,8 @@ pub fn reject_slope_length(
     keep
 }
 
-/// The matches `p[j] → q[j]` that [`reject_slope_length`] keeps, as two lists in match order.
+/// The matches `p[j] → q[j]` that [`reject_slope_length`] keeps, as two lists in match order
+/// (the tracker's and `pftrack pose`'s tolerances: [`PAPER_ANGLE_TOL`], [`PAPER_LENGTH_TOL`]).
 pub fn keep_slope_length(
     p: &[[f64; 2]],
     q: &[[f64; 2]],
@@ -511,7 +519,7 @@ mod tests {
         assert!(keep[..20].iter().all(|&k| k));
         assert!(keep[20..].iter().all(|&k| !k));
         // The kept pairs themselves: the 20 inliers, in order.
-        let (pk, qk) = keep_slope_length(&p, &q, 0.2, 0.3);
+        let (pk, qk) = keep_slope_length(&p, &q, PAPER_ANGLE_TOL, PAPER_LENGTH_TOL);
         assert_eq!((&pk[..], &qk[..]), (&p[..20], &q[..20]));
     }
 

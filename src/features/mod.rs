@@ -9,8 +9,8 @@ mod matching;
 mod sift;
 
 pub use matching::{
-    Match, MatchParams, STILL_LENGTH_PX, STILL_RADIUS_PX, keep_slope_length, match_features,
-    reject_slope_length,
+    Match, MatchParams, PAPER_ANGLE_TOL, PAPER_LENGTH_TOL, STILL_LENGTH_PX, STILL_RADIUS_PX,
+    keep_slope_length, match_features, reject_slope_length,
 };
 pub use sift::{DESCRIPTOR_LEN, MAX_SIGMA, Sift, SiftParams, UpsampleGrid};
 
@@ -70,6 +70,17 @@ pub enum FeatureError {
         height: u32,
         /// Pixels present.
         len: usize,
+    },
+    /// A pixel of the image (within the detection window) that is not finite: NaN or an
+    /// infinity, which would spread through the scale space's blurs.
+    #[error("pixel ({x}, {y}) of the image is {value}: SIFT needs finite grey levels")]
+    NonFinitePixel {
+        /// Column of the first such pixel.
+        x: usize,
+        /// Row of the first such pixel.
+        y: usize,
+        /// Its value.
+        value: f32,
     },
     /// A detection region that is not finite or has a negative size.
     #[error("bad region {0} (want finite x,y,w,h with w, h >= 0)")]

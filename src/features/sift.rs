@@ -403,8 +403,9 @@ impl Sift {
     /// a reflected border there, so they can differ slightly from the full-image run.
     ///
     /// Images too small for one octave give `Ok` with no keypoints, as does a region outside
-    /// the image. Errors: pixel data that does not match the size, a non-finite region or
-    /// one with a negative size, invalid parameters.
+    /// the image. Errors: pixel data that does not match the size, a pixel in the processed
+    /// window that is not finite, a non-finite region or one with a negative size, invalid
+    /// parameters.
     pub fn detect(&self, img: &GrayF32, region: Option<BoxRect>) -> Result<Features, FeatureError> {
         self.check_params()?;
         let (w, h) = (img.width as usize, img.height as usize);
@@ -421,6 +422,7 @@ impl Sift {
         }
         let Some(region) = region else {
             self.params.check_window(w, h)?;
+            finite_pixels(&img.data, w, [0, 0])?;
             self.detect_window(&img.data, w, h, [0, 0], None, &mut out);
             finish(&mut out);
             return Ok(out);
@@ -457,6 +459,7 @@ impl Sift {
         for y in y0..y0 + ch {
             crop.extend_from_slice(&img.data[y * w + x0..y * w + x0 + cw]);
         }
+        finite_pixels(&crop, cw, [x0, y0])?;
         // Only keypoints inside the region are described: those of the margin give the
         // region's keypoints their context and are not returned.
         self.detect_window(&crop, cw, ch, [x0, y0], Some(&region), &mut out);
@@ -892,6 +895,19 @@ impl Describer<'_> {
                 desc,
             ));
         }
+    }
+}
+
+/// Refuses a window of pixels (`width` a row, at `origin` in the image) holding one that is
+/// not finite, naming the first in image coordinates.
+fn finite_pixels(window: &[f32], width: usize, origin: [usize; 2]) -> Result<(), FeatureError> {
+    match window.iter().position(|v| !v.is_finite()) {
+        None => Ok(()),
+        Some(i) => Err(FeatureError::NonFinitePixel {
+            x: origin[0] + i % width.max(1),
+            y: origin[1] + i / width.max(1),
+            value: window[i],
+        }),
     }
 }
 

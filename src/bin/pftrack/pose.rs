@@ -150,7 +150,12 @@ pub fn run(a: PoseArgs) -> anyhow::Result<()> {
             q.push([kb.x as f64, kb.y as f64]);
         }
     }
-    let (p, q) = keep_slope_length(&p, &q, 0.2, 0.3);
+    let (p, q) = keep_slope_length(
+        &p,
+        &q,
+        pftrack::features::PAPER_ANGLE_TOL,
+        pftrack::features::PAPER_LENGTH_TOL,
+    );
     outln!(
         "matches inside the ellipse after outlier rejection: {}",
         p.len()
