@@ -1546,3 +1546,178 @@ fn fresh_estimate(r: &Renderer, k: usize) -> pftrack::tracker::Estimate {
     }
     est
 }
+
+/// A target that turned past a whole turn still gives a start the tracker takes: `to_init`
+/// takes the whole turns off, which changes neither the rotation nor the ellipse, so the
+/// track goes on as from the same estimate within a turn.
+#[test]
+fn a_start_from_an_estimate_past_a_turn_is_taken() {
+    use std::f64::consts::TAU;
+    let r = Renderer::new(&SynthConfig::new(Scenario::Nod)).unwrap();
+    let last = fresh_estimate(&r, 2);
+    let mut turned = last;
+    turned.state.rx -= TAU;
+    turned.state.rz += 2.0 * TAU;
+    turned.ellipse.theta += 2.0 * TAU;
+    let (w, h) = r.render(0).0.dimensions();
+    // As given, such a start is refused; `to_init` brings it within a turn.
+    let raw = Init {
+        ellipse: turned.ellipse,
+        pose: turned.state.euler(),
+    };
+    assert!(raw.check(w, h).is_err());
+    let init = turned.to_init();
+    init.check(w, h).unwrap();
+    let (m, want) = (init.pose.matrix(), last.state.euler().matrix());
+    assert!((m - want).abs().max() < 1e-12, "{m} against {want}");
+    let (e, f) = (init.ellipse, last.ellipse);
+    assert_eq!((e.cx, e.cy, e.a, e.b), (f.cx, f.cy, f.a, f.b));
+    assert!((e.theta.sin() - f.theta.sin()).abs() < 1e-12);
+    assert!((e.theta.cos() - f.theta.cos()).abs() < 1e-12);
+
+    let (f3, _) = r.render(3);
+    let mut a = Tracker::new(
+        TrackerConfig::default(),
+        &r.render(0).0,
+        Init::frontal(r.init_ellipse()),
+    )
+    .unwrap();
+    let mut b = Tracker::new(
+        TrackerConfig::default(),
+        &r.render(0).0,
+        Init::frontal(r.init_ellipse()),
+    )
+    .unwrap();
+    a.reinit(&f3, init).unwrap();
+    b.reinit(&f3, last.to_init()).unwrap();
+    for k in 4..=6 {
+        let (img, _) = r.render(k);
+        let (x, y) = (a.step(&img).unwrap(), b.step(&img).unwrap());
+        let (sx, sy) = (x.state, y.state);
+        let d = [sx.cx - sy.cx, sx.cy - sy.cy, sx.a - sy.a, sx.b - sy.b];
+        assert!(
+            d.iter().all(|v| v.abs() < 1e-6),
+            "frame {k}: {sx:?} against {sy:?}"
+        );
+        let turn = x.state.euler().matrix() - y.state.euler().matrix();
+        assert!(turn.abs().max() < 1e-6, "frame {k}: {sx:?} against {sy:?}");
+    }
+}
+
+/// Replacing the likelihood engine keeps the track: a tracker whose engine is swapped for
+/// another CPU engine part-way tracks bit for bit as one that kept its own; a replacement the
+/// new engine refuses leaves the old one in place; and a tracker stopped by its engine's
+/// fault goes on, on a new engine, from its last estimate.
+#[test]
+fn replacing_the_engine_keeps_the_track() {
+    use std::sync::Arc;
+    use std::sync::atomic::{AtomicBool, Ordering};
+    let r = Renderer::new(&SynthConfig::new(Scenario::Combo)).unwrap();
+    let init = Init::frontal(r.init_ellipse());
+    let (first, _) = r.render(0);
+    // The contrast term is on by default, so its table is handed over too.
+    let cfg = TrackerConfig::default();
+    assert!(cfg.contrast.is_some());
+    let mut kept = Tracker::new(cfg.clone(), &first, init).unwrap();
+    let armed = Arc::new(AtomicBool::new(false));
+    let flaky = Flaky {
+        inner: pftrack::likelihood::cpu::CpuEngine::new(),
+        armed: armed.clone(),
+    };
+    let mut swapped = Tracker::with_engine(cfg.clone(), Box::new(flaky), &first, init).unwrap();
+    for k in 1..=8 {
+        let (img, _) = r.render(k);
+        if k == 4 {
+            let old = swapped
+                .replace_engine(Box::new(pftrack::likelihood::cpu::CpuEngine::new()))
+                .unwrap();
+            assert_eq!(old.name(), "flaky");
+            assert_eq!(swapped.engine_name(), kept.engine_name());
+        }
+        assert_eq!(
+            swapped.step(&img).unwrap(),
+            kept.step(&img).unwrap(),
+            "frame {k}"
+        );
+    }
+
+    // An engine that cannot hold the particles is refused; the tracker keeps its own.
+    let small = pftrack::likelihood::cpu::CpuEngine::new();
+    let Err(e) = swapped.replace_engine(Box::new(Refusing(small))) else {
+        panic!("an engine that refuses the particles was taken")
+    };
+    assert!(e.to_string().contains("refusing"), "{e}");
+    let (img, _) = r.render(9);
+    assert_eq!(swapped.step(&img).unwrap(), kept.step(&img).unwrap());
+
+    // A fault stops the tracker; a new engine and a restart from the last estimate go on.
+    let mut t = Tracker::with_engine(
+        cfg,
+        Box::new(Flaky {
+            inner: pftrack::likelihood::cpu::CpuEngine::new(),
+            armed: armed.clone(),
+        }),
+        &first,
+        init,
+    )
+    .unwrap();
+    let mut last = t.initial_estimate();
+    for k in 1..=3 {
+        last = t.step(&r.render(k).0).unwrap();
+    }
+    armed.store(true, Ordering::SeqCst);
+    let (f4, _) = r.render(4);
+    assert!(t.step(&f4).is_err());
+    t.replace_engine(Box::new(pftrack::likelihood::cpu::CpuEngine::new()))
+        .unwrap();
+    assert!(matches!(
+        t.step(&f4).unwrap_err(),
+        pftrack::Error::Track(TrackError::Failed { frame: 4, .. })
+    ));
+    t.reinit(&f4, last.to_init()).unwrap();
+    for k in 5..=7 {
+        let e = t.step(&r.render(k).0).unwrap();
+        assert!(!e.lost && e.confidence > 0.5, "frame {k}: {e:?}");
+    }
+}
+
+/// A CPU engine that refuses every particle count, as a device too small would.
+struct Refusing(pftrack::likelihood::cpu::CpuEngine);
+
+impl pftrack::likelihood::LikelihoodEngine for Refusing {
+    fn name(&self) -> String {
+        "refusing".into()
+    }
+    fn set_colour_model(
+        &mut self,
+        model: &pftrack::likelihood::ColourHistogram,
+    ) -> Result<(), pftrack::likelihood::LikelihoodError> {
+        self.0.set_colour_model(model)
+    }
+    fn set_contrast_table(
+        &mut self,
+        table: &pftrack::likelihood::ContrastTable,
+    ) -> Result<(), pftrack::likelihood::LikelihoodError> {
+        self.0.set_contrast_table(table)
+    }
+    fn evaluate(
+        &mut self,
+        frame: &pftrack::likelihood::FrameInput<'_>,
+        params: &pftrack::likelihood::LikelihoodParams,
+        particles: &[pftrack::likelihood::Particle],
+        out: &mut Vec<pftrack::likelihood::TermLogs>,
+    ) -> Result<(), pftrack::likelihood::LikelihoodError> {
+        self.0.evaluate(frame, params, particles, out)
+    }
+    fn check_capacity(
+        &self,
+        particles: usize,
+        _w: u32,
+        _h: u32,
+        _params: &pftrack::likelihood::LikelihoodParams,
+    ) -> Result<(), pftrack::likelihood::LikelihoodError> {
+        Err(pftrack::likelihood::LikelihoodError::Invalid(format!(
+            "refusing {particles} particles"
+        )))
+    }
+}

@@ -140,7 +140,10 @@ pub struct Weighing<'a> {
 /// What the tracker says about one frame.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Estimate {
-    /// Frame index (0 for the first frame).
+    /// The frame's number in the tracker's count: 0 for the frame it was built on, one more
+    /// for each frame stepped or restarted on since. Frames it refused (a wrong size) and
+    /// the frame of a step that failed are not counted, so where an application skips or
+    /// loses frames this is not its stream's index: keep your own beside it.
     pub frame: usize,
     /// The state: ellipse centre and semi-axes, rotation (radians) relative to the reference
     /// pose. Angles are not wrapped at ±180° (a target turning on past 180° reads 190°), but
@@ -179,11 +182,23 @@ impl Estimate {
 
     /// A start at this estimate, its ellipse as seen and its pose: to start again from where
     /// the track was ([`Tracker::reinit`] after a [`TrackError::Failed`], or on a later frame).
-    /// The angles then go on from the estimate's, the reference orientation staying the same.
+    /// The angles then go on from the estimate's, the reference orientation staying the same,
+    /// but for whole turns: an angle (or the ellipse's orientation) past a turn either way,
+    /// which [`Init::check`] refuses, is brought within one by taking whole turns off it. That
+    /// is the same rotation and the same ellipse, so the track goes on as before; only the
+    /// angles read from there on are a multiple of 360 degrees from the old ones.
     pub fn to_init(&self) -> Init {
+        let e = self.state.euler();
         Init {
-            ellipse: self.ellipse,
-            pose: self.state.euler(),
+            ellipse: Ellipse {
+                theta: within_a_turn(self.ellipse.theta),
+                ..self.ellipse
+            },
+            pose: Euler {
+                rx: within_a_turn(e.rx),
+                ry: within_a_turn(e.ry),
+                rz: within_a_turn(e.rz),
+            },
         }
     }
 
@@ -198,6 +213,13 @@ impl Estimate {
             theta: Some(self.ellipse.theta),
         }
     }
+}
+
+/// `angle` (radians) with whole turns taken off until it lies within one turn either way:
+/// itself when it does already.
+fn within_a_turn(angle: f64) -> f64 {
+    let tau = std::f64::consts::TAU;
+    angle - (angle / tau).trunc() * tau
 }
 
 /// Most keyframes held (the first view and those taken as the target turned).
@@ -666,6 +688,30 @@ impl Tracker {
         &self.colour_model
     }
 
+    /// Puts `engine` in the place of the tracker's likelihood engine and gives back the one
+    /// it held, keeping everything else (keyframes, template, the adapted colour model): to go
+    /// on on the CPU after the GPU device was lost, say, or to move to another device. The new
+    /// engine is given the colour model and contrast table the tracker holds now, so the track
+    /// goes on as it would have on the old engine, as far as the two agree (the CPU engine and
+    /// another CPU engine: bit for bit).
+    ///
+    /// Errors, the tracker keeping its engine: the new engine cannot hold the tracker's
+    /// particles on its frames ([`LikelihoodEngine::check_capacity`]), or refuses the models.
+    /// A tracker stopped by a failure ([`TrackError::Failed`]) stays stopped: replace the
+    /// engine, then [`Self::reinit`] (from the last estimate, [`Estimate::to_init`]).
+    pub fn replace_engine(
+        &mut self,
+        mut engine: Box<dyn LikelihoodEngine + Send>,
+    ) -> crate::Result<Box<dyn LikelihoodEngine + Send>> {
+        let (w, h) = self.size;
+        engine.check_capacity(self.cfg.filter.particles, w, h, &self.cfg.likelihood)?;
+        engine.set_colour_model(&self.colour_model)?;
+        if let Some(table) = self.contrast_table()? {
+            engine.set_contrast_table(&table)?;
+        }
+        Ok(std::mem::replace(&mut self.engine, engine))
+    }
+
     /// A one-line notice from the likelihood engine since the last call, taken once: e.g. that
     /// the GPU device was lost and the run goes on on the CPU
     /// ([`crate::likelihood::FallbackEngine`]). Callers should show it to the user.
@@ -1082,11 +1128,23 @@ impl Tracker {
     /// Gives the engine the contrast table of the colour model against the background, when
     /// the contrast term is on.
     fn send_contrast_table(&mut self) -> crate::Result<()> {
-        if let (Some(c), Some(bg)) = (self.cfg.contrast, &self.background) {
-            let table = ContrastTable::from_histograms(&self.colour_model, bg, c.limit as f32)?;
+        if let Some(table) = self.contrast_table()? {
             self.engine.set_contrast_table(&table)?;
         }
         Ok(())
+    }
+
+    /// The contrast term's table from the colour model and the background, when the term is
+    /// on and has a background.
+    fn contrast_table(&self) -> crate::Result<Option<ContrastTable>> {
+        match (self.cfg.contrast, &self.background) {
+            (Some(c), Some(bg)) => Ok(Some(ContrastTable::from_histograms(
+                &self.colour_model,
+                bg,
+                c.limit as f32,
+            )?)),
+            _ => Ok(None),
+        }
     }
 
     /// After a frame with at least [`Contrast::min_confidence`], moves the contrast term's
@@ -1379,7 +1437,12 @@ fn correspondences(
     if p.len() < 3 {
         return Vec::new();
     }
-    let (p, q) = keep_slope_length(&p, &q, 0.2, 0.3);
+    let (p, q) = keep_slope_length(
+        &p,
+        &q,
+        crate::features::PAPER_ANGLE_TOL,
+        crate::features::PAPER_LENGTH_TOL,
+    );
     p.iter()
         .zip(&q)
         .map(|(p, q)| FeaturePair {
