@@ -518,6 +518,17 @@ fn cli_sift_and_pose_reject_bad_input_in_one_line() {
         drawn.to_str().unwrap(),
     ];
     assert_one_line_error(&args, "sea, optimal, lsm, rls or essential", &drawn);
+    // A solver in any case, as the parser takes it: `ESSENTIAL` passed it, then was refused
+    // as unknown.
+    let solve =
+        |name: &str| pftrack(&["pose", f0, f1, "--ellipse", "48,36,14,18", "--solver", name]);
+    let (upper, lower) = (solve("ESSENTIAL"), solve("essential"));
+    let err = String::from_utf8_lossy(&upper.stderr);
+    assert!(!err.contains("unknown solver"), "{err}");
+    assert_eq!(
+        (upper.status.code(), &upper.stdout),
+        (lower.status.code(), &lower.stdout)
+    );
     // A drawing that cannot be written is refused before the rotation is computed.
     let folder = dir.join("folder.png");
     std::fs::create_dir(&folder).unwrap();
@@ -1114,6 +1125,18 @@ fn cli_pose_noise_writes_all_its_outputs_or_none() {
         png.to_str().unwrap(),
         "--plot",
         plot.to_str().unwrap(),
+    ]);
+    assert_one_line_error(&a, "named for two outputs", &png);
+    // The same file spelled otherwise: the CSV and the plot shared one partial file, and the
+    // run failed after putting a mix of both in place under that name.
+    let leaf = dir.file_name().unwrap().to_str().unwrap();
+    let other = dir.join("..").join(leaf).join("f.png");
+    let mut a = quick.to_vec();
+    a.extend([
+        "--csv",
+        png.to_str().unwrap(),
+        "--plot",
+        other.to_str().unwrap(),
     ]);
     assert_one_line_error(&a, "named for two outputs", &png);
     assert_eq!(names(&dir), ["f_lambda.csv"]);

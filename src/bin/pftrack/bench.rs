@@ -58,9 +58,16 @@ fn parse_size(s: &str) -> Result<(u32, u32), String> {
     Ok((w, h))
 }
 
+/// The median: the middle value, or the mean of the two middle ones of an even count (the
+/// upper one alone made `--repeats 2` print the slower run).
 fn median(mut v: Vec<Duration>) -> Duration {
     v.sort();
-    v.get(v.len() / 2).copied().unwrap_or_default()
+    let n = v.len();
+    match n {
+        0 => Duration::ZERO,
+        _ if n % 2 == 1 => v[n / 2],
+        _ => (v[n / 2 - 1] + v[n / 2]) / 2,
+    }
 }
 
 fn ms(d: Duration) -> String {
@@ -340,7 +347,9 @@ fn time_steps(
     init: Init,
     passes: usize,
 ) -> anyhow::Result<Duration> {
-    let mut times = Vec::with_capacity(passes * frames.len());
+    // Grown as the passes run: reserved up front, `--repeats 4000000000` asked for 3.8 TB
+    // at once and aborted.
+    let mut times = Vec::new();
     for pass in 0..=passes {
         tracker.reinit(&frames[0], init)?;
         for (k, f) in frames.iter().enumerate().skip(1) {
@@ -409,5 +418,10 @@ mod tests {
         let d = |m| Duration::from_millis(m);
         assert_eq!(median(vec![d(3), d(1), d(2)]), d(2));
         assert_eq!(median(Vec::new()), Duration::ZERO);
+        assert_eq!(median(vec![d(3), d(1)]), d(2));
+        assert_eq!(
+            median(vec![d(4), d(1), d(2), d(3)]),
+            Duration::from_micros(2500)
+        );
     }
 }

@@ -89,8 +89,9 @@ pub fn run(a: PoseArgs) -> anyhow::Result<()> {
         None => None,
     };
     // `None`: the essential-matrix baseline, which is not a block solver.
+    // Any case, as `--solver` accepts it (`ESSENTIAL` passed the parser and was then refused).
     let solver = match a.solver.as_str() {
-        "essential" => None,
+        name if name.eq_ignore_ascii_case("essential") => None,
         name => Some(SolverKind::from_name(name).map_err(|_| {
             anyhow::anyhow!(
                 "unknown solver `{name}` (expected sea, optimal, lsm, rls or essential)"

@@ -175,8 +175,14 @@ impl Outputs {
             crate::paths::png_name("--plot", p)?;
             names.push(p.clone());
         }
+        // However spelled or linked (`x.png` and `./x.png`): two outputs of one file share
+        // its partial file, and the second commit failed after the first had put a mix of
+        // both in place.
         for (i, a) in names.iter().enumerate() {
-            if names[..i].contains(a) {
+            if names[..i]
+                .iter()
+                .any(|b| b == a || crate::paths::same(a, b))
+            {
                 anyhow::bail!(
                     "{} is named for two outputs (--csv writes its name and the name with \
                      _lambda, --plot its own)",
