@@ -649,6 +649,7 @@ fn box_mp4_gives_each_decoded_frame_once() {
     // ffmpeg ends with success; the source says a frame is missing, and why.
     let short = src.shortfall().expect("455 of 456 frames is a shortfall");
     assert!(short.contains("decoded 455 of the 456 frames"), "{short}");
+    assert!(short.contains("numbered as decoded"), "{short}");
     assert!(
         short.contains("[h264] ") && !short.contains("0x"),
         "{short}"

@@ -504,7 +504,9 @@ impl FrameSource {
 
     /// Once a video has ended normally: one line saying it gave fewer frames than its
     /// container declares while ffmpeg reported errors (a truncated file, an undecodable
-    /// frame), with ffmpeg's first complaint; `None` for a complete video, before the end, and
+    /// frame), with ffmpeg's first complaint and what that does to the numbering (frames are
+    /// counted as they are decoded: past one lost mid-file, a frame's number is lower than
+    /// its place in the video); `None` for a complete video, before the end, and
     /// for the other sources, whose reading fails on a bad frame. A caller that reports the
     /// frames as the whole video should say this too: ffmpeg ends a damaged file with success.
     /// Fewer frames without a complaint are no shortfall: a clip cut without re-encoding
@@ -522,7 +524,9 @@ impl FrameSource {
         }
         match f.len_hint() {
             Some(declared) if self.produced < declared => Some(format!(
-                "{}: ffmpeg decoded {} of the {declared} frames the file declares ({complaint})",
+                "{}: ffmpeg decoded {} of the {declared} frames the file declares ({complaint}); \
+                 frames are numbered as decoded, so past a frame lost before the end the numbers \
+                 run behind the video's",
                 self.path, self.produced
             )),
             Some(_) => None,
