@@ -871,10 +871,22 @@ fn a_sequence_folder_in_an_odd_state_is_refused_or_left_alone() {
         std::fs::remove_file(dir.join("frames")).unwrap();
     }
     assert!(!dir.join("truth.csv").exists());
-    // A folder where a longer render's frame 5 was: the new 3-frame sequence goes in, the
-    // regular stale frames go, the folder stays.
+    // Frames with neither truth nor init file beside them are not a render's: refused, and
+    // left as they were (a render replaced them and removed those past its length).
     std::fs::create_dir_all(dir.join("frames/00005.png")).unwrap();
     std::fs::write(dir.join("frames/00004.png"), "stale").unwrap();
+    let err = write_sequence(&c, &dir, false).unwrap_err().to_string();
+    assert!(
+        err.contains("00004.png") && err.contains("truth.csv") && !err.contains('\n'),
+        "{err}"
+    );
+    assert_eq!(
+        std::fs::read(dir.join("frames/00004.png")).unwrap(),
+        b"stale"
+    );
+    // A folder where a longer render's frame 5 was (its init file beside it): the new
+    // 3-frame sequence goes in, the regular stale frames go, the folder stays.
+    std::fs::write(dir.join("init.txt"), "10,10,5,5\n").unwrap();
     write_sequence(&c, &dir, false).unwrap();
     let mut names: Vec<String> = std::fs::read_dir(dir.join("frames"))
         .unwrap()

@@ -322,8 +322,10 @@ pub fn frame_name(k: usize) -> String {
 /// and `init.txt` are removed, the frames moved into `dir/frames`, frames `00000.png`... of a
 /// longer earlier render removed (regular files only), and the init file then the truth moved
 /// in last; staging left by renders killed outright (unchanged for an hour) goes too. The
-/// sequence's own files replace whatever has their names, a link included (not followed). What would stop the move (a `frames` that is not a folder, a folder named like a
-/// frame) is refused before anything is rendered or moved; only an I/O error in the move
+/// sequence's own files replace whatever has their names, a link included (not followed).
+/// What would stop the move (a `frames` that is not a folder, a folder named like a frame),
+/// and frames in `dir/frames` without a `truth.csv` or `init.txt` beside them (not a render's,
+/// which it would replace or remove), are refused before anything is rendered or moved; only an I/O error in the move
 /// itself could leave `dir` without a `truth.csv`, which reads as unfinished. Folders this
 /// render made are removed again when it fails. Frames render in parallel (rayon); `progress` shows an
 /// indicatif bar on stderr.
@@ -416,6 +418,23 @@ impl Staging {
             if std::fs::symlink_metadata(d).is_ok() && !d.is_dir() {
                 return Err(SynthError::io(d, not_a_folder()));
             }
+        }
+        // Frames where no sequence of ours is (neither truth nor init file beside them) are
+        // someone else's: a render would replace them, and remove those past its length.
+        if !dir.join(TRUTH).exists()
+            && !dir.join(INIT).exists()
+            && let Some(found) = first_frame_file(&frames_dir)
+        {
+            return Err(SynthError::io(
+                &frames_dir,
+                std::io::Error::new(
+                    std::io::ErrorKind::AlreadyExists,
+                    format!(
+                        "holds {found} but no {TRUTH} or {INIT} is beside it, so these are not \
+                         frames a render left: choose another folder, or empty this one"
+                    ),
+                ),
+            ));
         }
         let names = (0..frames).map(|k| frames_dir.join(frame_name(k)));
         for to in names.chain([TRUTH, INIT].map(|n| dir.join(n))) {
@@ -533,6 +552,18 @@ fn write_png(img: &image::RgbImage, path: &Path) -> Result<(), SynthError> {
     crate::output::write_png(path, img).map_err(|e| match e {
         crate::output::OutputError::File(f) => SynthError::Format(f),
         crate::output::OutputError::Encode { path, source } => SynthError::Image { path, source },
+    })
+}
+
+/// The name of a file (not a folder) named like a frame (`NNNNN.png`) in `frames_dir`, if it
+/// holds one.
+fn first_frame_file(frames_dir: &Path) -> Option<String> {
+    let entries = std::fs::read_dir(frames_dir).ok()?;
+    entries.flatten().find_map(|e| {
+        let name = e.file_name().to_str()?.to_string();
+        let stem = name.strip_suffix(".png")?;
+        let file = e.file_type().is_ok_and(|t| !t.is_dir());
+        (file && stem.len() == 5 && stem.bytes().all(|b| b.is_ascii_digit())).then_some(name)
     })
 }
 
