@@ -1284,6 +1284,22 @@ fn cli_demo_checks_before_rendering() {
         &out,
     );
     assert_eq!(std::fs::read(&file).unwrap(), b"the user's");
+    // A folder where the poses go is refused before the sequence is rendered (the whole
+    // render used to run first).
+    std::fs::create_dir_all(out.join("poses.csv")).unwrap();
+    let e = pftrack(&["demo", "--out", o]);
+    assert_eq!(e.status.code(), Some(1));
+    let err = String::from_utf8_lossy(&e.stderr);
+    assert!(
+        err.contains("poses.csv is a folder") && err.lines().count() == 1,
+        "{err}"
+    );
+    let mut left: Vec<_> = std::fs::read_dir(&out)
+        .unwrap()
+        .map(|e| e.unwrap().file_name())
+        .collect();
+    left.sort();
+    assert_eq!(left, ["poses.csv"], "nothing rendered");
     std::fs::remove_dir_all(&dir).unwrap();
 }
 

@@ -59,6 +59,13 @@ pub fn run(a: DemoArgs) -> anyhow::Result<()> {
     if a.out.exists() && !a.out.is_dir() {
         anyhow::bail!("--out {}: not a folder", a.out.display());
     }
+    let poses = a.out.join("poses.csv");
+    if poses.is_dir() {
+        anyhow::bail!(
+            "{} is a folder: the demo's poses cannot replace it",
+            poses.display()
+        );
+    }
     let backend = a.backend;
     let mut tcfg = config(Mode::Sea, a.particles, a.seed)?;
     // The engine too: one that cannot open fails the demo before anything is written.
@@ -81,7 +88,6 @@ pub fn run(a: DemoArgs) -> anyhow::Result<()> {
     // The synthetic camera is known: the init file gives it.
     tcfg.camera_hfov_deg = init_file.hfov_deg;
     let mut tracker = Tracker::with_engine(tcfg, engine, &first, init)?;
-    let poses = a.out.join("poses.csv");
     let mut w = PoseCsvWriter::create(&poses, true)?;
     let pb = progress(Some(cfg.frames));
     w.write(&tracker.initial_estimate().to_record())?;

@@ -66,7 +66,9 @@ pub struct PoseNoiseArgs {
     /// Which frames receive the noise.
     #[arg(long, value_enum, default_value_t = NoiseFrames::Next)]
     pub noise_on: NoiseFrames,
-    /// Master seed (each trial has its own generator seeded from it).
+    /// Master seed (each trial has its own generator seeded from it, the trial's number and
+    /// its SNR's place in the list: `--snr 20` alone draws other trials than the 20 of
+    /// `--snr 10,20`, so give the whole list to reproduce a figure).
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
     /// Write Fig. 3b as CSV `snr_db,sea,optimal,lsm,rls` (mean error, degrees) to this file,
