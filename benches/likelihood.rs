@@ -5,7 +5,9 @@
 //! the tracker's appearance template (`likelihood::template`: the plain and the turned
 //! correlation of 200 particles, 16x16 grid, one thread).
 //! The GPU engine (`likelihood_gpu/...`) runs the same frames and particles when a Vulkan
-//! adapter exists (upload, all kernels and readback included, as a tracker pays them).
+//! adapter exists (upload, all kernels and readback included, as a tracker pays them; the
+//! contrast term, which the tracker adds by default and reads from the same histograms, is
+//! left out, as in `pftrack bench`).
 //!
 //! `PFTRACK_BENCH_MAX_N` caps N (a 100k pass takes minutes on a software Vulkan device and on
 //! 2 cores).
@@ -137,7 +139,13 @@ fn whole_pass(c: &mut Criterion) {
         group.measurement_time(Duration::from_secs(2));
         for n in counts() {
             let ps = particles(&target, n, scale as f32);
-            for threads in [1, all] {
+            // One entry when the pool has one thread (`taskset -c 0`, `RAYON_NUM_THREADS=1`):
+            // two would give criterion the same ID twice, which it refuses with a panic.
+            let mut thread_counts = vec![1];
+            if all > 1 {
+                thread_counts.push(all);
+            }
+            for threads in thread_counts {
                 let mut eng = if threads == 1 {
                     CpuEngine::with_threads(1).expect("engine")
                 } else {

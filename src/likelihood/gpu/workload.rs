@@ -1,5 +1,6 @@
-//! A synthetic likelihood workload (frame, target, features, particles) for benchmarks: the
-//! same input for `pftrack bench` and `benches/likelihood.rs`, needing no data files.
+//! A synthetic likelihood workload (frame, target, features, particles) for `pftrack bench`,
+//! needing no data files. (`benches/likelihood.rs` builds a scene of its own, with particles
+//! spread more tightly about the target, so the two benches' figures are not one series.)
 
 use image::{Rgb, RgbImage};
 use rand::{Rng, SeedableRng, rngs::StdRng};
