@@ -153,8 +153,11 @@ pub struct TrackerConfig {
     /// Consecutive low-confidence frames before the target is declared lost.
     pub lost_after: usize,
     /// Once lost, the target counts as found again only on a frame with at least this
-    /// confidence (in `[lost_below, 1]`), or when a re-acquisition finds it with at least
-    /// this confidence; until then the tracker stays lost and searches on every frame. 0.5 by default, the confidence the
+    /// confidence (in `[lost_below, 1]`) where it is also recognised (a keyframe fit placed
+    /// it, or its templates correlate there by [`TrackerConfig::reacquire_ncc`]: colour and
+    /// contour alone are met by background of the target's colours), or when a
+    /// re-acquisition finds it with at least this confidence; until then the tracker stays
+    /// lost and searches on every frame. 0.5 by default, the confidence the
     /// colour model and the template need to learn ([`ColourUpdate::min_confidence`]), so
     /// a track that counts as found is also one the models trust. At `lost_below` the flag
     /// is cleared by the first frame above it, as it was before this setting.

@@ -163,7 +163,8 @@ pub struct Estimate {
     pub confidence: f64,
     /// Whether the target is considered lost: from the [`TrackerConfig::lost_after`]-th
     /// frame in a row below [`TrackerConfig::lost_below`] until a frame reaches
-    /// [`TrackerConfig::found_above`] or the target is re-acquired.
+    /// [`TrackerConfig::found_above`] where the target is recognised (by a keyframe fit or
+    /// its templates), or the target is re-acquired.
     pub lost: bool,
     /// Feature matches with the previous frame (after the outlier rejection), which the
     /// inter-frame rotation is estimated from; 0 when there were none. The keyframe fits and
@@ -977,7 +978,14 @@ impl Tracker {
             est = found;
             jumped = true;
         }
-        (self.low_count, self.lost) = lost_state(&self.cfg, self.low_count, self.lost, confidence);
+        // A lost target is found again by its confidence only where it is recognised: a
+        // keyframe fit placed it this frame, or its templates correlate there.
+        let recognised = !self.lost
+            || confidence < self.cfg.found_above
+            || key_inter
+            || self.recognised_at(&gray, &est);
+        (self.low_count, self.lost) =
+            lost_state(&self.cfg, self.low_count, self.lost, confidence, recognised);
         if self.low_count >= self.cfg.lost_after
             && let Some((found, c)) = self.reacquire(frame, &gray, &est)?
         {

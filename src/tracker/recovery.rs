@@ -60,6 +60,22 @@ impl Tracker {
         best
     }
 
+    /// Whether a lost target's estimate `est` is the target by more than colour and contour,
+    /// which background that looks like it meets (on grey footage, road and trees around a
+    /// car read 0.5-0.76): its templates correlate there, placed as re-acquisition places a
+    /// candidate, at least [`TrackerConfig::reacquire_ncc`]. Without a usable template or
+    /// that bar, nothing but colour and contour can say, and they do (`true`). The caller
+    /// counts a keyframe fit on the frame as recognition too.
+    pub(super) fn recognised_at(&self, gray: &GrayF32, est: &Hypothesis) -> bool {
+        let Some(min_ncc) = self.cfg.reacquire_ncc else {
+            return true;
+        };
+        match self.refine_by_template(gray, &est.to_particle()) {
+            None => true,
+            Some((_, ncc)) => f64::from(ncc) >= min_ncc,
+        }
+    }
+
     /// `c` moved and scaled to where it correlates best with the target's templates
     /// ([`Self::template_correlations`]), on a grid of a quarter of the search's step either
     /// way by two (5 x 5 positions) at three sizes a quarter octave apart; with that
@@ -397,14 +413,20 @@ fn reacquired(cfg: &TrackerConfig, rho: f64, c: f64) -> bool {
 /// The tracker's lost state after a frame of confidence `c`, from `low` (consecutive frames
 /// below [`TrackerConfig::lost_below`], or more while lost) and `lost`: a frame below
 /// `lost_below` counts one more; a lost target stays lost, and `low` where it was, until a
-/// frame reaches [`TrackerConfig::found_above`]; otherwise the count starts over. The
-/// target is declared lost once `low` reaches [`TrackerConfig::lost_after`] (the caller
-/// then searches for it).
-pub(super) fn lost_state(cfg: &TrackerConfig, low: usize, lost: bool, c: f64) -> (usize, bool) {
+/// frame reaches [`TrackerConfig::found_above`] where the target is `recognised`
+/// ([`Tracker::recognised_at`]); otherwise the count starts over. The target is declared
+/// lost once `low` reaches [`TrackerConfig::lost_after`] (the caller then searches for it).
+pub(super) fn lost_state(
+    cfg: &TrackerConfig,
+    low: usize,
+    lost: bool,
+    c: f64,
+    recognised: bool,
+) -> (usize, bool) {
     if c < cfg.lost_below {
         let low = low.saturating_add(1);
         (low, lost || low >= cfg.lost_after)
-    } else if lost && c < cfg.found_above {
+    } else if lost && (c < cfg.found_above || !recognised) {
         (low, true)
     } else {
         (0, false)
@@ -521,7 +543,7 @@ mod tests {
             let mut s = (0, false);
             cs.iter()
                 .map(|&c| {
-                    s = lost_state(&cfg, s.0, s.1, c);
+                    s = lost_state(&cfg, s.0, s.1, c, true);
                     s
                 })
                 .collect::<Vec<_>>()
@@ -551,7 +573,11 @@ mod tests {
             found_above: cfg.lost_below,
             ..cfg.clone()
         };
-        assert_eq!(lost_state(&old, 3, true, band), (0, false));
+        assert_eq!(lost_state(&old, 3, true, band, true), (0, false));
+        // A frame above `found_above` where the target is not recognised keeps it lost; one
+        // that is not lost needs no recognising.
+        assert_eq!(lost_state(&cfg, 3, true, above, false), (3, true));
+        assert_eq!(lost_state(&cfg, 1, false, above, false), (0, false));
     }
 
     #[test]
