@@ -874,6 +874,9 @@ impl Tracker {
             None => (&inter_pairs, self.prev),
         };
         let key_inter = key_fit.is_some() || prior_prev.is_some();
+        // A fit to a keyframe recognises the target; one to the previous frame only follows
+        // whatever the estimate rests on.
+        let keyframe_fitted = key_fit.is_some();
         let mut lp = self.likelihood;
         let (dx, dy, scale, rotations) = match (&key_fit, &prior_prev, &inter, self.cfg.mode) {
             (_, _, _, Mode::Tpe) => (dx, dy, scale, vec![(1.0, Matrix3::identity())]),
@@ -982,7 +985,7 @@ impl Tracker {
         // keyframe fit placed it this frame, or its templates correlate there.
         let recognised = !self.lost
             || confidence < self.cfg.found_above
-            || key_inter
+            || keyframe_fitted
             || self.recognised_at(&gray, &est);
         (self.low_count, self.lost) =
             lost_state(&self.cfg, self.low_count, self.lost, confidence, recognised);

@@ -288,7 +288,9 @@ impl Tracker {
     /// term plus, when it is on, the contrast term (which prefers the size holding the
     /// target's colours and no more);
     /// the best one, when its colour similarity reaches [`TrackerConfig::reacquire_rho`], is
-    /// then verified by its features, which must fit one of the keyframes (any pose).
+    /// then verified by its features, which must fit one of the keyframes (any pose), and
+    /// when they do not, the few of those colours its templates rank best, in turn (on grey
+    /// car4 the best by colour was always a patch of trees).
     /// With [`TrackerConfig::reacquire_ncc`], the candidate of the target's colours that
     /// correlates best with its templates ([`Self::template_correlations`]) is taken instead
     /// when it reaches that correlation, and is recognised by it even when its features fit
@@ -339,18 +341,67 @@ impl Tracker {
         // each of the best few placed first to the template on a finer grid (the search's
         // grid, half a semi-axis, is too coarse for a sharp texture to correlate).
         // (The correlations are computed only when the template may recognise a candidate.)
+        let ranked = self
+            .cfg
+            .reacquire_ncc
+            .and_then(|_| self.template_correlations(gray, &cands))
+            .map(|ncc| best_by_template(&rhos, &ncc, self.cfg.reacquire_rho, TEMPLATE_REFINED))
+            .unwrap_or_default();
         let recognised = self.cfg.reacquire_ncc.and_then(|min_ncc| {
-            let ncc = self.template_correlations(gray, &cands)?;
-            best_by_template(&rhos, &ncc, self.cfg.reacquire_rho, TEMPLATE_REFINED)
-                .into_iter()
-                .filter_map(|(i, _)| self.refine_by_template(gray, &cands[i]))
+            ranked
+                .iter()
+                .filter_map(|&(i, _)| self.refine_by_template(gray, &cands[i]))
                 .max_by(|a, b| a.1.total_cmp(&b.1))
                 .filter(|&(_, n)| f64::from(n) >= min_ncc)
         });
-        let chosen = match (recognised, best) {
-            (Some((p, _)), _) => p,
-            (None, Some((i, rho))) if rho >= self.cfg.reacquire_rho => cands[i],
-            _ => return Ok(None),
+        if let Some((p, _)) = recognised {
+            return self.verify_candidate(frame, gray, est, p, true);
+        }
+        // None recognised: each candidate is verified by its features, the best by colour
+        // first, then those the templates rank best (on grey footage the best by colour is
+        // as often a patch of trees as the target).
+        let mut tried: Vec<usize> = Vec::new();
+        if let Some((i, rho)) = best
+            && rho >= self.cfg.reacquire_rho
+        {
+            tried.push(i);
+        }
+        tried.extend(ranked.iter().map(|&(i, _)| i));
+        let mut seen = Vec::new();
+        for i in tried {
+            if seen.contains(&i) {
+                continue;
+            }
+            seen.push(i);
+            if let Some(found) = self.verify_candidate(frame, gray, est, cands[i], false)? {
+                return Ok(Some(found));
+            }
+        }
+        Ok(None)
+    }
+
+    /// A re-acquisition candidate `chosen` verified ([`Self::reacquire`]): its features fitted
+    /// to one of the keyframes place it, or, `recognised` by the templates, it stands where
+    /// it was found when they fit none; then it must lie where it was searched and pass the
+    /// found target's tests. The target so placed with its own confidence, or `None`.
+    fn verify_candidate(
+        &mut self,
+        frame: &image::RgbImage,
+        gray: &GrayF32,
+        est: &Hypothesis,
+        chosen: Particle,
+        recognised: bool,
+    ) -> crate::Result<Option<(Hypothesis, f64)>> {
+        let (w, h) = self.size;
+        let mut lp = self.likelihood;
+        lp.terms = TERM_COLOUR;
+        self.enable_contrast(&mut lp, self.reference.a * self.reference.b);
+        let input = FrameInput {
+            image: frame,
+            features: &[],
+            depths: None,
+            prev: self.prev.to_particle(),
+            theta0: self.theta0 as f32,
         };
         let found = Hypothesis {
             cx: chosen.cx as f64,
@@ -378,10 +429,7 @@ impl Tracker {
             .best_fit(&features, &ctx, KEYFRAMES, std::f64::consts::PI);
         // Its features place it when they fit; a candidate the template recognised stands
         // where it was found when they do not (a small target has too few for a fit).
-        let Some(placed) = fit
-            .map(|k| k.placed())
-            .or(recognised.is_some().then_some(found))
-        else {
+        let Some(placed) = fit.map(|k| k.placed()).or(recognised.then_some(found)) else {
             return Ok(None);
         };
         // The fit may place the target only where its evidence came from, and the target so
