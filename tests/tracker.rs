@@ -1376,10 +1376,12 @@ fn the_weighing_stays_whole_through_a_reacquisition() {
     assert_eq!(reacquired, 1, "the head was not re-acquired once");
 }
 
-/// A likelihood engine around the CPU's that fails, while armed, as a GPU fault would.
+/// A likelihood engine around the CPU's that fails, while armed, as a GPU fault would; and,
+/// when `small`, refuses every particle count, as a device too small would.
 struct Flaky {
     inner: pftrack::likelihood::cpu::CpuEngine,
     armed: std::sync::Arc<std::sync::atomic::AtomicBool>,
+    small: bool,
 }
 
 impl Flaky {
@@ -1420,6 +1422,20 @@ impl pftrack::likelihood::LikelihoodEngine for Flaky {
     ) -> Result<(), pftrack::likelihood::LikelihoodError> {
         self.fault()?;
         self.inner.evaluate(frame, params, particles, out)
+    }
+    fn check_capacity(
+        &self,
+        particles: usize,
+        w: u32,
+        h: u32,
+        params: &pftrack::likelihood::LikelihoodParams,
+    ) -> Result<(), pftrack::likelihood::LikelihoodError> {
+        if self.small {
+            return Err(pftrack::likelihood::LikelihoodError::Invalid(format!(
+                "refusing {particles} particles"
+            )));
+        }
+        self.inner.check_capacity(particles, w, h, params)
     }
 }
 
@@ -1463,6 +1479,7 @@ fn a_failed_step_stops_the_tracker_until_reinit() {
     let engine = Flaky {
         inner: pftrack::likelihood::cpu::CpuEngine::new(),
         armed: armed.clone(),
+        small: false,
     };
     let mut t =
         Tracker::with_engine(TrackerConfig::default(), Box::new(engine), &first, init).unwrap();
@@ -1623,6 +1640,7 @@ fn replacing_the_engine_keeps_the_track() {
     let flaky = Flaky {
         inner: pftrack::likelihood::cpu::CpuEngine::new(),
         armed: armed.clone(),
+        small: false,
     };
     let mut swapped = Tracker::with_engine(cfg.clone(), Box::new(flaky), &first, init).unwrap();
     for k in 1..=8 {
@@ -1642,8 +1660,12 @@ fn replacing_the_engine_keeps_the_track() {
     }
 
     // An engine that cannot hold the particles is refused; the tracker keeps its own.
-    let small = pftrack::likelihood::cpu::CpuEngine::new();
-    let Err(e) = swapped.replace_engine(Box::new(Refusing(small))) else {
+    let small = Flaky {
+        inner: pftrack::likelihood::cpu::CpuEngine::new(),
+        armed: Arc::new(AtomicBool::new(false)),
+        small: true,
+    };
+    let Err(e) = swapped.replace_engine(Box::new(small)) else {
         panic!("an engine that refuses the particles was taken")
     };
     assert!(e.to_string().contains("refusing"), "{e}");
@@ -1656,6 +1678,7 @@ fn replacing_the_engine_keeps_the_track() {
         Box::new(Flaky {
             inner: pftrack::likelihood::cpu::CpuEngine::new(),
             armed: armed.clone(),
+            small: false,
         }),
         &first,
         init,
@@ -1678,47 +1701,6 @@ fn replacing_the_engine_keeps_the_track() {
     for k in 5..=7 {
         let e = t.step(&r.render(k).0).unwrap();
         assert!(!e.lost && e.confidence > 0.5, "frame {k}: {e:?}");
-    }
-}
-
-/// A CPU engine that refuses every particle count, as a device too small would.
-struct Refusing(pftrack::likelihood::cpu::CpuEngine);
-
-impl pftrack::likelihood::LikelihoodEngine for Refusing {
-    fn name(&self) -> String {
-        "refusing".into()
-    }
-    fn set_colour_model(
-        &mut self,
-        model: &pftrack::likelihood::ColourHistogram,
-    ) -> Result<(), pftrack::likelihood::LikelihoodError> {
-        self.0.set_colour_model(model)
-    }
-    fn set_contrast_table(
-        &mut self,
-        table: &pftrack::likelihood::ContrastTable,
-    ) -> Result<(), pftrack::likelihood::LikelihoodError> {
-        self.0.set_contrast_table(table)
-    }
-    fn evaluate(
-        &mut self,
-        frame: &pftrack::likelihood::FrameInput<'_>,
-        params: &pftrack::likelihood::LikelihoodParams,
-        particles: &[pftrack::likelihood::Particle],
-        out: &mut Vec<pftrack::likelihood::TermLogs>,
-    ) -> Result<(), pftrack::likelihood::LikelihoodError> {
-        self.0.evaluate(frame, params, particles, out)
-    }
-    fn check_capacity(
-        &self,
-        particles: usize,
-        _w: u32,
-        _h: u32,
-        _params: &pftrack::likelihood::LikelihoodParams,
-    ) -> Result<(), pftrack::likelihood::LikelihoodError> {
-        Err(pftrack::likelihood::LikelihoodError::Invalid(format!(
-            "refusing {particles} particles"
-        )))
     }
 }
 

@@ -982,7 +982,8 @@ impl Tracker {
             jumped = true;
         }
         // A lost target is found again by its confidence only where it is recognised: a
-        // keyframe fit placed it this frame, or its templates correlate there.
+        // keyframe fit placed it this frame, or its templates correlate there (consulted only
+        // on a lost frame confident enough for it to matter).
         let recognised = !self.lost
             || confidence < self.cfg.found_above
             || keyframe_fitted

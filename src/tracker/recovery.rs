@@ -10,7 +10,7 @@ use crate::filter::Hypothesis;
 use crate::frames::GrayF32;
 use crate::geometry::{BoxRect, Ellipse, Euler, PoseState};
 use crate::likelihood::cpu::colour::rho_from_log;
-use crate::likelihood::{FrameInput, Particle, TERM_COLOUR};
+use crate::likelihood::{FrameInput, LikelihoodParams, Particle, TERM_COLOUR};
 
 /// Candidates of a re-acquisition placed to the template on a finer grid, the best by their
 /// correlation on the search's grid first ([`Tracker::refine_by_template`]).
@@ -311,17 +311,7 @@ impl Tracker {
     ) -> crate::Result<Option<(Hypothesis, f64)>> {
         let (w, h) = self.size;
         let cands = search_grid(&self.reference, w, h, &Euler::from_matrix(&est.rot));
-        let mut lp = self.likelihood;
-        lp.terms = TERM_COLOUR;
-        // The contrast sum over the same area for every size, the initial ellipse's.
-        self.enable_contrast(&mut lp, self.reference.a * self.reference.b);
-        let input = FrameInput {
-            image: frame,
-            features: &[],
-            depths: None,
-            prev: self.prev.to_particle(),
-            theta0: self.theta0 as f32,
-        };
+        let (lp, input) = self.search_terms(frame);
         let mut out = Vec::new();
         // The grid covers the frame, so its size has no bound the filter's count sets: in
         // batches the engine's buffers hold (a 4 px target on a 4K frame is 7.8 million
@@ -366,18 +356,34 @@ impl Tracker {
         {
             tried.push(i);
         }
-        tried.extend(ranked.iter().map(|&(i, _)| i));
-        let mut seen = Vec::new();
-        for i in tried {
-            if seen.contains(&i) {
-                continue;
+        for &(i, _) in &ranked {
+            if !tried.contains(&i) {
+                tried.push(i);
             }
-            seen.push(i);
+        }
+        for i in tried {
             if let Some(found) = self.verify_candidate(frame, gray, est, cands[i], false)? {
                 return Ok(Some(found));
             }
         }
         Ok(None)
+    }
+
+    /// The likelihood settings and input a re-acquisition scores candidates with: the colour
+    /// term, and the contrast term summed over the initial ellipse's area for every size;
+    /// no features.
+    fn search_terms<'a>(&self, frame: &'a image::RgbImage) -> (LikelihoodParams, FrameInput<'a>) {
+        let mut lp = self.likelihood;
+        lp.terms = TERM_COLOUR;
+        self.enable_contrast(&mut lp, self.reference.a * self.reference.b);
+        let input = FrameInput {
+            image: frame,
+            features: &[],
+            depths: None,
+            prev: self.prev.to_particle(),
+            theta0: self.theta0 as f32,
+        };
+        (lp, input)
     }
 
     /// A re-acquisition candidate `chosen` verified ([`Self::reacquire`]): its features fitted
@@ -393,16 +399,7 @@ impl Tracker {
         recognised: bool,
     ) -> crate::Result<Option<(Hypothesis, f64)>> {
         let (w, h) = self.size;
-        let mut lp = self.likelihood;
-        lp.terms = TERM_COLOUR;
-        self.enable_contrast(&mut lp, self.reference.a * self.reference.b);
-        let input = FrameInput {
-            image: frame,
-            features: &[],
-            depths: None,
-            prev: self.prev.to_particle(),
-            theta0: self.theta0 as f32,
-        };
+        let (lp, input) = self.search_terms(frame);
         let found = Hypothesis {
             cx: chosen.cx as f64,
             cy: chosen.cy as f64,
