@@ -324,11 +324,11 @@ pub fn frame_name(k: usize) -> String {
 /// in last; staging left by renders killed outright (unchanged for an hour) goes too. The
 /// sequence's own files replace whatever has their names, a link included (not followed).
 /// What would stop the move (a `frames` that is not a folder, a folder named like a frame),
-/// and frames in `dir/frames` without a `truth.csv` or `init.txt` beside them (not a render's,
-/// which it would replace or remove), are refused before anything is rendered or moved; only an I/O error in the move
-/// itself could leave `dir` without a `truth.csv`, which reads as unfinished. Folders this
-/// render made are removed again when it fails. Frames render in parallel (rayon); `progress` shows an
-/// indicatif bar on stderr.
+/// and frames in `dir/frames` without a `truth.csv` or `init.txt` beside them (not a
+/// render's, which it would replace or remove), are refused before anything is rendered or
+/// moved; only an I/O error in the move itself could leave `dir` without a `truth.csv`, which
+/// reads as unfinished. Folders this render made are removed again when it fails. Frames
+/// render in parallel (rayon); `progress` shows an indicatif bar on stderr.
 pub fn write_sequence(
     cfg: &SynthConfig,
     dir: &Path,
@@ -555,15 +555,24 @@ fn write_png(img: &image::RgbImage, path: &Path) -> Result<(), SynthError> {
     })
 }
 
-/// The name of a file (not a folder) named like a frame (`NNNNN.png`) in `frames_dir`, if it
-/// holds one.
+/// The index of a file named like a frame ([`frame_name`]: `NNNNN.png`), or `None` for
+/// any other name.
+fn frame_index(name: &str) -> Option<usize> {
+    let stem = name.strip_suffix(".png")?;
+    if stem.len() == 5 && stem.bytes().all(|b| b.is_ascii_digit()) {
+        stem.parse().ok()
+    } else {
+        None
+    }
+}
+
+/// The name of a file (not a folder) named like a frame in `frames_dir`, if it holds one.
 fn first_frame_file(frames_dir: &Path) -> Option<String> {
     let entries = std::fs::read_dir(frames_dir).ok()?;
     entries.flatten().find_map(|e| {
         let name = e.file_name().to_str()?.to_string();
-        let stem = name.strip_suffix(".png")?;
         let file = e.file_type().is_ok_and(|t| !t.is_dir());
-        (file && stem.len() == 5 && stem.bytes().all(|b| b.is_ascii_digit())).then_some(name)
+        (file && frame_index(&name).is_some()).then_some(name)
     })
 }
 
@@ -578,16 +587,12 @@ fn remove_stale_frames(frames_dir: &Path, frames: usize) -> Result<(), SynthErro
         let Some(name) = name.to_str() else { continue };
         // the temporary file of a frame whose render was interrupted
         let partial = name.starts_with('.') && name.ends_with(".png.partial");
-        let Some(stem) = name.strip_suffix(".png") else {
-            if partial {
-                let p = entry.path();
-                std::fs::remove_file(&p).map_err(|e| SynthError::io(&p, e))?;
-            }
+        if partial {
+            let p = entry.path();
+            std::fs::remove_file(&p).map_err(|e| SynthError::io(&p, e))?;
             continue;
-        };
-        if stem.len() == 5
-            && stem.bytes().all(|b| b.is_ascii_digit())
-            && stem.parse::<usize>().is_ok_and(|k| k >= frames)
+        }
+        if frame_index(name).is_some_and(|k| k >= frames)
             && entry.file_type().is_ok_and(|t| t.is_file())
         {
             let p = entry.path();

@@ -58,9 +58,10 @@ fn parse_size(s: &str) -> Result<(u32, u32), String> {
     Ok((w, h))
 }
 
-/// The median: the middle value, or the mean of the two middle ones of an even count (the
-/// upper one alone made `--repeats 2` print the slower run).
-fn median(mut v: Vec<Duration>) -> Duration {
+/// The median of `v`: the middle value, or the mean of the two middle ones of an even count
+/// (the upper one alone made `--repeats 2` print the slower run); zero for none. `sift
+/// --repeat` reports it too.
+pub(crate) fn median(mut v: Vec<Duration>) -> Duration {
     v.sort();
     let n = v.len();
     match n {

@@ -92,18 +92,17 @@ pub fn run(args: SiftArgs) -> anyhow::Result<()> {
     for _ in 0..args.repeat {
         let t0 = Instant::now();
         feats = sift.detect(&gray, args.region)?;
-        times.push(t0.elapsed().as_secs_f64() * 1e3);
+        times.push(t0.elapsed());
     }
-    times.sort_by(f64::total_cmp);
-    // `repeat >= 1` (clap's range), so both exist.
-    let fastest = times.first().copied().unwrap_or(f64::NAN);
-    // The mean of the two middle runs of an even count (not the slower one alone).
-    let n = times.len();
-    let median = match n {
-        0 => f64::NAN,
-        _ if n % 2 == 1 => times[n / 2],
-        _ => (times[n / 2 - 1] + times[n / 2]) / 2.0,
-    };
+    // `repeat >= 1` (clap's range), so both exist; in milliseconds.
+    let fastest = times
+        .iter()
+        .min()
+        .copied()
+        .unwrap_or_default()
+        .as_secs_f64()
+        * 1e3;
+    let median = crate::bench::median(times).as_secs_f64() * 1e3;
     match &args.out {
         None => {
             outln!(
