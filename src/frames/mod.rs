@@ -20,6 +20,7 @@
 //! error ([`FrameError::NoFrames`]).
 
 pub mod dir;
+pub mod exposure;
 pub mod ffmpeg;
 pub mod gray;
 pub mod resize;

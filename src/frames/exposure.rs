@@ -1,0 +1,364 @@
+//! Exposure: a change of light over the whole frame between two frames (a camera's exposure
+//! or gain stepping, a light switched on or off), measured as each channel's gain, and
+//! undone so that later stages see the light the target's models were taken in.
+//!
+//! A gain in linear light is a gain in gamma-encoded values too (`(kL)^γ = k^γ L^γ`), so a
+//! change of exposure scales each channel's 8-bit values by one factor. The factor between
+//! two frames is measured as the median, over the frame's pixels, of a channel's value in the
+//! new frame over its value in the old. The median is the robust choice: objects that move,
+//! or a camera that pans, change fewer than half of the pixels between two frames, so they
+//! move the median little, while a change of light moves every pixel by the same factor.
+//!
+//! ```
+//! use pftrack::frames::exposure::{channel_gains, undo_gain};
+//! let bright = image::RgbImage::from_fn(64, 48, |x, y| {
+//!     image::Rgb([(40 + x * 2) as u8, (60 + y * 3) as u8, 120])
+//! });
+//! // The same view with half the light.
+//! let dark = image::RgbImage::from_fn(64, 48, |x, y| {
+//!     let p = bright.get_pixel(x, y).0;
+//!     image::Rgb(p.map(|v| (f64::from(v) * 0.5).round() as u8))
+//! });
+//! let g = channel_gains(&bright, &dark, 1).expect("enough pixels in range");
+//! assert!(g.iter().all(|g| (g - 0.5).abs() < 0.02));
+//! // Brought back to the first frame's light.
+//! let back = undo_gain(&dark, g);
+//! assert!((i32::from(back.get_pixel(10, 10).0[0]) - 60).abs() <= 2);
+//! ```
+
+use image::RgbImage;
+
+/// Values at or below this are too dark for a ratio (quantisation dominates).
+const DARK: u8 = 12;
+/// Values at or above this may be clipped.
+const BRIGHT: u8 = 250;
+/// The fewest pixels in range, per channel, for a gain to be measured.
+const MIN_PIXELS: usize = 64;
+
+/// Each channel's gain from `prev` to `cur` (of the same size): the median over the pixels
+/// of `cur / prev`, taken on every `stride`-th pixel in each direction, over the pixels
+/// where both values are neither dark nor clipped. `None` where the frames differ in size,
+/// `stride` is 0, or a channel has fewer than 64 such pixels or fewer than a quarter of
+/// those sampled (too little of the frame to speak for all of it).
+pub fn channel_gains(prev: &RgbImage, cur: &RgbImage, stride: u32) -> Option<[f64; 3]> {
+    if prev.dimensions() != cur.dimensions() || stride == 0 {
+        return None;
+    }
+    let (mut a, mut b) = (Vec::new(), Vec::new());
+    sample(prev, stride, &mut a);
+    sample(cur, stride, &mut b);
+    gains_of(&a, &b, &mut Vec::new())
+}
+
+/// Every `stride`-th pixel of `frame` in each direction, row by row, into `out`.
+fn sample(frame: &RgbImage, stride: u32, out: &mut Vec<[u8; 3]>) {
+    out.clear();
+    let (w, step) = (frame.width() as usize * 3, stride as usize);
+    if w == 0 || step == 0 {
+        return;
+    }
+    for row in frame.as_raw().chunks_exact(w).step_by(step) {
+        out.extend(
+            row.chunks_exact(3)
+                .step_by(step)
+                .map(|p| [p[0], p[1], p[2]]),
+        );
+    }
+}
+
+/// [`channel_gains`] on two frames' samples taken alike; `ratios` is scratch space.
+fn gains_of(prev: &[[u8; 3]], cur: &[[u8; 3]], ratios: &mut Vec<f32>) -> Option<[f64; 3]> {
+    if prev.len() != cur.len() {
+        return None;
+    }
+    let in_range = |v: u8| v > DARK && v < BRIGHT;
+    let mut gains = [1.0; 3];
+    for (ch, g) in gains.iter_mut().enumerate() {
+        ratios.clear();
+        ratios.extend(
+            prev.iter()
+                .zip(cur)
+                .filter(|(p, c)| in_range(p[ch]) && in_range(c[ch]))
+                .map(|(p, c)| f32::from(c[ch]) / f32::from(p[ch])),
+        );
+        if ratios.len() < MIN_PIXELS || ratios.len() * 4 < prev.len() {
+            return None;
+        }
+        let mid = ratios.len() / 2;
+        let (_, m, _) = ratios.select_nth_unstable_by(mid, f32::total_cmp);
+        *g = f64::from(*m);
+    }
+    Some(gains)
+}
+
+/// `frame` with each channel divided by its `gain` (rounded, and clipped to 0-255): the
+/// view as it would look in the light before the change. Gains that are not positive and
+/// finite leave their channel as it is.
+pub fn undo_gain(frame: &RgbImage, gain: [f64; 3]) -> RgbImage {
+    let mut lut = [[0u8; 256]; 3];
+    for (table, g) in lut.iter_mut().zip(gain) {
+        let g = if g.is_finite() && g > 0.0 { g } else { 1.0 };
+        for (v, out) in table.iter_mut().enumerate() {
+            *out = (v as f64 / g).round().clamp(0.0, 255.0) as u8;
+        }
+    }
+    let mut out = frame.clone();
+    for p in out.pixels_mut() {
+        for ch in 0..3 {
+            p.0[ch] = lut[ch][usize::from(p.0[ch])];
+        }
+    }
+    out
+}
+
+/// The least change between two frames (as a log gain, about 2 %) that counts towards a
+/// change of light: smaller ones are what moving objects, a panning camera and compression
+/// make of a frame's median.
+const FLOOR: f64 = 0.02;
+
+/// Undoes changes of light over a sequence. Each frame's gain from the one before is
+/// measured ([`channel_gains`]); a run of frames whose gain in a channel moves the same way
+/// by more than 2 % each is a change of light once the run's total passes `1 + jump` (or
+/// `1 / (1 + jump)`): a light switched in one frame, or a camera's exposure ramping over a
+/// few. The runs' gains accumulate, and every frame is handed on with the accumulated gain
+/// undone ([`undo_gain`]). Everything else is left alone: moving objects, a panning camera,
+/// flicker and compression move a frame's median by a few percent, back and forth (on the
+/// project's four real sequences no run of such changes passes 7.8 %), and a slow change of
+/// light is left to the models that adapt.
+#[derive(Debug, Clone)]
+pub struct Compensator {
+    jump: f64,
+    gain: [f64; 3],
+    /// Each channel's current run: its total log gain, and whether it has been taken as a
+    /// change of light (its later frames are then taken as they come).
+    run: [(f64, bool); 3],
+    /// The previous frame's size (`None` before the first) and its sampled pixels
+    /// ([`sample`]), and scratch space.
+    prev_size: Option<(u32, u32)>,
+    prev: Vec<[u8; 3]>,
+    cur: Vec<[u8; 3]>,
+    ratios: Vec<f32>,
+}
+
+impl Compensator {
+    /// A compensator that takes a run of changes totalling more than `jump` (a share: 0.15
+    /// is 15 %) as a change of light. It starts at unit gain, with no previous frame.
+    pub fn new(jump: f64) -> Self {
+        Self {
+            jump,
+            gain: [1.0; 3],
+            run: [(0.0, false); 3],
+            prev_size: None,
+            prev: Vec::new(),
+            cur: Vec::new(),
+            ratios: Vec::new(),
+        }
+    }
+
+    /// Starts over from `frame`: its light is the reference (unit gain).
+    pub fn reset(&mut self, frame: &RgbImage) {
+        self.gain = [1.0; 3];
+        self.run = [(0.0, false); 3];
+        sample(frame, stride_for(frame), &mut self.prev);
+        self.prev_size = Some(frame.dimensions());
+    }
+
+    /// The gain undone on the last frame handed on (1 in every channel when none is).
+    pub fn gain(&self) -> [f64; 3] {
+        self.gain
+    }
+
+    /// `frame` (the next in the sequence) in the reference light: measures its gain from the
+    /// previous frame, takes it into the accumulated gain where it belongs to a change of
+    /// light, and undoes the accumulated gain. Borrowed as it is while the gain is 1.
+    pub fn next<'a>(&mut self, frame: &'a RgbImage) -> std::borrow::Cow<'a, RgbImage> {
+        sample(frame, stride_for(frame), &mut self.cur);
+        let measured = if self.prev_size == Some(frame.dimensions()) {
+            gains_of(&self.prev, &self.cur, &mut self.ratios)
+        } else {
+            None
+        };
+        // The samples kept for the next frame.
+        std::mem::swap(&mut self.prev, &mut self.cur);
+        self.prev_size = Some(frame.dimensions());
+        let bar = (1.0 + self.jump).ln();
+        for ch in 0..3 {
+            let d = measured.map_or(0.0, |g| g[ch].ln());
+            let (total, taken) = &mut self.run[ch];
+            if d.abs() <= FLOOR {
+                (*total, *taken) = (0.0, false);
+                continue;
+            }
+            if *total * d < 0.0 {
+                (*total, *taken) = (0.0, false);
+            }
+            *total += d;
+            if *taken {
+                self.gain[ch] *= d.exp();
+            } else if total.abs() > bar {
+                self.gain[ch] *= total.exp();
+                *taken = true;
+            }
+        }
+        if self.gain == [1.0; 3] {
+            std::borrow::Cow::Borrowed(frame)
+        } else {
+            std::borrow::Cow::Owned(undo_gain(frame, self.gain))
+        }
+    }
+}
+
+/// The stride that samples about 2000 of `frame`'s pixels (every pixel of a small frame).
+fn stride_for(frame: &RgbImage) -> u32 {
+    let (w, h) = frame.dimensions();
+    ((f64::from(w) * f64::from(h) / 2000.0).sqrt().round() as u32).max(1)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn textured(w: u32, h: u32) -> RgbImage {
+        RgbImage::from_fn(w, h, |x, y| {
+            let v = |k: u32| (30 + (x * k + y * (k + 3)) % 200) as u8;
+            image::Rgb([v(7), v(11), v(13)])
+        })
+    }
+
+    fn scaled(f: &RgbImage, g: [f64; 3]) -> RgbImage {
+        let mut out = f.clone();
+        for p in out.pixels_mut() {
+            for (v, g) in p.0.iter_mut().zip(g) {
+                *v = (f64::from(*v) * g).round().min(255.0) as u8;
+            }
+        }
+        out
+    }
+
+    #[test]
+    fn the_same_frame_has_unit_gains() {
+        let f = textured(80, 60);
+        assert_eq!(channel_gains(&f, &f, 2), Some([1.0; 3]));
+    }
+
+    #[test]
+    fn a_change_of_light_is_measured_per_channel() {
+        let f = textured(80, 60);
+        let g = [0.5, 0.7, 1.3];
+        let got = channel_gains(&f, &scaled(&f, g), 1).expect("measured");
+        for ch in 0..3 {
+            assert!((got[ch] - g[ch]).abs() < 0.02, "{got:?} vs {g:?}");
+        }
+    }
+
+    #[test]
+    fn a_moving_object_over_less_than_half_the_frame_is_not_a_change_of_light() {
+        let f = textured(80, 60);
+        let mut g = f.clone();
+        // A bright object over a third of the frame.
+        for y in 0..60 {
+            for x in 0..26 {
+                g.put_pixel(x, y, image::Rgb([240, 240, 240]));
+            }
+        }
+        let got = channel_gains(&f, &g, 1).expect("measured");
+        assert!(got.iter().all(|v| (v - 1.0).abs() < 1e-6), "{got:?}");
+    }
+
+    #[test]
+    fn too_few_pixels_in_range_give_no_gain() {
+        let black = RgbImage::new(80, 60);
+        assert_eq!(channel_gains(&black, &black, 1), None);
+        let white = RgbImage::from_pixel(80, 60, image::Rgb([255, 255, 255]));
+        assert_eq!(channel_gains(&white, &textured(80, 60), 1), None);
+        assert_eq!(channel_gains(&textured(80, 60), &textured(80, 61), 1), None);
+        assert_eq!(channel_gains(&textured(80, 60), &textured(80, 60), 0), None);
+        // A frame of 7x7 pixels has fewer than 64 to measure.
+        assert_eq!(channel_gains(&textured(7, 7), &textured(7, 7), 1), None);
+        assert_eq!(
+            channel_gains(&RgbImage::new(0, 0), &RgbImage::new(0, 0), 1),
+            None
+        );
+    }
+
+    #[test]
+    fn undoing_a_gain_restores_the_frame() {
+        let f = textured(80, 60);
+        let g = [0.5, 0.8, 1.2];
+        let s = scaled(&f, g);
+        let back = undo_gain(&s, g);
+        for ((a, b), s) in f.pixels().zip(back.pixels()).zip(s.pixels()) {
+            for ch in 0..3 {
+                // Rounding loses at most a level or two; what the change clipped is lost.
+                let d = (i32::from(a.0[ch]) - i32::from(b.0[ch])).abs();
+                assert!(d <= 2 || s.0[ch] == 255, "{a:?} {b:?}");
+            }
+        }
+        // Unit and invalid gains leave the frame alone.
+        assert_eq!(undo_gain(&f, [1.0; 3]), f);
+        assert_eq!(undo_gain(&f, [0.0, f64::NAN, -1.0]), f);
+    }
+
+    #[test]
+    fn a_sudden_change_of_light_is_undone_until_it_is_reversed() {
+        let f = textured(80, 60);
+        let mut c = Compensator::new(0.15);
+        c.reset(&f);
+        // Small changes pass as they are.
+        let slight = scaled(&f, [0.99, 0.99, 0.99]);
+        assert_eq!(*c.next(&slight), slight);
+        assert_eq!(c.gain(), [1.0; 3]);
+        // Half the light: undone, and still undone on the frames after.
+        let dark = scaled(&slight, [0.5, 0.5, 0.5]);
+        for _ in 0..3 {
+            let out = c.next(&dark);
+            assert!(
+                c.gain().iter().all(|g| (g - 0.5).abs() < 0.02),
+                "{:?}",
+                c.gain()
+            );
+            let diff = out
+                .pixels()
+                .zip(slight.pixels())
+                .map(|(a, b)| (i32::from(a.0[1]) - i32::from(b.0[1])).abs())
+                .max();
+            assert!(diff.is_some_and(|d| d <= 2), "{diff:?}");
+        }
+        // The light back: the gain returns to about 1.
+        let out = c.next(&slight);
+        assert!(
+            c.gain().iter().all(|g| (g - 1.0).abs() < 0.03),
+            "{:?}",
+            c.gain()
+        );
+        assert!(out.pixels().zip(slight.pixels()).all(|(a, b)| {
+            (0..3).all(|ch| (i32::from(a.0[ch]) - i32::from(b.0[ch])).abs() <= 6)
+        }));
+        // A ramp of 6 % a frame is taken once its run passes 15 %, whole.
+        let mut ramp = slight.clone();
+        let mut want = 1.0;
+        for k in 0..4 {
+            ramp = scaled(&ramp, [0.94; 3]);
+            want *= 0.94;
+            c.next(&ramp);
+            let g = c.gain()[0];
+            if k < 2 {
+                assert!((g - 1.0).abs() < 0.03, "frame {k}: {g}");
+            } else {
+                assert!((g - want).abs() < 0.03, "frame {k}: {g} against {want}");
+            }
+        }
+        // Changes back and forth, each under 15 %, are not taken, however many.
+        let gain = c.gain();
+        for k in 0..10 {
+            let g = if k % 2 == 0 { 1.1 } else { 1.0 / 1.1 };
+            ramp = scaled(&ramp, [g; 3]);
+            c.next(&ramp);
+        }
+        assert_eq!(c.gain(), gain);
+        // A reset takes the frame's light as the reference.
+        c.reset(&dark);
+        assert_eq!(c.gain(), [1.0; 3]);
+        assert_eq!(*c.next(&dark), dark);
+    }
+}
