@@ -1243,6 +1243,7 @@ fn cli_track_settings_errors_name_the_flag() {
         ("--contrast-weight=-1", "--contrast-weight 0"),
         ("--fit-centre-sigma=-1", "--no-fit-centre-prior"),
         ("--found-above=2", "found_above 2"),
+        ("--exposure-jump=0", "--no-exposure"),
     ] {
         let name = flag.split('=').next().unwrap();
         let args = ["track", d, "--backend", "cpu", flag, "--out", c];

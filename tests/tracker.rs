@@ -1787,3 +1787,69 @@ fn a_lost_target_is_found_only_where_it_is_recognised() {
     let d = (last.state.cx - truth.cx).hypot(last.state.cy - truth.cy);
     assert!(!last.lost && d < 3.0, "{last:?} against {truth:?}");
 }
+
+/// The synthetic head's frame `k`, with the light halved from frame `from` on.
+fn dimmed_from(r: &Renderer, k: usize, from: usize) -> (image::RgbImage, PoseState) {
+    let (mut img, truth) = r.render(k);
+    if k >= from {
+        for p in img.pixels_mut() {
+            p.0 = p.0.map(|v| v / 2);
+        }
+    }
+    (img, truth)
+}
+
+/// Half the light from one frame to the next (a camera's exposure stepping) is undone: the
+/// head is followed through it, never flagged lost, with the confidence it had before.
+/// Without the compensation the same change drops the confidence under `found_above`, a
+/// target the tracker no longer trusts.
+#[test]
+fn a_sudden_change_of_light_is_not_a_lost_target() {
+    let r = Renderer::new(&SynthConfig::new(Scenario::Nod)).unwrap();
+    let (from, n) = (10, 30);
+    let track = |cfg: TrackerConfig| {
+        let first = dimmed_from(&r, 0, from).0;
+        let mut t = Tracker::new(cfg, &first, Init::frontal(r.init_ellipse())).unwrap();
+        let steps: Vec<_> = (1..n)
+            .map(|k| {
+                let (img, truth) = dimmed_from(&r, k, from);
+                (t.step(&img).unwrap(), truth)
+            })
+            .collect();
+        (steps, t.exposure_gain())
+    };
+    let (on, gain) = track(TrackerConfig::default());
+    assert!(gain.iter().all(|g| (g - 0.5).abs() < 0.02), "{gain:?}");
+    let mean = |s: &[(pftrack::tracker::Estimate, PoseState)]| {
+        s.iter().map(|(e, _)| e.confidence).sum::<f64>() / s.len() as f64
+    };
+    let before = mean(&on[..from - 1]);
+    for (k, (e, truth)) in on.iter().enumerate().map(|(i, s)| (i + 1, s)) {
+        let d = (e.state.cx - truth.cx).hypot(e.state.cy - truth.cy);
+        assert!(!e.lost && d < 3.0, "frame {k}: {e:?} against {truth:?}");
+        if k >= from {
+            assert!(
+                e.confidence > 0.8 * before,
+                "frame {k}: {} against {before}",
+                e.confidence
+            );
+        }
+    }
+    let cfg = TrackerConfig {
+        exposure_jump: None,
+        ..TrackerConfig::default()
+    };
+    let found_above = cfg.found_above;
+    let (off, gain) = track(cfg);
+    assert_eq!(gain, [1.0; 3]);
+    // The same frames up to the change; after it, a target the tracker does not trust.
+    assert!((mean(&off[..from - 1]) - before).abs() < 1e-12);
+    for (k, (e, _)) in off
+        .iter()
+        .enumerate()
+        .map(|(i, s)| (i + 1, s))
+        .skip(from - 1)
+    {
+        assert!(e.confidence < found_above, "frame {k}: {e:?}");
+    }
+}

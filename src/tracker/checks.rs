@@ -270,6 +270,14 @@ impl TrackerConfig {
             self.aspect_slack,
             "leave the ellipse's aspect free",
         )?;
+        if let Some(j) = self.exposure_jump
+            && !(j.is_finite() && j > 0.0)
+        {
+            return Err(TrackError::BadConfig(format!(
+                "exposure_jump {j} is not a finite share above 0; set it to None to take every \
+                 frame's light as it comes"
+            )));
+        }
         Ok(())
     }
 
@@ -461,6 +469,24 @@ mod tests {
                 ..TrackerConfig::default()
             };
             assert!(cfg.check().is_ok(), "{rate:?}");
+        }
+    }
+
+    #[test]
+    fn exposure_jump_is_checked() {
+        for j in [0.0, -0.1, f64::NAN, f64::INFINITY] {
+            let cfg = TrackerConfig {
+                exposure_jump: Some(j),
+                ..TrackerConfig::default()
+            };
+            assert!(matches!(cfg.check(), Err(TrackError::BadConfig(_))), "{j}");
+        }
+        for j in [Some(0.01), Some(2.0), None] {
+            let cfg = TrackerConfig {
+                exposure_jump: j,
+                ..TrackerConfig::default()
+            };
+            assert!(cfg.check().is_ok(), "{j:?}");
         }
     }
 

@@ -254,6 +254,8 @@ pub struct Tracker {
     reference: Ellipse,
     frame: usize,
     prev_gray: GrayF32,
+    /// Undoes sudden changes of light ([`TrackerConfig::exposure_jump`]); `None` when off.
+    exposure: Option<crate::frames::exposure::Compensator>,
     prev_features: Features,
     keyframes: KeyframePool,
     prev: Hypothesis,
@@ -442,6 +444,7 @@ impl Tracker {
             reference: Ellipse::default(),
             frame: 0,
             prev_gray: GrayF32::default(),
+            exposure: None,
             prev_features: Features::default(),
             keyframes: KeyframePool::new(KEYFRAMES),
             prev: Hypothesis::from_state(&PoseState::default()),
@@ -578,6 +581,11 @@ impl Tracker {
         self.prev_euler = init.pose;
         self.spin = Vector3::zeros();
         self.prev_gray = GrayF32::from_rgb(frame);
+        self.exposure = self.cfg.exposure_jump.map(|j| {
+            let mut c = crate::frames::exposure::Compensator::new(j);
+            c.reset(frame);
+            c
+        });
         self.template = self.cfg.template.map(|t| {
             crate::likelihood::template::Template::new(
                 &self.prev_gray,
@@ -648,6 +656,14 @@ impl Tracker {
     /// one would. What a start changed for its own frames is in [`Tracker::likelihood`].
     pub fn config(&self) -> &TrackerConfig {
         &self.cfg
+    }
+
+    /// The gain per channel (R, G, B) undone on the last frame: the light it was taken in
+    /// over the light of the last start, counting only the sudden changes
+    /// ([`TrackerConfig::exposure_jump`]). 1 in every channel after a start, or when the
+    /// compensation is off.
+    pub fn exposure_gain(&self) -> [f64; 3] {
+        self.exposure.as_ref().map_or([1.0; 3], |c| c.gain())
     }
 
     /// The likelihood settings in use since the last start: the configuration's, with the
@@ -769,6 +785,12 @@ impl Tracker {
 
     /// [`Self::step`]'s work on frame `index`, of the right size, on a thread of rayon's pool.
     fn step_in_pool(&mut self, frame: &image::RgbImage, index: usize) -> crate::Result<Estimate> {
+        // In the light the models were built in, from here on.
+        let compensated = match &mut self.exposure {
+            Some(c) => c.next(frame),
+            None => std::borrow::Cow::Borrowed(frame),
+        };
+        let frame: &image::RgbImage = &compensated;
         let (w, h) = frame.dimensions();
         self.keyframes.tick(index);
         let gray = GrayF32::from_rgb(frame);

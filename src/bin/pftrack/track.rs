@@ -168,6 +168,19 @@ pub struct TrackArgs {
     /// Leave the ellipse's aspect free, as the paper does.
     #[arg(long)]
     pub no_aspect_bound: bool,
+    /// Undo a change of light over the whole frame of more than this share from one frame
+    /// to the next (a camera's exposure stepping, a light switched), so the colour model
+    /// still recognises the target (see `TrackerConfig::exposure_jump`).
+    #[arg(
+        long,
+        value_name = "SHARE",
+        default_value_t = 0.15,
+        conflicts_with = "no_exposure"
+    )]
+    pub exposure_jump: f64,
+    /// Take every frame's light as it comes, as the paper does.
+    #[arg(long)]
+    pub no_exposure: bool,
     /// While the target is uncertain (lost, or after a frame below --found-above), keep the
     /// ellipse's semi-axes within this factor of the last trusted estimate's, so a
     /// likelihood that has lost the target cannot shrink it to a few pixels (see
@@ -284,6 +297,7 @@ pub struct TrackArgs {
             "particles", "seed", "mode", "depth_ratio", "edge_threshold", "no_fit_prior",
             "fit_centre_sigma", "no_fit_centre_prior", "no_anchor_refit", "no_bundle",
             "no_coast", "colour_rate", "colour_max_ring", "aspect_slack", "no_aspect_bound",
+            "exposure_jump", "no_exposure",
             "size_hold", "no_size_hold", "found_above", "reacquire_ncc",
             "no_template_reacquire", "reanchor_ncc", "no_reanchor", "refine_init",
             "sift_upsample_below", "sift_always_upsample", "no_interframe_consensus",
@@ -456,6 +470,7 @@ fn flag_config(a: &TrackArgs, hfov: Option<f64>) -> anyhow::Result<TrackerConfig
         cfg.coast_rate = None;
     }
     cfg.aspect_slack = (!a.no_aspect_bound).then_some(a.aspect_slack);
+    cfg.exposure_jump = (!a.no_exposure).then_some(a.exposure_jump);
     cfg.size_hold = (!a.no_size_hold).then_some(a.size_hold);
     cfg.found_above = a.found_above;
     cfg.reacquire_ncc = (!a.no_template_reacquire).then_some(a.reacquire_ncc);
@@ -723,7 +738,7 @@ pub fn apply_edge_threshold(cfg: &mut TrackerConfig, t: Option<f64>) -> anyhow::
 /// The library settings the command line's flags set, each with its flag and what the
 /// command line offers where the library would take `None`; the first whose name a
 /// configuration error mentions is the one it is about.
-const FLAG_OF_SETTING: [(&str, &str, &str); 10] = [
+const FLAG_OF_SETTING: [(&str, &str, &str); 11] = [
     (
         "fit_centre_sigma",
         "--fit-centre-sigma",
@@ -768,6 +783,11 @@ const FLAG_OF_SETTING: [(&str, &str, &str); 10] = [
         "contrast weight",
         "--contrast-weight",
         "--contrast-weight 0 weighs without the contrast term",
+    ),
+    (
+        "exposure_jump",
+        "--exposure-jump",
+        "--no-exposure takes every frame's light as it comes",
     ),
     ("found_above", "--found-above", ""),
 ];
