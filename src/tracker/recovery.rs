@@ -347,21 +347,8 @@ impl Tracker {
         if let Some((p, _)) = recognised {
             return self.verify_candidate(frame, gray, est, p, true);
         }
-        // None recognised: each candidate is verified by its features, the best by colour
-        // first, then those the templates rank best (on grey footage the best by colour is
-        // as often a patch of trees as the target).
-        let mut tried: Vec<usize> = Vec::new();
-        if let Some((i, rho)) = best
-            && rho >= self.cfg.reacquire_rho
-        {
-            tried.push(i);
-        }
-        for &(i, _) in &ranked {
-            if !tried.contains(&i) {
-                tried.push(i);
-            }
-        }
-        for i in tried {
+        // None recognised: each candidate is verified by its features.
+        for i in verification_order(best, &ranked, self.cfg.reacquire_rho) {
             if let Some(found) = self.verify_candidate(frame, gray, est, cands[i], false)? {
                 return Ok(Some(found));
             }
@@ -476,6 +463,29 @@ pub(super) fn lost_state(
     } else {
         (0, false)
     }
+}
+
+/// The candidates a re-acquisition that no template recognised verifies by their features,
+/// in order: the `best` by colour (its index and colour similarity) where its similarity
+/// reaches `min_rho`, then those the templates rank best (`ranked`, best first), each once.
+/// The best by colour alone is not enough: on grey footage it is as often a patch of trees
+/// as the target, and on car4 trying it alone never found the car again.
+fn verification_order(
+    best: Option<(usize, f64)>,
+    ranked: &[(usize, f32)],
+    min_rho: f64,
+) -> Vec<usize> {
+    let mut order: Vec<usize> = best
+        .filter(|&(_, rho)| rho >= min_rho)
+        .map(|(i, _)| i)
+        .into_iter()
+        .collect();
+    for &(i, _) in ranked {
+        if !order.contains(&i) {
+            order.push(i);
+        }
+    }
+    order
 }
 
 /// Among re-acquisition candidates with colour similarities `rho` and template correlations
@@ -677,6 +687,23 @@ mod tests {
         // Nothing of the target's colours, nothing ranked.
         assert!(best_by_template(&rho, &ncc, 0.995, 3).is_empty());
         assert!(best_by_template(&[], &[], 0.0, 3).is_empty());
+    }
+
+    #[test]
+    fn candidates_are_verified_best_by_colour_first_then_as_the_templates_rank_them() {
+        let ranked = [(4, 0.7), (2, 0.5), (9, 0.4)];
+        // The best by colour first, then the ranked ones not yet tried.
+        assert_eq!(
+            verification_order(Some((7, 0.9)), &ranked, 0.8),
+            [7, 4, 2, 9]
+        );
+        assert_eq!(verification_order(Some((2, 0.9)), &ranked, 0.8), [2, 4, 9]);
+        // A best by colour under the bar is not tried; the ranked ones still are.
+        assert_eq!(verification_order(Some((7, 0.7)), &ranked, 0.8), [4, 2, 9]);
+        assert_eq!(verification_order(None, &ranked, 0.8), [4, 2, 9]);
+        // Without templates, the best by colour alone.
+        assert_eq!(verification_order(Some((7, 0.9)), &[], 0.8), [7]);
+        assert!(verification_order(None, &[], 0.8).is_empty());
     }
 
     #[test]
