@@ -1225,6 +1225,33 @@ fn cli_bench_step_times_the_whole_step() {
     }
 }
 
+/// A change of light over the whole frame is undone, and `track` says on how many frames;
+/// with `--no-exposure` the frames are taken as they come and nothing is said.
+#[test]
+fn cli_track_reports_the_frames_brought_back_to_the_starts_light() {
+    let dir = synth_dir("relit", 8, "96x72");
+    // Half the light from the sixth frame on (frames 5, 6 and 7 of 0-7).
+    for k in 5..8 {
+        let path = dir.join("frames").join(format!("{k:05}.png"));
+        let mut img = image::open(&path).unwrap().to_rgb8();
+        for p in img.pixels_mut() {
+            p.0 = p.0.map(|v| v / 2);
+        }
+        img.save(&path).unwrap();
+    }
+    let d = dir.to_str().unwrap();
+    let out = pftrack_ok(&["track", d, "--backend", "cpu"]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("pftrack: 3 frames were in other light over the whole frame"),
+        "{err}"
+    );
+    let out = pftrack_ok(&["track", d, "--backend", "cpu", "--no-exposure"]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!err.contains("other light"), "{err}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
 /// A setting the tracker refuses is reported by the flag that set it, with the flag that
 /// turns the part off, not by the library's field and its `None`.
 #[test]

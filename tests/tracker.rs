@@ -1816,6 +1816,13 @@ fn a_sudden_change_of_light_is_not_a_lost_target() {
                 (t.step(&img).unwrap(), truth)
             })
             .collect();
+        // Every frame from the change on was brought back.
+        let relit = if t.config().exposure_jump.is_some() {
+            n - from
+        } else {
+            0
+        };
+        assert_eq!(t.frames_relit(), relit);
         (steps, t.exposure_gain())
     };
     let (on, gain) = track(TrackerConfig::default());

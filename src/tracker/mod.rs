@@ -267,6 +267,8 @@ pub struct Tracker {
     lost: bool,
     /// Frames stepped without SIFT, its scale space over budget ([`detect_within_budget`]).
     frames_without_sift: usize,
+    /// Frames stepped with a change of light undone ([`TrackerConfig::exposure_jump`]).
+    frames_relit: usize,
     /// The semi-axes of the last trusted estimate (confidence at least
     /// [`TrackerConfig::found_above`]), which the filter's proposals are held near while the
     /// tracker is unsure ([`TrackerConfig::size_hold`]).
@@ -453,6 +455,7 @@ impl Tracker {
             low_count: 0,
             lost: false,
             frames_without_sift: 0,
+            frames_relit: 0,
             failed: None,
             held_axes: (1.0, 1.0),
             prev_confidence: 1.0,
@@ -652,6 +655,13 @@ impl Tracker {
         self.frames_without_sift
     }
 
+    /// How many frames [`Tracker::step`] has taken in other light than that of the start
+    /// before them, and brought back to it ([`TrackerConfig::exposure_jump`],
+    /// [`Tracker::exposure_gain`]).
+    pub fn frames_relit(&self) -> usize {
+        self.frames_relit
+    }
+
     /// The configuration as it was given: a tracker built from a clone of it tracks as this
     /// one would. What a start changed for its own frames is in [`Tracker::likelihood`].
     pub fn config(&self) -> &TrackerConfig {
@@ -791,6 +801,9 @@ impl Tracker {
             None => std::borrow::Cow::Borrowed(frame),
         };
         let frame: &image::RgbImage = &compensated;
+        if matches!(compensated, std::borrow::Cow::Owned(_)) {
+            self.frames_relit += 1;
+        }
         let (w, h) = frame.dimensions();
         self.keyframes.tick(index);
         let gray = GrayF32::from_rgb(frame);

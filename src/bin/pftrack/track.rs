@@ -969,6 +969,14 @@ pub fn run(mut a: TrackArgs) -> anyhow::Result<()> {
     if let Some(short) = source.shortfall() {
         errln!("pftrack: warning: {short}");
     }
+    let relit = tracker.frames_relit();
+    if relit > 0 {
+        errln!(
+            "pftrack: {relit} frame{} in other light over the whole frame than the start's, \
+             brought back to it before tracking (--no-exposure takes them as they come)",
+            if relit == 1 { " was" } else { "s were" },
+        );
+    }
     let unseen = tracker.frames_without_sift();
     if unseen > 0 {
         errln!(
