@@ -520,13 +520,14 @@ pub struct TrackerConfig {
     ///
     /// Why: the colour term compares 8-bit RGB bins, and half the light moves every pixel
     /// into other bins. On OTB girl with the light halved from frame 150 on, the filter lost
-    /// the head and success AUC fell from 0.65 to 0.34 (filter seeds 0-3; 0.65 with the
-    /// compensation), on car4 halved from frame 300 from 0.78 to 0.40 (0.78 with it). The
+    /// the head and success AUC fell from 0.65 to 0.34 (filter seeds 0-3; 0.66 with the
+    /// compensation), on car4 halved from frame 300 from 0.78 to 0.40 (0.77 with it). The
     /// gain between two frames is measured as each channel's median ratio over the frame,
     /// which moving objects and a panning camera move little: on girl, car4, carphone and box
     /// no frame, and no run of frames moving the same way, changes it by more than 7.8 %, so
     /// a bar of 15 % is twice what the footage does on its own. A slow change of light stays
-    /// the adapting colour model's ([`TrackerConfig::colour_update`]). Measurements:
+    /// the adapting colour model's ([`TrackerConfig::colour_update`]), and what is undone is
+    /// never more than the light has changed since the start. Measurements:
     /// `docs/measurements.md`, under "TrackerConfig::exposure_jump".
     pub exposure_jump: Option<f64>,
 }

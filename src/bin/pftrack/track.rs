@@ -971,10 +971,15 @@ pub fn run(mut a: TrackArgs) -> anyhow::Result<()> {
     }
     let relit = tracker.frames_relit();
     if relit > 0 {
+        let g = tracker.exposure_gain();
         errln!(
             "pftrack: {relit} frame{} in other light over the whole frame than the start's, \
-             brought back to it before tracking (--no-exposure takes them as they come)",
+             brought back to it before tracking (the last frame's gain: R {:.2}, G {:.2}, B \
+             {:.2}; --no-exposure takes them as they come)",
             if relit == 1 { " was" } else { "s were" },
+            g[0],
+            g[1],
+            g[2],
         );
     }
     let unseen = tracker.frames_without_sift();
