@@ -136,15 +136,20 @@ pub struct Compensator {
     jump: f64,
     /// The gain undone: the runs' gains taken, multiplied, held within what was measured.
     gain: [f64; 3],
-    /// Each channel's current run: its total log gain, and whether it has been taken as a
-    /// change of light (its later frames are then taken as they come).
-    run: [(f64, bool); 3],
+    /// Each channel's current run: its total log gain, whether it has been taken as a
+    /// change of light (its later frames are then taken as they come), and its total log gain
+    /// over the target's region.
+    run: [(f64, bool, f64); 3],
     /// Each channel's log gain from the start's frame, every measured change counted.
     total: [f64; 3],
     /// The previous frame's size (`None` before the first) and its sampled pixels
     /// ([`sample`]), and scratch space.
     prev_size: Option<(u32, u32)>,
     prev: Vec<[u8; 3]>,
+    /// The previous frame itself, for the target's region.
+    prev_frame: RgbImage,
+    region_prev: Vec<[u8; 3]>,
+    region_cur: Vec<[u8; 3]>,
     cur: Vec<[u8; 3]>,
     ratios: Vec<f32>,
 }
@@ -156,10 +161,13 @@ impl Compensator {
         Self {
             jump,
             gain: [1.0; 3],
-            run: [(0.0, false); 3],
+            run: [(0.0, false, 0.0); 3],
             total: [0.0; 3],
             prev_size: None,
             prev: Vec::new(),
+            prev_frame: RgbImage::new(0, 0),
+            region_prev: Vec::new(),
+            region_cur: Vec::new(),
             cur: Vec::new(),
             ratios: Vec::new(),
         }
@@ -168,10 +176,20 @@ impl Compensator {
     /// Starts over from `frame`: its light is the reference (unit gain).
     pub fn reset(&mut self, frame: &RgbImage) {
         self.gain = [1.0; 3];
-        self.run = [(0.0, false); 3];
+        self.run = [(0.0, false, 0.0); 3];
         self.total = [0.0; 3];
         sample(frame, stride_for(frame), &mut self.prev);
         self.prev_size = Some(frame.dimensions());
+        self.keep(frame);
+    }
+
+    /// Keeps `frame` as the previous one, reusing the buffer.
+    fn keep(&mut self, frame: &RgbImage) {
+        if self.prev_frame.dimensions() == frame.dimensions() {
+            self.prev_frame.copy_from_slice(frame);
+        } else {
+            self.prev_frame = frame.clone();
+        }
     }
 
     /// The gain undone on the last frame handed on (1 in every channel when none is).
@@ -182,13 +200,33 @@ impl Compensator {
     /// `frame` (the next in the sequence) in the reference light: measures its gain from the
     /// previous frame, takes it into the accumulated gain where it belongs to a change of
     /// light, and undoes the accumulated gain. Borrowed as it is while the gain is 1.
-    pub fn next<'a>(&mut self, frame: &'a RgbImage) -> std::borrow::Cow<'a, RgbImage> {
+    ///
+    /// `target`, the target's box in the previous frame (`x0, y0, x1, y1` in pixels, cut to
+    /// the frame), is a second witness: a run is taken only where the light over the target
+    /// changed the same way, by at least half as much, so a background that brightens around
+    /// a target that does not (more than half of the frame changing) is not undone on it.
+    /// Without a box, or with too few pixels in it to measure, the frame's gain speaks alone.
+    pub fn next<'a>(
+        &mut self,
+        frame: &'a RgbImage,
+        target: Option<[u32; 4]>,
+    ) -> std::borrow::Cow<'a, RgbImage> {
         sample(frame, stride_for(frame), &mut self.cur);
-        let measured = if self.prev_size == Some(frame.dimensions()) {
+        let same_size = self.prev_size == Some(frame.dimensions());
+        let measured = if same_size {
             gains_of(&self.prev, &self.cur, &mut self.ratios)
         } else {
             None
         };
+        let on_target = match target {
+            Some(b) if same_size => {
+                sample_box(&self.prev_frame, b, &mut self.region_prev);
+                sample_box(frame, b, &mut self.region_cur);
+                gains_of(&self.region_prev, &self.region_cur, &mut self.ratios)
+            }
+            _ => None,
+        };
+        self.keep(frame);
         // The samples kept for the next frame.
         std::mem::swap(&mut self.prev, &mut self.cur);
         self.prev_size = Some(frame.dimensions());
@@ -196,18 +234,20 @@ impl Compensator {
         for ch in 0..3 {
             let d = measured.map_or(0.0, |g| g[ch].ln());
             self.total[ch] += d;
-            let (total, taken) = &mut self.run[ch];
+            let (total, taken, on) = &mut self.run[ch];
             if d.abs() <= FLOOR {
-                (*total, *taken) = (0.0, false);
+                (*total, *taken, *on) = (0.0, false, 0.0);
                 continue;
             }
             if *total * d < 0.0 {
-                (*total, *taken) = (0.0, false);
+                (*total, *taken, *on) = (0.0, false, 0.0);
             }
             *total += d;
+            *on += on_target.map_or(d, |g| g[ch].ln());
+            let witnessed = *on * *total > 0.0 && on.abs() >= 0.5 * total.abs();
             if *taken {
                 self.gain[ch] *= d.exp();
-            } else if total.abs() > bar {
+            } else if total.abs() > bar && witnessed {
                 self.gain[ch] *= total.exp();
                 *taken = true;
             }
@@ -230,6 +270,24 @@ impl Compensator {
             std::borrow::Cow::Borrowed(frame)
         } else {
             std::borrow::Cow::Owned(undo_gain(frame, self.gain))
+        }
+    }
+}
+
+/// The pixels of `frame` in the box `[x0, y0, x1, y1]` (cut to the frame), about 2000 of
+/// them at most, row by row, into `out`.
+fn sample_box(frame: &RgbImage, b: [u32; 4], out: &mut Vec<[u8; 3]>) {
+    out.clear();
+    let (w, h) = frame.dimensions();
+    let (x0, y0, x1, y1) = (b[0].min(w), b[1].min(h), b[2].min(w), b[3].min(h));
+    if x1 <= x0 || y1 <= y0 {
+        return;
+    }
+    let area = f64::from(x1 - x0) * f64::from(y1 - y0);
+    let step = ((area / 2000.0).sqrt().round() as usize).max(1);
+    for y in (y0..y1).step_by(step) {
+        for x in (x0..x1).step_by(step) {
+            out.push(frame.get_pixel(x, y).0);
         }
     }
 }
@@ -332,12 +390,12 @@ mod tests {
         c.reset(&f);
         // Small changes pass as they are.
         let slight = scaled(&f, [0.99, 0.99, 0.99]);
-        assert_eq!(*c.next(&slight), slight);
+        assert_eq!(*c.next(&slight, None), slight);
         assert_eq!(c.gain(), [1.0; 3]);
         // Half the light: undone, and still undone on the frames after.
         let dark = scaled(&slight, [0.5, 0.5, 0.5]);
         for _ in 0..3 {
-            let out = c.next(&dark);
+            let out = c.next(&dark, None);
             assert!(
                 c.gain().iter().all(|g| (g - 0.5).abs() < 0.02),
                 "{:?}",
@@ -351,7 +409,7 @@ mod tests {
             assert!(diff.is_some_and(|d| d <= 2), "{diff:?}");
         }
         // The light back: the gain returns to 1, and the frame passes as it is.
-        assert_eq!(*c.next(&slight), slight);
+        assert_eq!(*c.next(&slight, None), slight);
         assert_eq!(c.gain(), [1.0; 3]);
         // A ramp of 6 % a frame is taken once its run passes 15 %, whole.
         let mut ramp = slight.clone();
@@ -359,7 +417,7 @@ mod tests {
         for k in 0..4 {
             ramp = scaled(&ramp, [0.94; 3]);
             want *= 0.94;
-            c.next(&ramp);
+            c.next(&ramp, None);
             let g = c.gain()[0];
             if k < 2 {
                 assert!((g - 1.0).abs() < 0.03, "frame {k}: {g}");
@@ -374,7 +432,7 @@ mod tests {
         for k in 0..10 {
             let g = if k % 2 == 0 { 1.1 } else { 1.0 / 1.1 };
             ramp = scaled(&ramp, [g; 3]);
-            c.next(&ramp);
+            c.next(&ramp, None);
         }
         let after = c.gain()[0].ln();
         assert!(after <= 0.0 && after >= before, "{before} -> {after}");
@@ -382,7 +440,7 @@ mod tests {
         // A reset takes the frame's light as the reference.
         c.reset(&dark);
         assert_eq!(c.gain(), [1.0; 3]);
-        assert_eq!(*c.next(&dark), dark);
+        assert_eq!(*c.next(&dark, None), dark);
     }
 
     /// Light halved, then coming back at 1 % a frame (an exposure recovering too slowly for
@@ -394,7 +452,7 @@ mod tests {
         let mut c = Compensator::new(0.15);
         c.reset(&f);
         let mut light = 0.5;
-        c.next(&scaled(&f, [light; 3]));
+        c.next(&scaled(&f, [light; 3]), None);
         assert!(
             c.gain().iter().all(|g| (g - 0.5).abs() < 0.02),
             "{:?}",
@@ -403,7 +461,7 @@ mod tests {
         while light < 1.0 {
             light = (light * 1.01).min(1.0);
             let frame = scaled(&f, [light; 3]);
-            c.next(&frame);
+            c.next(&frame, None);
             let g = c.gain()[1];
             // Within quantisation of the light, or 1 within the floor of it.
             assert!(
@@ -411,7 +469,7 @@ mod tests {
                 "light {light}: gain {g}"
             );
         }
-        assert_eq!(*c.next(&f), f);
+        assert_eq!(*c.next(&f, None), f);
         assert_eq!(c.gain(), [1.0; 3]);
     }
 
@@ -425,11 +483,54 @@ mod tests {
         let mut light = 1.0;
         for _ in 0..70 {
             light *= 0.99;
-            c.next(&scaled(&f, [light; 3]));
+            c.next(&scaled(&f, [light; 3]), None);
             assert_eq!(c.gain(), [1.0; 3], "light {light}");
         }
-        assert_eq!(*c.next(&f), f);
+        assert_eq!(*c.next(&f, None), f);
         assert_eq!(c.gain(), [1.0; 3]);
+    }
+
+    /// More than half of the frame darkening around a target that does not: the frame's
+    /// median reads it as a change of light, the target's box does not, and with the box
+    /// given nothing is undone; the whole frame darkening is undone with it.
+    #[test]
+    fn the_targets_box_witnesses_a_change_of_light() {
+        let f = textured(80, 60);
+        let target = [30, 20, 50, 40];
+        let mut around = scaled(&f, [0.5; 3]);
+        for y in 20..40 {
+            for x in 30..50 {
+                around.put_pixel(x, y, *f.get_pixel(x, y));
+            }
+        }
+        let mut c = Compensator::new(0.15);
+        c.reset(&f);
+        assert_eq!(*c.next(&around, Some(target)), around);
+        assert_eq!(c.gain(), [1.0; 3]);
+        // Without the box, the frame's median speaks alone.
+        c.reset(&f);
+        c.next(&around, None);
+        assert!(
+            c.gain().iter().all(|g| (g - 0.5).abs() < 0.02),
+            "{:?}",
+            c.gain()
+        );
+        // The whole frame: witnessed.
+        c.reset(&f);
+        c.next(&scaled(&f, [0.5; 3]), Some(target));
+        assert!(
+            c.gain().iter().all(|g| (g - 0.5).abs() < 0.02),
+            "{:?}",
+            c.gain()
+        );
+        // A box out of the frame, or empty, has nothing to say.
+        c.reset(&f);
+        c.next(&scaled(&f, [0.5; 3]), Some([200, 200, 300, 300]));
+        assert!(
+            c.gain().iter().all(|g| (g - 0.5).abs() < 0.02),
+            "{:?}",
+            c.gain()
+        );
     }
 
     /// A strobe (every second frame at half the light) is undone on its dark frames, and once
@@ -442,14 +543,14 @@ mod tests {
         c.reset(&f);
         for k in 1..=20 {
             if k % 2 == 1 {
-                c.next(&dark);
+                c.next(&dark, None);
                 assert!(
                     c.gain().iter().all(|g| (g - 0.5).abs() < 0.02),
                     "{k}: {:?}",
                     c.gain()
                 );
             } else {
-                assert_eq!(*c.next(&f), f, "{k}: {:?}", c.gain());
+                assert_eq!(*c.next(&f, None), f, "{k}: {:?}", c.gain());
             }
         }
         assert_eq!(c.gain(), [1.0; 3]);

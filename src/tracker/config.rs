@@ -526,8 +526,9 @@ pub struct TrackerConfig {
     /// which moving objects and a panning camera move little: on girl, car4, carphone and box
     /// no frame, and no run of frames moving the same way, changes it by more than 7.8 %, so
     /// a bar of 15 % is twice what the footage does on its own. A slow change of light stays
-    /// the adapting colour model's ([`TrackerConfig::colour_update`]), and what is undone is
-    /// never more than the light has changed since the start. Measurements:
+    /// the adapting colour model's ([`TrackerConfig::colour_update`]), what is undone is
+    /// never more than the light has changed since the start, and a change is taken only
+    /// where the light over the target's box changed with the frame's. Measurements:
     /// `docs/measurements.md`, under "TrackerConfig::exposure_jump".
     pub exposure_jump: Option<f64>,
 }

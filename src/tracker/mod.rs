@@ -797,7 +797,15 @@ impl Tracker {
     fn step_in_pool(&mut self, frame: &image::RgbImage, index: usize) -> crate::Result<Estimate> {
         // In the light the models were built in, from here on.
         let compensated = match &mut self.exposure {
-            Some(c) => c.next(frame),
+            Some(c) => {
+                // The light's witness on the target: the previous estimate's box. (The square
+                // inside its ellipse, all target where the estimate is right, witnessed more
+                // background changes as light on girl, the estimate resting low on her chin.)
+                let bb = self.prev.to_state().ellipse(self.theta0).bounding_box();
+                let target = [bb.x, bb.y, bb.x + bb.w, bb.y + bb.h]
+                    .map(|v| v.clamp(0.0, f64::from(u32::MAX)) as u32);
+                c.next(frame, Some(target))
+            }
             None => std::borrow::Cow::Borrowed(frame),
         };
         let frame: &image::RgbImage = &compensated;
