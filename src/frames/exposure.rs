@@ -44,26 +44,33 @@ pub fn channel_gains(prev: &RgbImage, cur: &RgbImage, stride: u32) -> Option<[f6
     if prev.dimensions() != cur.dimensions() || stride == 0 {
         return None;
     }
+    let (w, h) = cur.dimensions();
     let (mut a, mut b) = (Vec::new(), Vec::new());
-    sample(prev, stride, &mut a);
-    sample(cur, stride, &mut b);
+    sample(prev, [0, 0, w, h], stride, &mut a);
+    sample(cur, [0, 0, w, h], stride, &mut b);
     gains_of(&a, &b, &mut Vec::new())
 }
 
-/// Every `stride`-th pixel of `frame` in each direction, row by row, into `out`.
-fn sample(frame: &RgbImage, stride: u32, out: &mut Vec<[u8; 3]>) {
+/// Every `stride`-th pixel of `frame` in each direction within the box `[x0, y0, x1, y1]`
+/// (cut to the frame), row by row, into `out`.
+fn sample(frame: &RgbImage, b: [u32; 4], stride: u32, out: &mut Vec<[u8; 3]>) {
     out.clear();
-    let (w, step) = (frame.width() as usize * 3, stride as usize);
-    if w == 0 || step == 0 {
+    let (w, h) = frame.dimensions();
+    let (x0, y0, x1, y1) = (b[0].min(w), b[1].min(h), b[2].min(w), b[3].min(h));
+    if x1 <= x0 || y1 <= y0 || stride == 0 {
         return;
     }
-    for row in frame.as_raw().chunks_exact(w).step_by(step) {
-        out.extend(
-            row.chunks_exact(3)
-                .step_by(step)
-                .map(|p| [p[0], p[1], p[2]]),
-        );
+    for y in (y0..y1).step_by(stride as usize) {
+        for x in (x0..x1).step_by(stride as usize) {
+            out.push(frame.get_pixel(x, y).0);
+        }
     }
+}
+
+/// The stride that samples about 2000 pixels of a box `w` by `h` (every pixel of a small
+/// one).
+fn stride_for(w: u32, h: u32) -> u32 {
+    ((f64::from(w) * f64::from(h) / 2000.0).sqrt().round() as u32).max(1)
 }
 
 /// [`channel_gains`] on two frames' samples taken alike; `ratios` is scratch space.
@@ -125,12 +132,12 @@ const FLOOR: f64 = 0.02;
 /// with every change counted, the small ones too, and what is undone only ever shrinks
 /// towards that: light that comes back too slowly to be taken (an exposure recovering over
 /// seconds after a jump) is followed back, and a change taken wrongly fades as it is
-/// measured back. Everything else is left alone: moving
-/// objects, a panning camera, flicker and compression move a frame's median by a few
-/// percent, back and forth (on the project's four real sequences no run of such changes
-/// passes 7.8 %), and a slow change of light is left to the models that adapt. More than
-/// half of the frame changing at once (a large object, a pan onto a brighter scene, a cut)
-/// reads as a change of light.
+/// measured back. Everything else is left alone: moving objects, a panning camera, flicker
+/// and compression move a frame's median by a few percent, back and forth (on the project's
+/// four real sequences no run of such changes passes 7.8 %), and a slow change of light is
+/// left to the models that adapt. More than half of the frame changing at once (a large
+/// object, a pan onto a brighter scene, a cut) reads as a change of light to the frame's
+/// median; the target's box, given, must read it too ([`Compensator::next`]).
 #[derive(Debug, Clone)]
 pub struct Compensator {
     jump: f64,
@@ -142,15 +149,10 @@ pub struct Compensator {
     run: [(f64, bool, f64); 3],
     /// Each channel's log gain from the start's frame, every measured change counted.
     total: [f64; 3],
-    /// The previous frame's size (`None` before the first) and its sampled pixels
-    /// ([`sample`]), and scratch space.
-    prev_size: Option<(u32, u32)>,
-    prev: Vec<[u8; 3]>,
-    /// The previous frame itself, for the target's region.
-    prev_frame: RgbImage,
-    region_prev: Vec<[u8; 3]>,
-    region_cur: Vec<[u8; 3]>,
-    cur: Vec<[u8; 3]>,
+    /// The previous frame (empty before the first), and scratch space for the two frames'
+    /// samples ([`sample`]) and their ratios.
+    prev: RgbImage,
+    samples: (Vec<[u8; 3]>, Vec<[u8; 3]>),
     ratios: Vec<f32>,
 }
 
@@ -163,12 +165,8 @@ impl Compensator {
             gain: [1.0; 3],
             run: [(0.0, false, 0.0); 3],
             total: [0.0; 3],
-            prev_size: None,
-            prev: Vec::new(),
-            prev_frame: RgbImage::new(0, 0),
-            region_prev: Vec::new(),
-            region_cur: Vec::new(),
-            cur: Vec::new(),
+            prev: RgbImage::new(0, 0),
+            samples: (Vec::new(), Vec::new()),
             ratios: Vec::new(),
         }
     }
@@ -178,18 +176,31 @@ impl Compensator {
         self.gain = [1.0; 3];
         self.run = [(0.0, false, 0.0); 3];
         self.total = [0.0; 3];
-        sample(frame, stride_for(frame), &mut self.prev);
-        self.prev_size = Some(frame.dimensions());
         self.keep(frame);
     }
 
     /// Keeps `frame` as the previous one, reusing the buffer.
     fn keep(&mut self, frame: &RgbImage) {
-        if self.prev_frame.dimensions() == frame.dimensions() {
-            self.prev_frame.copy_from_slice(frame);
+        if self.prev.dimensions() == frame.dimensions() {
+            self.prev.copy_from_slice(frame);
         } else {
-            self.prev_frame = frame.clone();
+            self.prev = frame.clone();
         }
+    }
+
+    /// Each channel's gain from the previous frame to `frame` over the box `b`, sampled at
+    /// about 2000 pixels ([`gains_of`]); `None` for a frame of another size.
+    fn gains_over(&mut self, frame: &RgbImage, b: [u32; 4]) -> Option<[f64; 3]> {
+        if self.prev.dimensions() != frame.dimensions() {
+            return None;
+        }
+        let (w, h) = frame.dimensions();
+        let b = [b[0].min(w), b[1].min(h), b[2].min(w), b[3].min(h)];
+        let stride = stride_for(b[2].saturating_sub(b[0]), b[3].saturating_sub(b[1]));
+        let (a, c) = &mut self.samples;
+        sample(&self.prev, b, stride, a);
+        sample(frame, b, stride, c);
+        gains_of(a, c, &mut self.ratios)
     }
 
     /// The gain undone on the last frame handed on (1 in every channel when none is).
@@ -211,25 +222,10 @@ impl Compensator {
         frame: &'a RgbImage,
         target: Option<[u32; 4]>,
     ) -> std::borrow::Cow<'a, RgbImage> {
-        sample(frame, stride_for(frame), &mut self.cur);
-        let same_size = self.prev_size == Some(frame.dimensions());
-        let measured = if same_size {
-            gains_of(&self.prev, &self.cur, &mut self.ratios)
-        } else {
-            None
-        };
-        let on_target = match target {
-            Some(b) if same_size => {
-                sample_box(&self.prev_frame, b, &mut self.region_prev);
-                sample_box(frame, b, &mut self.region_cur);
-                gains_of(&self.region_prev, &self.region_cur, &mut self.ratios)
-            }
-            _ => None,
-        };
+        let (w, h) = frame.dimensions();
+        let measured = self.gains_over(frame, [0, 0, w, h]);
+        let on_target = target.and_then(|b| self.gains_over(frame, b));
         self.keep(frame);
-        // The samples kept for the next frame.
-        std::mem::swap(&mut self.prev, &mut self.cur);
-        self.prev_size = Some(frame.dimensions());
         let bar = (1.0 + self.jump).ln();
         for ch in 0..3 {
             let d = measured.map_or(0.0, |g| g[ch].ln());
@@ -274,30 +270,6 @@ impl Compensator {
     }
 }
 
-/// The pixels of `frame` in the box `[x0, y0, x1, y1]` (cut to the frame), about 2000 of
-/// them at most, row by row, into `out`.
-fn sample_box(frame: &RgbImage, b: [u32; 4], out: &mut Vec<[u8; 3]>) {
-    out.clear();
-    let (w, h) = frame.dimensions();
-    let (x0, y0, x1, y1) = (b[0].min(w), b[1].min(h), b[2].min(w), b[3].min(h));
-    if x1 <= x0 || y1 <= y0 {
-        return;
-    }
-    let area = f64::from(x1 - x0) * f64::from(y1 - y0);
-    let step = ((area / 2000.0).sqrt().round() as usize).max(1);
-    for y in (y0..y1).step_by(step) {
-        for x in (x0..x1).step_by(step) {
-            out.push(frame.get_pixel(x, y).0);
-        }
-    }
-}
-
-/// The stride that samples about 2000 of `frame`'s pixels (every pixel of a small frame).
-fn stride_for(frame: &RgbImage) -> u32 {
-    let (w, h) = frame.dimensions();
-    ((f64::from(w) * f64::from(h) / 2000.0).sqrt().round() as u32).max(1)
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -307,6 +279,15 @@ mod tests {
             let v = |k: u32| (30 + (x * k + y * (k + 3)) % 200) as u8;
             image::Rgb([v(7), v(11), v(13)])
         })
+    }
+
+    /// Asserts every channel's gain within 0.02 of `want`.
+    fn assert_gain_near(c: &Compensator, want: f64) {
+        assert!(
+            c.gain().iter().all(|g| (g - want).abs() < 0.02),
+            "{:?} against {want}",
+            c.gain()
+        );
     }
 
     fn scaled(f: &RgbImage, g: [f64; 3]) -> RgbImage {
@@ -396,11 +377,7 @@ mod tests {
         let dark = scaled(&slight, [0.5, 0.5, 0.5]);
         for _ in 0..3 {
             let out = c.next(&dark, None);
-            assert!(
-                c.gain().iter().all(|g| (g - 0.5).abs() < 0.02),
-                "{:?}",
-                c.gain()
-            );
+            assert_gain_near(&c, 0.5);
             let diff = out
                 .pixels()
                 .zip(slight.pixels())
@@ -453,11 +430,7 @@ mod tests {
         c.reset(&f);
         let mut light = 0.5;
         c.next(&scaled(&f, [light; 3]), None);
-        assert!(
-            c.gain().iter().all(|g| (g - 0.5).abs() < 0.02),
-            "{:?}",
-            c.gain()
-        );
+        assert_gain_near(&c, 0.5);
         while light < 1.0 {
             light = (light * 1.01).min(1.0);
             let frame = scaled(&f, [light; 3]);
@@ -510,27 +483,15 @@ mod tests {
         // Without the box, the frame's median speaks alone.
         c.reset(&f);
         c.next(&around, None);
-        assert!(
-            c.gain().iter().all(|g| (g - 0.5).abs() < 0.02),
-            "{:?}",
-            c.gain()
-        );
+        assert_gain_near(&c, 0.5);
         // The whole frame: witnessed.
         c.reset(&f);
         c.next(&scaled(&f, [0.5; 3]), Some(target));
-        assert!(
-            c.gain().iter().all(|g| (g - 0.5).abs() < 0.02),
-            "{:?}",
-            c.gain()
-        );
+        assert_gain_near(&c, 0.5);
         // A box out of the frame, or empty, has nothing to say.
         c.reset(&f);
         c.next(&scaled(&f, [0.5; 3]), Some([200, 200, 300, 300]));
-        assert!(
-            c.gain().iter().all(|g| (g - 0.5).abs() < 0.02),
-            "{:?}",
-            c.gain()
-        );
+        assert_gain_near(&c, 0.5);
     }
 
     /// A strobe (every second frame at half the light) is undone on its dark frames, and once

@@ -669,8 +669,8 @@ impl Tracker {
     }
 
     /// The gain per channel (R, G, B) undone on the last frame: the light it was taken in
-    /// over the light of the last start, counting only the sudden changes
-    /// ([`TrackerConfig::exposure_jump`]). 1 in every channel after a start, or when the
+    /// over the light of the last start, as far as the changes of light taken and the light
+    /// measured since tell ([`TrackerConfig::exposure_jump`]). 1 in every channel after a start, or when the
     /// compensation is off.
     pub fn exposure_gain(&self) -> [f64; 3] {
         self.exposure.as_ref().map_or([1.0; 3], |c| c.gain())
@@ -795,13 +795,15 @@ impl Tracker {
 
     /// [`Self::step`]'s work on frame `index`, of the right size, on a thread of rayon's pool.
     fn step_in_pool(&mut self, frame: &image::RgbImage, index: usize) -> crate::Result<Estimate> {
+        let prev_state = self.prev.to_state();
+        let prev_ellipse = prev_state.ellipse(self.theta0);
         // In the light the models were built in, from here on.
         let compensated = match &mut self.exposure {
             Some(c) => {
                 // The light's witness on the target: the previous estimate's box. (The square
                 // inside its ellipse, all target where the estimate is right, witnessed more
                 // background changes as light on girl, the estimate resting low on her chin.)
-                let bb = self.prev.to_state().ellipse(self.theta0).bounding_box();
+                let bb = prev_ellipse.bounding_box();
                 let target = [bb.x, bb.y, bb.x + bb.w, bb.y + bb.h]
                     .map(|v| v.clamp(0.0, f64::from(u32::MAX)) as u32);
                 c.next(frame, Some(target))
@@ -815,8 +817,6 @@ impl Tracker {
         let (w, h) = frame.dimensions();
         self.keyframes.tick(index);
         let gray = GrayF32::from_rgb(frame);
-        let prev_state = self.prev.to_state();
-        let prev_ellipse = prev_state.ellipse(self.theta0);
 
         // Features: SIFT around the previous ellipse, matched to the previous frame's.
         // SIFT around the previous ellipse and block matching for the translation do
