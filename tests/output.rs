@@ -230,8 +230,11 @@ fn text_renders_inside_its_box_and_differs_between_digits() {
     let a = render_overlay(&src, &overlay(e, [12.3, -4.0, 1.2], false), 3);
     let b = render_overlay(&src, &overlay(e, [12.3, -4.0, 7.2], false), 3);
     let lay = layout(128, 96, 3, &overlay(e, [12.3, -4.0, 1.2], false));
-    assert_eq!(lay.lines[1], "tilt 12.3 pan -4.0 roll 1.2");
-    assert_eq!(lay.lines[0], "#12  score 0.87");
+    // 128x96 at scale 3 leaves room for the widest angles at font size 2 on two lines.
+    assert_eq!(
+        lay.lines,
+        ["#12  score 0.87", "tilt 12.3 pan -4.0", "roll 1.2"]
+    );
     assert!(lay.text_px >= 2, "text too small to read at 128x96");
     let diff: Vec<(u32, u32)> = a
         .enumerate_pixels()
@@ -243,6 +246,69 @@ fn text_renders_inside_its_box_and_differs_between_digits() {
         diff.iter()
             .all(|&(x, y)| lay.text.contains(x as i64, y as i64))
     );
+}
+
+/// A video is made of frames of one size, with even sides for H.264 in 4:2:0: the layout must
+/// not follow the text (on carphone, 176x144 at scale 2, the frames whose angles needed more
+/// characters came out 18 px lower, at a smaller font).
+#[test]
+fn every_frame_of_a_sequence_renders_at_one_size() {
+    let texts = [
+        (0, [0.0, 0.0, 0.0], 1.0, false),
+        (90, [-12.9, -11.6, -14.7], 0.76, false),
+        (9_999_999, [-359.9, -999.9, 720.5], 0.0, true),
+        (3, [f64::NAN, 1e300, -0.04], f64::NAN, true),
+    ];
+    for (w, h) in [
+        (8, 6),
+        (40, 30),
+        (128, 96),
+        (160, 120),
+        (176, 144),
+        (640, 480),
+    ] {
+        let src = frame(w, h);
+        for scale in 0..=4 {
+            let sizes: Vec<_> = texts
+                .iter()
+                .map(|&(frame_index, angles_deg, score, lost)| {
+                    let o = Overlay {
+                        frame_index,
+                        ellipse: Ellipse::new(w as f64 / 2.0, h as f64 / 2.0, 3.0, 2.0),
+                        angles_deg,
+                        score,
+                        lost,
+                    };
+                    let lay = layout(w, h, scale, &o);
+                    let img = render_overlay(&src, &o, scale);
+                    assert_eq!(img.dimensions(), (lay.width, lay.height));
+                    assert!(
+                        lay.width.is_multiple_of(2) && lay.height.is_multiple_of(2),
+                        "{w}x{h} at {scale}"
+                    );
+                    // The text fits a panel of 160 px or more (the head line at the
+                    // smallest size is 155), except the absurd angle of 1e300.
+                    if angles_deg[1] < 1e300 && lay.text.x1 >= 160 {
+                        for line in &lay.lines {
+                            let tw = i64::from(text_size(line, lay.text_px).0);
+                            assert!(tw <= lay.text.x1 - 2, "{w}x{h} at {scale}: {line}");
+                        }
+                    }
+                    (lay.width, lay.height, lay.text_px, lay.lines.len())
+                })
+                .collect();
+            assert!(
+                sizes.iter().all(|s| *s == sizes[0]),
+                "{w}x{h} at scale {scale}: {sizes:?}"
+            );
+        }
+    }
+    // The size still follows the frame's width: a wide frame gets the larger font and one
+    // line of angles.
+    let o = overlay(Ellipse::new(64.0, 48.0, 15.0, 20.0), [1.0; 3], false);
+    assert_eq!(layout(640, 480, 1, &o).text_px, 3);
+    assert_eq!(layout(640, 480, 1, &o).lines.len(), 2);
+    assert_eq!(layout(40, 30, 1, &o).text_px, 1);
 }
 
 #[test]

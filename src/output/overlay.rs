@@ -15,6 +15,11 @@
 //! +--------------------------+
 //! ```
 //!
+//! The angles take one, two or three lines and the text one of three sizes, chosen from the
+//! panel's width alone so that the widest text of any frame fits: every frame of a sequence
+//! renders at the same size, as a video made of them needs. Both sides are even (the text
+//! panel and the right margin take up an odd pixel), as H.264 in 4:2:0 needs.
+//!
 //! The frame sits at the top-left, untouched except for the ellipse outline; the bars and
 //! the text live in margins so they never hide the image. Both bars are centred at 0° with
 //! ±90° at their ends and grow in the direction the object's front turns (SPEC section 1,
@@ -90,32 +95,77 @@ pub struct Layout {
     pub lines: Vec<String>,
 }
 
-/// The text lines of an overlay: `#n  score s  [LOST]` and the three angles, wrapped to fit
-/// `avail` pixels at font size 1 if need be.
-fn text_lines(o: &Overlay) -> (String, String) {
+/// The text of an overlay: the head line `#n  score s  [LOST]` and the three angles as
+/// `tilt x`, `pan y`, `roll z`.
+fn text_parts(o: &Overlay) -> (String, [String; 3]) {
     let score = if o.score.is_finite() {
         format!("{:.2}", o.score)
     } else {
         "-".to_string()
     };
-    let mut l1 = format!("#{}  score {}", o.frame_index, score);
+    let mut head = format!("#{}  score {}", o.frame_index, score);
     if o.lost {
-        l1.push_str("  LOST");
+        head.push_str("  LOST");
     }
-    let f = |v: f64| {
+    let f = |name: &str, v: f64| {
         if v.is_finite() {
-            format!("{v:.1}")
+            format!("{name} {v:.1}")
         } else {
-            "-".to_string()
+            format!("{name} -")
         }
     };
-    let l2 = format!(
-        "tilt {} pan {} roll {}",
-        f(o.angles_deg[0]),
-        f(o.angles_deg[1]),
-        f(o.angles_deg[2])
-    );
-    (l1, l2)
+    let [tilt, pan, roll] = o.angles_deg;
+    (head, [f("tilt", tilt), f("pan", pan), f("roll", roll)])
+}
+
+/// How the three angles are spread over the text panel's lines.
+#[derive(Debug, Clone, Copy)]
+enum AngleLines {
+    /// `tilt x pan y roll z`.
+    One,
+    /// `tilt x pan y`, then `roll z`.
+    Two,
+    /// One angle per line.
+    Three,
+}
+
+impl AngleLines {
+    fn lines(self, [tilt, pan, roll]: &[String; 3]) -> Vec<String> {
+        match self {
+            AngleLines::One => vec![format!("{tilt} {pan} {roll}")],
+            AngleLines::Two => vec![format!("{tilt} {pan}"), roll.clone()],
+            AngleLines::Three => vec![tilt.clone(), pan.clone(), roll.clone()],
+        }
+    }
+}
+
+/// The widest head line the layout makes room for: a frame index of seven digits (ten
+/// million frames, 92 hours at 30 frames/s), the score and the lost label.
+const WIDEST_HEAD: &str = "#0000000  score 0.00  LOST";
+/// The widest angle the layout makes room for (the angles are continuous over frames, so a
+/// target that turns round more than once reads beyond ±180).
+const WIDEST_ANGLE: f64 = -999.9;
+
+/// The font size and the spread of the angles for a text panel `avail` pixels wide: the
+/// largest size, then the fewest lines, at which the widest text of any frame fits
+/// ([`WIDEST_HEAD`], [`WIDEST_ANGLE`]). It depends on the width alone, so every frame of a
+/// sequence renders at one size; text wider still is clipped at the panel's edge.
+fn text_fit(avail: i64) -> (u32, AngleLines) {
+    let widest = ["tilt", "pan", "roll"].map(|name| format!("{name} {WIDEST_ANGLE:.1}"));
+    let fits = |line: &str, px: u32| i64::from(text_size(line, px).0) <= avail;
+    let choices = [
+        (3, AngleLines::One),
+        (2, AngleLines::One),
+        (2, AngleLines::Two),
+        (1, AngleLines::One),
+        (1, AngleLines::Two),
+    ];
+    choices
+        .into_iter()
+        .find(|&(px, split)| {
+            fits(WIDEST_HEAD, px) && split.lines(&widest).iter().all(|l| fits(l, px))
+        })
+        .unwrap_or((1, AngleLines::Three))
 }
 
 /// Largest side (pixels) of the upscaled frame in an overlay: a larger scale is lowered to
@@ -129,7 +179,9 @@ pub fn capped_scale(w: u32, h: u32, scale: u32) -> u32 {
     scale.clamp(1, (MAX_SCALED_SIDE / side).max(1))
 }
 
-/// The layout of an overlay on a `w × h` input at scale `s` (capped, [`capped_scale`]).
+/// The layout of an overlay on a `w × h` input at scale `s` (capped, [`capped_scale`]). The
+/// sizes and places depend on `w`, `h` and `s` alone, not on what `o` says; only the text
+/// lines do.
 pub fn layout(w: u32, h: u32, scale: u32, o: &Overlay) -> Layout {
     let s = i64::from(capped_scale(w, h, scale));
     let (ws, hs) = (w as i64 * s, h as i64 * s);
@@ -138,23 +190,16 @@ pub fn layout(w: u32, h: u32, scale: u32, o: &Overlay) -> Layout {
     let m = bar + 2 * pad;
     let total_w = ws + m;
     let avail = total_w - 2 * pad;
-    let (l1, l2) = text_lines(o);
-    let longest = l1.chars().count().max(l2.chars().count()) as i64;
-    let px = (avail / (longest * 6).max(1)).clamp(1, 3);
-    let mut lines = vec![l1];
-    if (text_size(&l2, px as u32).0 as i64) <= avail {
-        lines.push(l2);
-    } else {
-        // Too narrow even at font size 1: one angle per line.
-        lines.extend(l2.split(" pan").enumerate().map(|(i, p)| {
-            if i == 0 {
-                p.to_string()
-            } else {
-                format!("pan{p}")
-            }
-        }));
-    }
+    let (px, split) = text_fit(avail);
+    let (head, angles) = text_parts(o);
+    let mut lines = vec![head];
+    lines.extend(split.lines(&angles));
+    let px = i64::from(px);
+    // Even sides, which video encoders in 4:2:0 (H.264's usual) need: the panel takes up the
+    // odd pixel.
+    let total_w = total_w + (total_w & 1);
     let text_h = lines.len() as i64 * LINE_H as i64 * px + 2 * pad - 2 * px;
+    let text_h = text_h + ((hs + m + text_h) & 1);
     let total_h = hs + m + text_h;
     Layout {
         width: total_w as u32,
