@@ -1106,6 +1106,108 @@ fn interlaced_y4m_and_non_square_pixels_are_said() {
     std::fs::remove_dir_all(&d).unwrap();
 }
 
+/// A video stored sideways with a display rotation (a phone's) is read as a player shows it:
+/// the sides swapped, the pixels ffmpeg's own autorotation gives, and the pixel shape turned
+/// with the frame; the probe reports the rotation.
+#[test]
+fn a_turned_video_is_read_as_shown() {
+    if !have_ffmpeg() {
+        return;
+    }
+    let d = scratch("turned-video");
+    let arg = |s: &str| std::ffi::OsString::from(s);
+    let run = |args: &[std::ffi::OsString]| {
+        let refs: Vec<&std::ffi::OsStr> = args.iter().map(|a| a.as_os_str()).collect();
+        ffmpeg(&refs);
+    };
+    let plain = d.join("plain.mp4");
+    let turned = d.join("turned.mp4");
+    let mut args: Vec<_> = [
+        "-f",
+        "lavfi",
+        "-i",
+        "testsrc=size=64x48:rate=25",
+        "-frames:v",
+        "3",
+        "-vf",
+        "setsar=12/11",
+        "-c:v",
+        "mpeg4",
+    ]
+    .iter()
+    .map(|s| arg(s))
+    .collect();
+    args.push(plain.clone().into());
+    run(&args);
+    // A display matrix is written when the stream is copied (ffmpeg 5 and 6).
+    let mut args = vec![arg("-i"), plain.clone().into()];
+    args.extend(["-c", "copy", "-metadata:s:v:0", "rotate=90"].map(arg));
+    args.push(turned.clone().into());
+    run(&args);
+    let probed = frames::ffmpeg::probe(&FfmpegTools::default(), &turned).unwrap();
+    if probed.rotation.is_none() {
+        say("skip: this ffmpeg wrote no display rotation");
+        std::fs::remove_dir_all(&d).unwrap();
+        return;
+    }
+    assert!(probed.quarter_turn(), "{probed:?}");
+    assert_eq!((probed.width, probed.height), (64, 48));
+
+    let src = frames::open(&turned, &SourceOptions::default()).unwrap();
+    assert_eq!(src.size(), (48, 64));
+    assert_eq!(src.layout().pixel_aspect, Some((11, 12)));
+    let frames = collect(src).unwrap();
+    assert_eq!(frames.len(), 3);
+    // The first frame as ffmpeg turns it.
+    let shown = d.join("shown.png");
+    let mut args = vec![arg("-i"), turned.clone().into()];
+    args.extend(["-frames:v", "1"].map(arg));
+    args.push(shown.clone().into());
+    run(&args);
+    let want = image::open(&shown).unwrap().to_rgb8();
+    assert_eq!(want.dimensions(), (48, 64));
+    assert!(
+        frames[0] == want,
+        "the first frame is not ffmpeg's turned one"
+    );
+    // Unturned, the same file reads as stored.
+    let stored = collect(frames::open(&plain, &SourceOptions::default()).unwrap()).unwrap();
+    assert_eq!(stored[0].dimensions(), (64, 48));
+    std::fs::remove_dir_all(&d).unwrap();
+}
+
+/// A JPEG with an Exif orientation (a phone's photo stored sideways) is read as a viewer
+/// shows it, in a folder of frames as alone.
+#[test]
+fn an_image_is_turned_as_its_exif_orientation_says() {
+    let d = scratch("exif");
+    let img = RgbImage::from_fn(40, 24, |x, y| Rgb([(x * 6) as u8, (y * 10) as u8, 77]));
+    let mut jpeg = Vec::new();
+    image::codecs::jpeg::JpegEncoder::new_with_quality(&mut jpeg, 100)
+        .encode_image(&img)
+        .unwrap();
+    let plain = image::load_from_memory(&jpeg).unwrap().to_rgb8();
+    // An APP1 Exif segment after the start marker: a little-endian TIFF header and one IFD
+    // entry, orientation (0x0112) = 6, "turn 90 degrees clockwise to show".
+    let mut exif: Vec<u8> = b"Exif\0\0II*\0\x08\0\0\0\x01\0".to_vec();
+    exif.extend([0x12, 0x01, 3, 0, 1, 0, 0, 0, 6, 0, 0, 0, 0, 0, 0, 0]);
+    let len = (exif.len() + 2) as u16;
+    let mut tagged = jpeg[..2].to_vec();
+    tagged.extend([0xFF, 0xE1]);
+    tagged.extend(len.to_be_bytes());
+    tagged.extend(&exif);
+    tagged.extend(&jpeg[2..]);
+    for i in 1..=2 {
+        std::fs::write(d.join(format!("{i:04}.jpg")), &tagged).unwrap();
+    }
+    let src = frames::open(&d, &SourceOptions::default()).unwrap();
+    assert_eq!(src.size(), (24, 40));
+    let frames = collect(src).unwrap();
+    assert_eq!(frames.len(), 2);
+    assert!(frames[0] == image::imageops::rotate90(&plain));
+    std::fs::remove_dir_all(&d).unwrap();
+}
+
 /// ffprobe's field order and sample aspect ratio reach the source's caveats: an interlaced
 /// MPEG-2 file, an MPEG-4 file of 12:11 pixels, and carphone, stored in 128:117 pixels.
 #[test]

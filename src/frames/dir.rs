@@ -147,7 +147,14 @@ pub fn decode_rgb(p: &Path) -> Result<Frame, FrameError> {
     // Within the size checked above, the decoder's own default cap (512 MiB) is lifted: a
     // 16-bit RGB image of 10000x9000 needs 540 MB and was refused as "Memory limit exceeded".
     reader.no_limits();
-    let img = reader.decode().map_err(dec)?.into_rgb8();
+    // Turned as its Exif orientation says (a phone's photo stored sideways), as viewers show
+    // it and as [`image_size`] reports it.
+    use image::ImageDecoder;
+    let mut decoder = reader.into_decoder().map_err(dec)?;
+    let orientation = decoder.orientation().map_err(dec)?;
+    let mut img = image::DynamicImage::from_decoder(decoder).map_err(dec)?;
+    img.apply_orientation(orientation);
+    let img = img.into_rgb8();
     if img.width() == 0 || img.height() == 0 {
         return Err(FrameError::Decode {
             path: p.display().to_string(),
@@ -227,17 +234,29 @@ fn jpeg_scan_ends(bytes: &[u8]) -> bool {
     }
 }
 
-/// The size of an image file from its header, without decoding the pixels.
+/// The size of an image file as shown (its Exif orientation applied, as [`decode_rgb`]
+/// does), from its header, without decoding the pixels.
 fn image_size(p: &Path) -> Result<(u32, u32), FrameError> {
-    image::ImageReader::open(p)
+    use image::ImageDecoder;
+    use image::metadata::Orientation;
+    let dec = |e: image::ImageError| FrameError::Decode {
+        path: p.display().to_string(),
+        msg: e.to_string(),
+    };
+    let mut decoder = image::ImageReader::open(p)
         .map_err(|e| FrameError::io(p, e))?
         .with_guessed_format()
         .map_err(|e| FrameError::io(p, e))?
-        .into_dimensions()
-        .map_err(|e| FrameError::Decode {
-            path: p.display().to_string(),
-            msg: e.to_string(),
-        })
+        .into_decoder()
+        .map_err(dec)?;
+    let (w, h) = decoder.dimensions();
+    Ok(match decoder.orientation().map_err(dec)? {
+        Orientation::Rotate90
+        | Orientation::Rotate270
+        | Orientation::Rotate90FlipH
+        | Orientation::Rotate270FlipH => (h, w),
+        _ => (w, h),
+    })
 }
 
 /// The frames of an image directory, decoded lazily.

@@ -2,10 +2,17 @@
 //!
 //! The size comes first from `ffprobe` (ships with ffmpeg); then
 //! `ffmpeg -v error -nostdin -noautorotate -i file:INPUT -map 0:v:0 -fps_mode passthrough
-//! -f rawvideo -pix_fmt rgb24 -` streams the first video stream. `-noautorotate` keeps frames as
-//! stored in the file, so their size is the one ffprobe reports (a rotation tag would otherwise
-//! transpose the frames while keeping the byte count, which cannot be detected). The `file:`
-//! prefix stops ffmpeg from reading a name like `http:x` as a protocol.
+//! -f rawvideo -pix_fmt rgb24 -` streams the first video stream. The `file:` prefix stops
+//! ffmpeg from reading a name like `http:x` as a protocol.
+//!
+//! Turned video (a phone's, stored sideways with a display matrix saying how to show it) is
+//! tracked as a player shows it, so that a start picked in a player is where the target is:
+//! where ffprobe reports the stream's display rotation, ffmpeg applies it (its autorotation)
+//! and the frame size is ffprobe's with the sides swapped for a quarter turn (and the pixel
+//! shape with them), the rule ffmpeg turns by. Without a reported rotation `-noautorotate`
+//! keeps the frames as stored, so their size is the one ffprobe reports: a rotation ffmpeg
+//! found and ffprobe did not would transpose the frames while keeping the byte count, which
+//! cannot be detected.
 //!
 //! `-fps_mode passthrough` hands over each decoded frame once, in order. Without it ffmpeg
 //! writes raw video at the container's constant rate, repeating or dropping frames where the
@@ -107,7 +114,7 @@ fn last_line(text: &str) -> String {
 }
 
 /// What ffprobe says of a video's first stream.
-#[derive(Debug, Clone, PartialEq, Eq)]
+#[derive(Debug, Clone, PartialEq)]
 pub struct Probe {
     /// Width in pixels.
     pub width: u32,
@@ -117,6 +124,31 @@ pub struct Probe {
     pub frames: Option<usize>,
     /// Interlaced fields and the shape of a pixel, where ffprobe reports them.
     pub layout: Layout,
+    /// The display rotation in degrees (counter-clockwise, as ffprobe reports it), when the
+    /// stream has one. `width`, `height` and `layout` are of the frames as stored.
+    pub rotation: Option<f64>,
+}
+
+impl Probe {
+    /// Whether the display rotation is a quarter turn either way (within 1 degree), which
+    /// swaps the frame's sides when applied: ffmpeg transposes there, flips at a half turn
+    /// and turns within the frame's own size at any other angle.
+    pub fn quarter_turn(&self) -> bool {
+        self.rotation
+            .is_some_and(|r| (r.rem_euclid(180.0) - 90.0).abs() < 1.0)
+    }
+
+    /// The frame size and layout as shown, the display rotation applied.
+    pub fn shown(&self) -> ((u32, u32), Layout) {
+        if !self.quarter_turn() {
+            return ((self.width, self.height), self.layout);
+        }
+        let layout = Layout {
+            pixel_aspect: self.layout.pixel_aspect.map(|(n, d)| (d, n)),
+            ..self.layout
+        };
+        ((self.height, self.width), layout)
+    }
 }
 
 /// Reads ffprobe's `field_order` (`progressive`, `tt`, `bb`, `tb`, `bt`, `unknown`): the
@@ -141,7 +173,8 @@ pub fn probe(tools: &FfmpegTools, path: &Path) -> Result<Probe, FrameError> {
     let out = Command::new(&tools.ffprobe)
         .args(["-v", "error", "-select_streams", "v:0", "-show_entries"])
         .args([
-            "stream=width,height,nb_frames,field_order,sample_aspect_ratio",
+            "stream=width,height,nb_frames,field_order,sample_aspect_ratio\
+             :stream_side_data=rotation:stream_tags=rotate",
             "-of",
             "default=noprint_wrappers=1",
         ])
@@ -162,6 +195,7 @@ pub fn probe(tools: &FfmpegTools, path: &Path) -> Result<Probe, FrameError> {
     }
     let text = String::from_utf8_lossy(&out.stdout);
     let (mut w, mut h, mut n) = (None, None, None);
+    let (mut rotation, mut tag) = (None, None);
     let mut layout = Layout::default();
     for line in text.lines() {
         match line.trim().split_once('=') {
@@ -170,15 +204,23 @@ pub fn probe(tools: &FfmpegTools, path: &Path) -> Result<Probe, FrameError> {
             Some(("nb_frames", v)) => n = v.parse::<usize>().ok(),
             Some(("field_order", v)) => layout.interlaced = field_order(v),
             Some(("sample_aspect_ratio", v)) => layout.pixel_aspect = sample_aspect(v),
+            // The display matrix's rotation; ffmpeg before 5 reported it as a tag instead.
+            Some(("rotation", v)) => rotation = v.parse::<f64>().ok().filter(|r| r.is_finite()),
+            Some(("TAG:rotate", v)) => {
+                // The tag turns clockwise, the matrix counter-clockwise.
+                tag = v.parse::<f64>().ok().filter(|r| r.is_finite()).map(|r| -r)
+            }
             _ => {}
         }
     }
+    let rotation = rotation.or(tag);
     match (w, h) {
         (Some(w), Some(h)) if w > 0 && h > 0 => Ok(Probe {
             width: w,
             height: h,
             frames: n,
             layout,
+            rotation,
         }),
         _ if text.trim().is_empty() => Err(err("no video stream".into())),
         _ => Err(err(format!(
@@ -209,10 +251,18 @@ fn rejects_fps_mode(stderr: &str) -> bool {
 /// A running decode: the child, its stdout, and a thread draining its stderr.
 type Decoder = (Child, ChildStdout, JoinHandle<String>);
 
-/// Starts `ffmpeg` decoding `path`'s first video stream to raw RGB24 on its stdout.
-fn spawn_decoder(ffmpeg: &Path, path: &Path, legacy_sync: bool) -> Result<Decoder, FrameError> {
+/// Starts `ffmpeg` decoding `path`'s first video stream to raw RGB24 on its stdout, turned
+/// as its display rotation says where `rotate`, else as stored.
+fn spawn_decoder(
+    ffmpeg: &Path,
+    path: &Path,
+    legacy_sync: bool,
+    rotate: bool,
+) -> Result<Decoder, FrameError> {
     let mut child = Command::new(ffmpeg)
-        .args(["-v", "error", "-nostdin", "-noautorotate", "-i"])
+        .args(["-v", "error", "-nostdin"])
+        .args((!rotate).then_some("-noautorotate"))
+        .arg("-i")
         .arg(file_arg(path))
         .args(["-map", "0:v:0"])
         .args(passthrough_args(legacy_sync))
@@ -255,6 +305,8 @@ pub(crate) struct FfmpegSource {
     path: PathBuf,
     /// The `ffmpeg` program, for a restart with the older option.
     ffmpeg: PathBuf,
+    /// The decode applies the stream's display rotation.
+    rotate: bool,
     /// The decode runs with `-vsync passthrough` (ffmpeg before 5.1).
     legacy_sync: bool,
     child: Child,
@@ -290,22 +342,20 @@ impl FfmpegSource {
                 ),
             });
         }
-        let Probe {
-            width: w,
-            height: h,
-            frames: n,
-            layout,
-        } = probe(tools, path)?;
-        let (child, stdout, stderr) = spawn_decoder(&tools.ffmpeg, path, false)?;
+        let probed = probe(tools, path)?;
+        let ((w, h), layout) = probed.shown();
+        let rotate = probed.rotation.is_some();
+        let (child, stdout, stderr) = spawn_decoder(&tools.ffmpeg, path, false, rotate)?;
         Ok(Self {
             path: path.to_path_buf(),
             ffmpeg: tools.ffmpeg.clone(),
+            rotate,
             legacy_sync: false,
             child,
             stdout,
             stderr: Some(stderr),
             size: (w, h),
-            frames_hint: n,
+            frames_hint: probed.frames,
             layout,
             frames: 0,
             reaped: false,
@@ -392,7 +442,8 @@ impl FfmpegSource {
             && !self.legacy_sync
             && rejects_fps_mode(&text)
         {
-            let (child, stdout, stderr) = spawn_decoder(&self.ffmpeg, &self.path, true)?;
+            let (child, stdout, stderr) =
+                spawn_decoder(&self.ffmpeg, &self.path, true, self.rotate)?;
             (self.child, self.stdout, self.stderr) = (child, stdout, Some(stderr));
             (self.legacy_sync, self.reaped) = (true, false);
             return Ok(Pipe::Restarted);
