@@ -252,6 +252,9 @@ pub struct FrameSource {
     done: bool,
     /// Whether the stream ended normally (not by an error).
     ended: bool,
+    /// Where a y4m stream ended inside a frame after complete ones: that frame's index and
+    /// what was missing ([`FrameSource::shortfall`]).
+    cut: Option<(usize, String)>,
 }
 
 /// The path [`open`] reads as standard input, a y4m stream (`ffmpeg ... -f yuv4mpegpipe - |
@@ -409,6 +412,7 @@ impl FrameSource {
             produced: 0,
             done: false,
             ended: false,
+            cut: None,
         })
     }
 
@@ -507,15 +511,24 @@ impl FrameSource {
     /// container declares while ffmpeg reported errors (a truncated file, an undecodable
     /// frame), with ffmpeg's first complaint and what that does to the numbering (frames are
     /// counted as they are decoded: past one lost mid-file, a frame's number is lower than
-    /// its place in the video); `None` for a complete video, before the end, and
-    /// for the other sources, whose reading fails on a bad frame. A caller that reports the
-    /// frames as the whole video should say this too: ffmpeg ends a damaged file with success.
+    /// its place in the video); for a y4m stream that ended inside a frame after complete ones,
+    /// where it ended (the frames before it are all delivered); `None` for a complete video,
+    /// before the end, and for image folders, whose reading fails on a bad frame. A caller
+    /// that reports the frames as the whole video should say this too: ffmpeg ends a damaged
+    /// file with success.
     /// Fewer frames without a complaint are no shortfall: a clip cut without re-encoding
     /// keeps samples before its start that are decoded but never shown. A container that
     /// declares no count (Matroska, MPEG-TS) cannot be compared: there any complaint is said,
     /// since the frames decoded may not be all of it (a Matroska file cut in half gave 57 of
     /// 180 frames, with success).
     pub fn shortfall(&self) -> Option<String> {
+        if let Some((frame, msg)) = &self.cut {
+            return Some(format!(
+                "{}: the stream ends inside frame {frame} ({msg}); the {} complete frames \
+                 before it were read",
+                self.path, self.produced
+            ));
+        }
         let Inner::Ffmpeg(f) = &self.inner else {
             return None;
         };
@@ -637,6 +650,18 @@ impl Iterator for FrameSource {
                         path: self.path.clone(),
                     })
                 })
+            }
+            // A y4m stream cut inside a frame (a recording stopped, a producer killed, a file
+            // copied in part) ends after its complete frames, as a damaged video does through
+            // ffmpeg, and says so ([`FrameSource::shortfall`]); with none complete it is the
+            // error.
+            Err(FrameError::Truncated { frame, msg, .. })
+                if matches!(self.inner, Inner::Y4m(..)) && self.produced > 0 =>
+            {
+                self.done = true;
+                self.ended = true;
+                self.cut = Some((frame, msg));
+                None
             }
             Err(e) => {
                 self.done = true;

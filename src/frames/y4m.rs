@@ -10,7 +10,9 @@
 //!
 //! Each frame is `FRAME` with optional parameters up to a newline, then the planes Y, Cb, Cr
 //! (4:2:0 chroma planes are `ceil(W/2) × ceil(H/2)`). A partial frame at the end of the file
-//! is a [`FrameError::Truncated`] error, never a silently shorter video.
+//! is a [`FrameError::Truncated`] error here, never a silently shorter video;
+//! [`super::FrameSource`] ends such a stream after its complete frames and says where it was
+//! cut ([`super::FrameSource::shortfall`]).
 //!
 //! Colour conversion: ITU-R BT.601 (Kr = 0.299, Kb = 0.114), limited ("studio") range, the
 //! y4m norm: Y in 16..235 and Cb, Cr in 16..240 map to full-range RGB 0..255 (values outside
