@@ -338,6 +338,27 @@ fn a_lost_device_is_a_clear_error_from_then_on() {
         let r = e.evaluate(&frame, &params, &[frame.prev], &mut out);
         assert!(matches!(r, Err(LikelihoodError::DeviceLost(_))), "{r:?}");
     }
+    // Lost with no poll since (nothing has run the device-lost callback), on a frame with
+    // features, whose upload fails before any readback: still a lost device, not a wgpu
+    // validation error that a fallback would not act on.
+    drop(e);
+    let Some(mut e) = engine_alone() else { return };
+    e.set_colour_model(&one_hot(0)).unwrap();
+    e.evaluate(&frame, &params, &[frame.prev], &mut out)
+        .unwrap();
+    e.device().device.destroy();
+    let pairs = [FeaturePair {
+        p: [8.0, 8.0],
+        q: [8.5, 8.0],
+    }; 500];
+    let with_features = FrameInput {
+        features: &pairs,
+        ..frame
+    };
+    for f in [&with_features, &frame] {
+        let r = e.evaluate(f, &LikelihoodParams::default(), &[frame.prev], &mut out);
+        assert!(matches!(r, Err(LikelihoodError::DeviceLost(_))), "{r:?}");
+    }
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -1349,8 +1370,19 @@ fn the_applications_error_handlers_stay_in_place() {
         1,
         "the application's callback ran"
     );
-    for _ in 0..2 {
-        let r = e.evaluate(&frame, &params, &[frame.prev], &mut out);
+    // The frame's features are uploaded before anything is read back (into a buffer made
+    // afresh for more of them than before): that upload's failure is the lost device too.
+    let pairs = [FeaturePair {
+        p: [8.0, 8.0],
+        q: [8.5, 8.0],
+    }; 500];
+    let with_features = FrameInput {
+        features: &pairs,
+        ..frame
+    };
+    let all_terms = LikelihoodParams::default();
+    for f in [&with_features, &frame, &with_features] {
+        let r = e.evaluate(f, &all_terms, &[frame.prev], &mut out);
         assert!(matches!(r, Err(LikelihoodError::DeviceLost(_))), "{r:?}");
     }
     assert!(e.device().is_lost());

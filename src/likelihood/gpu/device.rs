@@ -182,7 +182,8 @@ impl GpuDevice {
     /// (wgpu keeps one of each per device): the engine installs neither. It catches the errors
     /// of its own work in wgpu error scopes pushed around each of its calls, on the calling
     /// thread, and returns them as that call's [`LikelihoodError`]; it sees a lost device when
-    /// reading its results back fails, and returns [`LikelihoodError::DeviceLost`] from then on.
+    /// a call's work fails (an upload to a buffer made since the loss, a readback) and the
+    /// device, asked, is lost, and returns [`LikelihoodError::DeviceLost`] from then on.
     /// Tested on Vulkan, the one backend this crate builds wgpu with.
     pub fn from_wgpu(device: wgpu::Device, queue: wgpu::Queue) -> Self {
         let info = device.adapter_info();
@@ -245,7 +246,7 @@ impl GpuDevice {
 
     /// An error if the device was lost or an uncaptured wgpu error happened since the last
     /// check (which clears the latter). On a device from [`Self::from_wgpu`] the engine
-    /// installs no handlers: there a loss shows once an evaluation's readback failed, and
+    /// installs no handlers: there a loss shows once a call's work failed on it, and
     /// uncaptured errors go to the application's handler.
     pub fn check(&self) -> Result<(), LikelihoodError> {
         if self.lost_flag.load(Ordering::SeqCst) {
@@ -296,9 +297,17 @@ impl GpuDevice {
             .into_iter()
             .find_map(pollster::block_on);
         // An error the scopes caught is the cause: a buffer wgpu refused also fails its
-        // mapping, which the readback reports as a lost device, and the device is not lost
-        // (a lost device's errors never reach a scope: wgpu leaves them to its callback).
+        // mapping, which the readback reports as a lost device, and the device is not lost.
+        // Unless the device is lost: then a buffer made since is invalid, and writing to it
+        // is a validation error the scopes catch (the frame's features, uploaded before any
+        // readback), which must read as the lost device a fallback acts on.
         let result = match (result, caught) {
+            (_, Some(e)) if self.is_lost() || self.probe_lost() => {
+                Err(LikelihoodError::DeviceLost(format!(
+                    "{} (the device is lost)",
+                    one_line(&e.to_string())
+                )))
+            }
             (_, Some(wgpu::Error::OutOfMemory { .. })) => Err(LikelihoodError::Gpu(
                 "the GPU ran out of memory".to_string(),
             )),
@@ -312,6 +321,29 @@ impl GpuDevice {
             self.lost_flag.store(true, Ordering::SeqCst);
         }
         result
+    }
+
+    /// Whether the device is lost, asked of the device itself: a small buffer, valid on any
+    /// device, made and mapped for reading, which fails only on a lost one. Its own errors go
+    /// to an error scope of its own, not to the device's handler. Run where the engine's work
+    /// failed, never on the way of a call that succeeds. Where the engine installed the
+    /// device-lost callback, the poll also runs it.
+    fn probe_lost(&self) -> bool {
+        let scope = self.device.push_error_scope(wgpu::ErrorFilter::Validation);
+        let probe = self.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("pftrack lost-device probe"),
+            size: 4,
+            usage: wgpu::BufferUsages::MAP_READ,
+            mapped_at_creation: false,
+        });
+        let (tx, rx) = std::sync::mpsc::channel();
+        probe.slice(..).map_async(wgpu::MapMode::Read, move |r| {
+            let _ = tx.send(r.is_ok());
+        });
+        let _ = self.device.poll(wgpu::PollType::wait_indefinitely());
+        let mapped = rx.try_recv().unwrap_or(false);
+        let refused = pollster::block_on(scope.pop()).is_some();
+        refused || !mapped
     }
 
     /// Whether the device has been lost.
