@@ -566,6 +566,16 @@ pub fn create_engine_for(
             Ok(e) => Ok((e, None)),
             // A named adapter that does not exist is the user's mistake: report it.
             Err(e @ LikelihoodError::AdapterNotFound { .. }) => Err(e),
+            // Without an adapter the note says what to install, not to use the CPU engine,
+            // which it is already on.
+            Err(LikelihoodError::NoAdapter) => Ok((
+                Box::new(cpu::CpuEngine::new()),
+                Some(
+                    "note: likelihood on the CPU: no Vulkan adapter found (a GPU engine needs \
+                     a Vulkan driver, e.g. `apt-get install mesa-vulkan-drivers libvulkan1`)"
+                        .to_string(),
+                ),
+            )),
             Err(e) => Ok((
                 Box::new(cpu::CpuEngine::new()),
                 Some(format!("note: likelihood on the CPU ({e})")),

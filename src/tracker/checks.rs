@@ -17,7 +17,8 @@ impl Init {
         if e.a < 2.0 || e.b < 2.0 {
             return Err(TrackError::BadInit(format!(
                 "semi-axes {} x {} px: at least 2 px each",
-                e.a, e.b
+                short(e.a),
+                short(e.b)
             )));
         }
         let side = f64::from(w.max(h));

@@ -144,7 +144,7 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
             Ok(g) => Some(g),
             Err(e) => {
                 outln!(
-                    "note: no GPU timings ({})",
+                    "pftrack: note: no GPU timings ({})",
                     crate::in_cli_terms(&e.to_string())
                 )?;
                 None
@@ -162,9 +162,10 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
     }
 
     outln!(
-        "likelihood pass: {width}x{height} frame, {} normal lines, {} features, median of {repeats} runs (ms)",
+        "likelihood pass: {width}x{height} frame, {} normal lines, {} features, median of {repeats} run{} (ms)",
         w.params.num_lines,
-        w.features.len()
+        w.features.len(),
+        if repeats == 1 { "" } else { "s" }
     )?;
     if want_cpu {
         outln!("cpu: {} thread(s) available", cpu_all.threads())?;

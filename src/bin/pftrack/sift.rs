@@ -31,8 +31,8 @@ pub struct SiftArgs {
     /// out a quarter pixel off), to reproduce OpenCV's keypoints; exact by default.
     #[arg(long, conflicts_with = "no_upsample")]
     pub opencv_upscale: bool,
-    /// Run detection this many more times and report the median and fastest time of those
-    /// runs (for timing; each run times the detection alone, not decoding or output).
+    /// Run detection this many times and report the median and fastest time of the runs (for
+    /// timing; each run times the detection alone, not decoding or output).
     #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..))]
     pub repeat: u32,
 }

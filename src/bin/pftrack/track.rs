@@ -36,6 +36,9 @@ pub struct TrackArgs {
     )]
     pub init_ellipse: Option<String>,
     /// Initial box `x,y,w,h` (top-left corner, pixels); its inscribed ellipse is tracked.
+    /// Corners are in the README's pixel coordinates, which put the top-left pixel's centre
+    /// at 0,0: a box of whole pixels from column x0 (OpenCV's `Rect`, `selectROI`) starts at
+    /// x0 - 0.5 (an OTB file's 1-based x at x - 1.5, as `--init-truth` reads it).
     #[arg(
         long,
         value_name = "X,Y,W,H",
@@ -323,7 +326,8 @@ pub struct TrackArgs {
     /// pose CSV. One that succeeds replaces an earlier render there: its frames that follow
     /// this track's last are removed. A folder holding frames that no render of pftrack's
     /// left (no `.pftrack-render` in it) is refused. Frames under 320 px wide are drawn
-    /// scaled up (160x120 twice).
+    /// scaled up to at least 320, at most 4 times (160x120 twice, 128x96 three times); all
+    /// at one size, so `ffmpeg -i DIR/%05d.png` makes a video of them.
     #[arg(long, value_name = "DIR")]
     pub render: Option<PathBuf>,
 }
