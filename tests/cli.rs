@@ -1282,6 +1282,26 @@ fn cli_track_settings_errors_name_the_flag() {
             "{flag}: {err}"
         );
     }
+    // A setting of a part another flag turns off would do nothing: refused, not ignored.
+    for (pair, needle) in [
+        (
+            ["--template-weight=0", "--template-rate=0.5"],
+            "--template-rate 0.5 has no effect",
+        ),
+        (
+            ["--colour-rate=0", "--colour-max-ring=0.3"],
+            "--colour-max-ring 0.3 has no effect",
+        ),
+        (
+            ["--no-fit-prior", "--no-fit-centre-prior"],
+            "cannot be used with",
+        ),
+    ] {
+        let mut args = vec!["track", d, "--backend", "cpu"];
+        args.extend(pair);
+        args.extend(["--out", c]);
+        assert_one_line_error(&args, needle, &csv);
+    }
     std::fs::remove_dir_all(&dir).unwrap();
 }
 

@@ -130,7 +130,7 @@ pub struct TrackArgs {
     pub fit_centre_sigma: f64,
     /// Leave the keyframe fits' centre free in the motion prior (the prior then holds the
     /// rotation alone).
-    #[arg(long)]
+    #[arg(long, conflicts_with = "no_fit_prior")]
     pub no_fit_centre_prior: bool,
     /// Measure each frame only against the keyframes nearest the previous estimate, without
     /// the free fit against the first view that resets the chain's drift when it fits tightly
@@ -506,6 +506,13 @@ fn flag_config(a: &TrackArgs, hfov: Option<f64>) -> anyhow::Result<TrackerConfig
     if !(0.0..=1.0).contains(&a.colour_max_ring) {
         bail!("--colour-max-ring {} is not in [0, 1]", a.colour_max_ring);
     }
+    if a.colour_rate == 0.0 && a.colour_max_ring != ColourUpdate::default().max_ring_similarity {
+        bail!(
+            "--colour-max-ring {} has no effect: --colour-rate 0 keeps the first frame's colour \
+             model",
+            a.colour_max_ring
+        );
+    }
     cfg.colour_update = if a.colour_rate == 0.0 {
         None
     } else {
@@ -716,6 +723,12 @@ pub fn apply_template(
         && weight == 0.0
     {
         bail!("--anchor-weight {w} needs the template term, which --template-weight 0 turns off");
+    }
+    // A setting of a term that is off would do nothing: said, not silently taken.
+    if weight == 0.0 && rate != pftrack::tracker::TemplateTerm::default().rate {
+        bail!(
+            "--template-rate {rate} has no effect: --template-weight 0 turns the template term off"
+        );
     }
     let base = cfg.template.unwrap_or_default();
     cfg.template = (weight > 0.0).then(|| pftrack::tracker::TemplateTerm {
