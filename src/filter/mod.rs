@@ -141,6 +141,12 @@ pub struct StateSigma {
     pub rotation: [f64; 3],
 }
 
+/// The largest σ (pixels) of the centre and the axes, [`StateSigma`]'s: a hundred times the
+/// longest side a frame may have. Beyond, particles land where `f32` holds no pixel (a σ of
+/// 1e300 passed the check and failed the first step as a degenerate estimate); a rotation's
+/// σ is at most π, half a turn, past which a Gaussian spreads it over every angle anyway.
+pub const MAX_SIGMA_PX: f64 = 3_276_800.0;
+
 impl StateSigma {
     /// Each σ with the name its setting has in messages.
     fn components(&self) -> [(&'static str, f64); 5] {
@@ -154,12 +160,23 @@ impl StateSigma {
         ]
     }
 
-    /// Checks that every σ is finite and at least 0; `what` names the set in the error.
+    /// Checks that every σ is finite and at least 0, the centre's and axes' at most
+    /// [`MAX_SIGMA_PX`] and the rotation's at most π; `what` names the set in the error.
     fn check(&self, what: &str) -> Result<(), FilterError> {
         for (name, v) in self.components() {
             if !(v.is_finite() && v >= 0.0) {
                 return Err(FilterError::BadParams(format!(
                     "{what}.{name} {v} must be finite and at least 0"
+                )));
+            }
+            let (max, unit) = if name.starts_with("rotation") {
+                (std::f64::consts::PI, "radians")
+            } else {
+                (MAX_SIGMA_PX, "px")
+            };
+            if v > max {
+                return Err(FilterError::BadParams(format!(
+                    "{what}.{name} {v} must be at most {max} ({unit})"
                 )));
             }
         }
@@ -796,6 +813,21 @@ mod tests {
                     ..d
                 },
                 "dynamics.rotation[2] -0.1",
+            ),
+            // Finite but absurd: the first step failed, blaming the estimate.
+            (
+                FilterParams {
+                    proposal: sigma(8.0, 4.0),
+                    ..d
+                },
+                "proposal.rotation[2] 4 must be at most",
+            ),
+            (
+                FilterParams {
+                    dynamics: sigma(1e7, 0.05),
+                    ..d
+                },
+                "dynamics.centre 10000000 must be at most",
             ),
             (
                 FilterParams {

@@ -87,8 +87,11 @@ pub enum TrackError {
         /// Its height.
         height: u32,
     },
-    /// A frame's size differs from the first frame's.
-    #[error("frame {frame} is {got_w}x{got_h}, the first frame was {want_w}x{want_h}")]
+    /// A frame's size differs from the frame the tracker was started on (by
+    /// [`Tracker::new`] or the last [`Tracker::reinit`]).
+    #[error(
+        "frame {frame} is {got_w}x{got_h}, the frame the track started on was {want_w}x{want_h}"
+    )]
     FrameSize {
         /// Index of the offending frame.
         frame: usize,
@@ -96,9 +99,9 @@ pub enum TrackError {
         got_w: u32,
         /// Its height.
         got_h: u32,
-        /// The first frame's width.
+        /// The start frame's width.
         want_w: u32,
-        /// The first frame's height.
+        /// The start frame's height.
         want_h: u32,
     },
     /// An earlier step or restart failed part-way (the likelihood engine's error: a GPU fault
@@ -493,7 +496,9 @@ impl Tracker {
     /// the frame is not counted. An error in the checks of the frame, the start and the
     /// engine's capacity leaves the tracker as it was; one after them (the likelihood
     /// engine's, setting the new colour model) leaves it to be started again
-    /// ([`TrackError::Failed`]). A successful restart clears an earlier failure.
+    /// ([`TrackError::Failed`]). A successful restart clears an earlier failure. `frame` may
+    /// be of another size than the earlier frames (a stream that changed resolution): the
+    /// frames that follow must then be of its size ([`TrackError::FrameSize`]).
     pub fn reinit(&mut self, frame: &image::RgbImage, init: Init) -> crate::Result<()> {
         self.start(frame, init, self.frame + 1)
     }
