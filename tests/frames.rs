@@ -129,6 +129,31 @@ fn natural_sort_and_ignored_files() {
         .map(|f| f.unwrap().get_pixel(0, 0)[0])
         .collect();
     assert_eq!(got, [1, 2, 3, 7, 10]);
+    // Said before tracking: the numbering skips, and an image of a format not read is left
+    // out; a folder numbered without gaps and with only frames says nothing.
+    std::fs::remove_dir_all(&d).unwrap();
+    let d = scratch("natural-gaps");
+    for k in [1, 2, 4, 5, 9] {
+        save_flat(&d.join(format!("{k:04}.png")), 4, 3, k as u8);
+    }
+    std::fs::write(d.join("0010.webp"), "an image this source does not read").unwrap();
+    let c = frames::open(&d, &SourceOptions::default())
+        .unwrap()
+        .caveats();
+    assert_eq!(c.len(), 2, "{c:?}");
+    assert!(c[0].contains("skips from 0002.png to 0004.png"), "{}", c[0]);
+    assert!(c[0].contains("and at 1 more places"), "{}", c[0]);
+    assert!(c[1].contains("0010.webp left out"), "{}", c[1]);
+    std::fs::remove_dir_all(&d).unwrap();
+    let d = scratch("natural-whole");
+    for k in 1..=3 {
+        save_flat(&d.join(format!("{k:04}.png")), 4, 3, k as u8);
+    }
+    std::fs::write(d.join("notes.txt"), "not a frame").unwrap();
+    let c = frames::open(&d, &SourceOptions::default())
+        .unwrap()
+        .caveats();
+    assert!(c.is_empty(), "{c:?}");
     std::fs::remove_dir_all(&d).unwrap();
 }
 

@@ -18,6 +18,39 @@ pub fn is_image_file(p: &Path) -> bool {
         .is_some_and(|e| IMAGE_EXTENSIONS.iter().any(|k| e.eq_ignore_ascii_case(k)))
 }
 
+/// Extensions (lower case) of image formats this source does not read: a folder of frames
+/// holding one is said ([`DirSource::notes`]), since the file is left out of the sequence.
+pub const OTHER_IMAGE_EXTENSIONS: [&str; 13] = [
+    "webp", "gif", "tif", "tiff", "heic", "heif", "avif", "jxl", "exr", "tga", "qoi", "dng", "raw",
+];
+
+/// `name` split at its last run of ASCII digits: what comes before, the digits and what comes
+/// after; `None` without a digit.
+fn last_number(name: &str) -> Option<(&str, &str, &str)> {
+    let end = name.rfind(|c: char| c.is_ascii_digit())? + 1;
+    let start = name[..end]
+        .rfind(|c: char| !c.is_ascii_digit())
+        .map_or(0, |i| i + 1);
+    Some((&name[..start], &name[start..end], &name[end..]))
+}
+
+/// Where the numbering of `names` (file names in natural order) skips: each pair of
+/// neighbours that differ only in their last number, by more than one. Neighbours named
+/// otherwise are not compared, nor numbers beyond `u64`.
+pub fn numbering_gaps<S: AsRef<str>>(names: &[S]) -> Vec<(String, String)> {
+    names
+        .windows(2)
+        .filter_map(|w| {
+            let (a, b) = (w[0].as_ref(), w[1].as_ref());
+            let (pa, na, sa) = last_number(a)?;
+            let (pb, nb, sb) = last_number(b)?;
+            let (na, nb) = (na.parse::<u64>().ok()?, nb.parse::<u64>().ok()?);
+            (pa == pb && sa == sb && nb > na.saturating_add(1))
+                .then(|| (a.to_string(), b.to_string()))
+        })
+        .collect()
+}
+
 /// Splits a name into runs of ASCII digits and runs of anything else.
 fn chunks(s: &str) -> impl Iterator<Item = &str> {
     let mut rest = s;
@@ -91,6 +124,62 @@ pub fn list_images(dir: &Path) -> Result<Vec<PathBuf>, FrameError> {
     }
     files.sort_by(|a, b| natural_cmp(&a.0, &b.0));
     Ok(files.into_iter().map(|(_, p)| p).collect())
+}
+
+/// The notes of [`DirSource::notes`] for `dir`, whose frames are `files`.
+fn folder_notes(dir: &Path, files: &[PathBuf]) -> Result<Vec<String>, FrameError> {
+    let d = dir.display();
+    let mut notes = Vec::new();
+    let names: Vec<String> = files
+        .iter()
+        .map(|p| {
+            p.file_name()
+                .unwrap_or_default()
+                .to_string_lossy()
+                .into_owned()
+        })
+        .collect();
+    let gaps = numbering_gaps(&names);
+    if let Some((a, b)) = gaps.first() {
+        let more = match gaps.len() {
+            1 => String::new(),
+            n => format!(" and at {} more places", n - 1),
+        };
+        notes.push(format!(
+            "{d}: the frames' numbering skips from {a} to {b}{more}: rows are numbered as the \
+             frames are read, so past a gap they run behind the files' numbers"
+        ));
+    }
+    let mut other: Vec<String> = Vec::new();
+    for entry in std::fs::read_dir(dir).map_err(|e| FrameError::io(dir, e))? {
+        let p = entry.map_err(|e| FrameError::io(dir, e))?.path();
+        let name = p
+            .file_name()
+            .unwrap_or_default()
+            .to_string_lossy()
+            .into_owned();
+        let unread = p.extension().and_then(|e| e.to_str()).is_some_and(|e| {
+            OTHER_IMAGE_EXTENSIONS
+                .iter()
+                .any(|k| e.eq_ignore_ascii_case(k))
+        });
+        if unread && !name.starts_with('.') {
+            other.push(name);
+        }
+    }
+    other.sort_by(|a, b| natural_cmp(a, b));
+    if let Some(first) = other.first() {
+        let more = match other.len() {
+            1 => String::new(),
+            n => format!(" and {} more", n - 1),
+        };
+        notes.push(format!(
+            "{d}: {first}{more} left out: only {} files are read as frames (convert the \
+             others to png, e.g. with ffmpeg)",
+            IMAGE_EXTENSIONS.join(", ")
+        ));
+    }
+    Ok(notes)
 }
 
 /// Decodes one image file to RGB8 (format guessed from the content, then the extension); an
@@ -265,6 +354,7 @@ pub(crate) struct DirSource {
     files: Vec<PathBuf>,
     next: usize,
     size: (u32, u32),
+    notes: Vec<String>,
 }
 
 impl DirSource {
@@ -280,11 +370,21 @@ impl DirSource {
             path: dir.display().to_string(),
         })?;
         let size = image_size(first)?;
+        let notes = folder_notes(dir, &files)?;
         Ok(Self {
             files,
             next: 0,
             size,
+            notes,
         })
+    }
+
+    /// What a user should hear about the folder before it is tracked: where the frames'
+    /// numbering skips (the rows are numbered as read, so past a gap they run behind the
+    /// files' numbers, and a truth file per frame no longer lines up), and images of formats
+    /// this source does not read, left out.
+    pub(crate) fn notes(&self) -> &[String] {
+        &self.notes
     }
 
     /// The size of every frame (that of the first).
@@ -318,6 +418,45 @@ impl DirSource {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn gaps_in_the_numbering_are_found_between_like_names() {
+        let names = [
+            "0001.jpg",
+            "0002.jpg",
+            "0004.jpg",
+            "0005.jpg",
+            "0009.jpg",
+            "img7.png",
+            "img8.png",
+            "img10.png",
+            "x.png",
+            "y.png",
+        ];
+        assert_eq!(
+            numbering_gaps(&names),
+            [
+                ("0002.jpg".to_string(), "0004.jpg".to_string()),
+                ("0005.jpg".to_string(), "0009.jpg".to_string()),
+                ("img8.png".to_string(), "img10.png".to_string()),
+            ]
+        );
+        // Other names between, another extension, a repeat, a number past u64: not gaps.
+        for pair in [
+            ["0001.jpg", "0003.png"],
+            ["a1.png", "b3.png"],
+            ["7.png", "007.png"],
+            ["1.png", "99999999999999999999999.png"],
+            ["frame.png", "frame2.png"],
+        ] {
+            assert!(numbering_gaps(&pair).is_empty(), "{pair:?}");
+        }
+        assert_eq!(
+            last_number("cam2_0012.png"),
+            Some(("cam2_", "0012", ".png"))
+        );
+        assert_eq!(last_number("none.png"), None);
+    }
 
     #[test]
     fn natural_order() {

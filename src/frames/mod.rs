@@ -564,9 +564,14 @@ impl FrameSource {
     }
 
     /// One warning line for each way this source's frames break the tracker's assumptions
-    /// (see [`Layout::caveats`]): say them before tracking.
+    /// (see [`Layout::caveats`]; for an image folder, a gap in its numbering and images of
+    /// formats it leaves out): say them before tracking.
     pub fn caveats(&self) -> Vec<String> {
-        self.layout().caveats(&self.path, self.native, self.out)
+        let mut lines = self.layout().caveats(&self.path, self.native, self.out);
+        if let Inner::Dir(d) = &self.inner {
+            lines.extend(d.notes().iter().cloned());
+        }
+        lines
     }
 
     /// One line saying what this source is.
