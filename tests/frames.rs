@@ -596,12 +596,48 @@ fn y4m_errors() {
     for (name, content) in cases {
         let p = d.join(format!("{name}.y4m"));
         std::fs::write(&p, content).unwrap();
-        let e = frames::open(&p, &SourceOptions::default()).unwrap_err();
+        // (`open` hands a colour space the parser does not read to ffmpeg; see below.)
+        let e = FrameSource::from_y4m(&p, &SourceOptions::default()).unwrap_err();
         assert!(matches!(e, FrameError::Y4m { .. }), "{name}: {e}");
         assert!(!e.to_string().contains('\n'));
     }
-    let e = frames::open(&d.join("p10.y4m"), &SourceOptions::default()).unwrap_err();
+    let e = FrameSource::from_y4m(&d.join("p10.y4m"), &SourceOptions::default()).unwrap_err();
     assert!(e.to_string().contains("C420p10"), "{e}");
+    assert!(e.to_string().contains("-pix_fmt yuv420p"), "{e}");
+    // A file of a colour space the parser does not read goes through ffmpeg, which does.
+    if have_ffmpeg() {
+        for (pix, tag) in [("yuv422p", "C422"), ("yuv420p10le", "C420p10")] {
+            let p = d.join(format!("real-{pix}.y4m"));
+            let arg = |s: &str| std::ffi::OsString::from(s);
+            let mut args: Vec<std::ffi::OsString> = [
+                "-f",
+                "lavfi",
+                "-i",
+                "testsrc=size=32x24:rate=25",
+                "-frames:v",
+                "2",
+                "-pix_fmt",
+                pix,
+                "-strict",
+                "-1",
+            ]
+            .map(arg)
+            .to_vec();
+            args.push(p.clone().into());
+            let refs: Vec<&std::ffi::OsStr> = args.iter().map(|a| a.as_os_str()).collect();
+            ffmpeg(&refs);
+            let head = std::fs::read(&p).unwrap();
+            let line =
+                String::from_utf8_lossy(&head[..head.iter().position(|&b| b == b'\n').unwrap()])
+                    .to_string();
+            assert!(line.contains(tag), "{line}");
+            let src = frames::open(&p, &SourceOptions::default()).unwrap();
+            assert!(src.describe().contains("ffmpeg"), "{}", src.describe());
+            let got = collect(src).unwrap();
+            assert_eq!(got.len(), 2);
+            assert_eq!(got[0].dimensions(), (32, 24));
+        }
+    }
 
     // Garbage where the second FRAME header belongs.
     let mut bad = bytes.clone();

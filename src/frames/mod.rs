@@ -262,7 +262,8 @@ pub struct FrameSource {
 pub const STDIN: &str = "-";
 
 /// Opens a frame source: a directory → image sequence; a `.y4m` file (extension
-/// case-insensitive) → the y4m parser; [`STDIN`] (`-`) → the y4m parser on standard input;
+/// case-insensitive) → the y4m parser (through ffmpeg where it names a colour space the
+/// parser does not read); [`STDIN`] (`-`) → the y4m parser on standard input;
 /// anything else → ffmpeg.
 pub fn open(path: &Path, opts: &SourceOptions) -> Result<FrameSource, FrameError> {
     if path == Path::new(STDIN) {
@@ -274,11 +275,27 @@ pub fn open(path: &Path, opts: &SourceOptions) -> Result<FrameSource, FrameError
     } else if path
         .extension()
         .is_some_and(|e| e.eq_ignore_ascii_case("y4m"))
+        && !y4m_for_ffmpeg(path)
     {
         FrameSource::from_y4m(path, opts)
     } else {
         FrameSource::from_video(path, opts, &FfmpegTools::default())
     }
+}
+
+/// Whether the y4m file `path` is one for ffmpeg rather than this crate's reader: its header
+/// names a colour space the reader does not read ([`y4m::unsupported_colour_space`]) and
+/// ffmpeg is there to read it. Any failure to read the header leaves the file to the reader,
+/// whose error says what is wrong.
+fn y4m_for_ffmpeg(path: &Path) -> bool {
+    let Ok(file) = File::open(path) else {
+        return false;
+    };
+    let mut line = String::new();
+    let read = std::io::Read::take(BufReader::new(file), 4096).read_line(&mut line);
+    read.is_ok()
+        && y4m::unsupported_colour_space(line.trim_end()).is_some()
+        && FfmpegTools::default().available()
 }
 
 /// Which field of an interlaced frame was taken first.

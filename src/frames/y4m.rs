@@ -6,7 +6,9 @@
 //! extensions (ignored).
 //! Colour spaces read: `420jpeg` (the default when `C` is absent), `420` (the same siting),
 //! `420mpeg2`, `420paldv`, `444`, and `mono`; all 8-bit. Anything else (`422`, `411`,
-//! `444alpha`, the high bit depths `...p10` etc.) is a clear [`FrameError::Y4m`] error.
+//! `444alpha`, the high bit depths `...p10` etc.) is a clear [`FrameError::Y4m`] error here;
+//! [`super::open`] reads such a file through ffmpeg instead (a stream on standard input it
+//! cannot: the error names the conversion).
 //!
 //! Each frame is `FRAME` with optional parameters up to a newline, then the planes Y, Cb, Cr
 //! (4:2:0 chroma planes are `ceil(W/2) × ceil(H/2)`). A partial frame at the end of the file
@@ -57,6 +59,17 @@ pub enum Chroma {
     C444,
     /// Luma only (`Cmono`): grey frames.
     Mono,
+}
+
+/// The colour space a y4m header line names (its `C` tag's value) when this reader does
+/// not read it (a `422`, `411`, `444alpha` or high-bit-depth stream); `None` for one it reads,
+/// or a line that names none. [`super::open`] hands such a file to ffmpeg, which reads them.
+pub fn unsupported_colour_space(header: &str) -> Option<&str> {
+    header
+        .split_ascii_whitespace()
+        .skip(1)
+        .find_map(|t| t.strip_prefix('C'))
+        .filter(|v| Chroma::parse(v).is_none())
 }
 
 impl Chroma {
@@ -181,7 +194,8 @@ impl Y4mHeader {
                     hdr.chroma = Chroma::parse(v).ok_or_else(|| {
                         format!(
                             "unsupported colour space C{v}: only 8-bit 420jpeg, 420, 420mpeg2, \
-                             420paldv, 444 and mono are read"
+                             420paldv, 444 and mono are read from a stream (a file is read \
+                             through ffmpeg; ffmpeg -pix_fmt yuv420p converts a stream)"
                         )
                     })?
                 }
