@@ -1449,10 +1449,13 @@ fn a_wrong_sized_frame_changes_nothing() {
     let mut a = Tracker::new(TrackerConfig::default(), &first, init).unwrap();
     let mut b = Tracker::new(TrackerConfig::default(), &first, init).unwrap();
     let odd = image::RgbImage::new(first.width() + 1, first.height());
+    assert_eq!(a.frame_size(), first.dimensions());
     for k in 1..=6 {
         let (img, _) = r.render(k);
         if k == 3 {
+            assert_eq!(a.last_frame(), 2);
             let e = a.step(&odd).unwrap_err();
+            assert_eq!(a.last_frame(), 2, "a refused frame is not counted");
             assert!(
                 matches!(
                     e,
@@ -1463,6 +1466,16 @@ fn a_wrong_sized_frame_changes_nothing() {
         }
         assert_eq!(a.step(&img).unwrap(), b.step(&img).unwrap(), "frame {k}");
     }
+    // A restart on a frame of another size takes its size from then on.
+    let small = image::RgbImage::from_pixel(64, 48, image::Rgb([90, 60, 30]));
+    let e = pftrack::geometry::Ellipse::new(32.0, 24.0, 8.0, 10.0);
+    a.reinit(&small, Init::frontal(e)).unwrap();
+    assert_eq!((a.frame_size(), a.last_frame()), ((64, 48), 7));
+    let err = a.step(&first).unwrap_err().to_string();
+    assert!(
+        err.contains("the frame the track started on was 64x48"),
+        "{err}"
+    );
 }
 
 /// A step or restart that fails part-way (the engine's fault) stops the tracker: every later
@@ -1489,9 +1502,11 @@ fn a_failed_step_stops_the_tracker_until_reinit() {
     assert!(t.last_weighing().is_some());
     let (f3, _) = r.render(3);
     armed.store(true, Ordering::SeqCst);
+    assert!(!t.is_failed());
     let e = t.step(&f3).unwrap_err();
     assert!(matches!(e, pftrack::Error::Likelihood(_)), "{e}");
     assert!(t.last_weighing().is_none());
+    assert!(t.is_failed());
     armed.store(false, Ordering::SeqCst);
     for _ in 0..2 {
         let e = t.step(&f3).unwrap_err();
@@ -1516,6 +1531,7 @@ fn a_failed_step_stops_the_tracker_until_reinit() {
     // Restarted from where the track was, the start is that estimate.
     let last = fresh_estimate(&r, 2);
     t.reinit(&f3, last.to_init()).unwrap();
+    assert!(!t.is_failed() && !t.is_lost());
     let again = t.initial_estimate();
     assert_eq!((again.frame, again.state), (3, last.state));
     assert_eq!(again.ellipse, last.ellipse);
@@ -1757,7 +1773,13 @@ fn a_lost_target_is_found_only_where_it_is_recognised() {
     let (hidden, scrambled, n) = (8..14, 14..22, 34);
     let frame = |k| hidden_or_scrambled(&r, k, hidden.clone(), scrambled.clone());
     let mut t = Tracker::new(cfg.clone(), &frame(0), Init::frontal(r.init_ellipse())).unwrap();
-    let track: Vec<_> = (1..n).map(|k| t.step(&frame(k)).unwrap()).collect();
+    let track: Vec<_> = (1..n)
+        .map(|k| {
+            let e = t.step(&frame(k)).unwrap();
+            assert_eq!(t.is_lost(), e.lost, "frame {k}");
+            e
+        })
+        .collect();
     let at = |k: usize| &track[k - 1];
     // Hidden: lost by the end of the occlusion.
     assert!(at(hidden.end - 1).lost, "{:?}", at(hidden.end - 1));

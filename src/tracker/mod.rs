@@ -651,6 +651,30 @@ impl Tracker {
         self.first
     }
 
+    /// The size (width, height) every frame handed to [`Tracker::step`] must have: that of
+    /// the frame the tracker was last started on ([`TrackError::FrameSize`]).
+    pub fn frame_size(&self) -> (u32, u32) {
+        self.size
+    }
+
+    /// The number of the last frame tracked or started on, from 0 (the number the next
+    /// step's [`Estimate::frame`] follows).
+    pub fn last_frame(&self) -> usize {
+        self.frame
+    }
+
+    /// Whether the tracker considers the target lost (the last estimate's
+    /// [`Estimate::lost`]): it searches the frame for it each step until found again.
+    pub fn is_lost(&self) -> bool {
+        self.lost
+    }
+
+    /// Whether an earlier step or start failed part-way: every step is refused with
+    /// [`TrackError::Failed`] until [`Tracker::reinit`] starts it again.
+    pub fn is_failed(&self) -> bool {
+        self.failed.is_some()
+    }
+
     /// How many frames [`Tracker::step`] has tracked without SIFT because the scale space
     /// around the target would have passed [`crate::features::SiftParams::max_scale_space_bytes`]
     /// even without the doubled first octave: those frames were weighed by colour, contour and
