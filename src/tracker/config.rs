@@ -436,7 +436,12 @@ pub struct TrackerConfig {
     /// 0-9, success AUC) it went from 0.19 with the 8 RGB levels to 0.22 with 64 luma levels
     /// (0.22 with 32 levels, 0.21 with 128 over seeds 0-5: no sharp optimum). The tracker's
     /// [`super::Tracker::likelihood`] shows the bins in use; its configuration
-    /// ([`super::Tracker::config`]) stays as given.
+    /// ([`super::Tracker::config`]) stays as given. Where RGB bins are configured, footage
+    /// that turns grey mid-track (a camera's night or infrared mode) or back to colour
+    /// switches the bins on the first frame of the other kind: luma learnt afresh there at the
+    /// previous estimate, RGB the model put aside when the frames turned grey. Without the
+    /// switch the grey frames shared no bin with the colour model, and the target read as
+    /// lost at confidence 0 while the estimate was on it.
     pub grey_luma: bool,
     /// Holds the ellipse to the shapes the object model can show: its aspect `a / b` stays
     /// within the range of the outlines of the first frame's ellipsoid (semi-axes `a`, `b` and

@@ -291,6 +291,10 @@ pub struct Tracker {
     /// The contrast term's background histogram (a ring around the target), when the term is
     /// on and the ring held pixels on the initial frame ([`TrackerConfig::contrast`]).
     background: Option<ColourHistogram>,
+    /// The colour model and background of the other binning, put aside when the footage
+    /// turned grey or back to colour ([`Tracker::switch_colour_bins`]): its bins, model and
+    /// background.
+    other_appearance: Option<(u32, ColourHistogram, Option<ColourHistogram>)>,
     /// The appearance template, when the term is on ([`TrackerConfig::template`]).
     template: Option<crate::likelihood::template::Template>,
     /// The particles' correlations with the template this frame.
@@ -468,6 +472,7 @@ impl Tracker {
             own_terms: Vec::new(),
             colour_model: ColourHistogram(Vec::new()),
             background: None,
+            other_appearance: None,
             template: None,
             correlations: Vec::new(),
             anchor: None,
@@ -570,6 +575,7 @@ impl Tracker {
         self.engine.set_colour_model(&model)?;
         self.colour_model = model;
         self.background = None;
+        self.other_appearance = None;
         if let Some(c) = self.cfg.contrast {
             let bins = self.likelihood.colour_bins;
             self.background = ring_histogram(frame, &init.ellipse, &c, bins);
@@ -826,6 +832,15 @@ impl Tracker {
     fn step_in_pool(&mut self, frame: &image::RgbImage, index: usize) -> crate::Result<Estimate> {
         let prev_state = self.prev.to_state();
         let prev_ellipse = prev_state.ellipse(self.theta0);
+        // Footage that turned grey (a camera's night or infrared mode) or back to colour:
+        // the appearance is taken afresh in the bins of the new frames (luma or RGB), where
+        // the old model would share no bin with them, and the light is measured from here.
+        let grey_switch = self.cfg.grey_luma
+            && self.cfg.likelihood.colour_bins != COLOUR_LUMA
+            && is_grey(frame) != (self.likelihood.colour_bins == COLOUR_LUMA);
+        if grey_switch && let Some(c) = &mut self.exposure {
+            c.reset(frame);
+        }
         // In the light the models were built in, from here on.
         let compensated = match &mut self.exposure {
             Some(c) => {
@@ -842,6 +857,9 @@ impl Tracker {
         let frame: &image::RgbImage = &compensated;
         if matches!(compensated, std::borrow::Cow::Owned(_)) {
             self.frames_relit += 1;
+        }
+        if grey_switch {
+            self.switch_colour_bins(frame, &prev_ellipse)?;
         }
         let (w, h) = frame.dimensions();
         self.keyframes.tick(index);
@@ -1195,6 +1213,41 @@ impl Tracker {
     /// [`TrackerConfig::lost_below`] on the last frame.
     fn unsure(&self) -> bool {
         self.lost || self.low_count > 0
+    }
+
+    /// Turns the colour term to the other binning (RGB to luma where the footage turned grey,
+    /// luma back to RGB where it turned to colour again): the model and background put aside
+    /// when it last left that binning, or, the first time, learnt from `frame` at the
+    /// previous estimate `at` (the target moves little in a frame; an infrared image shows it
+    /// in other grey levels than the luma of its colours, so the new frame, not the old one).
+    fn switch_colour_bins(&mut self, frame: &image::RgbImage, at: &Ellipse) -> crate::Result<()> {
+        let bins = if self.likelihood.colour_bins == COLOUR_LUMA {
+            self.cfg.likelihood.colour_bins
+        } else {
+            COLOUR_LUMA
+        };
+        let (model, background) = match self.other_appearance.take() {
+            Some((b, model, background)) if b == bins => (model, background),
+            other => {
+                // An estimate that holds no pixel of the frame (a target lost off its edge)
+                // teaches nothing: the switch waits for a frame where it does.
+                let Ok(model) = ColourHistogram::from_ellipse(frame, at, bins) else {
+                    self.other_appearance = other;
+                    return Ok(());
+                };
+                let ring = self.cfg.contrast;
+                (
+                    model,
+                    ring.and_then(|c| ring_histogram(frame, at, &c, bins)),
+                )
+            }
+        };
+        self.engine.set_colour_model(&model)?;
+        let old_model = std::mem::replace(&mut self.colour_model, model);
+        let old_background = std::mem::replace(&mut self.background, background);
+        self.other_appearance = Some((self.likelihood.colour_bins, old_model, old_background));
+        self.likelihood.colour_bins = bins;
+        self.send_contrast_table()
     }
 
     /// Turns the contrast term on in `lp` when it is configured and has a background, as the
