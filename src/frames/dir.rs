@@ -19,7 +19,8 @@ pub fn is_image_file(p: &Path) -> bool {
 }
 
 /// Extensions (lower case) of image formats this source does not read: a folder of frames
-/// holding one is said ([`DirSource::notes`]), since the file is left out of the sequence.
+/// holding one is said ([`super::FrameSource::caveats`]), since the file is left out of the
+/// sequence.
 pub const OTHER_IMAGE_EXTENSIONS: [&str; 13] = [
     "webp", "gif", "tif", "tiff", "heic", "heif", "avif", "jxl", "exr", "tga", "qoi", "dng", "raw",
 ];
