@@ -1825,3 +1825,41 @@ fn sift_on_too_large_an_image_names_its_flags() {
     assert!(String::from_utf8_lossy(&ok.stdout).contains("keypoints"));
     std::fs::remove_dir_all(&d).unwrap();
 }
+
+/// A `synth` folder whose `init.txt` is gone still reads its `frames` folder, the start given
+/// by a flag; and `--render -` is refused, since frames cannot go to standard output as the
+/// poses can (`--out -`), rather than made into a folder called `-`.
+#[test]
+fn cli_track_reads_a_synth_folder_without_its_init_and_refuses_render_to_stdout() {
+    let dir = synth_dir("no-init", 3, "64x48");
+    std::fs::remove_file(dir.join("init.txt")).unwrap();
+    let d = dir.to_str().unwrap();
+    let out = pftrack_ok(&[
+        "track",
+        d,
+        "--init-box",
+        "20,14,24,20",
+        "--backend",
+        "cpu",
+        "--out",
+        "-",
+    ]);
+    let rows = String::from_utf8_lossy(&out.stdout).lines().count();
+    assert_eq!(rows, 1 + 3);
+    let csv = dir.join("poses.csv");
+    let args = [
+        "track",
+        d,
+        "--init-box",
+        "20,14,24,20",
+        "--backend",
+        "cpu",
+        "--render",
+        "-",
+        "--out",
+        csv.to_str().unwrap(),
+    ];
+    assert_one_line_error(&args, "--render -", &csv);
+    assert!(!Path::new("-").exists());
+    std::fs::remove_dir_all(&dir).unwrap();
+}

@@ -336,12 +336,19 @@ pub fn parse_floats(s: &str, n: &[usize], what: &str) -> anyhow::Result<Vec<f64>
     values::numbers(s, n).map_err(|e| anyhow::anyhow!("{what}: {e}"))
 }
 
-/// The input's frames and init file, accepting a `pftrack synth` directory as is.
+/// The input's frames and init file, accepting a `pftrack synth` directory as is; one whose
+/// `init.txt` is gone (the start given by a flag instead) still reads its `frames` folder,
+/// where the directory itself holds no image.
 fn resolve_input(input: &Path) -> (PathBuf, Option<PathBuf>) {
-    match pftrack::synth::SequencePaths::find(input) {
-        Some(s) => (s.frames, Some(s.init)),
-        None => (input.to_path_buf(), None),
+    if let Some(s) = pftrack::synth::SequencePaths::find(input) {
+        return (s.frames, Some(s.init));
     }
+    let frames = input.join("frames");
+    let holds_none = |d: &Path| pftrack::frames::dir::list_images(d).is_ok_and(|f| f.is_empty());
+    if input.is_dir() && frames.is_dir() && holds_none(input) && !holds_none(&frames) {
+        return (frames, None);
+    }
+    (input.to_path_buf(), None)
 }
 
 /// The initial ellipse from whichever option was given, else from the `init.txt` of a
@@ -864,6 +871,12 @@ pub fn run(mut a: TrackArgs) -> anyhow::Result<()> {
     .into_iter()
     .flatten()
     .collect();
+    // `-` names standard output elsewhere (`--out -`); frames cannot go there.
+    if a.render.as_deref() == Some(Path::new("-")) {
+        bail!(
+            "--render -: frames go to a folder, not to standard output (./- names a folder called -)"
+        );
+    }
     crate::paths::track_outputs(&frames_path, &read, a.out.as_deref(), a.render.as_deref())?;
     // A folder written by `synth`: its ground truth is not read by the track, but is what the
     // track is scored against.
