@@ -1328,16 +1328,20 @@ mod tests {
             (35.0, 0.1, 25.0, 25.0)
         );
         // The anchor rides on the template term: none without it.
-        let e = apply_template(&mut cfg, 0.0, 0.1, Some(25.0)).unwrap_err();
+        let rate = pftrack::tracker::TemplateTerm::default().rate;
+        let e = apply_template(&mut cfg, 0.0, rate, Some(25.0)).unwrap_err();
         assert!(
             e.to_string().contains("--template-weight 0 turns off"),
             "{e}"
         );
-        apply_template(&mut cfg, 0.0, 0.1, Some(0.0)).unwrap();
+        apply_template(&mut cfg, 0.0, rate, Some(0.0)).unwrap();
         assert!(cfg.template.is_none());
         apply_template(&mut cfg, 35.0, 0.1, Some(25.0)).unwrap();
-        apply_template(&mut cfg, 0.0, 0.1, None).unwrap();
+        apply_template(&mut cfg, 0.0, rate, None).unwrap();
         assert!(cfg.template.is_none());
+        // Nor its rate: a rate other than the default with the term off is refused.
+        let e = apply_template(&mut cfg, 0.0, rate + 0.1, None).unwrap_err();
+        assert!(e.to_string().contains("has no effect"), "{e}");
         apply_template(&mut cfg, 10.0, 0.0, Some(0.0)).unwrap();
         assert_eq!(
             cfg.template.map(|t| (t.weight, t.rate, t.anchor_weight)),
