@@ -1861,5 +1861,22 @@ fn cli_track_reads_a_synth_folder_without_its_init_and_refuses_render_to_stdout(
     ];
     assert_one_line_error(&args, "--render -", &csv);
     assert!(!Path::new("-").exists());
+    // Its ground truth is guarded as it was with the init file there.
+    let truth = dir.join("truth.csv");
+    let before = std::fs::read(&truth).unwrap();
+    let t = truth.to_str().unwrap();
+    let out = pftrack(&[
+        "track",
+        d,
+        "--init-box",
+        "20,14,24,20",
+        "--backend",
+        "cpu",
+        "--out",
+        t,
+    ]);
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("ground truth"));
+    assert_eq!(std::fs::read(&truth).unwrap(), before);
     std::fs::remove_dir_all(&dir).unwrap();
 }

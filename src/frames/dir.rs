@@ -36,19 +36,29 @@ fn last_number(name: &str) -> Option<(&str, &str, &str)> {
 }
 
 /// Where the numbering of `names` (file names in natural order) skips: each pair of
-/// neighbours that differ only in their last number, by more than one. Neighbours named
-/// otherwise are not compared, nor numbers beyond `u64`.
+/// neighbours that differ only in their last number, by more than one, in a folder numbered
+/// frame by frame (at least half of such pairs a step of one). Neighbours named otherwise are
+/// not compared, nor numbers beyond `u64`; names that are timestamps, or every fifth frame,
+/// step by other amounts throughout and have no gaps.
 pub fn numbering_gaps<S: AsRef<str>>(names: &[S]) -> Vec<(String, String)> {
-    names
+    let steps: Vec<(&str, &str, u64)> = names
         .windows(2)
         .filter_map(|w| {
             let (a, b) = (w[0].as_ref(), w[1].as_ref());
             let (pa, na, sa) = last_number(a)?;
             let (pb, nb, sb) = last_number(b)?;
             let (na, nb) = (na.parse::<u64>().ok()?, nb.parse::<u64>().ok()?);
-            (pa == pb && sa == sb && nb > na.saturating_add(1))
-                .then(|| (a.to_string(), b.to_string()))
+            (pa == pb && sa == sb && nb > na).then(|| (a, b, nb - na))
         })
+        .collect();
+    let ones = steps.iter().filter(|s| s.2 == 1).count();
+    if ones * 2 < steps.len() {
+        return Vec::new();
+    }
+    steps
+        .into_iter()
+        .filter(|s| s.2 > 1)
+        .map(|(a, b, _)| (a.to_string(), b.to_string()))
         .collect()
 }
 
@@ -442,6 +452,17 @@ mod tests {
                 ("img8.png".to_string(), "img10.png".to_string()),
             ]
         );
+        // Timestamps (TUM's, EuRoC's) and a constant stride are no numbering by frame.
+        let stamps = [
+            "1305031102.175304.png",
+            "1305031102.211214.png",
+            "1305031102.243211.png",
+        ];
+        assert!(numbering_gaps(&stamps).is_empty());
+        let euroc = ["1403636579763555584.png", "1403636579813555456.png"];
+        assert!(numbering_gaps(&euroc).is_empty());
+        let fifth = ["0005.png", "0010.png", "0015.png", "0025.png"];
+        assert!(numbering_gaps(&fifth).is_empty());
         // Other names between, another extension, a repeat, a number past u64: not gaps.
         for pair in [
             ["0001.jpg", "0003.png"],

@@ -288,6 +288,10 @@ pub fn open(path: &Path, opts: &SourceOptions) -> Result<FrameSource, FrameError
 /// ffmpeg is there to read it. Any failure to read the header leaves the file to the reader,
 /// whose error says what is wrong.
 fn y4m_for_ffmpeg(path: &Path) -> bool {
+    // A named pipe would lose the bytes read here: only a file is looked into.
+    if !path.is_file() {
+        return false;
+    }
     let Ok(file) = File::open(path) else {
         return false;
     };

@@ -194,8 +194,9 @@ impl Y4mHeader {
                     hdr.chroma = Chroma::parse(v).ok_or_else(|| {
                         format!(
                             "unsupported colour space C{v}: only 8-bit 420jpeg, 420, 420mpeg2, \
-                             420paldv, 444 and mono are read from a stream (a file is read \
-                             through ffmpeg; ffmpeg -pix_fmt yuv420p converts a stream)"
+                             420paldv, 444 and mono are read here (a file is read through \
+                             ffmpeg where it is installed; ffmpeg -pix_fmt yuv420p converts a \
+                             stream)"
                         )
                     })?
                 }

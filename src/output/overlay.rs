@@ -147,8 +147,9 @@ const WIDEST_HEAD: &str = "#0000000  score 0.00  LOST";
 const WIDEST_ANGLE: f64 = -999.9;
 
 /// The font size and the spread of the angles for a text panel `avail` pixels wide: the
-/// largest size, then the fewest lines, at which the widest text of any frame fits
-/// ([`WIDEST_HEAD`], [`WIDEST_ANGLE`]). It depends on the width alone, so every frame of a
+/// first of size 3 on one line of angles, size 2 on one or two, size 1 on one, two or three
+/// at which the widest text of any frame fits ([`WIDEST_HEAD`], [`WIDEST_ANGLE`]; size 3 is
+/// not split over lines, which would take a third of a small frame's height). It depends on the width alone, so every frame of a
 /// sequence renders at one size; text wider still is clipped at the panel's edge.
 fn text_fit(avail: i64) -> (u32, AngleLines) {
     let widest = ["tilt", "pan", "roll"].map(|name| format!("{name} {WIDEST_ANGLE:.1}"));

@@ -438,10 +438,11 @@ pub struct TrackerConfig {
     /// [`super::Tracker::likelihood`] shows the bins in use; its configuration
     /// ([`super::Tracker::config`]) stays as given. Where RGB bins are configured, footage
     /// that turns grey mid-track (a camera's night or infrared mode) or back to colour
-    /// switches the bins on the first frame of the other kind: luma learnt afresh there at the
-    /// previous estimate, RGB the model put aside when the frames turned grey. Without the
-    /// switch the grey frames shared no bin with the colour model, and the target read as
-    /// lost at confidence 0 while the estimate was on it.
+    /// switches the bins on the second frame of the other kind in a row (one black or white
+    /// frame is grey too): luma learnt afresh there at the previous estimate, RGB the model
+    /// put aside when the frames turned grey; a lost track waits to be found before it learns.
+    /// Without the switch the grey frames shared no bin with the colour model, and the target
+    /// read as lost at confidence 0 while the estimate was on it.
     pub grey_luma: bool,
     /// Holds the ellipse to the shapes the object model can show: its aspect `a / b` stays
     /// within the range of the outlines of the first frame's ellipsoid (semi-axes `a`, `b` and

@@ -295,6 +295,9 @@ pub struct Tracker {
     /// turned grey or back to colour ([`Tracker::switch_colour_bins`]): its bins, model and
     /// background.
     other_appearance: Option<(u32, ColourHistogram, Option<ColourHistogram>)>,
+    /// Frames in a row of the other kind (grey where the colour term counts RGB, colour
+    /// where it counts luma), up to [`GREY_SWITCH_AFTER`].
+    other_kind_frames: usize,
     /// The appearance template, when the term is on ([`TrackerConfig::template`]).
     template: Option<crate::likelihood::template::Template>,
     /// The particles' correlations with the template this frame.
@@ -473,6 +476,7 @@ impl Tracker {
             colour_model: ColourHistogram(Vec::new()),
             background: None,
             other_appearance: None,
+            other_kind_frames: 0,
             template: None,
             correlations: Vec::new(),
             anchor: None,
@@ -576,6 +580,7 @@ impl Tracker {
         self.colour_model = model;
         self.background = None;
         self.other_appearance = None;
+        self.other_kind_frames = 0;
         if let Some(c) = self.cfg.contrast {
             let bins = self.likelihood.colour_bins;
             self.background = ring_histogram(frame, &init.ellipse, &c, bins);
@@ -833,17 +838,22 @@ impl Tracker {
         let prev_state = self.prev.to_state();
         let prev_ellipse = prev_state.ellipse(self.theta0);
         // Footage that turned grey (a camera's night or infrared mode) or back to colour:
-        // the appearance is taken afresh in the bins of the new frames (luma or RGB), where
-        // the old model would share no bin with them, and the light is measured from here.
-        let grey_switch = self.cfg.grey_luma
+        // from the second such frame in a row (a black or white frame alone is grey too),
+        // the colour term turns to the bins of the new frames (luma or RGB), where the old
+        // model would share no bin with them, and the light is measured from there. A frame
+        // of the other kind is taken as it comes: its channels' ratios to a frame of the old
+        // kind measure no light.
+        let other_kind = self.cfg.grey_luma
             && self.cfg.likelihood.colour_bins != COLOUR_LUMA
             && is_grey(frame) != (self.likelihood.colour_bins == COLOUR_LUMA);
-        if grey_switch && let Some(c) = &mut self.exposure {
-            c.reset(frame);
-        }
+        self.other_kind_frames = if other_kind {
+            self.other_kind_frames.saturating_add(1)
+        } else {
+            0
+        };
         // In the light the models were built in, from here on.
         let compensated = match &mut self.exposure {
-            Some(c) => {
+            Some(c) if !other_kind => {
                 // The light's witness on the target: the previous estimate's box. (The square
                 // inside its ellipse, all target where the estimate is right, witnessed more
                 // background changes as light on girl, the estimate resting low on her chin.)
@@ -852,14 +862,19 @@ impl Tracker {
                     .map(|v| v.clamp(0.0, f64::from(u32::MAX)) as u32);
                 c.next(frame, Some(target))
             }
-            None => std::borrow::Cow::Borrowed(frame),
+            _ => std::borrow::Cow::Borrowed(frame),
         };
         let frame: &image::RgbImage = &compensated;
         if matches!(compensated, std::borrow::Cow::Owned(_)) {
             self.frames_relit += 1;
         }
-        if grey_switch {
-            self.switch_colour_bins(frame, &prev_ellipse)?;
+        if self.other_kind_frames >= GREY_SWITCH_AFTER
+            && self.switch_colour_bins(frame, &prev_ellipse)?
+        {
+            self.other_kind_frames = 0;
+            if let Some(c) = &mut self.exposure {
+                c.reset(frame);
+            }
         }
         let (w, h) = frame.dimensions();
         self.keyframes.tick(index);
@@ -1216,24 +1231,29 @@ impl Tracker {
     }
 
     /// Turns the colour term to the other binning (RGB to luma where the footage turned grey,
-    /// luma back to RGB where it turned to colour again): the model and background put aside
-    /// when it last left that binning, or, the first time, learnt from `frame` at the
-    /// previous estimate `at` (the target moves little in a frame; an infrared image shows it
-    /// in other grey levels than the luma of its colours, so the new frame, not the old one).
-    fn switch_colour_bins(&mut self, frame: &image::RgbImage, at: &Ellipse) -> crate::Result<()> {
-        let bins = if self.likelihood.colour_bins == COLOUR_LUMA {
-            self.cfg.likelihood.colour_bins
-        } else {
+    /// luma back to RGB where it turned to colour again), and says whether it did. Luma is
+    /// learnt afresh from `frame` at the previous estimate `at` (the target moves little in a
+    /// frame; an infrared image shows it in other grey levels than the luma of its colours,
+    /// so the new frame, not the old one). RGB is the model and background put aside when the
+    /// footage turned grey, or, for a track started on grey frames, learnt the same way. A
+    /// lost track, or an estimate that holds no pixel of the frame, teaches nothing: the
+    /// switch waits for a frame where the target is followed.
+    fn switch_colour_bins(&mut self, frame: &image::RgbImage, at: &Ellipse) -> crate::Result<bool> {
+        let to_luma = self.likelihood.colour_bins != COLOUR_LUMA;
+        let bins = if to_luma {
             COLOUR_LUMA
+        } else {
+            self.cfg.likelihood.colour_bins
         };
         let (model, background) = match self.other_appearance.take() {
-            Some((b, model, background)) if b == bins => (model, background),
+            Some((b, model, background)) if !to_luma && b == bins => (model, background),
             other => {
-                // An estimate that holds no pixel of the frame (a target lost off its edge)
-                // teaches nothing: the switch waits for a frame where it does.
+                self.other_appearance = other;
+                if self.lost {
+                    return Ok(false);
+                }
                 let Ok(model) = ColourHistogram::from_ellipse(frame, at, bins) else {
-                    self.other_appearance = other;
-                    return Ok(());
+                    return Ok(false);
                 };
                 let ring = self.cfg.contrast;
                 (
@@ -1245,9 +1265,13 @@ impl Tracker {
         self.engine.set_colour_model(&model)?;
         let old_model = std::mem::replace(&mut self.colour_model, model);
         let old_background = std::mem::replace(&mut self.background, background);
-        self.other_appearance = Some((self.likelihood.colour_bins, old_model, old_background));
+        // The RGB appearance is put aside for the colour frames' return; a luma one, learnt on
+        // one grey stretch, is not kept for the next (another light, another mode).
+        self.other_appearance =
+            to_luma.then_some((self.likelihood.colour_bins, old_model, old_background));
         self.likelihood.colour_bins = bins;
-        self.send_contrast_table()
+        self.send_contrast_table()?;
+        Ok(true)
     }
 
     /// Turns the contrast term on in `lp` when it is configured and has a background, as the
@@ -1539,6 +1563,11 @@ fn confidence(
 fn holds_size(cfg: &TrackerConfig, lost: bool, c: f64) -> bool {
     lost || c < cfg.found_above
 }
+
+/// Frames of the other kind in a row (grey among colour frames, or colour among grey ones)
+/// after which the colour term turns to their bins ([`TrackerConfig::grey_luma`]): a single
+/// black or white frame (a cut, a flash) is grey too, and no change of the camera's mode.
+const GREY_SWITCH_AFTER: usize = 2;
 
 /// Whether every pixel of `frame` is grey (`R = G = B`): grayscale footage read as RGB.
 fn is_grey(frame: &image::RgbImage) -> bool {

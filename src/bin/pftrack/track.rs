@@ -878,16 +878,19 @@ pub fn run(mut a: TrackArgs) -> anyhow::Result<()> {
         );
     }
     crate::paths::track_outputs(&frames_path, &read, a.out.as_deref(), a.render.as_deref())?;
-    // A folder written by `synth`: its ground truth is not read by the track, but is what the
-    // track is scored against.
-    if let (Some(o), Some(init)) = (a.out.as_deref(), synth_init.as_deref()) {
-        let truth = init.with_file_name("truth.csv");
-        if crate::paths::same(o, &truth) {
-            bail!(
-                "--out {} is the sequence's ground truth: it would be overwritten",
-                o.display()
-            );
-        }
+    // A folder written by `synth` (its `frames` read, with or without its init file): its
+    // ground truth is not read by the track, but is what the track is scored against.
+    let truth = match synth_init.as_deref() {
+        Some(init) => Some(init.with_file_name("truth.csv")),
+        None => (frames_path != a.input).then(|| a.input.join("truth.csv")),
+    };
+    if let (Some(o), Some(truth)) = (a.out.as_deref(), truth)
+        && crate::paths::same(o, &truth)
+    {
+        bail!(
+            "--out {} is the sequence's ground truth: it would be overwritten",
+            o.display()
+        );
     }
     let (init_file, truth_pose) = initial_ellipse(&a, synth_init.as_deref())?;
     let pose = match &a.init_pose {

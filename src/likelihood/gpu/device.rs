@@ -324,12 +324,13 @@ impl GpuDevice {
     }
 
     /// Whether the device is lost, asked of the device itself: a small buffer, valid on any
-    /// device, made and mapped for reading, which fails only on a lost one. Its own errors go
-    /// to an error scope of its own, not to the device's handler. Run where the engine's work
+    /// device, made and mapped for reading, which fails only on a lost one (out of memory
+    /// aside, which is not a loss). Its own errors go to error scopes of its own, not to the
+    /// device's handler. Run where the engine's work
     /// failed, never on the way of a call that succeeds. Where the engine installed the
     /// device-lost callback, the poll also runs it.
     fn probe_lost(&self) -> bool {
-        let scope = self.device.push_error_scope(wgpu::ErrorFilter::Validation);
+        let scopes = self.push_scopes();
         let probe = self.device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("pftrack lost-device probe"),
             size: 4,
@@ -342,8 +343,20 @@ impl GpuDevice {
         });
         let _ = self.device.poll(wgpu::PollType::wait_indefinitely());
         let mapped = rx.try_recv().unwrap_or(false);
-        let refused = pollster::block_on(scope.pop()).is_some();
-        refused || !mapped
+        let Scopes {
+            internal,
+            memory,
+            validation,
+        } = scopes;
+        let caught = [internal.pop(), memory.pop(), validation.pop()]
+            .into_iter()
+            .find_map(pollster::block_on);
+        match caught {
+            // Out of memory is no loss: the device is there, full.
+            Some(wgpu::Error::OutOfMemory { .. }) => false,
+            Some(_) => true,
+            None => !mapped,
+        }
     }
 
     /// Whether the device has been lost.
@@ -353,7 +366,7 @@ impl GpuDevice {
 
     /// Destroys the device (as a driver reset would): every later engine call fails with
     /// [`LikelihoodError::DeviceLost`], from the next one on a device the engine opened and
-    /// from the first that reads results back (an evaluation) on one from
+    /// from the first whose work fails on it (an upload, a readback) on one from
     /// [`Self::from_wgpu`], which has no device-lost callback of the engine's. For tests of the
     /// lost-device path.
     pub fn destroy(&self) {
