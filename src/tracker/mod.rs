@@ -238,8 +238,8 @@ const KEYFRAME_REACH: f64 = std::f64::consts::FRAC_PI_4;
 pub struct Tracker {
     /// The configuration as given (what [`Tracker::config`] returns).
     cfg: TrackerConfig,
-    /// The likelihood settings in use: the configuration's, with luma bins where the start's
-    /// frame is grey ([`TrackerConfig::grey_luma`]).
+    /// The likelihood settings in use: the configuration's, with luma bins where the frames
+    /// are grey ([`TrackerConfig::grey_luma`], [`Tracker::switch_colour_bins`]).
     likelihood: LikelihoodParams,
     engine: Box<dyn LikelihoodEngine + Send>,
     /// The frame and message of a step or restart that failed after changing the state, which
@@ -716,9 +716,9 @@ impl Tracker {
         self.exposure.as_ref().map_or([1.0; 3], |c| c.gain())
     }
 
-    /// The likelihood settings in use since the last start: the configuration's, with the
-    /// luma bins ([`crate::likelihood::COLOUR_LUMA`]) where that start's frame was grey
-    /// ([`TrackerConfig::grey_luma`]). Each step starts from these and adds the contrast term
+    /// The likelihood settings in use: the configuration's, with the luma bins
+    /// ([`crate::likelihood::COLOUR_LUMA`]) where the frames are grey, from the start's frame
+    /// or from a grey stretch of colour footage on ([`TrackerConfig::grey_luma`]). Each step starts from these and adds the contrast term
     /// at its frame's scale when it is on ([`TrackerConfig::contrast`]), and leaves out the
     /// feature term on a frame without matches.
     pub fn likelihood(&self) -> &LikelihoodParams {
