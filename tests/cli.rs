@@ -1826,6 +1826,11 @@ fn sift_on_too_large_an_image_names_its_flags() {
     std::fs::remove_dir_all(&d).unwrap();
 }
 
+/// The `&str`s of `args`.
+fn refs(args: &[String]) -> Vec<&str> {
+    args.iter().map(String::as_str).collect()
+}
+
 /// A `synth` folder whose `init.txt` is gone still reads its `frames` folder, the start given
 /// by a flag; and `--render -` is refused, since frames cannot go to standard output as the
 /// poses can (`--out -`), rather than made into a folder called `-`.
@@ -1834,47 +1839,22 @@ fn cli_track_reads_a_synth_folder_without_its_init_and_refuses_render_to_stdout(
     let dir = synth_dir("no-init", 3, "64x48");
     std::fs::remove_file(dir.join("init.txt")).unwrap();
     let d = dir.to_str().unwrap();
-    let out = pftrack_ok(&[
-        "track",
-        d,
-        "--init-box",
-        "20,14,24,20",
-        "--backend",
-        "cpu",
-        "--out",
-        "-",
-    ]);
+    let track = |extra: &[&str]| -> Vec<String> {
+        let mut a = vec!["track", d, "--init-box", "20,14,24,20", "--backend", "cpu"];
+        a.extend(extra);
+        a.into_iter().map(String::from).collect()
+    };
+    let out = pftrack_ok(&refs(&track(&["--out", "-"])));
     let rows = String::from_utf8_lossy(&out.stdout).lines().count();
     assert_eq!(rows, 1 + 3);
     let csv = dir.join("poses.csv");
-    let args = [
-        "track",
-        d,
-        "--init-box",
-        "20,14,24,20",
-        "--backend",
-        "cpu",
-        "--render",
-        "-",
-        "--out",
-        csv.to_str().unwrap(),
-    ];
-    assert_one_line_error(&args, "--render -", &csv);
+    let args = track(&["--render", "-", "--out", csv.to_str().unwrap()]);
+    assert_one_line_error(&refs(&args), "--render -", &csv);
     assert!(!Path::new("-").exists());
     // Its ground truth is guarded as it was with the init file there.
     let truth = dir.join("truth.csv");
     let before = std::fs::read(&truth).unwrap();
-    let t = truth.to_str().unwrap();
-    let out = pftrack(&[
-        "track",
-        d,
-        "--init-box",
-        "20,14,24,20",
-        "--backend",
-        "cpu",
-        "--out",
-        t,
-    ]);
+    let out = pftrack(&refs(&track(&["--out", truth.to_str().unwrap()])));
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("ground truth"));
     assert_eq!(std::fs::read(&truth).unwrap(), before);

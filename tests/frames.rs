@@ -608,24 +608,7 @@ fn y4m_errors() {
     if have_ffmpeg() {
         for (pix, tag) in [("yuv422p", "C422"), ("yuv420p10le", "C420p10")] {
             let p = d.join(format!("real-{pix}.y4m"));
-            let arg = |s: &str| std::ffi::OsString::from(s);
-            let mut args: Vec<std::ffi::OsString> = [
-                "-f",
-                "lavfi",
-                "-i",
-                "testsrc=size=32x24:rate=25",
-                "-frames:v",
-                "2",
-                "-pix_fmt",
-                pix,
-                "-strict",
-                "-1",
-            ]
-            .map(arg)
-            .to_vec();
-            args.push(p.clone().into());
-            let refs: Vec<&std::ffi::OsStr> = args.iter().map(|a| a.as_os_str()).collect();
-            ffmpeg(&refs);
+            testsrc("32x24", 2, &["-pix_fmt", pix, "-strict", "-1"], &p);
             let head = std::fs::read(&p).unwrap();
             let line =
                 String::from_utf8_lossy(&head[..head.iter().position(|&b| b == b'\n').unwrap()])
@@ -852,6 +835,22 @@ fn ffmpeg(args: &[&std::ffi::OsStr]) {
         "{}",
         String::from_utf8_lossy(&out.stderr)
     );
+}
+
+/// Runs ffmpeg with `args`, then the output file `out`.
+fn ffmpeg_to(args: &[&str], out: &Path) {
+    let mut all: Vec<&std::ffi::OsStr> = args.iter().map(std::ffi::OsStr::new).collect();
+    all.push(out.as_os_str());
+    ffmpeg(&all);
+}
+
+/// `frames` frames of ffmpeg's test pattern at `size` (`WxH`), with the output options
+/// `extra`, into `out`.
+fn testsrc(size: &str, frames: usize, extra: &[&str], out: &Path) {
+    let (input, count) = (format!("testsrc=size={size}:rate=25"), frames.to_string());
+    let mut args = vec!["-f", "lavfi", "-i", &input, "-frames:v", &count];
+    args.extend(extra);
+    ffmpeg_to(&args, out);
 }
 
 /// Compares our parser's decode of `y4m` with ffmpeg's rgb24 decode of the same file (with
@@ -1194,35 +1193,20 @@ fn a_turned_video_is_read_as_shown() {
         return;
     }
     let d = scratch("turned-video");
-    let arg = |s: &str| std::ffi::OsString::from(s);
-    let run = |args: &[std::ffi::OsString]| {
-        let refs: Vec<&std::ffi::OsStr> = args.iter().map(|a| a.as_os_str()).collect();
-        ffmpeg(&refs);
-    };
     let plain = d.join("plain.mp4");
     let turned = d.join("turned.mp4");
-    let mut args: Vec<_> = [
-        "-f",
-        "lavfi",
-        "-i",
-        "testsrc=size=64x48:rate=25",
-        "-frames:v",
-        "3",
-        "-vf",
-        "setsar=12/11",
-        "-c:v",
-        "mpeg4",
-    ]
-    .iter()
-    .map(|s| arg(s))
-    .collect();
-    args.push(plain.clone().into());
-    run(&args);
+    testsrc(
+        "64x48",
+        3,
+        &["-vf", "setsar=12/11", "-c:v", "mpeg4"],
+        &plain,
+    );
     // A display matrix is written when the stream is copied (ffmpeg 5 and 6).
-    let mut args = vec![arg("-i"), plain.clone().into()];
-    args.extend(["-c", "copy", "-metadata:s:v:0", "rotate=90"].map(arg));
-    args.push(turned.clone().into());
-    run(&args);
+    let p = plain.to_str().unwrap();
+    ffmpeg_to(
+        &["-i", p, "-c", "copy", "-metadata:s:v:0", "rotate=90"],
+        &turned,
+    );
     let probed = frames::ffmpeg::probe(&FfmpegTools::default(), &turned).unwrap();
     if probed.rotation.is_none() {
         say("skip: this ffmpeg wrote no display rotation");
@@ -1239,10 +1223,7 @@ fn a_turned_video_is_read_as_shown() {
     assert_eq!(frames.len(), 3);
     // The first frame as ffmpeg turns it.
     let shown = d.join("shown.png");
-    let mut args = vec![arg("-i"), turned.clone().into()];
-    args.extend(["-frames:v", "1"].map(arg));
-    args.push(shown.clone().into());
-    run(&args);
+    ffmpeg_to(&["-i", turned.to_str().unwrap(), "-frames:v", "1"], &shown);
     let want = image::open(&shown).unwrap().to_rgb8();
     assert_eq!(want.dimensions(), (48, 64));
     assert!(

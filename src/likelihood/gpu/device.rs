@@ -43,6 +43,21 @@ pub(crate) struct Scopes {
     validation: wgpu::ErrorScopeGuard,
 }
 
+impl Scopes {
+    /// Ends the scopes, in the reverse order of their pushing as wgpu requires: the first
+    /// error they caught, if any.
+    fn pop(self) -> Option<wgpu::Error> {
+        let Scopes {
+            internal,
+            memory,
+            validation,
+        } = self;
+        [internal.pop(), memory.pop(), validation.pop()]
+            .into_iter()
+            .find_map(pollster::block_on)
+    }
+}
+
 impl std::fmt::Debug for GpuDevice {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.debug_struct("GpuDevice")
@@ -287,15 +302,7 @@ impl GpuDevice {
         scopes: Scopes,
         result: Result<T, LikelihoodError>,
     ) -> Result<T, LikelihoodError> {
-        let Scopes {
-            internal,
-            memory,
-            validation,
-        } = scopes;
-        // Popped in the reverse order of their pushing, as wgpu requires.
-        let caught = [internal.pop(), memory.pop(), validation.pop()]
-            .into_iter()
-            .find_map(pollster::block_on);
+        let caught = scopes.pop();
         // An error the scopes caught is the cause: a buffer wgpu refused also fails its
         // mapping, which the readback reports as a lost device, and the device is not lost.
         // Unless the device is lost: then a buffer made since is invalid, and writing to it
@@ -343,15 +350,7 @@ impl GpuDevice {
         });
         let _ = self.device.poll(wgpu::PollType::wait_indefinitely());
         let mapped = rx.try_recv().unwrap_or(false);
-        let Scopes {
-            internal,
-            memory,
-            validation,
-        } = scopes;
-        let caught = [internal.pop(), memory.pop(), validation.pop()]
-            .into_iter()
-            .find_map(pollster::block_on);
-        match caught {
+        match scopes.pop() {
             // Out of memory is no loss: the device is there, full.
             Some(wgpu::Error::OutOfMemory { .. }) => false,
             Some(_) => true,
