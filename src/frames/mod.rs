@@ -5,11 +5,18 @@
 //! ```no_run
 //! use pftrack::frames::{open, SourceOptions};
 //! let opts = SourceOptions { resize: Some((128, 96)) };
-//! let src = open(std::path::Path::new("clip.mp4"), &opts)?;
+//! let mut src = open(std::path::Path::new("clip.mp4"), &opts)?;
 //! println!("{} ({:?})", src.describe(), src.size());
-//! for frame in src {
+//! for warning in src.caveats() {
+//!     eprintln!("warning: {warning}"); // interlaced, non-square pixels, a gap in a folder
+//! }
+//! for frame in src.by_ref() {
 //!     let frame = frame?; // an RgbImage of 128x96
 //! #   let _ = frame;
+//! }
+//! // A damaged or cut video ends with the frames it gave: say so.
+//! if let Some(short) = src.shortfall() {
+//!     eprintln!("warning: {short}");
 //! }
 //! # Ok::<(), pftrack::frames::FrameError>(())
 //! ```
