@@ -291,10 +291,9 @@ pub struct Tracker {
     /// The contrast term's background histogram (a ring around the target), when the term is
     /// on and the ring held pixels on the initial frame ([`TrackerConfig::contrast`]).
     background: Option<ColourHistogram>,
-    /// The colour model and background of the other binning, put aside when the footage
-    /// turned grey or back to colour ([`Tracker::switch_colour_bins`]): its bins, model and
-    /// background.
-    other_appearance: Option<(u32, ColourHistogram, Option<ColourHistogram>)>,
+    /// The RGB colour model and background, put aside while the footage is grey
+    /// ([`Tracker::switch_colour_bins`]).
+    other_appearance: Option<(ColourHistogram, Option<ColourHistogram>)>,
     /// Frames in a row of the other kind (grey where the colour term counts RGB, colour
     /// where it counts luma), up to [`GREY_SWITCH_AFTER`].
     other_kind_frames: usize,
@@ -574,18 +573,14 @@ impl Tracker {
         self.size = (w, h);
         // The start's ellipse is the one seen, turned by `theta0 + rz` (SPEC).
         self.theta0 = init.ellipse.theta - init.pose.rz;
-        let model =
-            ColourHistogram::from_ellipse(frame, &init.ellipse, self.likelihood.colour_bins)?;
+        let (model, background) =
+            self.appearance_at(frame, &init.ellipse, self.likelihood.colour_bins)?;
         self.engine.set_colour_model(&model)?;
         self.colour_model = model;
-        self.background = None;
+        self.background = background;
         self.other_appearance = None;
         self.other_kind_frames = 0;
-        if let Some(c) = self.cfg.contrast {
-            let bins = self.likelihood.colour_bins;
-            self.background = ring_histogram(frame, &init.ellipse, &c, bins);
-            self.send_contrast_table()?;
-        }
+        self.send_contrast_table()?;
         let state = PoseState::from_parts(&init.ellipse, init.pose);
         let hyp = Hypothesis::from_state(&state);
         self.filter.set_frame(w, h);
@@ -710,17 +705,18 @@ impl Tracker {
 
     /// The gain per channel (R, G, B) undone on the last frame: the light it was taken in
     /// over the light of the last start, as far as the changes of light taken and the light
-    /// measured since tell ([`TrackerConfig::exposure_jump`]). 1 in every channel after a start, or when the
-    /// compensation is off.
+    /// measured since tell ([`TrackerConfig::exposure_jump`]). 1 in every channel after a
+    /// start, or when the compensation is off.
     pub fn exposure_gain(&self) -> [f64; 3] {
         self.exposure.as_ref().map_or([1.0; 3], |c| c.gain())
     }
 
     /// The likelihood settings in use: the configuration's, with the luma bins
     /// ([`crate::likelihood::COLOUR_LUMA`]) where the frames are grey, from the start's frame
-    /// or from a grey stretch of colour footage on ([`TrackerConfig::grey_luma`]). Each step starts from these and adds the contrast term
-    /// at its frame's scale when it is on ([`TrackerConfig::contrast`]), and leaves out the
-    /// feature term on a frame without matches.
+    /// or from a grey stretch of colour footage on ([`TrackerConfig::grey_luma`]). Each step
+    /// starts from these and adds the contrast term at its frame's scale when it is on
+    /// ([`TrackerConfig::contrast`]), and leaves out the feature term on a frame without
+    /// matches.
     pub fn likelihood(&self) -> &LikelihoodParams {
         &self.likelihood
     }
@@ -1246,20 +1242,16 @@ impl Tracker {
             self.cfg.likelihood.colour_bins
         };
         let (model, background) = match self.other_appearance.take() {
-            Some((b, model, background)) if !to_luma && b == bins => (model, background),
+            Some(rgb) if !to_luma => rgb,
             other => {
                 self.other_appearance = other;
                 if self.lost {
                     return Ok(false);
                 }
-                let Ok(model) = ColourHistogram::from_ellipse(frame, at, bins) else {
+                let Ok(learnt) = self.appearance_at(frame, at, bins) else {
                     return Ok(false);
                 };
-                let ring = self.cfg.contrast;
-                (
-                    model,
-                    ring.and_then(|c| ring_histogram(frame, at, &c, bins)),
-                )
+                learnt
             }
         };
         self.engine.set_colour_model(&model)?;
@@ -1267,11 +1259,25 @@ impl Tracker {
         let old_background = std::mem::replace(&mut self.background, background);
         // The RGB appearance is put aside for the colour frames' return; a luma one, learnt on
         // one grey stretch, is not kept for the next (another light, another mode).
-        self.other_appearance =
-            to_luma.then_some((self.likelihood.colour_bins, old_model, old_background));
+        self.other_appearance = to_luma.then_some((old_model, old_background));
         self.likelihood.colour_bins = bins;
         self.send_contrast_table()?;
         Ok(true)
+    }
+
+    /// The target's colour model at `e` on `frame` in `bins`, and the contrast term's
+    /// background, the ring around it, when that term is on: what a start and a switch of
+    /// the bins learn.
+    fn appearance_at(
+        &self,
+        frame: &image::RgbImage,
+        e: &Ellipse,
+        bins: u32,
+    ) -> Result<(ColourHistogram, Option<ColourHistogram>), crate::likelihood::LikelihoodError>
+    {
+        let model = ColourHistogram::from_ellipse(frame, e, bins)?;
+        let ring = self.cfg.contrast;
+        Ok((model, ring.and_then(|c| ring_histogram(frame, e, &c, bins))))
     }
 
     /// Turns the contrast term on in `lp` when it is configured and has a background, as the
