@@ -115,13 +115,38 @@ pub fn natural_cmp(a: &str, b: &str) -> Ordering {
 /// those fail when read, naming themselves, rather than being skipped and shifting every
 /// later frame's number.
 pub fn list_images(dir: &Path) -> Result<Vec<PathBuf>, FrameError> {
+    Ok(scan(dir)?.frames.into_iter().map(|(_, p)| p).collect())
+}
+
+/// What one reading of a frames folder finds.
+struct Scan {
+    /// The frames ([`list_images`]), each with its file name, in natural order.
+    frames: Vec<(String, PathBuf)>,
+    /// The names of the images of formats this source does not read
+    /// ([`OTHER_IMAGE_EXTENSIONS`]), hidden ones aside, in natural order.
+    unread: Vec<String>,
+}
+
+/// Reads `dir` once for [`list_images`] and [`DirSource::notes`].
+fn scan(dir: &Path) -> Result<Scan, FrameError> {
     let io = |e| FrameError::io(dir, e);
-    let mut files: Vec<(String, PathBuf)> = Vec::new();
+    let (mut frames, mut unread): (Vec<(String, PathBuf)>, Vec<String>) = (Vec::new(), Vec::new());
     for entry in std::fs::read_dir(dir).map_err(io)? {
         let entry = entry.map_err(io)?;
         let name = entry.file_name().to_string_lossy().into_owned();
         let p = entry.path();
-        if name.starts_with('.') || !is_image_file(&p) {
+        if name.starts_with('.') {
+            continue;
+        }
+        if !is_image_file(&p) {
+            let other = p.extension().and_then(|e| e.to_str()).is_some_and(|e| {
+                OTHER_IMAGE_EXTENSIONS
+                    .iter()
+                    .any(|k| e.eq_ignore_ascii_case(k))
+            });
+            if other {
+                unread.push(name);
+            }
             continue;
         }
         let kind = entry.file_type().map_err(io)?;
@@ -130,26 +155,19 @@ pub fn list_images(dir: &Path) -> Result<Vec<PathBuf>, FrameError> {
         let frame = kind.is_file()
             || (kind.is_symlink() && std::fs::metadata(&p).map_or(true, |m| m.is_file()));
         if frame {
-            files.push((name, p));
+            frames.push((name, p));
         }
     }
-    files.sort_by(|a, b| natural_cmp(&a.0, &b.0));
-    Ok(files.into_iter().map(|(_, p)| p).collect())
+    frames.sort_by(|a, b| natural_cmp(&a.0, &b.0));
+    unread.sort_by(|a, b| natural_cmp(a, b));
+    Ok(Scan { frames, unread })
 }
 
-/// The notes of [`DirSource::notes`] for `dir`, whose frames are `files`.
-fn folder_notes(dir: &Path, files: &[PathBuf]) -> Result<Vec<String>, FrameError> {
+/// The notes of [`DirSource::notes`] for `dir`, from its [`scan`].
+fn folder_notes(dir: &Path, scan: &Scan) -> Vec<String> {
     let d = dir.display();
     let mut notes = Vec::new();
-    let names: Vec<String> = files
-        .iter()
-        .map(|p| {
-            p.file_name()
-                .unwrap_or_default()
-                .to_string_lossy()
-                .into_owned()
-        })
-        .collect();
+    let names: Vec<&str> = scan.frames.iter().map(|(n, _)| n.as_str()).collect();
     let gaps = numbering_gaps(&names);
     if let Some((a, b)) = gaps.first() {
         let more = match gaps.len() {
@@ -161,26 +179,8 @@ fn folder_notes(dir: &Path, files: &[PathBuf]) -> Result<Vec<String>, FrameError
              frames are read, so past a gap they run behind the files' numbers"
         ));
     }
-    let mut other: Vec<String> = Vec::new();
-    for entry in std::fs::read_dir(dir).map_err(|e| FrameError::io(dir, e))? {
-        let p = entry.map_err(|e| FrameError::io(dir, e))?.path();
-        let name = p
-            .file_name()
-            .unwrap_or_default()
-            .to_string_lossy()
-            .into_owned();
-        let unread = p.extension().and_then(|e| e.to_str()).is_some_and(|e| {
-            OTHER_IMAGE_EXTENSIONS
-                .iter()
-                .any(|k| e.eq_ignore_ascii_case(k))
-        });
-        if unread && !name.starts_with('.') {
-            other.push(name);
-        }
-    }
-    other.sort_by(|a, b| natural_cmp(a, b));
-    if let Some(first) = other.first() {
-        let more = match other.len() {
+    if let Some(first) = scan.unread.first() {
+        let more = match scan.unread.len() {
             1 => String::new(),
             n => format!(" and {} more", n - 1),
         };
@@ -190,7 +190,7 @@ fn folder_notes(dir: &Path, files: &[PathBuf]) -> Result<Vec<String>, FrameError
             IMAGE_EXTENSIONS.join(", ")
         ));
     }
-    Ok(notes)
+    notes
 }
 
 /// Decodes one image file to RGB8 (format guessed from the content, then the extension); an
@@ -376,12 +376,13 @@ impl DirSource {
                 path: dir.display().to_string(),
             });
         }
-        let files = list_images(dir)?;
+        let scan = scan(dir)?;
+        let notes = folder_notes(dir, &scan);
+        let files: Vec<PathBuf> = scan.frames.into_iter().map(|(_, p)| p).collect();
         let first = files.first().ok_or_else(|| FrameError::NoImages {
             path: dir.display().to_string(),
         })?;
         let size = image_size(first)?;
-        let notes = folder_notes(dir, &files)?;
         Ok(Self {
             files,
             next: 0,
