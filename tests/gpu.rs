@@ -347,15 +347,26 @@ fn a_lost_device_is_a_clear_error_from_then_on() {
     e.evaluate(&frame, &params, &[frame.prev], &mut out)
         .unwrap();
     e.device().device.destroy();
-    let pairs = [FeaturePair {
-        p: [8.0, 8.0],
-        q: [8.5, 8.0],
-    }; 500];
+    assert_lost_with_and_without_features(&mut e, &frame);
+}
+
+/// More features than an engine's buffer held before: evaluated, they go to a buffer made
+/// afresh, uploaded before anything is read back.
+const FRESH_FEATURES: [FeaturePair; 500] = [FeaturePair {
+    p: [8.0, 8.0],
+    q: [8.5, 8.0],
+}; 500];
+
+/// Asserts that `e`, whose device is lost, reports the loss on `frame` with
+/// [`FRESH_FEATURES`], without features, and with them again (all terms on): the upload's
+/// failure is the lost device too, not a wgpu validation error a fallback would not act on.
+fn assert_lost_with_and_without_features(e: &mut GpuEngine, frame: &FrameInput) {
     let with_features = FrameInput {
-        features: &pairs,
-        ..frame
+        features: &FRESH_FEATURES,
+        ..*frame
     };
-    for f in [&with_features, &frame] {
+    let mut out = Vec::new();
+    for f in [&with_features, frame, &with_features] {
         let r = e.evaluate(f, &LikelihoodParams::default(), &[frame.prev], &mut out);
         assert!(matches!(r, Err(LikelihoodError::DeviceLost(_))), "{r:?}");
     }
@@ -1370,21 +1381,7 @@ fn the_applications_error_handlers_stay_in_place() {
         1,
         "the application's callback ran"
     );
-    // The frame's features are uploaded before anything is read back (into a buffer made
-    // afresh for more of them than before): that upload's failure is the lost device too.
-    let pairs = [FeaturePair {
-        p: [8.0, 8.0],
-        q: [8.5, 8.0],
-    }; 500];
-    let with_features = FrameInput {
-        features: &pairs,
-        ..frame
-    };
-    let all_terms = LikelihoodParams::default();
-    for f in [&with_features, &frame, &with_features] {
-        let r = e.evaluate(f, &all_terms, &[frame.prev], &mut out);
-        assert!(matches!(r, Err(LikelihoodError::DeviceLost(_))), "{r:?}");
-    }
+    assert_lost_with_and_without_features(&mut e, &frame);
     assert!(e.device().is_lost());
     assert_eq!(errors.lock().unwrap().len(), 1, "{:?}", errors.lock());
 }

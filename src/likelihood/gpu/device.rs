@@ -333,9 +333,8 @@ impl GpuDevice {
     /// Whether the device is lost, asked of the device itself: a small buffer, valid on any
     /// device, made and mapped for reading, which fails only on a lost one (out of memory
     /// aside, which is not a loss). Its own errors go to error scopes of its own, not to the
-    /// device's handler. Run where the engine's work
-    /// failed, never on the way of a call that succeeds. Where the engine installed the
-    /// device-lost callback, the poll also runs it.
+    /// device's handler. Run where the engine's work failed, never on the way of a call that
+    /// succeeds. Where the engine installed the device-lost callback, the poll also runs it.
     fn probe_lost(&self) -> bool {
         let scopes = self.push_scopes();
         let probe = self.device.create_buffer(&wgpu::BufferDescriptor {
