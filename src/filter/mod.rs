@@ -740,7 +740,12 @@ impl ParticleFilter {
             b: 0.0,
             rot: Matrix3::identity(),
         };
+        // Particles of zero weight are left out, not multiplied by 0: a non-finite state
+        // would make the whole estimate NaN.
         for (p, &w) in self.particles.iter().zip(&self.weights) {
+            if w == 0.0 {
+                continue;
+            }
             e.cx += w * p.cx;
             e.cy += w * p.cy;
             e.a += w * p.a;

@@ -2,9 +2,18 @@
 //! functions, each tested against what it must compute.
 
 /// Normalises log-weights in place into probabilities (returned), subtracting the maximum
-/// first so no term overflows. Non-finite log-weights count as zero weight; if every weight is
-/// zero the result is uniform.
+/// first so no term overflows. NaN and `-inf` count as zero weight; if every weight is zero
+/// the result is uniform. A `+inf` outweighs every finite log-weight: the `+inf` entries share
+/// the whole weight equally.
 pub fn normalise_log_weights(log_w: &[f64]) -> Vec<f64> {
+    let infinite = log_w.iter().filter(|&&v| v == f64::INFINITY).count();
+    if infinite > 0 {
+        let share = 1.0 / infinite as f64;
+        return log_w
+            .iter()
+            .map(|&v| if v == f64::INFINITY { share } else { 0.0 })
+            .collect();
+    }
     let max = log_w
         .iter()
         .copied()
@@ -112,6 +121,9 @@ mod tests {
         assert_eq!(w[3], 0.0);
         let u = normalise_log_weights(&[f64::NEG_INFINITY; 4]);
         assert_eq!(u, vec![0.25; 4]);
+        // A log-weight that overflowed to +inf is the best, not the worst.
+        let b = normalise_log_weights(&[0.0, f64::INFINITY, 5.0, f64::INFINITY, f64::NAN]);
+        assert_eq!(b, vec![0.0, 0.5, 0.0, 0.5, 0.0]);
     }
 
     #[test]
