@@ -182,11 +182,14 @@ impl Sea {
         let l0 = b - a;
         let off = 0.5 * (l0[(0, 1)] + l0[(1, 0)]);
         let lam0 = Matrix2::new(l0[(0, 0)], off, off, l0[(1, 1)]);
-        let m0 = sylvester_block(&a, &b, &lam0)?;
-        let mut starts = vec![Vector5::new(lam0[(0, 0)], lam0[(1, 1)], off, 0.0, 0.0)];
-        let c0 = out_of_plane_guess(&m0)?;
-        starts[0][3] = c0[0];
-        starts[0][4] = c0[1];
+        let mut starts = Vec::with_capacity(2);
+        // The paper's start is skipped, not fatal, where its Sylvester system is singular (an
+        // eigenvalue of Λ0 equal to minus one of A, e.g. a half turn in the image plane):
+        // the second start still solves such sets.
+        if let Ok(m0) = sylvester_block(&a, &b, &lam0) {
+            let c0 = out_of_plane_guess(&m0)?;
+            starts.push(Vector5::new(lam0[(0, 0)], lam0[(1, 1)], off, c0[0], c0[1]));
+        }
         // second start: the projected unconstrained fit and the Λ consistent with it
         let ml = nearest_valid_block(&(b * a.try_inverse().ok_or(PoseError::Singular("SEA: A"))?))?;
         if let Some(inv) = ml.try_inverse() {
@@ -318,6 +321,29 @@ mod tests {
         assert!((got - m).norm() < 1e-12);
         // singular: Λ = -A
         assert!(sylvester_block(&a, &b, &(-a)).is_err());
+    }
+
+    #[test]
+    fn a_singular_paper_start_leaves_the_other_start() {
+        // A half turn in the image plane: A = diag(4, 2), B = -A, Λ0 = -2A, and the Kronecker
+        // matrix of Λ0 has a zero on its diagonal.
+        let p = [
+            [1.0, 0.0],
+            [-1.0, 0.0],
+            [1.0, 0.0],
+            [-1.0, 0.0],
+            [0.0, 1.0],
+            [0.0, -1.0],
+        ];
+        let q: Vec<[f64; 2]> = p.iter().map(|v| [-v[0], -v[1]]).collect();
+        let mo = crate::pose::moments(&p, &q, 3).unwrap();
+        let s = mo.a.trace();
+        let (a, b) = (mo.a / s, mo.b / s);
+        let l0 = b - a;
+        assert!(sylvester_block(&a, &b, &l0).is_err());
+        let est = Sea::default().solve(&p, &q).unwrap();
+        let want = Matrix2::new(-1.0, 0.0, 0.0, -1.0);
+        assert!((est.r2 - want).norm() < 1e-9, "{:?}", est.r2);
     }
 
     #[test]
