@@ -84,7 +84,8 @@ enum Command {
     Eval(eval::EvalArgs),
     /// Export SIFT keypoints and descriptors of an image.
     Sift(sift::SiftArgs),
-    /// Estimate the rotation between two images.
+    /// Estimate the rotation between two images, and its Necker mirror (tilt and pan of the
+    /// other sign); the first printed is the branch the features' parallax shows.
     Pose(pose::PoseArgs),
     /// Reproduce the paper's Fig. 3: rotation error against noise, per solver.
     PoseNoise(pose_noise::PoseNoiseArgs),

@@ -1,18 +1,21 @@
 //! `pftrack pose`: the rotation between two images (SIFT matches inside an ellipse, the
-//! paper's outlier rejection, a rotation solver, the Necker pair completed).
+//! paper's outlier rejection, a rotation solver, the Necker pair completed and its branch
+//! picked by parallax against the block-matched centre).
 
 use std::path::PathBuf;
 
 use anyhow::bail;
 use clap::Args;
 use image::{Rgb, RgbImage};
+use nalgebra::Vector2;
 use pftrack::features::{
     FeatureError, MatchParams, Sift, SiftParams, keep_slope_length, match_features,
 };
 use pftrack::frames::GrayF32;
 use pftrack::frames::dir::decode_rgb;
 use pftrack::geometry::{Ellipse, Euler};
-use pftrack::pose::{SolverKind, essential_rotation, interframe};
+use pftrack::motion::{AbmParams, block_match};
+use pftrack::pose::{SolverKind, essential_rotation, interframe, resolve_by_parallax};
 
 use crate::track::parse_floats;
 
@@ -168,8 +171,37 @@ pub fn run(a: PoseArgs) -> anyhow::Result<()> {
     if let Some(kind) = solver {
         let i = interframe(&p, &q, [e.cx, e.cy], kind)?;
         outln!("residual {:.3} px", i.block.residual)?;
-        show("rotation", &i.pair.a)?;
-        show("its Necker mirror", &i.pair.b)?;
+        // Weak perspective cannot tell a tilt and pan from their mirror (the Necker pair):
+        // the branch is the one whose parallax the features show against the object's centre,
+        // as the tracker's TPE mode picks it, with the centre's motion from block matching.
+        match block_match(&ga, &gb, &e, &AbmParams::for_target(&e)) {
+            Ok(m) if m.is_fitted() => {
+                let offset = i.translation - Vector2::new(m.translation[0], m.translation[1]);
+                let chosen = resolve_by_parallax(&i.pair, offset);
+                let mirror = if chosen == i.pair.a {
+                    i.pair.b
+                } else {
+                    i.pair.a
+                };
+                show("rotation", &chosen)?;
+                show("its Necker mirror", &mirror)?;
+                outln!(
+                    "branch: the features move {:.2},{:.2} px against the object's block-matched \
+                     centre (parallax: the nearer surface leads a turn); a shift that small \
+                     against the noise leaves it a guess",
+                    offset[0],
+                    offset[1]
+                )?;
+            }
+            _ => {
+                show("rotation", &i.pair.a)?;
+                show("its Necker mirror", &i.pair.b)?;
+                outln!(
+                    "branch: undecided (block matching found no motion of the object to tell \
+                     it by); the two differ in the signs of tilt and pan"
+                )?;
+            }
+        }
     } else {
         let w = ia.width() as f64;
         let k = pftrack::pose::Intrinsics {
