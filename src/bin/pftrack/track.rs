@@ -81,7 +81,7 @@ pub struct TrackArgs {
     /// The system: sea (full), optimal (certified solver), tpe (tracking then pose), rls.
     #[arg(long, default_value = "sea", value_parser = values::mode)]
     pub mode: Mode,
-    /// Likelihood engine: auto (the GPU if a hardware Vulkan adapter exists, or the one PFTRACK_ADAPTER names; else the CPU), cpu or gpu (any Vulkan adapter, software ones too).
+    /// Likelihood engine: auto (the GPU if a hardware Vulkan adapter exists, or the one PFTRACK_ADAPTER names, an error if it names none; else the CPU), cpu or gpu (any Vulkan adapter, software ones too).
     #[arg(
         long,
         default_value = "auto",

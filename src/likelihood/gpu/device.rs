@@ -99,7 +99,15 @@ fn pick_adapter(
     wanted: Option<&str>,
 ) -> Result<wgpu::Adapter, LikelihoodError> {
     if adapters.is_empty() {
-        return Err(LikelihoodError::NoAdapter);
+        // An adapter asked for by name is missing whether or not others are there: `auto`
+        // reports it rather than going on on the CPU, as it does when other adapters exist.
+        return Err(match wanted {
+            Some(w) => LikelihoodError::AdapterNotFound {
+                wanted: w.to_string(),
+                available: Vec::new(),
+            },
+            None => LikelihoodError::NoAdapter,
+        });
     }
     if let Some(w) = wanted {
         let lw = w.to_lowercase();
@@ -388,6 +396,27 @@ mod tests {
         );
         for t in [T::DiscreteGpu, T::IntegratedGpu, T::VirtualGpu, T::Other] {
             assert!(!refuses_software(true, false, t), "{t:?}");
+        }
+    }
+
+    #[test]
+    fn a_named_adapter_is_missing_even_where_there_is_none() {
+        // No adapter at all: an unnamed choice is NoAdapter (auto goes on on the CPU), a
+        // named one is the name's error (auto reports it, as it does beside other adapters).
+        assert!(matches!(
+            pick_adapter(Vec::new(), None),
+            Err(LikelihoodError::NoAdapter)
+        ));
+        match pick_adapter(Vec::new(), Some("nvidia")) {
+            Err(e @ LikelihoodError::AdapterNotFound { .. }) => {
+                let msg = e.to_string();
+                assert!(
+                    msg.contains("\"nvidia\"")
+                        && msg.ends_with("available: none (no Vulkan driver is installed)"),
+                    "{msg}"
+                );
+            }
+            other => panic!("{:?}", other.map(|a| a.get_info())),
         }
     }
 
