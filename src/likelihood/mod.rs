@@ -443,7 +443,10 @@ pub enum LikelihoodError {
         name: String,
     },
     /// The adapter asked for (by `PFTRACK_ADAPTER` or [`create_engine_for`]) is not there.
-    #[error("no Vulkan adapter's name contains {wanted:?} (PFTRACK_ADAPTER or the adapter asked for); available: {}", available.join("; "))]
+    #[error(
+        "no Vulkan adapter's name contains {wanted:?} (PFTRACK_ADAPTER or the adapter asked for); available: {}",
+        adapter_list(available)
+    )]
     AdapterNotFound {
         /// The substring asked for.
         wanted: String,
@@ -469,7 +472,7 @@ pub enum LikelihoodError {
     },
     /// More particles (or particle × line pairs) than the adapter's buffers hold.
     #[error(
-        "{n} particles need a {bytes}-byte GPU buffer, beyond the adapter's limit of {limit} bytes"
+        "{n} particles need a {bytes}-byte GPU buffer, beyond the adapter's limit of {limit} bytes (use the CPU engine, Backend::Cpu, or fewer particles)"
     )]
     TooManyParticles {
         /// Number of particles.
@@ -545,6 +548,15 @@ pub fn create_engine(
     backend: Backend,
 ) -> Result<(Box<dyn LikelihoodEngine + Send>, Option<String>), LikelihoodError> {
     create_engine_for(backend, gpu::named_adapter().as_deref())
+}
+
+/// The adapters of an [`LikelihoodError::AdapterNotFound`], or what their absence means.
+fn adapter_list(available: &[String]) -> String {
+    if available.is_empty() {
+        "none (no Vulkan driver is installed)".to_string()
+    } else {
+        available.join("; ")
+    }
 }
 
 /// [`create_engine`] with the adapter named by `adapter` (a substring of its name, or `None`
