@@ -140,6 +140,59 @@ fn pose_prints_the_necker_branch_the_parallax_shows() {
     }
 }
 
+/// A turn in the image plane moves the matches in every direction, and the paper's outlier
+/// rejection keeps too few to solve from: `pose` says so in one line and names
+/// `--reject ransac`, which keeps them and reads the roll.
+#[test]
+fn pose_reads_a_roll_with_ransac_where_the_paper_rule_rejects_it() {
+    use pftrack::geometry::Euler;
+    let dir = tmp_dir("pose-roll");
+    let d = dir.to_str().unwrap();
+    pftrack_ok(&["synth", d, "--scenario", "roll", "--frames", "40"]);
+    let truth = read_pose_csv(&dir.join("truth.csv")).unwrap();
+    for (k, gap) in [(0usize, 8usize), (20, 8), (30, 6)] {
+        let (ta, tb) = (truth[k].state, truth[k + gap].state);
+        let rel = Euler::new(tb.rx, tb.ry, tb.rz).matrix()
+            * Euler::new(ta.rx, ta.ry, ta.rz).matrix().transpose();
+        let want = Euler::from_matrix(&rel).to_degrees()[2];
+        assert!(want.abs() > 4.0, "{k}: the truth rolls {want}");
+        let frame = |i: usize| dir.join(format!("frames/{i:05}.png"));
+        let (fa, fb) = (frame(k), frame(k + gap));
+        let ellipse = format!(
+            "{},{},{},{},{}",
+            ta.cx,
+            ta.cy,
+            ta.a,
+            ta.b,
+            ta.rz.to_degrees()
+        );
+        let args = |reject: &'static str| {
+            vec![
+                "pose".to_string(),
+                fa.to_str().unwrap().to_string(),
+                fb.to_str().unwrap().to_string(),
+                "--ellipse".to_string(),
+                ellipse.clone(),
+                "--reject".to_string(),
+                reject.to_string(),
+            ]
+        };
+        let paper = args("paper");
+        let paper: Vec<&str> = paper.iter().map(String::as_str).collect();
+        assert_one_line_error(&paper, "try `--reject ransac`", &dir.join("none"));
+        let ransac = args("ransac");
+        let ransac: Vec<&str> = ransac.iter().map(String::as_str).collect();
+        let text = String::from_utf8_lossy(&pftrack_ok(&ransac).stdout).to_string();
+        let line = text
+            .lines()
+            .find(|l| l.starts_with("rotation: "))
+            .unwrap_or_else(|| panic!("{k}: {text}"));
+        let got: f64 = line.split_whitespace().nth(6).unwrap().parse().unwrap();
+        assert!((got - want).abs() < 1.5, "{k}: roll {got}, truth {want}");
+    }
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
 /// A fresh temporary directory `name` holding a synthetic sequence of the default scenario
 /// (`pftrack synth`), `frames` long at `size`.
 fn synth_dir(name: &str, frames: usize, size: &str) -> PathBuf {

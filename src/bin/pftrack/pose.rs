@@ -15,7 +15,8 @@ use pftrack::frames::GrayF32;
 use pftrack::frames::dir::decode_rgb;
 use pftrack::geometry::{Ellipse, Euler};
 use pftrack::motion::{AbmParams, block_match};
-use pftrack::pose::{SolverKind, essential_rotation, interframe, resolve_by_parallax};
+use pftrack::pose::ransac::{affine_consensus, select};
+use pftrack::pose::{Rls, SolverKind, essential_rotation, interframe, resolve_by_parallax};
 
 use crate::track::parse_floats;
 
@@ -38,9 +39,26 @@ pub struct PoseArgs {
     /// Solver: sea, optimal, lsm, rls or essential.
     #[arg(long, default_value = "sea", value_parser = crate::values::solver)]
     pub solver: String,
+    /// Outlier rejection before the solver: `paper` (the paper's: a match's displacement
+    /// within 0.2 rad of the mean direction and 30 % of the mean length), `ransac` (the
+    /// largest set one affine map carries to within 2 px, which keeps a turn in the image
+    /// plane, whose matches move in every direction and the paper's rule rejects) or `none`.
+    #[arg(long, value_enum, default_value_t = Reject::Paper)]
+    pub reject: Reject,
     /// Draw the matches as arrows (like the paper's Fig. 1) into this PNG.
     #[arg(long, value_name = "F.png")]
     pub draw: Option<PathBuf>,
+}
+
+/// Outlier rejection of `pftrack pose`'s matches.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum Reject {
+    /// The paper's slope/length rule.
+    Paper,
+    /// RANSAC on an affine map.
+    Ransac,
+    /// Every match inside the ellipse.
+    None,
 }
 
 /// Draws a line with a small arrow head (nearest-pixel steps).
@@ -154,14 +172,36 @@ pub fn run(a: PoseArgs) -> anyhow::Result<()> {
             q.push([kb.x as f64, kb.y as f64]);
         }
     }
-    let (p, q) = keep_slope_length(
-        &p,
-        &q,
-        pftrack::features::PAPER_ANGLE_TOL,
-        pftrack::features::PAPER_LENGTH_TOL,
-    );
+    let inside = p.len();
+    let (p, q) = match a.reject {
+        Reject::Paper => keep_slope_length(
+            &p,
+            &q,
+            pftrack::features::PAPER_ANGLE_TOL,
+            pftrack::features::PAPER_LENGTH_TOL,
+        ),
+        // Fewer than 3 matches, or points no map fits, are left to the solver's error.
+        Reject::Ransac => {
+            let r = Rls::default();
+            match affine_consensus(&p, &q, r.threshold, r.confidence, r.max_iter, r.seed) {
+                Ok(mask) => select(&p, &q, &mask),
+                Err(_) => (p, q),
+            }
+        }
+        Reject::None => (p, q),
+    };
+    // The paper's rule keeps the matches that move alike: a turn in the image plane about
+    // the object's centre moves them in every direction, and it keeps too few.
+    if a.reject == Reject::Paper && p.len() < 3 && inside >= 3 {
+        bail!(
+            "the paper's outlier rejection kept {} of the {inside} matches inside the ellipse \
+             (matches that move in different directions, as a turn in the image plane moves \
+             them, are rejected): try `--reject ransac`",
+            p.len()
+        );
+    }
     outln!(
-        "matches inside the ellipse after outlier rejection: {}",
+        "matches inside the ellipse: {inside}, after outlier rejection: {}",
         p.len()
     )?;
     let show = |name: &str, r: &nalgebra::Matrix3<f64>| {
@@ -169,7 +209,19 @@ pub fn run(a: PoseArgs) -> anyhow::Result<()> {
         outln!("{name}: tilt {x:.2} pan {y:.2} roll {z:.2} (degrees)")
     };
     if let Some(kind) = solver {
-        let i = interframe(&p, &q, [e.cx, e.cy], kind)?;
+        let i = interframe(&p, &q, [e.cx, e.cy], kind).map_err(|err| {
+            // The paper's rule left too little to solve from (three collinear survivors of a
+            // roll, on the synthetic `roll`): say what keeps more.
+            if a.reject == Reject::Paper && 2 * p.len() < inside {
+                anyhow::anyhow!(
+                    "{err}, on the {} of {inside} matches the paper's outlier rejection kept: \
+                     try `--reject ransac`",
+                    p.len()
+                )
+            } else {
+                err.into()
+            }
+        })?;
         outln!("residual {:.3} px", i.block.residual)?;
         // Weak perspective cannot tell a tilt and pan from their mirror (the Necker pair):
         // the branch is the one whose parallax the features show against the object's centre,
