@@ -137,7 +137,9 @@ pub struct StateSigma {
     pub centre: f64,
     /// σ of a and b (pixels).
     pub axes: f64,
-    /// σ of the rotation vector's x, y, z components (radians).
+    /// σ of the rotation vector's x, y, z components (radians; `rotation_deg` in a settings
+    /// file, in degrees).
+    #[serde(rename = "rotation_deg", with = "crate::io::degrees::three")]
     pub rotation: [f64; 3],
 }
 
@@ -164,19 +166,30 @@ impl StateSigma {
     /// [`MAX_SIGMA_PX`] and the rotation's at most π; `what` names the set in the error.
     fn check(&self, what: &str) -> Result<(), FilterError> {
         for (name, v) in self.components() {
+            let angle = name.starts_with("rotation");
+            // An angle is given in degrees too: a settings file holds degrees.
+            let shown = if angle {
+                format!("{v} rad ({:.4}°)", v.to_degrees())
+            } else {
+                v.to_string()
+            };
             if !(v.is_finite() && v >= 0.0) {
                 return Err(FilterError::BadParams(format!(
-                    "{what}.{name} {v} must be finite and at least 0"
+                    "{what}.{name} {shown} must be finite and at least 0"
                 )));
             }
-            let (max, unit) = if name.starts_with("rotation") {
-                (std::f64::consts::PI, "radians")
+            let max = if angle {
+                "π rad (180°)".to_string()
             } else {
-                (MAX_SIGMA_PX, "px")
+                format!("{MAX_SIGMA_PX} px")
             };
-            if v > max {
+            if v > if angle {
+                std::f64::consts::PI
+            } else {
+                MAX_SIGMA_PX
+            } {
                 return Err(FilterError::BadParams(format!(
-                    "{what}.{name} {v} must be at most {max} ({unit})"
+                    "{what}.{name} {shown} must be at most {max}"
                 )));
             }
         }
@@ -817,7 +830,7 @@ mod tests {
                     dynamics: sigma(8.0, -0.1),
                     ..d
                 },
-                "dynamics.rotation[2] -0.1",
+                "dynamics.rotation[2] -0.1 rad (-5.7296°)",
             ),
             // Finite but absurd: the first step failed, blaming the estimate.
             (
@@ -825,7 +838,7 @@ mod tests {
                     proposal: sigma(8.0, 4.0),
                     ..d
                 },
-                "proposal.rotation[2] 4 must be at most",
+                "proposal.rotation[2] 4 rad (229.1831°) must be at most π rad (180°)",
             ),
             (
                 FilterParams {

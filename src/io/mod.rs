@@ -1,9 +1,10 @@
 //! The project's file formats (SPEC section 1): pose CSV files ([`pose_csv`]), OTB-style box
 //! files ([`boxes`]), the `init.txt` written by `synth` ([`init`]), and files that appear only
-//! once complete ([`atomic`]).
+//! once complete ([`atomic`]), and the settings' angles in degrees ([`degrees`]).
 
 pub mod atomic;
 pub mod boxes;
+pub mod degrees;
 pub mod init;
 pub mod partial;
 pub mod pose_csv;

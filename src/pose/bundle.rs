@@ -67,7 +67,9 @@ pub struct Adjusted {
 pub struct BundleParams {
     /// σ of the depth prior about the lifted depth (pixels).
     pub depth_sigma: f64,
-    /// σ of the rotation's random walk per frame about each camera axis (radians).
+    /// σ of the rotation's random walk per frame about each camera axis (radians;
+    /// `rotation_sigma_deg` in a settings file, in degrees).
+    #[serde(rename = "rotation_sigma_deg", with = "crate::io::degrees::three")]
     pub rotation_sigma: [f64; 3],
     /// Huber threshold of the reprojection error (pixels).
     pub huber: f64,

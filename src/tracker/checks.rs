@@ -136,13 +136,18 @@ impl TrackerConfig {
                 self.reacquire_rho
             )));
         }
-        for (name, v) in [
-            ("max_rotation_step", self.max_rotation_step),
-            ("max_fit_residual", self.max_fit_residual),
-        ] {
-            if !(v.is_finite() && v > 0.0) {
-                return Err(bad(format!("{name} {v} must be finite and positive")));
-            }
+        let step = self.max_rotation_step;
+        if !(step.is_finite() && step > 0.0) {
+            return Err(bad(format!(
+                "max_rotation_step {step} rad ({:.4}°) must be finite and positive",
+                step.to_degrees()
+            )));
+        }
+        let residual = self.max_fit_residual;
+        if !(residual.is_finite() && residual > 0.0) {
+            return Err(bad(format!(
+                "max_fit_residual {residual} must be finite and positive"
+            )));
         }
         if self.min_fit_inliers < 3 {
             return Err(bad(format!(

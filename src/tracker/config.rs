@@ -80,8 +80,11 @@ impl Init {
 /// in part takes its own type's defaults for the rest of it: `bundle.params` those of
 /// `BundleParams::default`, whose rotation σ (0.05) is not the tracker's (0.07, as
 /// [`BundleAdjust::default`] sets it), and a `StateSigma` is given whole (`pftrack track
-/// --config` lays a file over these defaults field by field instead). Angles are in radians,
-/// as stored; `filter.max_axis` is `null` for no bound; an optional part is `null` when off.
+/// --config` lays a file over these defaults field by field instead). Angles are in degrees,
+/// as in every file (SPEC), under names ending in `_deg` (`filter.proposal.rotation_deg`,
+/// `max_rotation_step_deg`, `bundle.params.rotation_sigma_deg`, `bundle.min_turn_deg`),
+/// and radians once read; `filter.max_axis` is `null` for no bound; an optional part is
+/// `null` when off.
 /// What is read is checked as any configuration is ([`TrackerConfig::check`], which
 /// [`super::Tracker::new`] runs).
 #[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -249,6 +252,8 @@ pub struct TrackerConfig {
     /// frame) no longer carried the track away (its RMSE 5.10 / 6.85 / 1.43 -> 3.28 / 4.71 /
     /// 2.10), but the means stayed where they were: the six scenarios' sum 43.5 either way,
     /// `combo` over seeds 12-23 2.84 / 3.71 / 2.17 -> 2.89 / 3.70 / 2.34.
+    /// (`max_rotation_step_deg` in a settings file, in degrees.)
+    #[serde(rename = "max_rotation_step_deg", with = "crate::io::degrees::one")]
     pub max_rotation_step: f64,
     /// On a frame where nothing measured the rotation (no keyframe fit, no fit against the
     /// previous frame, no rotation between the two frames), the particles are proposed
@@ -837,7 +842,8 @@ pub struct BundleAdjust {
     /// Views recorded between two adjustments of a keyframe; 3.
     pub every: usize,
     /// Least turn (radians) of a view from its keyframe before the keyframe is adjusted;
-    /// 0.05.
+    /// 0.05 (`min_turn_deg` in a settings file, in degrees).
+    #[serde(rename = "min_turn_deg", with = "crate::io::degrees::one")]
     pub min_turn: f64,
 }
 
@@ -864,8 +870,12 @@ impl BundleAdjust {
         let p = &self.params;
         p.check().map_err(|e| {
             format!(
-                "{e} (depth {}, rotation {:?}, huber {}, iterations {})",
-                p.depth_sigma, p.rotation_sigma, p.huber, p.iterations
+                "{e} (depth {}, rotation {:?} rad, {:?}°, huber {}, iterations {})",
+                p.depth_sigma,
+                p.rotation_sigma,
+                p.rotation_sigma.map(f64::to_degrees),
+                p.huber,
+                p.iterations
             )
         })?;
         let max = crate::pose::bundle::MAX_VIEWS;
@@ -881,8 +891,9 @@ impl BundleAdjust {
         }
         if !(self.min_turn.is_finite() && self.min_turn >= 0.0) {
             return Err(format!(
-                "bundle min_turn {} must be a non-negative angle",
-                self.min_turn
+                "bundle min_turn {} rad ({:.4}°) must be a non-negative angle",
+                self.min_turn,
+                self.min_turn.to_degrees()
             ));
         }
         Ok(())

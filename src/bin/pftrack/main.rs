@@ -91,8 +91,9 @@ enum Command {
     PoseNoise(pose_noise::PoseNoiseArgs),
     /// Time the likelihood pass stage by stage on the CPU and the GPU.
     Bench(bench::BenchArgs),
-    /// Print the tracker's default settings as JSON, to edit for `track --config` (the
-    /// library's own units: angles in radians, as the rustdoc of `TrackerConfig` gives them).
+    /// Print the tracker's default settings as JSON, to edit for `track --config` (angles in
+    /// degrees, under names ending in `_deg`; the rest as the rustdoc of `TrackerConfig`
+    /// gives them).
     Settings(settings::SettingsArgs),
 }
 

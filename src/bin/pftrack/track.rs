@@ -1273,6 +1273,22 @@ mod tests {
         ))
         .unwrap();
         assert_eq!((cfg.bundle, cfg.camera_hfov_deg), (None, Some(40.0)));
+        // Angles are degrees in the file (SPEC), under names that say so; radians once read.
+        let cfg = read_config(&file(
+            "deg.json",
+            br#"{"max_rotation_step_deg": 10, "filter": {"proposal": {"centre": 1.5, "axes": 0.4, "rotation_deg": [1, 2, 3]}}}"#,
+        ))
+        .unwrap();
+        assert_eq!(cfg.max_rotation_step, 10f64.to_radians());
+        assert_eq!(
+            cfg.filter.proposal.rotation,
+            [1f64, 2.0, 3.0].map(f64::to_radians)
+        );
+        let err = format!(
+            "{:#}",
+            read_config(&file("rad.json", br#"{"max_rotation_step": 0.2}"#)).unwrap_err()
+        );
+        assert!(err.contains("max_rotation_step"), "{err}");
         assert_eq!(
             read_config(&file("c.json", b"{}")).unwrap(),
             TrackerConfig::default()
