@@ -473,16 +473,4 @@ mod tests {
         );
         assert_eq!(one_line("Out of Memory"), "Out of Memory");
     }
-
-    #[test]
-    fn no_adapters_is_the_no_adapter_error() {
-        assert!(matches!(
-            pick_adapter(Vec::new(), None),
-            Err(LikelihoodError::NoAdapter)
-        ));
-        assert!(matches!(
-            pick_adapter(Vec::new(), Some("x")),
-            Err(LikelihoodError::NoAdapter)
-        ));
-    }
 }
