@@ -17,12 +17,17 @@ use nalgebra::{Matrix2, Matrix3, Vector3};
 use super::MotionError;
 use crate::geometry::Ellipse;
 
+/// The largest semi-axis, and distance of the centre from the points' mean, of a fit, in
+/// units of the points' RMS distance from their mean over √2.
+const MAX_SPREAD: f64 = 100.0;
+
 /// Fits an ellipse to at least 5 points by the direct least-squares method.
 ///
 /// Errors: [`MotionError::TooFewPoints`] for fewer than 5 points,
 /// [`MotionError::NonFinite`] for a NaN or infinite coordinate, and
 /// [`MotionError::Degenerate`] when the points do not determine an ellipse (all identical,
-/// collinear, or the best conic is not a real ellipse).
+/// collinear, on two parallel lines, or the best conic is not a real ellipse), or the ellipse
+/// would be more than a hundred times their spread across or away.
 pub fn fit_ellipse(points: &[[f64; 2]]) -> Result<Ellipse, MotionError> {
     if points.len() < 5 {
         return Err(MotionError::TooFewPoints {
@@ -93,6 +98,15 @@ pub fn fit_ellipse(points: &[[f64; 2]]) -> Result<Ellipse, MotionError> {
     let conic = [a1[0], a1[1], a1[2], a2[0], a2[1], a2[2]];
     let e = conic_to_ellipse(&conic)
         .ok_or(MotionError::Degenerate("the conic is not a real ellipse"))?;
+    // The points have unit RMS distance here. An ellipse a hundred times their spread, or
+    // centred that far off, bounds nothing: points on two parallel lines, whose best conic is
+    // the line pair on the ellipses' border, came back 1e4 times their spread from round-off
+    // (a partial arc of 3 degrees would need about 30).
+    if e.a.max(e.b) > MAX_SPREAD || e.cx.hypot(e.cy) > MAX_SPREAD {
+        return Err(MotionError::Degenerate(
+            "no ellipse bounds the points (they lie on two parallel lines, or nearly)",
+        ));
+    }
     let out = Ellipse {
         cx: mx + s * e.cx,
         cy: my + s * e.cy,
@@ -263,6 +277,40 @@ mod tests {
             let (lo, hi) = (e.a.min(e.b), e.a.max(e.b));
             assert!((f.a.min(f.b) - lo).abs() < 1e-6 && (f.a.max(f.b) - hi).abs() < 1e-6);
         }
+    }
+
+    /// Points on two parallel lines (block centres in two rows, as a region two blocks tall
+    /// gives): the best conic is the line pair, on the ellipses' border, and no ellipse
+    /// bounds them. Round-off left its `4AC − B²` a hair above 0, and an "ellipse" 1e33 px
+    /// across, centred 1e33 px away, came back as a fit.
+    #[test]
+    fn two_parallel_rows_are_degenerate() {
+        let mut bad = Vec::new();
+        for cols in 3..=12 {
+            for (gap, x0, turn) in [
+                (8.0, 3.5, 0.0),
+                (8.0, 0.0, 0.0),
+                (4.0, 11.5, 0.0),
+                (16.0, -20.25, 0.0),
+                (8.0, 3.5, 0.3),
+                (6.0, 100.0, -1.1),
+            ] {
+                let (c, s) = (f64::cos(turn), f64::sin(turn));
+                let pts: Vec<[f64; 2]> = (0..cols)
+                    .flat_map(|i| [11.5, 11.5 + gap].map(|y| (x0 + 8.0 * i as f64, y)))
+                    .map(|(x, y)| [40.0 + c * x - s * y, 30.0 + s * x + c * y])
+                    .collect();
+                if let Ok(e) = fit_ellipse(&pts) {
+                    bad.push((cols, gap, x0, turn, e));
+                }
+            }
+        }
+        assert!(
+            bad.is_empty(),
+            "{} fits: {:?}",
+            bad.len(),
+            &bad[..bad.len().min(3)]
+        );
     }
 
     #[test]
