@@ -154,11 +154,14 @@ pub(crate) struct KeyframePool {
 }
 
 impl KeyframePool {
-    /// An empty pool holding at most `capacity` (at least 1) keyframes.
+    /// An empty pool holding at most `capacity` (at least 2: the anchor and one more)
+    /// keyframes.
     pub fn new(capacity: usize) -> Self {
         Self {
             frames: Vec::new(),
-            capacity: capacity.max(1),
+            // The anchor and at least one keyframe beside it: with room for one alone, a new
+            // keyframe replaced the anchor, which is never to be dropped.
+            capacity: capacity.max(2),
             now: 0,
         }
     }
@@ -426,9 +429,8 @@ impl KeyframePool {
                         .total_cmp(&angle_between(&b.1.hyp.rot, &hyp.rot))
                 })
                 .map(|(i, _)| i);
-            match victim {
-                Some(i) => self.frames[i] = k,
-                None => self.frames[0] = k,
+            if let Some(i) = victim {
+                self.frames[i] = k;
             }
         } else {
             self.frames.push(k);
@@ -531,6 +533,15 @@ mod tests {
             .map(|k| Euler::from_matrix(&k.hyp.rot).rx.to_degrees().round())
             .collect();
         assert_eq!(angles, vec![0.0, 25.0, -20.0]);
+        // A pool asked to hold one keyframe holds two: the anchor stays.
+        let mut pool = KeyframePool::new(1);
+        pool.reset(&features(4), &e, hyp(Euler::default()), model());
+        for deg in [10.0, 20.0] {
+            let h = hyp(Euler::from_degrees(deg, 0.0, 0.0));
+            pool.add(&features(4), &e, h, model());
+        }
+        let first = Euler::from_matrix(&pool.frames[0].hyp.rot).rx;
+        assert_eq!((pool.len(), first), (2, 0.0));
     }
 
     #[test]

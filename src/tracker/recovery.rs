@@ -223,8 +223,10 @@ impl Tracker {
         // A slip within a step is one the filter's own walk closes; and near the estimate a
         // small turn looks much like a small shift, so a better turn there says as much
         // about the place as about the pose.
+        // (A turn of exactly one step, the coarse grid's neighbour, comes back from f32 a
+        // hair short of it in about half the cases: hence the thousandth of a degree.)
         let turn = (q.rx - p.rx).abs().max((q.ry - p.ry).abs()).to_degrees();
-        if turn < REPOSE_STEP_DEG {
+        if turn < REPOSE_STEP_DEG - 1e-3 {
             return None;
         }
         if f64::from(v) < r.min_ncc || f64::from(v) < explained + r.margin {
@@ -322,9 +324,11 @@ impl Tracker {
             .iter()
             .map(|t| rho_from_log(t.colour, lp.sigma_colour))
             .collect();
+        // total_cmp ranks NaN above every number: a NaN candidate is not a best one.
         let best = out
             .iter()
             .enumerate()
+            .filter(|(_, t)| t.total.is_finite())
             .max_by(|a, b| a.1.total.total_cmp(&b.1.total))
             .map(|(i, _)| (i, rhos[i]));
         // Among the candidates of the target's colours, the one its template recognises best,
