@@ -62,8 +62,11 @@ fn colour(
         let fx1 = clamp(floor(p.cx + hw) + 1.0, 0.0, wmax);
         let fy0 = clamp(ceil(p.cy - hh) - 1.0, 0.0, hmax);
         let fy1 = clamp(floor(p.cy + hh) + 1.0, 0.0, hmax);
-        // Box fully left/right/above/below the frame: empty.
-        let empty = p.cx + hw < 0.0 || p.cx - hw > wmax || p.cy + hh < 0.0 || p.cy - hh > hmax;
+        // Box fully left/right/above/below the frame: empty. With the box's pixel of slack:
+        // an ellipse touching the frame's first pixel centre from outside (cx = -a) counts
+        // it on the CPU, and a sqrt a ulp low here would have called it empty.
+        let empty = p.cx + hw < -1.0 || p.cx - hw > wmax + 1.0 || p.cy + hh < -1.0
+            || p.cy - hh > hmax + 1.0;
         if !empty {
             let x0 = u32(fx0);
             let y0 = u32(fy0);

@@ -76,6 +76,10 @@ const SKIPPED: i32 = -2;
 // Per particle (sin, cos) of theta = theta0 + rz, computed on the host with Rust's f32
 // `sin_cos` exactly as the CPU twin: WGSL's sin/cos differ by a few ulp, which is enough to
 // move a pixel centre across an ellipse's boundary and break the exact histogram agreement.
+// After the n particles' entries, the (sin, cos) of each normal line's angle phi_k, from the
+// same host function as the CPU's lines: WGSL promises sin and cos only to 2^-11 (and nothing
+// past pi), and on an axis-aligned ellipse with a half-pixel centre cos(pi/2) = -4.4e-8
+// against 0 moved a whole line to the next column.
 @group(0) @binding(10) var<storage, read> trig: array<vec2<f32>>;
 
 // Whether a float is NaN or infinite, from its bits (immune to fast-math folding of x != x).

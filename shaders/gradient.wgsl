@@ -70,9 +70,9 @@ fn gradient_lines(
     let sc = trig[i];
     let s = sc.x;
     let c = sc.y;
-    let phi = 6.2831855 * f32(k) / f32(nl);
-    let sp = sin(phi);
-    let cp = cos(phi);
+    let line = trig[fu.n + k];
+    let sp = line.x;
+    let cp = line.y;
     // Contour point (geometry::Ellipse::point_at).
     let ex = p.a * cp;
     let ey = p.b * sp;

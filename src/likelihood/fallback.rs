@@ -49,18 +49,24 @@ impl FallbackEngine {
         self.on_cpu
     }
 
-    /// What a setter's result `r` means here: on success, or on a lost device (which then
-    /// falls back), `keep` records the value for the CPU engine a fall-back opens; any other
-    /// error passes through and nothing is recorded.
+    /// What a setter's result `r` means here: on success `keep` records the value for the
+    /// CPU engine a fall-back opens. On a lost device the engine falls back and `retry` sets
+    /// the value on the CPU engine, which checks it (a lost GPU engine reports the loss before
+    /// looking at the value): only a value it takes is recorded, and a refused one is the
+    /// error, the earlier value kept, as on any engine. Any other error passes through and
+    /// nothing is recorded.
     fn settle(
         &mut self,
         r: Result<(), LikelihoodError>,
+        retry: impl FnOnce(&mut dyn LikelihoodEngine) -> Result<(), LikelihoodError>,
         keep: impl FnOnce(&mut Self),
     ) -> Result<(), LikelihoodError> {
         match r {
             Err(LikelihoodError::DeviceLost(msg)) if !self.on_cpu => {
+                self.fall_back(&msg)?;
+                retry(self.active.as_mut())?;
                 keep(self);
-                self.fall_back(&msg)
+                Ok(())
             }
             Ok(()) => {
                 keep(self);
@@ -99,12 +105,20 @@ impl LikelihoodEngine for FallbackEngine {
 
     fn set_colour_model(&mut self, model: &ColourHistogram) -> Result<(), LikelihoodError> {
         let r = self.active.set_colour_model(model);
-        self.settle(r, |s| s.model = Some(model.clone()))
+        self.settle(
+            r,
+            |e| e.set_colour_model(model),
+            |s| s.model = Some(model.clone()),
+        )
     }
 
     fn set_contrast_table(&mut self, table: &ContrastTable) -> Result<(), LikelihoodError> {
         let r = self.active.set_contrast_table(table);
-        self.settle(r, |s| s.contrast = Some(table.clone()))
+        self.settle(
+            r,
+            |e| e.set_contrast_table(table),
+            |s| s.contrast = Some(table.clone()),
+        )
     }
 
     fn evaluate(
@@ -238,6 +252,80 @@ mod tests {
         e.evaluate(&frame, &params, &ps, &mut out).unwrap();
         assert_eq!(out, want);
         assert!(e.take_notice().is_none());
+    }
+
+    /// A GPU engine whose device is lost after its first colour model: it reports the loss
+    /// before looking at what it is given.
+    struct LostAfterModel {
+        models: usize,
+    }
+
+    impl LikelihoodEngine for LostAfterModel {
+        fn name(&self) -> String {
+            "lost (Vulkan)".into()
+        }
+        fn set_colour_model(&mut self, _: &ColourHistogram) -> Result<(), LikelihoodError> {
+            self.models += 1;
+            if self.models > 1 {
+                return Err(LikelihoodError::DeviceLost("Destroyed: test".into()));
+            }
+            Ok(())
+        }
+        fn set_contrast_table(&mut self, _: &ContrastTable) -> Result<(), LikelihoodError> {
+            Err(LikelihoodError::DeviceLost("Destroyed: test".into()))
+        }
+        fn evaluate(
+            &mut self,
+            _: &FrameInput<'_>,
+            _: &LikelihoodParams,
+            _: &[Particle],
+            _: &mut Vec<TermLogs>,
+        ) -> Result<(), LikelihoodError> {
+            Err(LikelihoodError::DeviceLost("Destroyed: test".into()))
+        }
+    }
+
+    /// A bad model given to a lost device is refused, as the CPU engine refuses it, and the
+    /// earlier model stays: it was recorded unchecked, the fall-back then failed on it, and
+    /// the engine stayed on the lost device, every later step failing on the bad model.
+    #[test]
+    fn a_bad_model_given_to_a_lost_device_is_refused_and_the_good_one_kept() {
+        let img = image::RgbImage::from_pixel(32, 24, image::Rgb([200, 40, 40]));
+        let mut good = vec![0.0; HIST_BINS];
+        good[6 * 64 + 8 + 1] = 1.0;
+        let good = ColourHistogram(good);
+        let mut bad = good.clone();
+        bad.0[0] = -1.0;
+        let mut e = FallbackEngine::new(Box::new(LostAfterModel { models: 0 }));
+        e.set_colour_model(&good).unwrap();
+        assert!(e.set_colour_model(&bad).is_err());
+        assert!(e.fell_back(), "the loss was seen");
+        let frame = FrameInput {
+            image: &img,
+            features: &[],
+            depths: None,
+            prev: Particle {
+                cx: 16.0,
+                cy: 12.0,
+                a: 5.0,
+                b: 6.0,
+                ..Default::default()
+            },
+            theta0: 0.0,
+        };
+        let params = LikelihoodParams {
+            terms: crate::likelihood::TERM_COLOUR,
+            ..Default::default()
+        };
+        let mut out = Vec::new();
+        e.evaluate(&frame, &params, &[frame.prev], &mut out)
+            .unwrap();
+        let mut cpu = CpuEngine::new();
+        cpu.set_colour_model(&good).unwrap();
+        let mut want = Vec::new();
+        cpu.evaluate(&frame, &params, &[frame.prev], &mut want)
+            .unwrap();
+        assert_eq!(out, want);
     }
 
     #[test]

@@ -3,10 +3,13 @@
 //! bins: [`bin_in`], [`crate::likelihood::LikelihoodParams::colour_bins`]), compared with the
 //! model histogram by the Bhattacharyya coefficient.
 //!
-//! # Pixel set (exact, shared with the GPU)
+//! # Pixel set (shared with the GPU; exact but for ties)
 //! A pixel `(x, y)` of the frame (integer centre) belongs to an ellipse iff, in `f32`,
 //! `dx = x - cx`, `dy = y - cy`, `u = (c*dx + s*dy)/a`, `v = (-s*dx + c*dy)/b` (with
-//! `(s, c) = sin_cos(theta)`) satisfy `u*u + v*v <= 1`. Only pixels of the frame count, and
+//! `(s, c) = sin_cos(theta)`) satisfy `u*u + v*v <= 1`. (A GPU compiler may fuse those
+//! products into multiply-adds, which moves `u*u + v*v` by ulps: a pixel centre whose test is
+//! a tie, within a few ulps of 1, can then fall on the other side there; `tests/gpu.rs`
+//! allows exactly those.) Only pixels of the frame count, and
 //! no others: a scan of the ellipse's bounding box must use a box that contains every pixel
 //! passing the test (e.g. widened by one pixel on each side; then the box's own rounding
 //! cannot matter). This file finds the same set faster by solving, per row, the quadratic of

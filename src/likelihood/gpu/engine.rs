@@ -443,7 +443,9 @@ impl GpuEngine {
     ) -> Result<(), LikelihoodError> {
         let limit = self.max_binding();
         let n64 = n as u64;
-        let mut bytes = (n64 * 32).max(n64 * num_lines as u64 * 4);
+        let mut bytes = (n64 * 32)
+            .max(n64 * num_lines as u64 * 4)
+            .max((n64 + num_lines as u64) * 8);
         if debug {
             bytes = bytes.max(n64 * HIST_BINS as u64 * 4);
         }
@@ -562,7 +564,7 @@ impl GpuEngine {
         changed |= b.pixels.ensure(device, px * 4);
         changed |= b.grad.ensure(device, px * 8);
         changed |= b.particles.ensure(device, n64 * 32);
-        changed |= b.trig.ensure(device, n64 * 8);
+        changed |= b.trig.ensure(device, (n64 + num_lines as u64) * 8);
         changed |= b.features.ensure(
             device,
             frame.features.len() as u64 * size_of::<LiftedFeature>() as u64,
@@ -629,6 +631,12 @@ impl GpuEngine {
         queue.write_buffer(&b.particles.buf, 0, bytemuck::cast_slice(particles));
         if hist_on || grad_on {
             particle_sin_cos(particles, frame.theta0, &mut self.trig_scratch);
+            // The normal lines' angles, the CPU's own (see common.wgsl).
+            self.trig_scratch.extend(
+                cpu::gradient::line_angles(num_lines)
+                    .into_iter()
+                    .map(|(c, s)| [s, c]),
+            );
             queue.write_buffer(&b.trig.buf, 0, bytemuck::cast_slice(&self.trig_scratch));
         }
         if feat_on {

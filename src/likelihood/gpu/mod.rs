@@ -10,10 +10,12 @@
 //!
 //! Per frame the engine uploads the frame (one `u32` per pixel, `r | g << 8 | b << 16`), the
 //! features lifted to 3D on the host (the CPU twin's own lift: it does not depend on the
-//! particle) and the particles once (with each particle's `(sin, cos)` of `theta0 + rz`, computed on the host
-//! exactly as the CPU twin does, so that the pixel sets, and so the histograms, agree exactly:
-//! WGSL's sin/cos are a few ulp off Rust's), runs five kernels in one submission and reads
-//! back the `N` [`TermLogs`](crate::likelihood::TermLogs) once:
+//! particle) and the particles once (with each particle's `(sin, cos)` of `theta0 + rz`, and
+//! each normal line's `(sin, cos)`, computed on the host exactly as the CPU twin does, so that
+//! the pixel sets and the lines agree: WGSL's sin/cos are a few ulp off Rust's; the pixel sets
+//! are then exact but for pixel centres whose inside test is a tie, which a compiler's fused
+//! multiply-adds may tip), runs five kernels in one submission and reads back the `N`
+//! [`TermLogs`](crate::likelihood::TermLogs) once:
 //!
 //! | kernel | shape |
 //! |---|---|
