@@ -85,7 +85,10 @@ fn depths(r: &Matrix3<f64>, t: &Vector3<f64>, x1: &Vector3<f64>, x2: &Vector3<f6
 /// Rotation (and translation direction) from at least 8 matches by the essential matrix.
 ///
 /// Errors: fewer than 8 matches, non-finite input, a degenerate configuration (rank-deficient
-/// constraints, zero translation), or no decomposition with points in front.
+/// constraints, as an exactly zero translation gives), or no decomposition with points in
+/// front. A translation too small to measure against the matches' noise is not detected: its
+/// direction is then noise, and the rotation chosen by the points' depths can be the twisted
+/// pair's, half a turn off.
 pub fn essential_rotation(
     p: &[[f64; 2]],
     q: &[[f64; 2]],
