@@ -396,11 +396,15 @@ impl Sift {
 
     /// Detects keypoints and computes their descriptors.
     ///
-    /// With `region`, only the region (grown by [`SiftParams::region_margin`], aligned to an
-    /// 8-pixel grid so the octaves sample the same pixels as a full-image run, clipped to
-    /// the image) is processed, and only keypoints whose centre lies inside `region` are
-    /// returned, in full-image coordinates. Keypoints whose windows reach past the margin see
-    /// a reflected border there, so they can differ slightly from the full-image run.
+    /// With `region`, only the region (grown by [`SiftParams::region_margin`], clipped to the
+    /// image, its corner on a grid of the coarsest octave's stride, at least 8 pixels, so the
+    /// octaves sample the same pixels as a full-image run) is processed, and only keypoints
+    /// whose centre lies inside `region` are returned, in full-image coordinates. Keypoints
+    /// whose windows reach past the margin see a reflected border there, so they can differ
+    /// from the full-image run, or be missing from it: the context a keypoint needs grows with
+    /// its scale (its extremum test stays 5 octave pixels from the window's edge, its
+    /// descriptor reads about 10σ around it), and the blurs of the coarse octaves reflect at
+    /// the window's edge tens of pixels in.
     ///
     /// Images too small for one octave give `Ok` with no keypoints, as does a region outside
     /// the image. Errors: pixel data that does not match the size, a pixel in the processed
@@ -438,23 +442,11 @@ impl Sift {
                 region.x, region.y, region.w, region.h
             )));
         }
-        let margin = f64::from(self.params.region_margin.max(0.0));
-        const ALIGN: i64 = 8;
-        // Clamped to the image before the casts: a region of 1e19 px would saturate an i64
-        // and wrap the `+ 1`.
-        let (wf, hf) = (w as f64, h as f64);
-        let x0 = (region.x - margin).floor().clamp(0.0, wf) as i64;
-        let y0 = (region.y - margin).floor().clamp(0.0, hf) as i64;
-        let x0 = x0 - x0 % ALIGN;
-        let y0 = y0 - y0 % ALIGN;
-        let x1 = ((region.x + region.w + margin).ceil() + 1.0).clamp(0.0, wf) as i64;
-        let y1 = ((region.y + region.h + margin).ceil() + 1.0).clamp(0.0, hf) as i64;
-        if x1 <= x0 || y1 <= y0 {
+        let Some([x0, y0, x1, y1]) = self.region_window(w, h, &region) else {
             return Ok(out);
-        }
-        let (cw, ch) = ((x1 - x0) as usize, (y1 - y0) as usize);
+        };
+        let (cw, ch) = (x1 - x0, y1 - y0);
         self.params.check_window(cw, ch)?;
-        let (x0, y0) = (x0 as usize, y0 as usize);
         let mut crop = Vec::with_capacity(cw * ch);
         for y in y0..y0 + ch {
             crop.extend_from_slice(&img.data[y * w + x0..y * w + x0 + cw]);
@@ -469,6 +461,63 @@ impl Sift {
 
     fn check_params(&self) -> Result<(), FeatureError> {
         self.params.check()
+    }
+
+    /// The window `[x0, y0, x1, y1)` of a `w x h` image that [`Self::detect`] processes for
+    /// `region` (finite, of size at least 0): the region grown by the margin, clipped to the
+    /// image, its top-left corner moved back onto a multiple of the input stride of the
+    /// coarsest octave built on the window (at least 8), so that every octave samples the
+    /// same input pixels as on the whole image. `None` when nothing of it is in the image.
+    fn region_window(&self, w: usize, h: usize, region: &BoxRect) -> Option<[usize; 4]> {
+        let margin = f64::from(self.params.region_margin.max(0.0));
+        // Clamped to the image before the casts: a region of 1e19 px would saturate an i64
+        // and wrap the `+ 1`.
+        let (wf, hf) = (w as f64, h as f64);
+        let x0 = (region.x - margin).floor().clamp(0.0, wf) as usize;
+        let y0 = (region.y - margin).floor().clamp(0.0, hf) as usize;
+        let x1 = ((region.x + region.w + margin).ceil() + 1.0).clamp(0.0, wf) as usize;
+        let y1 = ((region.y + region.h + margin).ceil() + 1.0).clamp(0.0, hf) as usize;
+        if x1 <= x0 || y1 <= y0 {
+            return None;
+        }
+        // Octave k samples every 2^k-th input pixel (2^(k-1)-th after the doubled first
+        // octave). Moving the corner back can add an octave, so until the stride settles.
+        let mut align = 8;
+        loop {
+            let (ax, ay) = (x0 - x0 % align, y0 - y0 % align);
+            let coarsest = self.octave_count(x1 - ax, y1 - ay).saturating_sub(1);
+            let stride = (1usize << coarsest) >> usize::from(self.params.upsample);
+            if stride <= align {
+                return Some([ax, ay, x1, y1]);
+            }
+            align = stride;
+        }
+    }
+
+    /// How many octaves [`Self::build_pyramid`] builds on a `w x h` window: OpenCV's count,
+    /// round(log2(min side of the base) − 2), plus one for the doubled octave, capped by
+    /// `max_octaves` and stopped before an octave too small to hold an extremum.
+    fn octave_count(&self, w: usize, h: usize) -> usize {
+        let k = 1 + usize::from(self.params.upsample);
+        let (mut bw, mut bh) = (k * w, k * h);
+        let min_dim = 2 * IMG_BORDER + 1;
+        if bw.min(bh) < min_dim {
+            return 0;
+        }
+        let mut n_oct = ((bw.min(bh) as f64).log2() - 2.0).round().max(1.0) as usize
+            + usize::from(self.params.upsample);
+        if let Some(m) = self.params.max_octaves {
+            n_oct = n_oct.min(m);
+        }
+        let mut built = 1;
+        while built < n_oct {
+            (bw, bh) = (bw / 2, bh / 2);
+            if bw.min(bh) < min_dim {
+                break;
+            }
+            built += 1;
+        }
+        built
     }
 
     /// Runs SIFT on a `w x h` window whose top-left pixel is `origin` in the full image,
@@ -640,15 +689,10 @@ impl Sift {
             (v, w, h)
         };
         let min_dim = 2 * IMG_BORDER + 1;
-        if bw.min(bh) < min_dim {
+        let n_oct = self.octave_count(w, h);
+        if n_oct == 0 {
+            recycle(base);
             return Vec::new();
-        }
-        // OpenCV's octave count: round(log2(min side of the base) - 2), plus one for the
-        // doubled octave; octaves too small to hold an extremum are not built.
-        let mut n_oct = ((bw.min(bh) as f64).log2() - 2.0).round().max(1.0) as usize
-            + usize::from(self.params.upsample);
-        if let Some(m) = self.params.max_octaves {
-            n_oct = n_oct.min(m);
         }
         let mut octaves: Vec<Octave> = Vec::with_capacity(n_oct);
         let mut blurred = take_buf(bw * bh);
@@ -1742,6 +1786,47 @@ fn descriptor(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A region's window starts on the grid of its coarsest octave's stride, which the doc
+    /// promises: with a fixed 8-pixel grid, windows 176 px or more across (a fifth halving,
+    /// stride 16) started on odd multiples of 8 and their coarsest octave sampled other
+    /// pixels than the whole image's.
+    #[test]
+    fn a_region_window_starts_on_its_coarsest_octaves_grid() {
+        let mut widest = 0;
+        for upsample in [true, false] {
+            let sift = Sift::new(SiftParams {
+                upsample,
+                ..SiftParams::default()
+            });
+            for (w, h) in [(160, 120), (640, 480), (1920, 1080), (4000, 3000)] {
+                for i in 0..40 {
+                    let f = i as f64;
+                    let region = BoxRect::new(
+                        (f * 37.3) % w as f64,
+                        (f * 23.9) % h as f64,
+                        5.0 + (f * 71.1) % w as f64,
+                        5.0 + (f * 53.7) % h as f64,
+                    );
+                    let Some([x0, y0, x1, y1]) = sift.region_window(w, h, &region) else {
+                        continue;
+                    };
+                    let coarsest = sift.octave_count(x1 - x0, y1 - y0).saturating_sub(1);
+                    let stride = (1usize << coarsest) >> usize::from(upsample);
+                    assert!(
+                        x0 % stride.max(8) == 0 && y0 % stride.max(8) == 0,
+                        "{w}x{h} {region:?}: window from {x0},{y0}, stride {stride}"
+                    );
+                    // Nothing of the region (grown by the margin, in the image) is cut.
+                    let m = f64::from(sift.params.region_margin);
+                    assert!(x0 as f64 <= (region.x - m).max(0.0));
+                    assert!(y0 as f64 <= (region.y - m).max(0.0));
+                    widest = widest.max(stride);
+                }
+            }
+        }
+        assert!(widest >= 64, "no window had a coarse octave: {widest}");
+    }
 
     /// Unchecked settings make the scale-space estimate saturate, not overflow.
     #[test]
