@@ -189,8 +189,8 @@ pub fn random_rotation(rng: &mut StdRng, max_angle: f64) -> Matrix3<f64> {
     *nalgebra::Rotation3::from_axis_angle(&Unit::new_normalize(axis), angle).matrix()
 }
 
-/// Draws one trial (`snr_db = None`: noise-free). Errors on a non-finite SNR or settings
-/// [`NoiseConfig::check`] refuses.
+/// Draws one trial (`snr_db = None`, or `+inf` dB: noise-free). Errors on an SNR of NaN or
+/// `-inf` dB, or settings [`NoiseConfig::check`] refuses.
 pub fn make_trial(
     cfg: &NoiseConfig,
     rng: &mut StdRng,
