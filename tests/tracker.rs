@@ -799,6 +799,11 @@ fn a_target_that_jumps_away_is_lost_then_reacquired_by_its_features() {
         e.frame,
         e.confidence
     );
+    // The frame after, its features are matched with those found around the head on the
+    // frame it was found, not with the flat grey where it had been (none: the frame after a
+    // re-acquisition measured no rotation between the two).
+    let (e, _) = &track[jump + 2];
+    assert!(e.matches >= 5, "frame {}: {} matches", e.frame, e.matches);
     // Then followed.
     assert_followed(&track[n - 10..]);
 }

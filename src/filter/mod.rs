@@ -537,6 +537,38 @@ impl ParticleFilter {
         self.last_resampling = None;
     }
 
+    /// The bounds a proposal is held to: `(least centre, greatest cx, greatest cy, least
+    /// semi-axis, greatest semi-axis)`, the frame's when [`Self::set_frame`] gave one.
+    fn limits(&self) -> (f64, f64, f64, f64, f64) {
+        let min_axis = self.params.min_axis;
+        let (min_c, max_cx, max_cy, max_axis) = match self.frame {
+            Some((w, h)) => (0.0, (w - 1.0).max(0.0), (h - 1.0).max(0.0), w.max(h)),
+            None => (
+                f64::NEG_INFINITY,
+                f64::INFINITY,
+                f64::INFINITY,
+                f64::INFINITY,
+            ),
+        };
+        let max_axis = self.params.max_axis.min(max_axis).max(min_axis);
+        (min_c, max_cx, max_cy, min_axis, max_axis)
+    }
+
+    /// `h` held to the bounds every proposal is held to (centre on the frame, semi-axes within
+    /// [`FilterParams::min_axis`] and the frame's longer side): for a hypothesis placed from
+    /// outside the filter (a re-acquisition, a re-anchoring), which [`Self::reset`] takes as
+    /// it is.
+    pub fn bounded(&self, h: &Hypothesis) -> Hypothesis {
+        let (min_c, max_cx, max_cy, min_axis, max_axis) = self.limits();
+        Hypothesis {
+            cx: h.cx.clamp(min_c, max_cx),
+            cy: h.cy.clamp(min_c, max_cy),
+            a: h.a.clamp(min_axis, max_axis),
+            b: h.b.clamp(min_axis, max_axis),
+            rot: h.rot,
+        }
+    }
+
     /// Applies a rotation to every particle and to the estimate (`R ← ΔR · R`): the pose step
     /// of a tracker that keeps the rotation out of the filtered state (the paper's TPE).
     pub fn rotate_all(&mut self, delta: &Matrix3<f64>) {
@@ -577,17 +609,7 @@ impl ParticleFilter {
                 .map(|(p, r)| (p.max(0.0) / total_p, *r))
                 .collect()
         };
-        let min_axis = self.params.min_axis;
-        let (min_c, max_cx, max_cy, max_axis) = match self.frame {
-            Some((w, h)) => (0.0, (w - 1.0).max(0.0), (h - 1.0).max(0.0), w.max(h)),
-            None => (
-                f64::NEG_INFINITY,
-                f64::INFINITY,
-                f64::INFINITY,
-                f64::INFINITY,
-            ),
-        };
-        let max_axis = self.params.max_axis.min(max_axis).max(min_axis);
+        let (min_c, max_cx, max_cy, min_axis, max_axis) = self.limits();
         let scale = if motion.scale.is_finite() && motion.scale > 0.0 {
             motion.scale
         } else {
@@ -878,6 +900,28 @@ mod tests {
             };
             assert!(why.contains(name), "{why} does not name {name}");
         }
+    }
+
+    /// A hypothesis placed from outside is held to the bounds of the proposals.
+    #[test]
+    fn bounded_holds_a_hypothesis_to_the_frame_and_the_axes() {
+        let mut f = ParticleFilter::new(FilterParams::default(), 4, &init()).unwrap();
+        let h = Hypothesis {
+            cx: -3.0,
+            cy: 130.0,
+            a: 0.8,
+            b: 500.0,
+            rot: Matrix3::identity(),
+        };
+        let min = FilterParams::default().min_axis;
+        let free = f.bounded(&h);
+        assert_eq!(
+            (free.cx, free.cy, free.a, free.b),
+            (-3.0, 130.0, min, 500.0)
+        );
+        f.set_frame(160, 120);
+        let b = f.bounded(&h);
+        assert_eq!((b.cx, b.cy, b.a, b.b), (0.0, 119.0, min, 160.0));
     }
 
     /// A likelihood peaked at `t`: what an ideal measurement gives.

@@ -161,8 +161,8 @@ pub struct Estimate {
     /// when no features could measure the rotation. On a frame where a lost target is
     /// re-acquired, the found target's own (at least [`TrackerConfig::found_above`]). It is
     /// measured by the colour and gradient terms that are on (`likelihood.terms`): with
-    /// neither, it is 1 (0.8 on frames without features) and the target is never declared
-    /// lost.
+    /// neither, it is 1 (0.8 on frames without features), and the target is declared lost
+    /// only under a [`TrackerConfig::lost_below`] above 0.8.
     pub confidence: f64,
     /// Whether the target is considered lost: from the [`TrackerConfig::lost_after`]-th
     /// frame in a row below [`TrackerConfig::lost_below`] until a frame reaches
@@ -886,7 +886,7 @@ impl Tracker {
             || detect_within_budget(sift, plain, &gray, region),
             || block_match(&self.prev_gray, &gray, &prev_ellipse, &abm),
         );
-        let features = features?.unwrap_or_else(|| {
+        let mut features = features?.unwrap_or_else(|| {
             self.frames_without_sift += 1;
             crate::features::Features::default()
         });
@@ -1064,6 +1064,9 @@ impl Tracker {
         if !self.lost
             && let Some(found) = self.reanchor(&gray, &est, confidence)
         {
+            // Held to the frame as any proposal is: a reset's estimate is a start
+            // (`Estimate::to_init`) that `reinit` must take.
+            let found = self.filter.bounded(&found);
             let textured = self.keyframes.anchor_features() >= self.cfg.min_fit_inliers;
             let (_, c) = self.own_confidence(&input, lp, &found, textured)?;
             if c >= self.cfg.lost_below {
@@ -1094,6 +1097,7 @@ impl Tracker {
         if self.low_count >= self.cfg.lost_after
             && let Some((found, c)) = self.reacquire(frame, &gray, &est)?
         {
+            let found = self.filter.bounded(&found);
             self.filter.reset(&found);
             est = found;
             confidence = c;
@@ -1136,6 +1140,24 @@ impl Tracker {
             };
             smoothed_spin(&self.spin, &step, rate, moved)
         });
+        // Moved by a reset (re-acquisition, re-anchoring), the target is where this frame's
+        // features were not looked for: they are looked for again around it, for the next
+        // frame's matches and a keyframe taken here. (A keyframe taken from the old place's
+        // features held none inside the found ellipse, and pushed out of the full pool the
+        // keyframe nearest in pose, often the one that had just recognised the target.)
+        if jumped {
+            let e = state.ellipse(self.theta0);
+            let found_region = search_region(&e, w, h);
+            if found_region != region {
+                features = detect_within_budget(
+                    self.sift_for(&e),
+                    self.sift_large.as_ref(),
+                    &gray,
+                    found_region,
+                )?
+                .unwrap_or_default();
+            }
+        }
         self.prev = est;
         self.prev_euler = euler;
         self.prev_gray = gray;
