@@ -189,14 +189,17 @@ mod tests {
         }
     }
 
-    #[test]
-    fn a_lost_device_switches_to_the_cpu_once_with_one_notice() {
-        let img = image::RgbImage::from_pixel(32, 24, image::Rgb([200, 40, 40]));
+    /// The one bin of the tests' red frame.
+    fn red_model() -> ColourHistogram {
         let mut model = vec![0.0; HIST_BINS];
         model[6 * 64 + 8 + 1] = 1.0;
-        let model = ColourHistogram(model);
-        let frame = FrameInput {
-            image: &img,
+        ColourHistogram(model)
+    }
+
+    /// A frame of `img` whose previous estimate is a small ellipse in its middle.
+    fn red_frame(img: &image::RgbImage) -> FrameInput<'_> {
+        FrameInput {
+            image: img,
             features: &[],
             depths: None,
             prev: Particle {
@@ -207,7 +210,14 @@ mod tests {
                 ..Default::default()
             },
             theta0: 0.0,
-        };
+        }
+    }
+
+    #[test]
+    fn a_lost_device_switches_to_the_cpu_once_with_one_notice() {
+        let img = image::RgbImage::from_pixel(32, 24, image::Rgb([200, 40, 40]));
+        let model = red_model();
+        let frame = red_frame(&img);
         // With the contrast term on, so the CPU engine also needs the table given before.
         let params = LikelihoodParams {
             terms: crate::likelihood::TERM_ALL,
@@ -291,28 +301,14 @@ mod tests {
     #[test]
     fn a_bad_model_given_to_a_lost_device_is_refused_and_the_good_one_kept() {
         let img = image::RgbImage::from_pixel(32, 24, image::Rgb([200, 40, 40]));
-        let mut good = vec![0.0; HIST_BINS];
-        good[6 * 64 + 8 + 1] = 1.0;
-        let good = ColourHistogram(good);
+        let good = red_model();
         let mut bad = good.clone();
         bad.0[0] = -1.0;
         let mut e = FallbackEngine::new(Box::new(LostAfterModel { models: 0 }));
         e.set_colour_model(&good).unwrap();
         assert!(e.set_colour_model(&bad).is_err());
         assert!(e.fell_back(), "the loss was seen");
-        let frame = FrameInput {
-            image: &img,
-            features: &[],
-            depths: None,
-            prev: Particle {
-                cx: 16.0,
-                cy: 12.0,
-                a: 5.0,
-                b: 6.0,
-                ..Default::default()
-            },
-            theta0: 0.0,
-        };
+        let frame = red_frame(&img);
         let params = LikelihoodParams {
             terms: crate::likelihood::TERM_COLOUR,
             ..Default::default()
