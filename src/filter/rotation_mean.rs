@@ -13,14 +13,8 @@ use nalgebra::{Matrix3, Rotation3, Vector3};
 /// converging onto its prior's mean forms. Near π the axis comes from the symmetric part,
 /// as the antisymmetric part vanishes there (nalgebra reads an exact half turn as no turn).
 pub fn log_so3(r: &Matrix3<f64>) -> Vector3<f64> {
-    // 2 sin θ · axis, and cos θ.
-    let v = Vector3::new(
-        r[(2, 1)] - r[(1, 2)],
-        r[(0, 2)] - r[(2, 0)],
-        r[(1, 0)] - r[(0, 1)],
-    );
-    let s = 0.5 * v.norm();
-    let c = 0.5 * (r.trace() - 1.0);
+    // 2 sin θ · axis, sin θ and cos θ.
+    let (v, s, c) = crate::geometry::rotation::turn_parts(r);
     let theta = s.atan2(c);
     if !theta.is_finite() {
         return Vector3::repeat(f64::NAN);

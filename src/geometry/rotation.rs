@@ -5,7 +5,7 @@
 //! current pose. tilt = rx, pan = ry, roll = rz. Radians everywhere inside the code; degrees only
 //! at the file and command-line boundary ([`deg`], [`rad`]).
 
-use nalgebra::Matrix3;
+use nalgebra::{Matrix3, Vector3};
 
 /// Degrees to radians.
 pub fn rad(deg: f64) -> f64 {
@@ -110,13 +110,22 @@ pub fn wrap_180(a: f64) -> f64 {
 /// between two rotations, the error measure of the paper's Fig. 3.
 pub fn angle_between(a: &Matrix3<f64>, b: &Matrix3<f64>) -> f64 {
     // atan2(sin, cos) keeps full precision near 0 and π, where acos of the trace does not.
-    let rel = a * b.transpose();
-    let c = (rel.trace() - 1.0) / 2.0;
-    let sx = rel[(2, 1)] - rel[(1, 2)];
-    let sy = rel[(0, 2)] - rel[(2, 0)];
-    let sz = rel[(1, 0)] - rel[(0, 1)];
-    let s = 0.5 * (sx * sx + sy * sy + sz * sz).sqrt();
+    let (_, s, c) = turn_parts(&(a * b.transpose()));
     s.atan2(c)
+}
+
+/// The parts of a rotation `r` by `θ` about the unit axis `n` that give its angle and axis
+/// accurately: its antisymmetric part as a vector, `2 sin θ · n`, then `sin θ` and `cos θ`
+/// (from the trace). [`angle_between`] and the rotation log
+/// ([`crate::filter::rotation_mean::log_so3`]) take `θ = atan2(sin θ, cos θ)` from them.
+pub fn turn_parts(r: &Matrix3<f64>) -> (Vector3<f64>, f64, f64) {
+    let v = Vector3::new(
+        r[(2, 1)] - r[(1, 2)],
+        r[(0, 2)] - r[(2, 0)],
+        r[(1, 0)] - r[(0, 1)],
+    );
+    let s = 0.5 * (v.x * v.x + v.y * v.y + v.z * v.z).sqrt();
+    (v, s, (r.trace() - 1.0) / 2.0)
 }
 
 #[cfg(test)]
