@@ -178,18 +178,14 @@ impl StateSigma {
                     "{what}.{name} {shown} must be finite and at least 0"
                 )));
             }
-            let max = if angle {
-                "π rad (180°)".to_string()
+            let (max, max_shown) = if angle {
+                (std::f64::consts::PI, "π rad (180°)".to_string())
             } else {
-                format!("{MAX_SIGMA_PX} px")
+                (MAX_SIGMA_PX, format!("{MAX_SIGMA_PX} px"))
             };
-            if v > if angle {
-                std::f64::consts::PI
-            } else {
-                MAX_SIGMA_PX
-            } {
+            if v > max {
                 return Err(FilterError::BadParams(format!(
-                    "{what}.{name} {shown} must be at most {max}"
+                    "{what}.{name} {shown} must be at most {max_shown}"
                 )));
             }
         }
