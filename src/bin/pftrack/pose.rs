@@ -191,15 +191,21 @@ pub fn run(a: PoseArgs) -> anyhow::Result<()> {
         Reject::None => (p, q),
     };
     // The paper's rule keeps the matches that move alike: a turn in the image plane about
-    // the object's centre moves them in every direction, and it keeps too few.
-    if a.reject == Reject::Paper && p.len() < 3 && inside >= 3 {
-        bail!(
-            "the paper's outlier rejection kept {} of the {inside} matches inside the ellipse \
-             (matches that move in different directions, as a turn in the image plane moves \
-             them, are rejected): try `--reject ransac`",
-            p.len()
-        );
-    }
+    // the object's centre moves them in every direction, and where it left too few to solve
+    // from (none, or three collinear survivors of the synthetic `roll`), the solver's error
+    // says what keeps more.
+    let kept = p.len();
+    let hint = |err: anyhow::Error| {
+        if a.reject == Reject::Paper && inside >= 3 && (kept < 3 || 2 * kept < inside) {
+            anyhow::anyhow!(
+                "{err}: the paper's outlier rejection kept {kept} of the {inside} matches \
+                 inside the ellipse (it rejects matches that move in different directions, as \
+                 a turn in the image plane moves them): try `--reject ransac`"
+            )
+        } else {
+            err
+        }
+    };
     outln!(
         "matches inside the ellipse: {inside}, after outlier rejection: {}",
         p.len()
@@ -209,19 +215,7 @@ pub fn run(a: PoseArgs) -> anyhow::Result<()> {
         outln!("{name}: tilt {x:.2} pan {y:.2} roll {z:.2} (degrees)")
     };
     if let Some(kind) = solver {
-        let i = interframe(&p, &q, [e.cx, e.cy], kind).map_err(|err| {
-            // The paper's rule left too little to solve from (three collinear survivors of a
-            // roll, on the synthetic `roll`): say what keeps more.
-            if a.reject == Reject::Paper && 2 * p.len() < inside {
-                anyhow::anyhow!(
-                    "{err}, on the {} of {inside} matches the paper's outlier rejection kept: \
-                     try `--reject ransac`",
-                    p.len()
-                )
-            } else {
-                err.into()
-            }
-        })?;
+        let i = interframe(&p, &q, [e.cx, e.cy], kind).map_err(|err| hint(err.into()))?;
         outln!("residual {:.3} px", i.block.residual)?;
         // Weak perspective cannot tell a tilt and pan from their mirror (the Necker pair):
         // the branch is the one whose parallax the features show against the object's centre,
@@ -262,7 +256,7 @@ pub fn run(a: PoseArgs) -> anyhow::Result<()> {
             cx: (w - 1.0) / 2.0,
             cy: (ia.height() as f64 - 1.0) / 2.0,
         };
-        let r = essential_rotation(&p, &q, &k)?;
+        let r = essential_rotation(&p, &q, &k).map_err(|err| hint(err.into()))?;
         show("essential (focal = image width assumed)", &r.rotation)?;
     }
     if let Some(mut file) = draw {
