@@ -325,6 +325,27 @@ pub fn angle_error_deg(est: f64, truth: f64) -> f64 {
     wrap_180(deg(est) - deg(truth))
 }
 
+/// The truth's angles in degrees by frame, unwrapped in frame order (each within 180 degrees
+/// of the frame before it that has angles), for the gain's regression.
+fn unwrapped_truth_deg(tf: &[TruthFrame]) -> BTreeMap<usize, [f64; 3]> {
+    let mut with_angles: Vec<(usize, [f64; 3])> = tf
+        .iter()
+        .filter_map(|t| t.angles.map(|a| (t.frame, a.map(deg))))
+        .collect();
+    with_angles.sort_by_key(|&(f, _)| f);
+    let mut out = BTreeMap::new();
+    let mut prev: Option<[f64; 3]> = None;
+    for (f, a) in with_angles {
+        let u = match prev {
+            Some(p) => std::array::from_fn(|k| p[k] + wrap_180(a[k] - p[k])),
+            None => a,
+        };
+        prev = Some(u);
+        out.insert(f, u);
+    }
+    out
+}
+
 /// `(first, last)` of a sorted list of frames.
 fn first_last(frames: impl Iterator<Item = usize>) -> Option<(usize, usize)> {
     let mut it = frames;
@@ -367,6 +388,7 @@ pub fn evaluate(truth: &Truth, est: &[PoseRecord]) -> Result<Report, EvalError> 
     let mut swings: [Vec<(f64, f64)>; 3] = Default::default();
     let (mut lost, mut any_lost_col) = (0usize, false);
     let (mut score_sum, mut score_n) = (0.0f64, 0usize);
+    let unwrapped = unwrapped_truth_deg(&tf);
     for t in tf.iter().filter(|t| !t.absent) {
         let Some(r) = by_frame.get(&t.frame) else {
             missing_frames.push(t.frame);
@@ -377,12 +399,15 @@ pub fn evaluate(truth: &Truth, est: &[PoseRecord]) -> Result<Report, EvalError> 
         centre_errs.push((s.cx - tcx).hypot(s.cy - tcy));
         // Clamped: rounding can put the IoU of identical boxes a hair above 1.
         ious.push(pose_box(r).iou(&t.bbox).clamp(0.0, 1.0));
-        if let Some(t) = t.angles {
+        if let Some(angles) = t.angles {
+            let swing = unwrapped.get(&t.frame);
             for (k, e) in [s.rx, s.ry, s.rz].into_iter().enumerate() {
-                let d = angle_error_deg(e, t[k]);
+                let d = angle_error_deg(e, angles[k]);
                 sq[k] += d * d;
                 abs[k] += d.abs();
-                swings[k].push((deg(t[k]), d));
+                // The truth unwrapped: one written -179 after 179 has turned 2 degrees, not
+                // 358, and would otherwise swell the spread the gain divides by.
+                swings[k].push((swing.map_or(deg(angles[k]), |u| u[k]), d));
             }
         }
         if let Some(l) = r.lost {
@@ -628,14 +653,30 @@ mod tests {
                 .lines()
                 .any(|l| l.starts_with("ry") && l.ends_with('-'))
         );
-        // Across ±180°: the truth swinging 170° → 190° (written -170°) and the estimate
-        // following it exactly, however it writes the angle.
+        // Across ±180°: the truth swinging 170° → 190° and the estimate following it
+        // exactly, however either writes the angle.
         let wrap_t: Vec<PoseRecord> = (0..21).map(|k| rec(k, 50.0, 170.0 + k as f64)).collect();
         let wrap_e: Vec<PoseRecord> = (0..21)
             .map(|k| rec(k, 50.0, wrap_180(170.0 + k as f64)))
             .collect();
         let w = evaluate(&Truth::Poses(wrap_t), &wrap_e).unwrap();
         assert!((w.angle_gain.unwrap().rx.unwrap() - 1.0).abs() < 1e-9);
+        // The truth written wrapped (-170° for 190°), turning 2° a frame, read half of it:
+        // the gain is 0.5 whichever way the truth is written, in whatever row order.
+        let half = |wrap: bool| {
+            let t = |k: usize| 170.0 + 2.0 * k as f64;
+            let mut truth: Vec<PoseRecord> = (0..21)
+                .map(|k| rec(k, 50.0, if wrap { wrap_180(t(k)) } else { t(k) }))
+                .collect();
+            truth.reverse();
+            let est: Vec<PoseRecord> = (0..21)
+                .map(|k| rec(k, 50.0, wrap_180(170.0 + k as f64)))
+                .collect();
+            let r = evaluate(&Truth::Poses(truth), &est).unwrap();
+            r.angle_gain.unwrap().rx.unwrap()
+        };
+        assert!((half(false) - 0.5).abs() < 1e-9, "{}", half(false));
+        assert!((half(true) - 0.5).abs() < 1e-9, "{}", half(true));
         // A truth that hardly turns has no gain, nor an empty one.
         assert_eq!(gain(&[(0.0, 1.0), (0.5, 2.0), (1.0, 0.0)]), None);
         assert_eq!(gain(&[]), None);
