@@ -800,6 +800,7 @@ fn written_frames_equal_the_in_memory_render() {
     // a shorter re-render removes the frames of the longer one, and an interrupted frame's
     // temporary file
     std::fs::write(dir.join("frames/.00003.png.partial"), b"half").unwrap();
+    std::fs::write(dir.join("frames/.00004.png.77-0.partial"), b"half").unwrap();
     write_sequence(&cfg(Scenario::Roll, 2, 64, 48), &dir, false).unwrap();
     let mut names: Vec<String> = std::fs::read_dir(dir.join("frames"))
         .unwrap()

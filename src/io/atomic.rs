@@ -1,16 +1,22 @@
-//! Files that appear under their name only once complete: written to `.NAME.partial` beside
-//! the target and renamed on [`AtomicFile::commit`]; dropped without a commit, or when the
-//! commit fails, the partial file is removed. A crash or an error never leaves a truncated
-//! file that looks finished, and never a stray partial file beside it.
+//! Files that appear under their name only once complete: written to `.NAME.PID-N.partial`
+//! beside the target (a name of this write's own, made new: two runs writing one output never
+//! share it, and a link already there is not followed) and renamed on [`AtomicFile::commit`];
+//! dropped without a commit, or when the commit fails, the partial file is removed. A crash or
+//! an error never leaves a truncated file that looks finished, and never a stray partial file
+//! beside it.
 //!
 //! What the target already is decides how it is written:
+//! - one of the process's open descriptors (`/dev/stdout`, `/dev/stderr`, `/dev/fd/N`,
+//!   `/proc/PID/fd/N`, or a link through one): written to in place and appended to, whatever
+//!   it was opened on, so that `-o /dev/stdout >> log` appends to `log` as a shell means it
+//!   to, never replacing the file behind the descriptor;
 //! - nothing, or a regular file: written beside it and renamed over it, as above;
 //! - a symbolic link: the file it points to is written (the link stays a link), by the same
 //!   rules;
 //! - a directory: refused before anything is written;
-//! - anything else (a terminal, a pipe, `/dev/stdout`, a device): written to directly, since
-//!   such a target cannot be replaced by a rename and is read as a stream anyway. A write
-//!   error there (`/dev/full`) is reported as for any file.
+//! - anything else (a terminal, a pipe, a device): written to directly, since such a target
+//!   cannot be replaced by a rename and is read as a stream anyway. A write error there
+//!   (`/dev/full`) is reported as for any file.
 //!
 //! A regular file replaced keeps its permissions; being a new file, it no longer shares
 //! the old one's hard links, nor its owner when another user's file is replaced.
@@ -51,6 +57,19 @@ impl AtomicFile {
         let err = |e: std::io::Error| FormatError::io(path, e);
         if path.file_name().is_none() {
             return Err(err(std::io::Error::other("not a file name")));
+        }
+        // One of the process's descriptors: the file behind it is the caller's, opened by
+        // the shell (`> f` or `>> f`), and is written where the descriptor points.
+        if through_descriptor(path) {
+            let file = std::fs::OpenOptions::new()
+                .append(true)
+                .open(path)
+                .map_err(err)?;
+            return Ok(Self {
+                target: path.to_path_buf(),
+                rename: None,
+                writer: Some(BufWriter::new(file)),
+            });
         }
         // What the path names, through its links (the kernel's view: a link in /proc to a
         // pipe names the pipe).
@@ -93,9 +112,15 @@ impl AtomicFile {
     /// Writes to `partial` (registered for an interrupt to remove), renamed onto `to` on
     /// commit; `target` is the name messages give.
     fn staged(target: &Path, partial: PathBuf, to: PathBuf) -> Result<Self, FormatError> {
-        let (registered, file) =
-            Partial::create(&partial, PartialKind::File, || File::create(&partial))
-                .map_err(|e| FormatError::io(target, e))?;
+        // Made new: a file or a link already of that name is an error, never truncated or
+        // followed.
+        let (registered, file) = Partial::create(&partial, PartialKind::File, || {
+            std::fs::OpenOptions::new()
+                .write(true)
+                .create_new(true)
+                .open(&partial)
+        })
+        .map_err(|e| FormatError::io(target, e))?;
         // A file replaced keeps its permissions (a private file must not come back readable
         // by all), set before anything is written.
         if let Ok(old) = std::fs::symlink_metadata(&to)
@@ -214,12 +239,54 @@ impl Drop for Prepared {
     }
 }
 
-/// `.NAME.partial` beside `path`: hidden, and named after what it will become.
-pub(crate) fn partial_path(path: &Path) -> PathBuf {
+/// `.NAME.PID-N.partial` beside `path`: hidden, named after what it will become, and after
+/// this process and a count of its partial files, so that no other write (another run of the
+/// program, another thread) has the same.
+fn partial_path(path: &Path) -> PathBuf {
+    static COUNT: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
+    let n = COUNT.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
     let mut name = std::ffi::OsString::from(".");
     name.push(path.file_name().unwrap_or_default());
-    name.push(".partial");
+    name.push(format!(".{}-{n}.partial", std::process::id()));
     path.with_file_name(name)
+}
+
+/// Whether `path`, or a link on the way to what it names, is one of the process's open
+/// descriptors: `/dev/stdout`, `/dev/stderr`, `/dev/stdin`, an entry of `/dev/fd` or of a
+/// `/proc/PID/fd` folder (each hop's folder resolved, so `/dev/fd/1` and relative spellings
+/// count too).
+fn through_descriptor(path: &Path) -> bool {
+    let mut p = path.to_path_buf();
+    for _ in 0..40 {
+        let dir = match p.parent() {
+            Some(d) if !d.as_os_str().is_empty() => d,
+            _ => Path::new("."),
+        };
+        if let (Ok(dir), Some(name)) = (std::fs::canonicalize(dir), p.file_name()) {
+            let comps: Vec<_> = dir.components().map(|c| c.as_os_str().to_owned()).collect();
+            let is = |parts: &[&str]| {
+                comps.len() == parts.len() + 1 && comps[1..].iter().zip(parts).all(|(c, p)| c == p)
+            };
+            let std_name = ["stdout", "stderr", "stdin"].iter().any(|n| name == *n);
+            let proc_fd = comps.len() == 4 && comps[1] == "proc" && comps[3] == "fd";
+            if (is(&["dev"]) && std_name) || is(&["dev", "fd"]) || proc_fd {
+                return true;
+            }
+        }
+        match std::fs::symlink_metadata(&p) {
+            Ok(m) if m.file_type().is_symlink() => match std::fs::read_link(&p) {
+                Ok(to) => {
+                    p = match p.parent() {
+                        Some(dir) if to.is_relative() => dir.join(to),
+                        _ => to,
+                    };
+                }
+                Err(_) => return false,
+            },
+            _ => return false,
+        }
+    }
+    false
 }
 
 /// `path` with its symbolic links followed, however many (`path` itself when it is none);
@@ -295,7 +362,12 @@ mod tests {
         {
             let mut f = AtomicFile::create(&p).unwrap();
             writeln!(f, "half").unwrap();
-            assert_eq!(entries(&d), [".out.csv.partial"]);
+            let names = entries(&d);
+            assert_eq!(names.len(), 1, "{names:?}");
+            assert!(
+                names[0].starts_with(".out.csv.") && names[0].ends_with(".partial"),
+                "{names:?}"
+            );
             // dropped without commit
         }
         assert!(entries(&d).is_empty());
@@ -395,6 +467,64 @@ mod tests {
             entries(&d),
             ["dangling.csv", "link.csv", "made.csv", "real.csv"]
         );
+        std::fs::remove_dir_all(&d).unwrap();
+    }
+
+    #[test]
+    fn two_writes_of_one_target_do_not_share_a_partial_file() {
+        let d = dir("two");
+        let p = d.join("out.csv");
+        let mut a = AtomicFile::create(&p).unwrap();
+        let mut b = AtomicFile::create(&p).unwrap();
+        assert_eq!(entries(&d).len(), 2, "{:?}", entries(&d));
+        writeln!(a, "a1").unwrap();
+        writeln!(b, "b1").unwrap();
+        a.flush().unwrap();
+        writeln!(b, "b2").unwrap();
+        writeln!(a, "a2").unwrap();
+        a.commit().unwrap();
+        assert_eq!(std::fs::read_to_string(&p).unwrap(), "a1\na2\n");
+        b.commit().unwrap();
+        assert_eq!(std::fs::read_to_string(&p).unwrap(), "b1\nb2\n");
+        assert_eq!(entries(&d), ["out.csv"]);
+        std::fs::remove_dir_all(&d).unwrap();
+    }
+
+    #[cfg(target_os = "linux")]
+    #[test]
+    fn a_descriptor_is_appended_to_not_replaced() {
+        use std::os::fd::AsRawFd;
+        use std::os::unix::fs::MetadataExt;
+        let d = dir("fd");
+        let log = d.join("log.csv");
+        std::fs::write(&log, "before\n").unwrap();
+        let ino = std::fs::metadata(&log).unwrap().ino();
+        // As a shell's `3>> log.csv` would hold it.
+        let held = std::fs::OpenOptions::new().append(true).open(&log).unwrap();
+        let fd = held.as_raw_fd();
+        for path in [format!("/dev/fd/{fd}"), format!("/proc/self/fd/{fd}")] {
+            assert!(through_descriptor(Path::new(&path)), "{path}");
+            let mut f = AtomicFile::create(Path::new(&path)).unwrap();
+            writeln!(f, "{path}").unwrap();
+            f.commit().unwrap();
+        }
+        drop(held);
+        assert_eq!(
+            std::fs::read_to_string(&log).unwrap(),
+            format!("before\n/dev/fd/{fd}\n/proc/self/fd/{fd}\n")
+        );
+        // The same file, not one renamed over it, and nothing left beside it.
+        assert_eq!(std::fs::metadata(&log).unwrap().ino(), ino);
+        assert_eq!(entries(&d), ["log.csv"]);
+        // The standard streams by name, a link to one, and ordinary paths.
+        assert!(through_descriptor(Path::new("/dev/stdout")));
+        assert!(through_descriptor(Path::new("/dev/stderr")));
+        let link = d.join("to-stdout");
+        std::os::unix::fs::symlink("/dev/stdout", &link).unwrap();
+        assert!(through_descriptor(&link));
+        assert!(!through_descriptor(&log));
+        assert!(!through_descriptor(&d.join("new.csv")));
+        assert!(!through_descriptor(Path::new("/dev/null")));
         std::fs::remove_dir_all(&d).unwrap();
     }
 

@@ -3,7 +3,7 @@
 //! ([`remove_partial_outputs`]) before it exits.
 //!
 //! Unwinding and `Drop` already remove a partial output on every error; a signal (Ctrl-C,
-//! `kill`) ends a process without either. A program that wants no stray `.NAME.partial` left by
+//! `kill`) ends a process without either. A program that wants no stray `.NAME.PID-N.partial` left by
 //! an interrupt calls [`remove_partial_outputs`] when a signal arrives and then exits, as the
 //! `pftrack` command line does: from a thread that waits for signals (`signal_hook::iterator`,
 //! `ctrlc`), never inside an asynchronous signal handler, since it takes a lock, allocates and

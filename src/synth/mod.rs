@@ -585,8 +585,13 @@ fn remove_stale_frames(frames_dir: &Path, frames: usize) -> Result<(), SynthErro
         let entry = entry.map_err(|e| SynthError::io(frames_dir, e))?;
         let name = entry.file_name();
         let Some(name) = name.to_str() else { continue };
-        // the temporary file of a frame whose render was interrupted
-        let partial = name.starts_with('.') && name.ends_with(".png.partial");
+        // the temporary file of a frame whose render was interrupted (`.NNNNN.png.partial`
+        // before 2026-12-06, `.NNNNN.png.PID-N.partial` since)
+        let partial = name.strip_prefix('.').is_some_and(|n| {
+            n.strip_suffix(".partial")
+                .and_then(|n| n.get(..9))
+                .is_some_and(|frame| frame_index(frame).is_some())
+        });
         if partial {
             let p = entry.path();
             std::fs::remove_file(&p).map_err(|e| SynthError::io(&p, e))?;
