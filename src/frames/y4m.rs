@@ -1,9 +1,10 @@
 //! A YUV4MPEG2 (`.y4m`) reader, written for this project.
 //!
 //! Header: `YUV4MPEG2` then space-separated tags: `W` width, `H` height, `F` frame rate
-//! `n:d`, `I` interlacing (`p t b m ?`: fields are delivered as the interleaved frame, and
-//! [`super::FrameSource::caveats`] says so), `A` pixel aspect `n:d`, `C` colour space, `X`
-//! extensions (ignored).
+//! `n:d` (`0:0`: unknown), `I` interlacing (`p t b m ?`: fields are delivered as the
+//! interleaved frame, and [`super::FrameSource::caveats`] says so), `A` pixel aspect `n:d`,
+//! `C` colour space, `X` extensions (`XCOLORRANGE=FULL` or `=LIMITED`, which ffmpeg writes,
+//! is read; the others are ignored).
 //! Colour spaces read: `420jpeg` (the default when `C` is absent), `420` (the same siting),
 //! `420mpeg2`, `420paldv`, `444`, and `mono`; all 8-bit. Anything else (`422`, `411`,
 //! `444alpha`, the high bit depths `...p10` etc.) is a clear [`FrameError::Y4m`] error here;
@@ -14,11 +15,13 @@
 //! (4:2:0 chroma planes are `ceil(W/2) × ceil(H/2)`). A partial frame at the end of the file
 //! is a [`FrameError::Truncated`] error here, never a silently shorter video;
 //! [`super::FrameSource`] ends such a stream after its complete frames and says where it was
-//! cut ([`super::FrameSource::shortfall`]).
+//! cut ([`super::FrameSource::shortfall`]). A blank line after the last frame ends the stream
+//! as its end would; anything else where a `FRAME` header belongs is an error.
 //!
 //! Colour conversion: ITU-R BT.601 (Kr = 0.299, Kb = 0.114), limited ("studio") range, the
 //! y4m norm: Y in 16..235 and Cb, Cr in 16..240 map to full-range RGB 0..255 (values outside
-//! are clipped). 4:2:0 chroma is upsampled bilinearly with its siting: `420jpeg`/`420` chroma
+//! are clipped). A header with `XCOLORRANGE=FULL` (ffmpeg's for `gray` and the `yuvj`
+//! formats of JPEG and MJPEG sources) has Y and Cb, Cr over the whole 0..255 instead. 4:2:0 chroma is upsampled bilinearly with its siting: `420jpeg`/`420` chroma
 //! sits between the luma samples in both directions, `420mpeg2` on the even luma columns
 //! (and between rows); `420paldv` is read as sited on the even luma columns and rows (the
 //! format alternates Cb and Cr rows, which this approximation ignores).
@@ -117,6 +120,9 @@ pub struct Y4mHeader {
     pub aspect: Option<(u32, u32)>,
     /// Interlacing letter (`p`, `t`, `b`, `m` or `?`), when given.
     pub interlace: Option<char>,
+    /// Whether the samples are full range (`XCOLORRANGE=FULL`), not the y4m norm's limited
+    /// range.
+    pub full_range: bool,
 }
 
 /// Parses `n:d`.
@@ -159,6 +165,7 @@ impl Y4mHeader {
             frame_rate: None,
             aspect: None,
             interlace: None,
+            full_range: false,
         };
         let mut seen = String::new();
         for tag in parts.filter(|t| !t.is_empty()) {
@@ -184,6 +191,8 @@ impl Y4mHeader {
                         })?;
                     if letter == 'W' { &mut w } else { &mut h }.replace(n);
                 }
+                // `0:0`: the rate is not known.
+                'F' if v == "0:0" => hdr.frame_rate = None,
                 'F' => hdr.frame_rate = Some(ratio(v, 'F', false)?),
                 'A' => hdr.aspect = Some(ratio(v, 'A', true)?),
                 'I' => match v {
@@ -200,7 +209,11 @@ impl Y4mHeader {
                         )
                     })?
                 }
-                'X' => {}
+                'X' => match v {
+                    "COLORRANGE=FULL" => hdr.full_range = true,
+                    "COLORRANGE=LIMITED" => hdr.full_range = false,
+                    _ => {}
+                },
                 _ => return Err(format!("unknown header tag '{tag}'")),
             }
         }
@@ -235,7 +248,7 @@ impl Y4mHeader {
     }
 }
 
-/// BT.601 limited-range → RGB in 16.16 fixed point, one table per term.
+/// BT.601 limited- or full-range YCbCr → RGB in 16.16 fixed point, one table per term.
 #[derive(Debug, Clone)]
 struct Luts {
     y: [i32; 256],
@@ -250,10 +263,16 @@ const KR: f64 = 0.299;
 const KB: f64 = 0.114;
 
 impl Luts {
-    fn new() -> Self {
+    /// The tables for limited-range samples (Y 16..235, Cb and Cr 16..240) or, with `full`,
+    /// samples over the whole 0..255.
+    fn new(full: bool) -> Self {
         let kg = 1.0 - KR - KB;
-        let ys = 255.0 / 219.0;
-        let cs = 255.0 / 112.0;
+        // Y's scale and black level, and the chroma's scale (twice its half-range's inverse).
+        let (ys, y0, cs) = if full {
+            (1.0, 0.0, 255.0 / 127.5)
+        } else {
+            (255.0 / 219.0, 16.0, 255.0 / 112.0)
+        };
         let fix = |v: f64| (v * 65536.0).round() as i32;
         let mut l = Self {
             y: [0; 256],
@@ -264,7 +283,7 @@ impl Luts {
         };
         for i in 0..256 {
             let c = i as f64 - 128.0;
-            l.y[i] = fix(ys * (i as f64 - 16.0));
+            l.y[i] = fix(ys * (i as f64 - y0));
             l.r_cr[i] = fix(cs * (1.0 - KR) * c);
             l.g_cb[i] = fix(-cs * KB * (1.0 - KB) / kg * c);
             l.g_cr[i] = fix(-cs * KR * (1.0 - KR) / kg * c);
@@ -288,7 +307,7 @@ impl Luts {
 /// Converts one BT.601 limited-range YCbCr sample to RGB (see the module docs).
 pub fn ycbcr_to_rgb(y: u8, cb: u8, cr: u8) -> [u8; 3] {
     static LUTS: std::sync::OnceLock<Luts> = std::sync::OnceLock::new();
-    LUTS.get_or_init(Luts::new).rgb(y, cb, cr)
+    LUTS.get_or_init(|| Luts::new(false)).rgb(y, cb, cr)
 }
 
 /// One output coordinate's chroma taps, weights in quarters (`w0 + w1 = 4`).
@@ -368,6 +387,7 @@ impl<R: BufRead> Y4mReader<R> {
             Chroma::C420Paldv => (chroma_taps(w, cw, false), chroma_taps(h, ch, false)),
             Chroma::C444 | Chroma::Mono => (Vec::new(), Vec::new()),
         };
+        let luts = Luts::new(header.full_range);
         Ok(Self {
             r,
             name: name.to_string(),
@@ -377,7 +397,7 @@ impl<R: BufRead> Y4mReader<R> {
             frames: 0,
             xt,
             yt,
-            luts: Luts::new(),
+            luts,
         })
     }
 
@@ -404,6 +424,17 @@ impl<R: BufRead> Y4mReader<R> {
             return Ok(None);
         }
         let ok_start = line.starts_with(b"FRAME") && matches!(line.get(5), Some(b' ' | b'\n'));
+        // A blank line ending the stream (an editor's or `echo`'s newline) ends it cleanly.
+        if !ok_start
+            && line.iter().all(u8::is_ascii_whitespace)
+            && self
+                .r
+                .fill_buf()
+                .map_err(|e| FrameError::io(&self.name, e))?
+                .is_empty()
+        {
+            return Ok(None);
+        }
         if !ok_start || line.last() != Some(&b'\n') {
             if b"FRAME".starts_with(&line) || (ok_start && (n as u64) < MAX_LINE) {
                 return Err(self.truncated("in its FRAME header".into()));
@@ -544,6 +575,37 @@ mod tests {
     }
 
     #[test]
+    fn unknown_rate_and_colour_range() {
+        let h = Y4mHeader::parse("YUV4MPEG2 W4 H2 F0:0 Cmono XCOLORRANGE=FULL").unwrap();
+        assert_eq!(h.frame_rate, None);
+        assert!(h.full_range);
+        let h = Y4mHeader::parse("YUV4MPEG2 W4 H2 XCOLORRANGE=LIMITED").unwrap();
+        assert!(!h.full_range);
+        assert!(!Y4mHeader::parse("YUV4MPEG2 W4 H2").unwrap().full_range);
+        // A full-range grey of 40 stays 40 (limited range would read it as 28), and every
+        // level is its own.
+        let stream = |range: &str| {
+            let mut b = format!("YUV4MPEG2 W4 H2 F0:0 Cmono{range}\nFRAME\n").into_bytes();
+            b.extend([40, 0, 16, 128, 235, 255, 1, 254]);
+            let mut r = Y4mReader::new(std::io::Cursor::new(b), "t").unwrap();
+            let f = r.read_frame().unwrap().unwrap();
+            f.as_raw().chunks(3).map(|p| p[0]).collect::<Vec<u8>>()
+        };
+        assert_eq!(
+            stream(" XCOLORRANGE=FULL"),
+            [40, 0, 16, 128, 235, 255, 1, 254]
+        );
+        assert_eq!(stream("")[..3], [28, 0, 0]);
+        // Full-range red (JPEG's Y 76, Cb 85, Cr 255) and the neutral greys.
+        let full = Luts::new(true);
+        let r = full.rgb(76, 85, 255);
+        assert!(r[0] >= 253 && r[1] <= 2 && r[2] <= 2, "{r:?}");
+        for y in [0u8, 1, 100, 254, 255] {
+            assert_eq!(full.rgb(y, 128, 128), [y; 3]);
+        }
+    }
+
+    #[test]
     fn bt601_limited_range_anchors() {
         assert_eq!(ycbcr_to_rgb(16, 128, 128), [0, 0, 0]);
         assert_eq!(ycbcr_to_rgb(235, 128, 128), [255, 255, 255]);
@@ -599,5 +661,24 @@ mod tests {
         bad[21..26].copy_from_slice(b"FRAMX");
         let mut r = Y4mReader::new(&bad[..], "mem").unwrap();
         assert!(matches!(r.read_frame(), Err(FrameError::Y4m { .. })));
+        // A blank line after the last frame ends the stream; anything else there, or a blank
+        // line with more after it, is not a FRAME header.
+        for (tail, ends) in [
+            (&b"\n"[..], true),
+            (b"\r\n", true),
+            (b"\n\n", false),
+            (b"\nFRAME\n", false),
+            (b"x\n", false),
+        ] {
+            let mut more = data.clone();
+            more.extend_from_slice(tail);
+            let mut r = Y4mReader::new(&more[..], "mem").unwrap();
+            let res: Result<Vec<_>, _> =
+                std::iter::from_fn(|| r.read_frame().transpose()).collect();
+            assert_eq!(res.is_ok(), ends, "{tail:?}: {res:?}");
+            if ends {
+                assert_eq!(res.unwrap().len(), 2);
+            }
+        }
     }
 }
