@@ -53,10 +53,21 @@ pub fn parse_otb_boxes(text: &str, path: &Path) -> Result<Vec<BoxRect>, FormatEr
                 ),
             ));
         }
-        let f: Vec<&str> = line
-            .split(|c: char| c == ',' || c.is_whitespace())
-            .filter(|s| !s.is_empty())
-            .collect();
+        // Commas, tabs or spaces between the values; a comma at the end is passed over, but
+        // an empty field between two commas (`25,,18,14`) is a value missing, not a
+        // separator twice.
+        let mut parts: Vec<&str> = line.split(',').map(str::trim).collect();
+        if parts.len() > 1 && parts.last() == Some(&"") {
+            parts.pop();
+        }
+        if parts.iter().any(|p| p.is_empty()) {
+            return Err(FormatError::parse(
+                path,
+                i + 1,
+                format!("an empty field in '{line}'"),
+            ));
+        }
+        let f: Vec<&str> = parts.iter().flat_map(|p| p.split_whitespace()).collect();
         if f.len() != 4 {
             return Err(FormatError::parse(
                 path,
@@ -115,5 +126,12 @@ mod tests {
         let e = parse_otb_boxes("1,2,3,4\n60,40,-40,50\n", Path::new("n")).unwrap_err();
         assert_eq!(e.to_string(), "n:2: w -40 is negative");
         assert!(parse_otb_boxes("0,0,0,0\n", Path::new("z")).is_ok());
+        // A trailing comma and spaces beside commas are fine; an empty field is not.
+        let b = parse_otb_boxes("1, 2, 3, 4,\n5 ,6,7,8\n", Path::new("x")).unwrap();
+        assert_eq!(pixel_to_otb(&b[1]), [5.0, 6.0, 7.0, 8.0]);
+        let e = parse_otb_boxes("25,,18,14,18\n", Path::new("e")).unwrap_err();
+        assert_eq!(e.to_string(), "e:1: an empty field in '25,,18,14,18'");
+        assert!(parse_otb_boxes(",1,2,3,4\n", Path::new("e")).is_err());
+        assert!(parse_otb_boxes("1,2,3,4,,\n", Path::new("e")).is_err());
     }
 }

@@ -18,10 +18,34 @@ pub use pose_csv::{
     write_pose_csv,
 };
 
+/// The largest text file [`read_text`] reads (256 MiB: a pose CSV of about two million
+/// frames), so that a path to an endless stream (`/dev/zero`) or a wrong, huge file ends in an
+/// error instead of filling the memory.
+pub(crate) const MAX_TEXT_BYTES: u64 = 256 << 20;
+
 /// Reads a text file whole, without the UTF-8 byte-order mark some editors put first (it
-/// would otherwise cling to the first field: `'\u{feff}39.5' is not a number`).
+/// would otherwise cling to the first field: `'\u{feff}39.5' is not a number`). A file over
+/// [`MAX_TEXT_BYTES`] is an error.
 pub(crate) fn read_text(path: &std::path::Path) -> std::io::Result<String> {
-    let mut text = std::fs::read_to_string(path)?;
+    read_text_limited(path, MAX_TEXT_BYTES)
+}
+
+/// [`read_text`] with its bound given.
+fn read_text_limited(path: &std::path::Path, limit: u64) -> std::io::Result<String> {
+    use std::io::Read;
+    let mut text = String::new();
+    std::fs::File::open(path)?
+        .take(limit + 1)
+        .read_to_string(&mut text)?;
+    if text.len() as u64 > limit {
+        return Err(std::io::Error::new(
+            std::io::ErrorKind::InvalidData,
+            format!(
+                "longer than {} MiB, more than a text file of this kind holds",
+                limit >> 20
+            ),
+        ));
+    }
     if text.starts_with('\u{feff}') {
         text.drain(..'\u{feff}'.len_utf8());
     }
@@ -123,6 +147,27 @@ mod tests {
             super::read_text(&dir.join("plain.txt")).unwrap(),
             "39.5,29.5,9,12\n"
         );
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    /// An endless stream or an outsized file is an error, not a read that fills the memory.
+    #[test]
+    fn text_is_read_up_to_a_bound() {
+        let dir = std::env::temp_dir().join(format!("pftrack-bound-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let p = dir.join("t.txt");
+        std::fs::write(&p, "x".repeat(1 << 20)).unwrap();
+        assert_eq!(
+            super::read_text_limited(&p, 1 << 20).unwrap().len(),
+            1 << 20
+        );
+        let e = super::read_text_limited(&p, (1 << 20) - 1).unwrap_err();
+        assert_eq!(e.kind(), std::io::ErrorKind::InvalidData);
+        #[cfg(unix)]
+        {
+            let e = super::read_text_limited(std::path::Path::new("/dev/zero"), 1 << 20);
+            assert!(e.unwrap_err().to_string().contains("longer than"));
+        }
         std::fs::remove_dir_all(&dir).unwrap();
     }
 }
