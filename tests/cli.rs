@@ -892,6 +892,37 @@ fn pftrack_to(args: &[&str], stdout: Stdio) -> std::process::Output {
         .expect("run pftrack")
 }
 
+/// `--out /dev/stdout` with standard output appended to a file (`>> log`) appends the CSV
+/// there, as the shell means, instead of renaming a new file over the log.
+#[cfg(target_os = "linux")]
+#[test]
+fn cli_out_to_standard_output_appends_to_the_file_behind_it() {
+    let dir = synth_dir("append-stdout", 1, "64x48");
+    let f0 = dir.join("frames/00000.png");
+    let f0 = f0.to_str().unwrap();
+    let kps = dir.join("kps.csv");
+    pftrack_ok(&["sift", f0, "--out", kps.to_str().unwrap()]);
+    let log = dir.join("log.csv");
+    std::fs::write(&log, "before\n").unwrap();
+    let append = std::fs::OpenOptions::new().append(true).open(&log).unwrap();
+    let out = pftrack_to(&["sift", f0, "--out", "/dev/stdout"], Stdio::from(append));
+    assert!(out.status.success(), "{out:?}");
+    let mut want = b"before\n".to_vec();
+    want.extend(std::fs::read(&kps).unwrap());
+    let got = std::fs::read(&log).unwrap();
+    assert!(
+        got == want,
+        "the log holds {} bytes, starting {:?}; want {} starting 'before'",
+        got.len(),
+        String::from_utf8_lossy(&got[..got.len().min(20)]),
+        want.len()
+    );
+    let mut left = names(&dir);
+    left.retain(|n| n.starts_with('.'));
+    assert!(left.is_empty(), "{left:?}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
 /// Standard output that cannot be written (a full disk: `/dev/full`) is a one-line error
 /// with a non-zero exit, for a command that prints a table and for one that prints its CSV,
 /// not the panic of `println!`.
