@@ -19,6 +19,35 @@ fn resolved(p: &Path) -> Option<PathBuf> {
     std::fs::canonicalize(dir).ok().map(|d| d.join(name))
 }
 
+/// `p` made absolute with the links of its longest existing part resolved and the rest
+/// appended (`.` dropped, `..` taking off the part before): where a file will be, in folders
+/// that may not exist yet. `None` only when the working folder cannot be read.
+fn resolved_ahead(p: &Path) -> Option<PathBuf> {
+    let abs = if p.is_absolute() {
+        p.to_path_buf()
+    } else {
+        std::env::current_dir().ok()?.join(p)
+    };
+    let mut base = abs.as_path();
+    let mut rest = Vec::new();
+    loop {
+        if let Ok(mut out) = std::fs::canonicalize(base) {
+            for c in rest.iter().rev() {
+                match c {
+                    std::path::Component::ParentDir => {
+                        out.pop();
+                    }
+                    std::path::Component::Normal(n) => out.push(n),
+                    _ => {}
+                }
+            }
+            return Some(out);
+        }
+        rest.push(base.components().next_back()?);
+        base = base.parent()?;
+    }
+}
+
 /// Whether `a` and `b` name the same file or folder (through links and relative paths).
 pub fn same(a: &Path, b: &Path) -> bool {
     matches!((resolved(a), resolved(b)), (Some(x), Some(y)) if x == y)
@@ -66,7 +95,9 @@ fn frames_folder(input: &Path) -> Option<PathBuf> {
 /// Refuses outputs of a track of `input` (with the init or truth files it reads, `others`)
 /// that would overwrite or join what it reads: the pose CSV (`-o`) as any of them, or as an
 /// image in the frames' folder (it would be read as a frame), however it is spelled or
-/// linked; the rendered frames (`--render`) into the frames' folder.
+/// linked; the rendered frames (`--render`) into the frames' folder. Nor may the two outputs
+/// clash: the pose CSV under a name the render writes or trims in its folder (a frame's,
+/// `NNNNN.png`, or its mark).
 pub fn track_outputs(
     input: &Path,
     others: &[&Path],
@@ -80,6 +111,21 @@ pub fn track_outputs(
         bail!(
             "--out and --render both name {}: the poses and the rendered frames need places of their own",
             o.display()
+        );
+    }
+    if let (Some(o), Some(r)) = (out, render)
+        && let (Some(real), Some(folder)) = (resolved_ahead(o), resolved_ahead(r))
+        && real.parent() == Some(folder.as_path())
+        && real
+            .file_name()
+            .and_then(|n| n.to_str())
+            .is_some_and(|n| crate::track::is_frame_name(n) || n == crate::track::RENDER_MARK)
+    {
+        bail!(
+            "--out {} is a name the render writes or removes in {}: give the poses another \
+             name or place",
+            o.display(),
+            r.display()
         );
     }
     if let Some(o) = out {
@@ -139,6 +185,16 @@ mod tests {
         assert!(out(&frames.join("poses.csv")).is_ok());
         assert!(track_outputs(&frames, &[], None, Some(&d.join("frames/."))).is_err());
         assert!(track_outputs(&frames, &[], None, Some(&d.join("render"))).is_ok());
+        // The poses under a rendered frame's name or the render's mark, however spelled;
+        // another name in the render folder is fine.
+        let render = d.join("render");
+        let both = |o: &Path| track_outputs(&frames, &[], Some(o), Some(&render));
+        assert!(both(&render.join("00005.png")).is_err());
+        assert!(both(&d.join("render/../render/.pftrack-render")).is_err());
+        assert!(both(&render.join("poses.csv")).is_ok());
+        assert!(both(&render.join("000005.png")).is_ok());
+        assert!(both(&d.join("render/new/../00001.png")).is_err());
+        assert!(both(&d.join("elsewhere/00001.png")).is_ok());
         // A single image: itself, and its folder for the rendered frames.
         assert!(track_outputs(&first, &[], Some(&first), None).is_err());
         assert!(track_outputs(&first, &[], None, Some(&frames)).is_err());

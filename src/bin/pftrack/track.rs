@@ -1157,7 +1157,7 @@ const STALE_STAGING: std::time::Duration = std::time::Duration::from_secs(3600);
 
 /// The file that marks a folder as rendered by `track --render`, so that a later render may
 /// replace its frames.
-const RENDER_MARK: &str = ".pftrack-render";
+pub(crate) const RENDER_MARK: &str = ".pftrack-render";
 
 /// What [`RENDER_MARK`] says to a reader who finds it.
 const RENDER_MARK_TEXT: &str = "The frames here were rendered by `pftrack track --render`; a \
@@ -1166,7 +1166,7 @@ const RENDER_MARK_TEXT: &str = "The frames here were rendered by `pftrack track 
 /// Whether `name` is a rendered frame's name, `frame_name(n)` for an `n` of five digits: a
 /// render replaces and trims frames counting from 0, so a longer name (`20240101.png`, a
 /// date) is out of its reach.
-fn is_frame_name(name: &str) -> bool {
+pub(crate) fn is_frame_name(name: &str) -> bool {
     // `frame_name(n) == name` already refuses a sign or a number written otherwise.
     name.len() == "00000.png".len()
         && name
