@@ -1157,6 +1157,70 @@ fn cli_an_interrupted_synth_leaves_the_folder_as_it_was() {
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
+/// An interrupted `demo` leaves its folder as it was: the sequence and the poses move in
+/// together, so an earlier run's poses never end up beside a new sequence (the sequence used
+/// to be put in place before the track began).
+#[cfg(unix)]
+#[test]
+fn cli_an_interrupted_demo_leaves_the_earlier_run_whole() {
+    use std::os::unix::process::ExitStatusExt as _;
+    let dir = tmp_dir("interrupt-demo");
+    let d = dir.to_str().unwrap();
+    let demo = |scenario: &str, frames: &str| {
+        let mut cmd = Command::new(env!("CARGO_BIN_EXE_pftrack"));
+        cmd.args([
+            "demo",
+            "--out",
+            d,
+            "--backend",
+            "cpu",
+            "--scenario",
+            scenario,
+        ])
+        .args(["--frames", frames])
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped());
+        cmd
+    };
+    assert!(demo("pan", "5").status().unwrap().success());
+    let poses = std::fs::read(dir.join("poses.csv")).unwrap();
+    let truth = std::fs::read(dir.join("sequence/truth.csv")).unwrap();
+    let frames_before = names(&dir.join("sequence/frames"));
+    let child = spawn_with_default_signals(&mut demo("nod", "600"), false);
+    // Once the last frame is rendered into the staging folder the track is under way.
+    let frames = dir.join("sequence/frames");
+    let rendered = || {
+        std::fs::read_dir(&frames)
+            .into_iter()
+            .flatten()
+            .flatten()
+            .filter(|e| {
+                e.file_name()
+                    .to_string_lossy()
+                    .starts_with(".pftrack-synth-")
+            })
+            .any(|e| e.path().join("00599.png").exists())
+    };
+    wait_for_a_frame(rendered);
+    std::thread::sleep(std::time::Duration::from_millis(100));
+    send(&child, libc::SIGTERM);
+    let out = child.wait_with_output().unwrap();
+    assert_eq!(out.status.signal(), Some(libc::SIGTERM), "{out:?}");
+    assert_eq!(std::fs::read(dir.join("poses.csv")).unwrap(), poses);
+    assert_eq!(
+        std::fs::read(dir.join("sequence/truth.csv")).unwrap(),
+        truth
+    );
+    assert_eq!(names(&frames), frames_before, "old frames only, no staging");
+    assert_eq!(names(&dir), ["poses.csv", "sequence"]);
+    // Run to the end, the sequence and its poses are the new run's.
+    assert!(demo("nod", "8").status().unwrap().success());
+    let rows = |p: &Path| std::fs::read_to_string(p).unwrap().lines().count();
+    assert_eq!(rows(&dir.join("poses.csv")), 9);
+    assert_eq!(rows(&dir.join("sequence/truth.csv")), 9);
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
 /// A reader that stops reading (`| head -1`) ends the command quietly: exit 0, nothing on
 /// standard error. (Whether the command had written before the pipe closed or not, the
 /// outcome is the same.)

@@ -334,6 +334,63 @@ pub fn write_sequence(
     dir: &Path,
     progress: bool,
 ) -> Result<SynthSummary, SynthError> {
+    stage_sequence(cfg, dir, progress)?.commit(&[])
+}
+
+/// A sequence rendered by [`stage_sequence`] and not yet in place: its frames in a hidden
+/// staging folder inside `DIR/frames` ([`StagedSequence::frames_dir`], where they can be read
+/// meanwhile), its truth and init file held. [`StagedSequence::commit`] moves it into place as
+/// [`write_sequence`] does, with other outputs of the caller's in the same move; dropped
+/// uncommitted, it is removed and `DIR` is as it was.
+#[derive(Debug)]
+pub struct StagedSequence {
+    stage: Staging,
+    truth: Vec<PoseRecord>,
+    init_text: String,
+    summary: SynthSummary,
+}
+
+impl StagedSequence {
+    /// The folder the frames are in until the commit (`00000.png`, `00001.png`, ...).
+    pub fn frames_dir(&self) -> &Path {
+        self.stage.stage.path()
+    }
+
+    /// The init file's ellipse (frame 0's).
+    pub fn init(&self) -> Ellipse {
+        self.summary.init
+    }
+
+    /// The camera's horizontal field of view in degrees, as the init file gives it.
+    pub fn hfov_deg(&self) -> f64 {
+        HFOV_DEG
+    }
+
+    /// Moves the sequence into place (see [`write_sequence`]) and writes each `(path, text)`
+    /// of `also` (files of the caller's, outside the sequence's own names) in the same move:
+    /// each written beside its name first, then renamed in under the lock an interrupt waits
+    /// for, so that an interrupt finds the new sequence with them or the old one with what
+    /// they replace. Returns where the sequence went.
+    pub fn commit(self, also: &[(&Path, &str)]) -> Result<SynthSummary, SynthError> {
+        let frames = self.summary.config.frames;
+        self.stage.finish(
+            frames,
+            &format_pose_csv(&self.truth, false),
+            &self.init_text,
+            also,
+        )?;
+        Ok(self.summary)
+    }
+}
+
+/// Renders a sequence as [`write_sequence`] does but leaves it staged ([`StagedSequence`]):
+/// for a caller that reads the frames and commits its own outputs together with them (the
+/// `demo` command's poses beside its sequence).
+pub fn stage_sequence(
+    cfg: &SynthConfig,
+    dir: &Path,
+    progress: bool,
+) -> Result<StagedSequence, SynthError> {
     use rayon::prelude::*;
 
     let renderer = Renderer::new(cfg)?;
@@ -380,13 +437,17 @@ pub fn write_sequence(
         ellipse: init,
         hfov_deg: Some(HFOV_DEG),
     });
-    stage.finish(cfg.frames, &format_pose_csv(&records, false), &init_text)?;
-    Ok(SynthSummary {
-        config: *cfg,
-        frames_dir: dir.join("frames"),
-        truth: dir.join(TRUTH),
-        init_file: dir.join(INIT),
-        init,
+    Ok(StagedSequence {
+        stage,
+        truth: records,
+        init_text,
+        summary: SynthSummary {
+            config: *cfg,
+            frames_dir: dir.join("frames"),
+            truth: dir.join(TRUTH),
+            init_file: dir.join(INIT),
+            init,
+        },
     })
 }
 
@@ -398,6 +459,7 @@ const INIT: &str = "init.txt";
 /// The hidden folder inside `DIR/frames` that a render writes its frames into
 /// ([`StagingDir`]), moved into place by [`Staging::finish`]; dropped unfinished, it is
 /// removed, with the folders this render made when nothing else is in them.
+#[derive(Debug)]
 struct Staging {
     /// The sequence folder.
     dir: PathBuf,
@@ -459,7 +521,13 @@ impl Staging {
     /// Writes the truth and the init file beside their names, then moves the sequence into
     /// place (see [`write_sequence`]) under the registry's lock, so that an interrupt waits
     /// for it and finds either the old sequence or the new.
-    fn finish(mut self, frames: usize, truth: &str, init: &str) -> Result<(), SynthError> {
+    fn finish(
+        mut self,
+        frames: usize,
+        truth: &str,
+        init: &str,
+        also: &[(&Path, &str)],
+    ) -> Result<(), SynthError> {
         // Beside their names, named after this render's staging folder so that two renders
         // into one folder do not share them; a link of that name is replaced, not followed.
         let staging = self.stage.path().file_name().unwrap_or_default();
@@ -474,6 +542,15 @@ impl Staging {
         };
         let mut init = prepare(INIT, init)?;
         let mut truth = prepare(TRUTH, truth)?;
+        let mut others = also
+            .iter()
+            .map(|&(path, text)| -> Result<Prepared, SynthError> {
+                let mut f = AtomicFile::create(path)?;
+                std::io::Write::write_all(&mut f, text.as_bytes())
+                    .map_err(|e| SynthError::io(path, e))?;
+                Ok(f.prepare()?)
+            })
+            .collect::<Result<Vec<_>, _>>()?;
         let (dir, frames_dir) = (&self.dir, &self.frames_dir);
         let stage_path = self.stage.path().to_path_buf();
         self.stage.commit(|| -> Result<(), SynthError> {
@@ -493,6 +570,9 @@ impl Staging {
             remove_stale_frames(frames_dir, frames)?;
             init.rename_now()?;
             truth.rename_now()?;
+            for f in &mut others {
+                f.rename_now()?;
+            }
             let _ = std::fs::remove_dir(&stage_path);
             Ok(())
         })?;

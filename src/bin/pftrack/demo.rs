@@ -8,9 +8,9 @@ use anyhow::Context;
 use clap::Args;
 use pftrack::eval::{Truth, evaluate};
 use pftrack::frames::{self, SourceOptions};
-use pftrack::io::{PoseCsvWriter, read_init, read_pose_csv};
+use pftrack::io::{PoseRecord, format_pose_csv, read_pose_csv};
 use pftrack::likelihood::{Backend, create_engine};
-use pftrack::synth::{Scenario, SynthConfig, write_sequence};
+use pftrack::synth::{Scenario, SynthConfig, stage_sequence};
 use pftrack::tracker::{Init, Mode, Tracker};
 
 use crate::track::{config, progress};
@@ -73,34 +73,36 @@ pub fn run(a: DemoArgs) -> anyhow::Result<()> {
     if let Some(n) = notice {
         errln!("pftrack: {}", crate::in_cli_terms(&n));
     }
-    // `write_sequence` makes the folders, registered for an interrupt to remove.
+    // The sequence is rendered into a staging folder (registered for an interrupt to remove)
+    // and tracked from there; it moves into place together with the poses, so that an
+    // interrupted or failed demo leaves DIR as it was, never a new sequence beside an earlier
+    // run's poses.
     let seq_dir = a.out.join("sequence");
     let t0 = std::time::Instant::now();
-    let summary = write_sequence(&cfg, &seq_dir, std::io::stderr().is_terminal())?;
+    let staged = stage_sequence(&cfg, &seq_dir, std::io::stderr().is_terminal())?;
     let render_s = t0.elapsed().as_secs_f64();
 
-    let init_file = read_init(&seq_dir.join("init.txt"))?;
-    let init = Init::frontal(init_file.ellipse);
-    let mut source = frames::open(&summary.frames_dir, &SourceOptions::default())?;
+    let init = Init::frontal(staged.init());
+    let mut source = frames::open(staged.frames_dir(), &SourceOptions::default())?;
     let first = source
         .next()
         .context("the rendered sequence has no frames")??;
     // The synthetic camera is known: the init file gives it.
-    tcfg.camera_hfov_deg = init_file.hfov_deg;
+    tcfg.camera_hfov_deg = Some(staged.hfov_deg());
     let mut tracker = Tracker::with_engine(tcfg, engine, &first, init)?;
-    let mut w = PoseCsvWriter::create(&poses, true)?;
     let pb = progress(Some(cfg.frames));
-    w.write(&tracker.initial_estimate().to_record())?;
+    let mut records: Vec<PoseRecord> = vec![tracker.initial_estimate().to_record()];
     let t1 = std::time::Instant::now();
     for (k, frame) in source.enumerate() {
         let frame = frame.with_context(|| format!("reading frame {}", k + 1))?;
-        w.write(&tracker.step(&frame)?.to_record())?;
+        records.push(tracker.step(&frame)?.to_record());
         pb.inc(1);
     }
     pb.finish_and_clear();
-    w.finish()?;
     let track_s = t1.elapsed().as_secs_f64();
 
+    let summary = staged.commit(&[(&poses, &format_pose_csv(&records, true))])?;
+    // Scored from the files written, as `pftrack eval` scores them.
     let truth = Truth::Poses(read_pose_csv(&summary.truth)?);
     let report = evaluate(&truth, &read_pose_csv(&poses)?)?;
     outln!("{}", report.to_table())?;
