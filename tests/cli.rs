@@ -219,6 +219,9 @@ fn assert_one_line_error(args: &[&str], needle: &str, unwritten: &Path) {
     assert!(err.contains(needle), "{args:?}: {err}");
     assert!(!err.contains("panicked"), "{err}");
     assert!(!unwritten.exists(), "{args:?} left {}", unwritten.display());
+    // Nothing printed as a result before the error.
+    let printed = String::from_utf8_lossy(&out.stdout);
+    assert!(printed.is_empty(), "{args:?} printed {printed}");
 }
 
 #[test]

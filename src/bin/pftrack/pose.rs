@@ -206,6 +206,30 @@ pub fn run(a: PoseArgs) -> anyhow::Result<()> {
             err
         }
     };
+    /// What the solver gave.
+    enum Solved {
+        /// The 2x2 block's solvers, completed to the Necker pair.
+        Block(pftrack::pose::InterFrame),
+        /// The essential matrix's rotation.
+        Essential(pftrack::pose::essential::EssentialPose),
+    }
+    // Solved before anything is printed: a failure is the one line of its error, not a
+    // result line followed by it.
+    let w = ia.width() as f64;
+    let intrinsics = pftrack::pose::Intrinsics {
+        fx: w,
+        fy: w,
+        cx: (w - 1.0) / 2.0,
+        cy: (ia.height() as f64 - 1.0) / 2.0,
+    };
+    let solved = match solver {
+        Some(kind) => {
+            Solved::Block(interframe(&p, &q, [e.cx, e.cy], kind).map_err(|err| hint(err.into()))?)
+        }
+        None => Solved::Essential(
+            essential_rotation(&p, &q, &intrinsics).map_err(|err| hint(err.into()))?,
+        ),
+    };
     outln!(
         "matches inside the ellipse: {inside}, after outlier rejection: {}",
         p.len()
@@ -214,50 +238,42 @@ pub fn run(a: PoseArgs) -> anyhow::Result<()> {
         let [x, y, z] = Euler::from_matrix(r).to_degrees();
         outln!("{name}: tilt {x:.2} pan {y:.2} roll {z:.2} (degrees)")
     };
-    if let Some(kind) = solver {
-        let i = interframe(&p, &q, [e.cx, e.cy], kind).map_err(|err| hint(err.into()))?;
-        outln!("residual {:.3} px", i.block.residual)?;
-        // Weak perspective cannot tell a tilt and pan from their mirror (the Necker pair):
-        // the branch is the one whose parallax the features show against the object's centre,
-        // as the tracker's TPE mode picks it, with the centre's motion from block matching.
-        match block_match(&ga, &gb, &e, &AbmParams::for_target(&e)) {
-            Ok(m) if m.is_fitted() => {
-                let offset = i.translation - Vector2::new(m.translation[0], m.translation[1]);
-                let chosen = resolve_by_parallax(&i.pair, offset);
-                let mirror = if chosen == i.pair.a {
-                    i.pair.b
-                } else {
-                    i.pair.a
-                };
-                show("rotation", &chosen)?;
-                show("its Necker mirror", &mirror)?;
-                outln!(
-                    "branch: the features move {:.2},{:.2} px against the object's block-matched \
+    match solved {
+        Solved::Block(i) => {
+            outln!("residual {:.3} px", i.block.residual)?;
+            // Weak perspective cannot tell a tilt and pan from their mirror (the Necker pair):
+            // the branch is the one whose parallax the features show against the object's centre,
+            // as the tracker's TPE mode picks it, with the centre's motion from block matching.
+            match block_match(&ga, &gb, &e, &AbmParams::for_target(&e)) {
+                Ok(m) if m.is_fitted() => {
+                    let offset = i.translation - Vector2::new(m.translation[0], m.translation[1]);
+                    let chosen = resolve_by_parallax(&i.pair, offset);
+                    let mirror = if chosen == i.pair.a {
+                        i.pair.b
+                    } else {
+                        i.pair.a
+                    };
+                    show("rotation", &chosen)?;
+                    show("its Necker mirror", &mirror)?;
+                    outln!(
+                        "branch: the features move {:.2},{:.2} px against the object's block-matched \
                      centre (parallax: the nearer surface leads a turn); a shift that small \
                      against the noise leaves it a guess",
-                    offset[0],
-                    offset[1]
-                )?;
-            }
-            _ => {
-                show("rotation", &i.pair.a)?;
-                show("its Necker mirror", &i.pair.b)?;
-                outln!(
-                    "branch: undecided (block matching found no motion of the object to tell \
+                        offset[0],
+                        offset[1]
+                    )?;
+                }
+                _ => {
+                    show("rotation", &i.pair.a)?;
+                    show("its Necker mirror", &i.pair.b)?;
+                    outln!(
+                        "branch: undecided (block matching found no motion of the object to tell \
                      it by); the two differ in the signs of tilt and pan"
-                )?;
+                    )?;
+                }
             }
         }
-    } else {
-        let w = ia.width() as f64;
-        let k = pftrack::pose::Intrinsics {
-            fx: w,
-            fy: w,
-            cx: (w - 1.0) / 2.0,
-            cy: (ia.height() as f64 - 1.0) / 2.0,
-        };
-        let r = essential_rotation(&p, &q, &k).map_err(|err| hint(err.into()))?;
-        show("essential (focal = image width assumed)", &r.rotation)?;
+        Solved::Essential(r) => show("essential (focal = image width assumed)", &r.rotation)?,
     }
     if let Some(mut file) = draw {
         let mut img = ib.clone();
