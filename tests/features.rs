@@ -441,6 +441,7 @@ fn degenerate_images_do_not_panic() {
             upsampled: true,
             bytes: 21_120_000,
             limit: 10_000_000,
+            fits_without_upsampling: true,
         }) => {}
         other => panic!("{other:?}"),
     }

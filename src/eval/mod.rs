@@ -509,8 +509,9 @@ impl Report {
                 &mut s,
                 "absent",
                 format!(
-                    "{} truth frames without the target (not scored)",
-                    self.absent
+                    "{} truth frame{} without the target (not scored)",
+                    self.absent,
+                    if self.absent == 1 { "" } else { "s" }
                 ),
             );
         }

@@ -98,7 +98,7 @@ pub enum FeatureError {
         if *upsampled { " with the upsampled first octave" } else { "" },
         size_text(*bytes),
         size_text(*limit),
-        if *upsampled { "; detect without the upsampled first octave or within a region" } else { "; detect within a region" }
+        if *fits_without_upsampling { "; detect without the upsampled first octave or within a region" } else { "; detect within a region" }
     )]
     TooLarge {
         /// Width of the window (pixels).
@@ -111,6 +111,9 @@ pub enum FeatureError {
         bytes: u64,
         /// The limit.
         limit: u64,
+        /// Whether the window's scale space without the upsampled first octave would be
+        /// within the limit (false when it was not upsampled).
+        fits_without_upsampling: bool,
     },
 }
 

@@ -153,12 +153,18 @@ impl SiftParams {
     pub fn check_window(&self, w: usize, h: usize) -> Result<(), FeatureError> {
         let bytes = self.scale_space_bytes(w, h);
         if bytes > self.max_scale_space_bytes {
+            let plain = SiftParams {
+                upsample: false,
+                ..self.clone()
+            };
             return Err(FeatureError::TooLarge {
                 width: w,
                 height: h,
                 upsampled: self.upsample,
                 bytes,
                 limit: self.max_scale_space_bytes,
+                fits_without_upsampling: self.upsample
+                    && plain.scale_space_bytes(w, h) <= self.max_scale_space_bytes,
             });
         }
         Ok(())
@@ -1826,6 +1832,29 @@ mod tests {
             }
         }
         assert!(widest >= 64, "no window had a coarse octave: {widest}");
+    }
+
+    /// A window too large says whether dropping the upsampled first octave would be enough.
+    #[test]
+    fn a_window_too_large_says_what_would_fit() {
+        let p = SiftParams::default();
+        let fits = |w, h, p: &SiftParams| match p.check_window(w, h) {
+            Err(FeatureError::TooLarge {
+                fits_without_upsampling,
+                ..
+            }) => Some(fits_without_upsampling),
+            _ => None,
+        };
+        assert_eq!(fits(5000, 5000, &p), Some(true));
+        assert_eq!(fits(8192, 8192, &p), Some(false));
+        let plain = SiftParams {
+            upsample: false,
+            ..SiftParams::default()
+        };
+        assert_eq!(fits(8192, 8192, &plain), Some(false));
+        assert_eq!(fits(5000, 5000, &plain), None);
+        let e = p.check_window(8192, 8192).unwrap_err().to_string();
+        assert!(e.ends_with("; detect within a region"), "{e}");
     }
 
     /// Unchecked settings make the scale-space estimate saturate, not overflow.

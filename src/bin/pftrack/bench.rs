@@ -143,10 +143,10 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
         Backend::Auto => match GpuEngine::new() {
             Ok(g) => Some(g),
             Err(e) => {
-                outln!(
+                errln!(
                     "pftrack: note: no GPU timings ({})",
                     crate::in_cli_terms(&e.to_string())
-                )?;
+                );
                 None
             }
         },
@@ -278,7 +278,10 @@ fn run_step(args: &BenchArgs) -> anyhow::Result<()> {
         Backend::Auto => match create_engine(Backend::Gpu) {
             Ok((engine, _)) => Some(engine.name()),
             Err(e) => {
-                outln!("note: no GPU row ({})", crate::in_cli_terms(&e.to_string()))?;
+                errln!(
+                    "pftrack: note: no GPU row ({})",
+                    crate::in_cli_terms(&e.to_string())
+                );
                 None
             }
         },

@@ -114,9 +114,10 @@ pub fn run(a: DemoArgs) -> anyhow::Result<()> {
         format!("{:.0} frames/s", steps as f64 / track_s.max(1e-9))
     };
     outln!(
-        "scenario {} ({} frames {}x{}): rendered in {render_s:.1} s, tracked in {track_s:.1} s ({rate}) with {}",
+        "scenario {} ({} frame{} {}x{}): rendered in {render_s:.1} s, tracked in {track_s:.1} s ({rate}) with {}",
         scenario.name(),
         cfg.frames,
+        if cfg.frames == 1 { "" } else { "s" },
         cfg.width,
         cfg.height,
         tracker.engine_name()
