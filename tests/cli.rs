@@ -280,6 +280,14 @@ fn cli_track_rejects_bad_lost_and_reacquisition_settings() {
         let args = ["track", d, "--backend", "cpu", flag, value, "--out", c];
         assert_one_line_error(&args, needle, &csv);
     }
+    // The bound a flag is held to is said, not only another setting's name.
+    let args = ["track", d, "--found-above", "0.1", "--out", c];
+    assert_one_line_error(&args, "between lost_below (0.25", &csv);
+    // A settings file's errors are in its own terms: JSON's null, not Rust's None.
+    let json = dir.join("settings.json");
+    std::fs::write(&json, r#"{"camera_hfov_deg": 500}"#).unwrap();
+    let args = ["track", d, "--config", json.to_str().unwrap(), "--out", c];
+    assert_one_line_error(&args, "set it to null for weak perspective", &csv);
     std::fs::remove_dir_all(&dir).unwrap();
 }
 

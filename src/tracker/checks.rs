@@ -185,12 +185,14 @@ impl TrackerConfig {
                 let centre = self
                     .fit_centre_sigma
                     .map_or_else(|| "None".to_string(), |c| c.to_string());
+                let walk = self.filter.dynamics.rotation;
                 TrackError::BadConfig(format!(
                     "the keyframe fits' motion prior (fit_pixel_sigma {}, fit_centre_sigma \
-                     {centre}, the filter's rotation walk {:?}): {e}; set fit_pixel_sigma to \
-                     None to fit without the prior, fit_centre_sigma to None to leave the \
-                     centre free",
-                    prior.pixel_sigma, self.filter.dynamics.rotation
+                     {centre}, the filter's rotation walk {walk:?} rad, {:?}°): {e}; set \
+                     fit_pixel_sigma to None to fit without the prior, fit_centre_sigma to None \
+                     to leave the centre free",
+                    prior.pixel_sigma,
+                    walk.map(|r| (r.to_degrees() * 1e4).round() / 1e4)
                 ))
             })?;
         }
@@ -250,12 +252,17 @@ impl TrackerConfig {
             self.template.as_ref().map(|p| p.check()),
             "to weigh the particles without a template",
         )?;
-        if !(0.0..=1.0).contains(&self.lost_below)
-            || !(self.lost_below..=1.0).contains(&self.found_above)
-        {
+        if !(0.0..=1.0).contains(&self.lost_below) {
             return Err(TrackError::BadConfig(format!(
-                "lost_below {} and found_above {} must satisfy 0 <= lost_below <= found_above <= 1",
-                self.lost_below, self.found_above
+                "lost_below {} must lie in [0, 1]",
+                self.lost_below
+            )));
+        }
+        if !(self.lost_below..=1.0).contains(&self.found_above) {
+            return Err(TrackError::BadConfig(format!(
+                "found_above {} must lie between lost_below ({}, the confidence under which \
+                 the target is lost) and 1",
+                self.found_above, self.lost_below
             )));
         }
         if let Some(n) = self.reacquire_ncc

@@ -921,9 +921,14 @@ pub fn run(mut a: TrackArgs) -> anyhow::Result<()> {
     };
     // A setting's error names its flag, or the file it came from.
     match &a.config {
-        Some(p) => cfg
-            .check()
-            .with_context(|| format!("--config {}", p.display()))?,
+        // In the file's own terms: JSON's `null` where the library says `None`.
+        Some(p) => cfg.check().map_err(|e| {
+            anyhow::anyhow!(
+                "--config {}: {}",
+                p.display(),
+                e.to_string().replace(" None", " null")
+            )
+        })?,
         None => cfg
             .check()
             .map_err(|e| anyhow::anyhow!(flag_error(&e.to_string())))?,
