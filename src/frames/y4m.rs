@@ -378,6 +378,14 @@ impl<R: BufRead> Y4mReader<R> {
         }
         let text = std::str::from_utf8(&line[..line.len() - 1])
             .map_err(|_| err("header is not text (not a y4m file)".into()))?;
+        // A header saved with a Windows line end: its last tag would read with a CR in it.
+        if text.ends_with('\r') {
+            return Err(err(
+                "the header line ends in CR LF; a y4m header ends in LF alone (the file was \
+                 converted as text)"
+                    .into(),
+            ));
+        }
         let header = Y4mHeader::parse(text).map_err(err)?;
         let (w, h) = (header.width as usize, header.height as usize);
         let (cw, ch) = header.chroma_size();
@@ -661,6 +669,10 @@ mod tests {
         bad[21..26].copy_from_slice(b"FRAMX");
         let mut r = Y4mReader::new(&bad[..], "mem").unwrap();
         assert!(matches!(r.read_frame(), Err(FrameError::Y4m { .. })));
+        // A header with a Windows line end is named as such.
+        let crlf = b"YUV4MPEG2 W2 H2 C444\r\nFRAME\n";
+        let e = Y4mReader::new(&crlf[..], "mem").unwrap_err().to_string();
+        assert!(e.contains("CR LF"), "{e}");
         // A blank line after the last frame ends the stream; anything else there, or a blank
         // line with more after it, is not a FRAME header.
         for (tail, ends) in [
