@@ -1525,6 +1525,34 @@ fn cli_track_settings_errors_name_the_flag() {
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
+/// The demo's poses are the track `pftrack track` gives of the demo's own sequence with the
+/// same seed: the demo starts from the init file as written (it had started from the
+/// unrounded ellipse, and the chaotic track parted from `track`'s).
+#[test]
+fn cli_demo_poses_are_the_track_of_its_sequence() {
+    let dir = tmp_dir("demo-track");
+    let d = dir.to_str().unwrap();
+    let common = ["--backend", "cpu", "--seed", "3"];
+    let mut args = vec!["demo", "--out", d, "--frames", "40"];
+    args.extend(common);
+    pftrack_ok(&args);
+    let csv = dir.join("again.csv");
+    let seq = dir.join("sequence");
+    let mut args = vec![
+        "track",
+        seq.to_str().unwrap(),
+        "--out",
+        csv.to_str().unwrap(),
+    ];
+    args.extend(common);
+    pftrack_ok(&args);
+    assert!(
+        std::fs::read(dir.join("poses.csv")).unwrap() == std::fs::read(&csv).unwrap(),
+        "the demo's poses differ from the track of its sequence"
+    );
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
 /// `demo` checks its arguments before it renders anything: a bad one leaves no folder.
 #[test]
 fn cli_demo_checks_before_rendering() {

@@ -356,9 +356,10 @@ impl StagedSequence {
         self.stage.stage.path()
     }
 
-    /// The init file's ellipse (frame 0's).
-    pub fn init(&self) -> Ellipse {
-        self.summary.init
+    /// The init file's ellipse (frame 0's) as the file holds it, rounded as written, so that
+    /// a track started from it is the track `pftrack track DIR` gives.
+    pub fn init(&self) -> Result<Ellipse, SynthError> {
+        Ok(crate::io::init::parse_init(&self.init_text, &self.summary.init_file)?.ellipse)
     }
 
     /// The camera's horizontal field of view in degrees, as the init file gives it.

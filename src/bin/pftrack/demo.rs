@@ -82,7 +82,7 @@ pub fn run(a: DemoArgs) -> anyhow::Result<()> {
     let staged = stage_sequence(&cfg, &seq_dir, std::io::stderr().is_terminal())?;
     let render_s = t0.elapsed().as_secs_f64();
 
-    let init = Init::frontal(staged.init());
+    let init = Init::frontal(staged.init()?);
     let mut source = frames::open(staged.frames_dir(), &SourceOptions::default())?;
     let first = source
         .next()
