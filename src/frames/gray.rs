@@ -135,6 +135,21 @@ mod avx2 {
     use super::GrayF32;
     use std::arch::x86_64::*;
 
+    /// Whether the gathers may serve a `w x h` image of `len` values: at least 2 x 2, all
+    /// `w * h` values there, indices within 32-bit lanes, and sides of at most 2^24, every
+    /// integer to which is exact in `f32`, so that `x < w - 1` (in `f32`) bounds the column
+    /// by `w - 2` (above, `w as f32 - 1.0` rounds up and let the last column's neighbour,
+    /// past the end, be read).
+    pub(super) fn gathers_fit(w: usize, h: usize, len: usize) -> bool {
+        const EXACT: usize = 1 << 24;
+        w >= 2
+            && h >= 2
+            && w <= EXACT
+            && h <= EXACT
+            && w.checked_mul(h)
+                .is_some_and(|n| n <= len && n <= i32::MAX as usize)
+    }
+
     /// Eight points at a time where all eight lie in [`GrayF32::sample`]'s inside region
     /// (`0 <= x < w - 1`, `0 <= y < h - 1`, so all four neighbours exist), gathered and
     /// interpolated with the operations of `lerp_2x2` in its order (no fused multiply-adds:
@@ -148,7 +163,7 @@ mod avx2 {
         let (w, h) = (img.width as usize, img.height as usize);
         let n = out.len().min(xs.len()).min(ys.len());
         // The gathers index with 32-bit lanes and read up to pixel (w - 1, h - 1).
-        if w < 2 || h < 2 || img.data.len() < w * h || w * h > i32::MAX as usize {
+        if !gathers_fit(w, h, img.data.len()) {
             img.sample_many_scalar(xs, ys, out);
             return;
         }
@@ -187,8 +202,9 @@ mod avx2 {
             let fx = _mm256_sub_ps(x, _mm256_cvtepi32_ps(xi));
             let fy = _mm256_sub_ps(y, _mm256_cvtepi32_ps(yi));
             let idx = _mm256_add_epi32(_mm256_mullo_epi32(yi, wi), xi);
-            // SAFETY: every lane has xi <= w - 2 and yi <= h - 2, so idx + w + 1 <=
-            // w * h - 1, inside `data` (at least w * h long, checked above).
+            // SAFETY: every lane has xi <= w - 2 and yi <= h - 2 (the sides are exact in
+            // f32, `gathers_fit`), so idx + w + 1 <= w * h - 1, inside `data` (at least
+            // w * h long, checked above).
             let (p00, p10, p01, p11) = unsafe {
                 (
                     _mm256_i32gather_ps::<4>(data, idx),
@@ -234,6 +250,23 @@ mod tests {
         let mut out = [9.0; 9];
         short.sample_many(&[2.5; 9], &[2.5; 9], &mut out);
         assert_eq!(out, [0.0; 9]);
+    }
+
+    /// Sides past 2^24 are not exact in f32: `w - 1.0` rounds up there, and the inside test
+    /// would let a gather read past the data. Such images take the scalar path.
+    #[cfg(target_arch = "x86_64")]
+    #[test]
+    fn the_gathers_serve_only_sides_exact_in_f32() {
+        use super::avx2::gathers_fit;
+        assert!(gathers_fit(160, 120, 160 * 120));
+        assert!(gathers_fit(1 << 24, 2, 1 << 25));
+        assert!(!gathers_fit((1 << 24) + 3, 2, ((1 << 24) + 3) * 2));
+        assert!(!gathers_fit(8, (1 << 24) + 3, 8 * ((1 << 24) + 3)));
+        assert!(((((1u32 << 24) + 3) as f32) - 1.0) > ((1u32 << 24) + 2) as f32);
+        assert!(!gathers_fit(4, 4, 15));
+        assert!(!gathers_fit(1, 4, 4));
+        assert!(!gathers_fit(1 << 16, 1 << 16, 1 << 32));
+        assert!(!gathers_fit(usize::MAX, 2, usize::MAX));
     }
 
     #[test]
