@@ -361,6 +361,31 @@ mod tests {
     use crate::geometry::Ellipse;
     use crate::tracker::Reanchor;
 
+    /// A contrast limit that passes the check is one the engine takes: 1e-50 is 0 in f32,
+    /// which `Tracker::new` refused with the engine's error after `check()` had passed it.
+    #[test]
+    fn a_contrast_limit_passes_only_where_the_engine_takes_it() {
+        use crate::tracker::Contrast;
+        let frame = image::RgbImage::from_pixel(40, 30, image::Rgb([90, 120, 60]));
+        let init = Init::frontal(Ellipse::new(20.0, 15.0, 6.0, 8.0));
+        for (limit, ok) in [(1e-50, false), (1e-40, true), (0.5, true)] {
+            let cfg = TrackerConfig {
+                contrast: Some(Contrast {
+                    limit,
+                    ..Contrast::default()
+                }),
+                ..TrackerConfig::default()
+            };
+            assert_eq!(cfg.check().is_ok(), ok, "{limit}");
+            if ok {
+                assert!(
+                    crate::tracker::Tracker::new(cfg, &frame, init).is_ok(),
+                    "{limit}"
+                );
+            }
+        }
+    }
+
     #[test]
     fn found_above_and_reacquire_ncc_are_checked() {
         let bad = [

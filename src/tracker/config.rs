@@ -728,8 +728,13 @@ impl Contrast {
                 self.ring
             ));
         }
-        if !(self.limit.is_finite() && self.limit > 0.0 && self.limit <= 50.0) {
-            return Err(format!("contrast limit {} is not in (0, 50]", self.limit));
+        // Positive in f32 too, as the engines take it (1e-50 is 0 there).
+        if !(self.limit.is_finite() && self.limit as f32 > 0.0 && self.limit <= 50.0) {
+            return Err(format!(
+                "contrast limit {} is not in (0, 50] (at least {:e}, the least positive f32)",
+                self.limit,
+                f32::from_bits(1)
+            ));
         }
         if !(0.0..=1.0).contains(&self.background_rate) {
             return Err(format!(
