@@ -49,7 +49,9 @@ impl Mode {
     }
 }
 
-/// Where tracking starts: the target's ellipse in the first frame and its pose there.
+/// Where tracking starts: the target's ellipse in the first frame and its pose there. Its
+/// serde form is the struct's own, angles in radians as [`Ellipse::theta`] and [`Euler`]
+/// hold them, unlike the settings' `_deg` names and the init file's degrees.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct Init {

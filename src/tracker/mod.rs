@@ -140,7 +140,9 @@ pub struct Weighing<'a> {
     pub totals: &'a [f32],
 }
 
-/// What the tracker says about one frame.
+/// What the tracker says about one frame. Its serde form is the struct's own, angles in
+/// radians as the fields hold them (the pose CSV, [`Estimate::to_record`], is the file
+/// format in degrees).
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Estimate {
     /// The frame's number in the tracker's count: 0 for the frame it was built on, one more
@@ -174,7 +176,9 @@ pub struct Estimate {
     /// the feature term use matches of their own, so 0 does not mean the rotation went
     /// unmeasured (the confidence says that: see [`Estimate::confidence`]).
     pub matches: usize,
-    /// Effective sample size of the filter after weighting.
+    /// Effective sample size of the filter after weighting, `1 / Σ wᵢ²` of the normalised
+    /// weights: a count of particles, from 1 (one particle holds all the weight) to the
+    /// number of particles (equal weights, as at the start).
     pub ess: f64,
 }
 
@@ -1545,7 +1549,7 @@ impl Tracker {
 /// Confidence in `[0, 1]`: the weighted colour similarity ρ̄ (recovered from the colour
 /// term, `ρ = 1 + 2σc² ln p_colour`) mapped from [0.5, 1] to [0, 1], times the weighted
 /// share of normal lines with contour support, square-rooted (a geometric mean); times 0.8
-/// when no features measured the rotation.
+/// when no features measured the rotation. Undefined terms (NaN) give 0.
 fn confidence(
     terms: &[TermLogs],
     lp: &LikelihoodParams,
@@ -1578,7 +1582,10 @@ fn confidence(
             0.0
         };
     }
+    // A term an engine left undefined (NaN: only a third-party engine's) supports nothing,
+    // so the frame reads as lost rather than as a NaN the lost bar never catches.
     let c = (colour * edges).sqrt();
+    let c = if c.is_nan() { 0.0 } else { c };
     if rotation_measured { c } else { 0.8 * c }
 }
 
@@ -1692,6 +1699,33 @@ pub fn continuous_euler(r: &Matrix3<f64>, prev: &Euler) -> Euler {
 mod tests {
     use super::*;
     use crate::geometry::angle_between;
+
+    /// Terms an engine left undefined give a confidence of 0 (the frame reads as lost), not
+    /// a NaN that compares false against the lost bar; defined ones give one in [0, 1].
+    #[test]
+    fn undefined_terms_give_no_confidence() {
+        let lp = LikelihoodParams::default();
+        let good = TermLogs {
+            colour: 0.0,
+            gradient: 5.0,
+            ..TermLogs::default()
+        };
+        let c = confidence(&[good], &lp, &[1.0], true);
+        assert!((0.0..=1.0).contains(&c) && c > 0.0, "{c}");
+        for bad in [
+            TermLogs {
+                colour: f32::NAN,
+                ..good
+            },
+            TermLogs {
+                gradient: f32::NAN,
+                ..good
+            },
+        ] {
+            assert_eq!(confidence(&[good, bad], &lp, &[0.5, 0.5], true), 0.0);
+            assert_eq!(confidence(&[bad], &lp, &[1.0], false), 0.0);
+        }
+    }
 
     /// A start with a roll: the object model at the starting pose has the start's outline
     /// orientation, `theta0 + rz`, not the roll twice.
