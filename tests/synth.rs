@@ -629,6 +629,49 @@ fn every_scenario_at_the_smallest_size_gives_a_start_a_tracker_takes() {
     assert!(Renderer::new(&cfg(Scenario::Nod, 3, MIN_SIDE - 1, 120)).is_err());
 }
 
+#[test]
+fn wide_frames_keep_the_whole_outline_in_the_truth() {
+    // The field of view is horizontal: at 320x48 the head is as large as at 320x240 and
+    // reaches well past the top and bottom. Its truth is the unclipped outline's, the same
+    // semi-axes as on the taller frame (a window of one height beyond the borders cut b 7 %).
+    for sc in [Scenario::Depth, Scenario::Nod] {
+        let wide = Renderer::new(&cfg(sc, 5, 320, 48)).unwrap();
+        let tall = Renderer::new(&cfg(sc, 5, 320, 240)).unwrap();
+        for k in 0..5 {
+            let (tw, tt) = (wide.truth(k), tall.truth(k));
+            let (a, b) = wide.analytic_outline(k).unwrap().axes_along(tw.rz);
+            assert!(
+                (tw.a - a).abs() / a < 0.01,
+                "{sc} frame {k}: a {} vs {a}",
+                tw.a
+            );
+            assert!(
+                (tw.b - b).abs() / b < 0.01,
+                "{sc} frame {k}: b {} vs {b}",
+                tw.b
+            );
+            assert!((tw.a - tt.a).abs() < 0.01 * tt.a && (tw.b - tt.b).abs() < 0.01 * tt.b);
+            assert!(
+                2.0 * tw.b > 48.0,
+                "{sc} frame {k}: the head is taller than the frame"
+            );
+        }
+    }
+}
+
+#[test]
+fn sizes_are_bounded_by_the_pixels_a_tracker_reads() {
+    use pftrack::synth::{MAX_PIXELS, parse_size};
+    assert_eq!(MAX_PIXELS, pftrack::frames::y4m::MAX_PIXELS);
+    assert_eq!(parse_size("8192x4096").unwrap(), (8192, 4096));
+    for big in ["8192x4097", "8192x8192"] {
+        let e = parse_size(big).unwrap_err().to_string();
+        assert!(e.contains("33554432 pixels"), "{e}");
+        let (w, h) = pftrack::frames::parse_wxh(big).unwrap();
+        assert!(Renderer::new(&cfg(Scenario::Nod, 1, w, h)).is_err());
+    }
+}
+
 // ---------------------------------------------------------------- determinism
 
 #[test]

@@ -194,6 +194,10 @@ impl std::fmt::Display for Scenario {
 
 /// Largest accepted image side (pixels).
 pub const MAX_SIDE: u32 = 8192;
+/// Most pixels of one frame: those the tracker reads without `--resize`
+/// ([`crate::frames::y4m::MAX_PIXELS`], 8192x4096), so that every sequence rendered can be
+/// tracked as it is.
+pub const MAX_PIXELS: u64 = crate::frames::y4m::MAX_PIXELS;
 /// Smallest accepted image side (pixels): the smallest at which every scenario's first
 /// ellipse has semi-axes of 2 px or more, as a tracker's start needs (at 16 px the heads'
 /// were 1.8 px wide, at 20 px the car's 2.0 px high).
@@ -211,7 +215,7 @@ pub struct SynthConfig {
     pub frames: usize,
     /// Image width (pixels).
     pub width: u32,
-    /// Image height (pixels).
+    /// Image height (pixels); width × height at most [`MAX_PIXELS`].
     pub height: u32,
     /// Seed of the textures, the noise and `long`'s motion.
     pub seed: u64,
@@ -229,7 +233,7 @@ impl SynthConfig {
         }
     }
 
-    /// Checks the frame count and the size.
+    /// Checks the frame count and the size (sides and pixels).
     pub fn validate(&self) -> Result<(), SynthError> {
         if !(1..=MAX_FRAMES).contains(&self.frames) {
             return Err(SynthError::InvalidConfig(format!(
@@ -244,11 +248,22 @@ impl SynthConfig {
                 )));
             }
         }
-        Ok(())
+        check_pixels(self.width, self.height)
     }
 }
 
-/// Parses an image size `WxH` (e.g. `160x120`), each side in [`MIN_SIDE`]`..=`[`MAX_SIDE`].
+/// Refuses a frame of more than [`MAX_PIXELS`] pixels.
+fn check_pixels(w: u32, h: u32) -> Result<(), SynthError> {
+    if u64::from(w) * u64::from(h) > MAX_PIXELS {
+        return Err(SynthError::InvalidConfig(format!(
+            "{w}x{h} is more than the {MAX_PIXELS} pixels a frame may have, as `track` reads them"
+        )));
+    }
+    Ok(())
+}
+
+/// Parses an image size `WxH` (e.g. `160x120`), each side in [`MIN_SIDE`]`..=`[`MAX_SIDE`]
+/// and at most [`MAX_PIXELS`] pixels in all.
 pub fn parse_size(s: &str) -> Result<(u32, u32), SynthError> {
     let (w, h) =
         crate::frames::parse_wxh(s).map_err(|e| SynthError::InvalidConfig(e.to_string()))?;
@@ -259,6 +274,7 @@ pub fn parse_size(s: &str) -> Result<(u32, u32), SynthError> {
             )));
         }
     }
+    check_pixels(w, h)?;
     Ok((w, h))
 }
 

@@ -178,10 +178,15 @@ impl Renderer {
         let origin = mt * -pose.centre;
         let (w, h) = (self.cfg.width as f64, self.cfg.height as f64);
         let [u0, u1, v0, v1] = self.image_bounds(k).unwrap_or([0.0, w - 1.0, 0.0, h - 1.0]);
-        let u0 = (u0.floor() - 1.0).max(-w) as i64;
-        let u1 = (u1.ceil() + 1.0).min(2.0 * w) as i64;
-        let v0 = (v0.floor() - 1.0).max(-h) as i64;
-        let v1 = (v1.ceil() + 1.0).min(2.0 * h) as i64;
+        // The window is bounded (an object at the camera has unbounded bounds) by the longer
+        // side beyond each border, on both axes: the field of view is horizontal, so on a wide
+        // frame a head reaches far past the short side (a window of one height beyond the
+        // top and bottom cut a 320x48 head's outline, its b 7 % short).
+        let m = w.max(h);
+        let u0 = (u0.floor() - 1.0).max(-m) as i64;
+        let u1 = (u1.ceil() + 1.0).min(w - 1.0 + m) as i64;
+        let v0 = (v0.floor() - 1.0).max(-m) as i64;
+        let v1 = (v1.ceil() + 1.0).min(h - 1.0 + m) as i64;
         // Sums relative to the projected centre, to keep them well conditioned.
         let (ru, rv) = self.camera.project(&pose.centre);
         let rows: Vec<[f64; 6]> = (v0..=v1)

@@ -20,7 +20,7 @@ pub struct SynthArgs {
     /// scenario's whole motion plays over them: fewer frames, faster motion per frame.
     #[arg(long)]
     pub frames: Option<usize>,
-    /// Image size WIDTHxHEIGHT, 24 to 8192 pixels a side.
+    /// Image size WIDTHxHEIGHT, 24 to 8192 pixels a side, 2^25 pixels (8192x4096) at most in all, as `track` reads frames.
     #[arg(
         long,
         default_value = "160x120",
