@@ -35,8 +35,12 @@ fn colour(
     @builtin(local_invocation_index) lid: u32,
 ) {
     let i = flat_group(wid, nwg);
-    // Uniform across the workgroup, so every barrier below is reached by all invocations.
+    // Uniform across the workgroup, so every barrier below is reached by all invocations,
+    // and a spare group of the grid's last row leaves at once.
     let in_range = i < fu.n;
+    if !in_range {
+        return;
+    }
     for (var k = lid; k < BINS; k += WG) {
         atomicStore(&hist[k], 0u);
     }

@@ -32,14 +32,21 @@ fn transpose3(a: array<vec3<f32>, 3>) -> array<vec3<f32>, 3> {
     );
 }
 
+// The angle moved into [-pi, pi], where WGSL bounds sin's and cos's error (it promises
+// nothing past it); angles already there, as the tracker's are, pass unchanged.
+fn wrap_pi(x: f32) -> f32 {
+    let turn = 6.2831855;
+    return x - turn * round(x / turn);
+}
+
 // R = Rx(rx) Ry(ry) Rz(rz) (SPEC), as rows.
 fn rotation(rx: f32, ry: f32, rz: f32) -> array<vec3<f32>, 3> {
-    let sa = sin(rx);
-    let ca = cos(rx);
-    let sb = sin(ry);
-    let cb = cos(ry);
-    let sc = sin(rz);
-    let cc = cos(rz);
+    let sa = sin(wrap_pi(rx));
+    let ca = cos(wrap_pi(rx));
+    let sb = sin(wrap_pi(ry));
+    let cb = cos(wrap_pi(ry));
+    let sc = sin(wrap_pi(rz));
+    let cc = cos(wrap_pi(rz));
     let mx = array<vec3<f32>, 3>(vec3(1.0, 0.0, 0.0), vec3(0.0, ca, -sa), vec3(0.0, sa, ca));
     let my = array<vec3<f32>, 3>(vec3(cb, 0.0, sb), vec3(0.0, 1.0, 0.0), vec3(-sb, 0.0, cb));
     let mz = array<vec3<f32>, 3>(vec3(cc, -sc, 0.0), vec3(sc, cc, 0.0), vec3(0.0, 0.0, 1.0));

@@ -1430,31 +1430,41 @@ fn the_applications_error_handlers_stay_in_place() {
     assert_eq!(errors.lock().unwrap().len(), 1, "{:?}", errors.lock());
 }
 
-/// A buffer wgpu refuses to create (here more features than the device's 1 MB buffers hold;
-/// out of memory on a shared device does the same) fails that call only: the engine makes its
-/// buffers and bind group afresh on the next. And a frame whose gradient image, rounded up to
-/// the engine's 256-byte allocation, passes the limit is refused before anything is made.
+/// A buffer wgpu refuses to create fails that call only: the engine makes its buffers and
+/// bind group afresh on the next. The engine checks every buffer against the limits it was
+/// given, so the refusal (out of memory on a shared device in use) is staged by giving it
+/// larger limits than the device has: 60,000 features of 20 bytes pass its check and not
+/// the device's 1 MB. And a frame whose gradient image, rounded up to the engine's 256-byte
+/// allocation, passes the limit is refused before anything is made.
 #[test]
 fn a_refused_allocation_fails_that_call_only() {
     let Some(own) = engine() else { return };
-    let (device, queue) = app_device_limited(&own.name(), |l| pftrack::wgpu::Limits {
-        max_buffer_size: 1_000_001,
-        ..l
-    });
+    let name = own.name();
     drop(own);
-    let mut e = GpuEngine::with_device(GpuDevice::from_wgpu(device, queue)).unwrap();
+    let limited = || {
+        let (device, queue) = app_device_limited(&name, |l| pftrack::wgpu::Limits {
+            max_buffer_size: 1_000_001,
+            ..l
+        });
+        GpuDevice::from_wgpu(device, queue)
+    };
+    let honest = GpuEngine::with_device(limited()).unwrap();
     // 500 x 250 x 8 bytes is 1,000,000, allocated as 1,000,192.
     assert!(matches!(
-        e.check_frame_size(500, 250),
+        honest.check_frame_size(500, 250),
         Err(LikelihoodError::FrameTooLarge {
             bytes: 1_000_192,
             ..
         })
     ));
+    drop(honest);
+    let mut gpu = limited();
+    gpu.limits.max_buffer_size = 1 << 30;
+    let mut e = GpuEngine::with_device(gpu).unwrap();
     let img = RgbImage::from_pixel(16, 16, Rgb([1, 2, 3]));
     let frame = flat_frame(&mut e, &img);
     let params = LikelihoodParams {
-        terms: TERM_COLOUR | TERM_GRADIENT,
+        terms: TERM_COLOUR | TERM_GRADIENT | pftrack::likelihood::TERM_FEATURE,
         ..Default::default()
     };
     let (mut before, mut after) = (Vec::new(), Vec::new());
@@ -1486,6 +1496,73 @@ fn a_refused_allocation_fails_that_call_only() {
 
 /// `evaluate_batched` gives as many particles as asked for in batches the engine's buffers
 /// hold, the same terms bit for bit as one call on a device whose buffers hold them all.
+/// More matched features than a device's buffers hold is a typed error naming them, and only
+/// when the feature term reads them: without it, the same call runs.
+#[test]
+fn features_beyond_the_buffer_limit_are_a_typed_error() {
+    let Some(own) = engine() else { return };
+    let (device, queue) = app_device_limited(&own.name(), |l| pftrack::wgpu::Limits {
+        max_storage_buffer_binding_size: 1 << 20,
+        ..l
+    });
+    let mut small = GpuEngine::with_device(GpuDevice::from_wgpu(device, queue)).unwrap();
+    let img = RgbImage::from_fn(64, 48, |x, y| Rgb([(x * 4) as u8, (y * 5) as u8, 90]));
+    // 1 MiB holds 52,428 lifted features of 20 bytes.
+    let features: Vec<pftrack::likelihood::FeaturePair> = (0..60_000)
+        .map(|i| {
+            let (x, y) = ((i % 60) as f32, (i / 60 % 44) as f32);
+            pftrack::likelihood::FeaturePair {
+                p: [x, y],
+                q: [x + 0.5, y],
+            }
+        })
+        .collect();
+    let frame = FrameInput {
+        image: &img,
+        features: &features,
+        depths: None,
+        prev: particle(32.0, 24.0, 8.0, 6.0),
+        theta0: 0.0,
+    };
+    let ps = [
+        particle(32.0, 24.0, 8.0, 6.0),
+        particle(33.0, 24.0, 8.0, 6.0),
+    ];
+    let mut out = Vec::new();
+    let params = LikelihoodParams {
+        terms: pftrack::likelihood::TERM_FEATURE | TERM_GRADIENT,
+        ..Default::default()
+    };
+    let r = small.evaluate(&frame, &params, &ps, &mut out);
+    match r {
+        Err(LikelihoodError::TooManyFeatures { n, bytes, limit }) => {
+            assert_eq!((n, limit), (60_000, 1 << 20));
+            assert!(bytes >= 1_200_000, "{bytes}");
+        }
+        other => panic!("{other:?}"),
+    }
+    let params = LikelihoodParams {
+        terms: TERM_GRADIENT,
+        ..Default::default()
+    };
+    small.evaluate(&frame, &params, &ps, &mut out).unwrap();
+    assert_eq!(out.len(), 2);
+    // Within the limit, the feature term runs on the small device.
+    let params = LikelihoodParams {
+        terms: pftrack::likelihood::TERM_FEATURE,
+        ..Default::default()
+    };
+    let fewer = FrameInput {
+        features: &features[..50_000],
+        ..frame
+    };
+    small.evaluate(&fewer, &params, &ps, &mut out).unwrap();
+    assert!(
+        out.iter()
+            .all(|t| t.feature.is_finite() && t.feature != 0.0)
+    );
+}
+
 #[test]
 fn batched_evaluation_passes_the_buffer_limit_with_the_same_terms() {
     let Some(mut own) = engine() else { return };

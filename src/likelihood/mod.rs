@@ -482,6 +482,19 @@ pub enum LikelihoodError {
         /// The adapter's limit.
         limit: u64,
     },
+    /// More matched features than the adapter's buffers hold (only on a device opened with
+    /// small limits: the default 128 MiB binding holds millions).
+    #[error(
+        "{n} matched features need a {bytes}-byte GPU buffer, beyond the adapter's limit of {limit} bytes (use the CPU engine, Backend::Cpu, or fewer features)"
+    )]
+    TooManyFeatures {
+        /// Number of matched features.
+        n: usize,
+        /// Bytes of the features' buffer.
+        bytes: u64,
+        /// The adapter's limit.
+        limit: u64,
+    },
     /// Any other GPU failure (device request, validation, mapping).
     #[error("GPU error: {0}")]
     Gpu(String),
