@@ -87,6 +87,62 @@ fn arrow(img: &mut RgbImage, a: [f64; 2], b: [f64; 2], c: Rgb<u8>) {
     }
 }
 
+/// What `pose` says of a block solver's fit beyond its rotation, from the matches it used.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct BlockFit {
+    /// The RMS residual of the completed rotation's block (its translation refitted), where
+    /// completion moved the solver's block onto a rotation's (LSM's and RLS's): the solver's
+    /// own residual is then that of a map no rotation gives.
+    completed_residual: Option<f64>,
+    /// The larger singular value of the unconstrained least-squares block: the change of size
+    /// the matches show (1 for a turn at a constant distance), which the solvers do not model.
+    scale: Option<f64>,
+    /// The standard error of the fitted translation, `residual / √n` (pixels).
+    translation_noise: f64,
+}
+
+impl BlockFit {
+    fn of(i: &pftrack::pose::InterFrame, p: &[[f64; 2]], q: &[[f64; 2]]) -> Self {
+        use pftrack::pose::{complete::singular_values, lsm::lsm_block, moments, rms_residual};
+        let (up, uq) = select(p, q, &i.block.inliers);
+        let m = moments(&up, &uq, 3).ok();
+        let r2 = i.pair.a.fixed_view::<2, 2>(0, 0).into_owned();
+        let moved = (r2 - i.block.r2).norm() > 1e-9;
+        let completed_residual = m.filter(|_| moved).map(|m| {
+            let l = m.mean_q - r2 * m.mean_p;
+            rms_residual(&r2, &l, &up, &uq, None)
+        });
+        let scale = m
+            .and_then(|m| lsm_block(&m).ok())
+            .map(|b| singular_values(&b).0);
+        let residual = completed_residual.unwrap_or(i.block.residual);
+        Self {
+            completed_residual,
+            scale,
+            translation_noise: residual / (up.len().max(1) as f64).sqrt(),
+        }
+    }
+}
+
+/// Whether the parallax `offset` decides the Necker branch of `chosen`: its component along
+/// the direction the turn moves the surface in (the rotation's `(r13, r23)`), against twice
+/// the translation's standard error `noise`.
+fn branch_verdict(chosen: &nalgebra::Matrix3<f64>, offset: Vector2<f64>, noise: f64) -> String {
+    let c = Vector2::new(chosen[(0, 2)], chosen[(1, 2)]);
+    if c.norm() < 1e-9 {
+        return "the turn is in the image plane, which has no mirror to tell apart".to_string();
+    }
+    let along = c.normalize().dot(&offset).abs();
+    if along > 2.0 * noise {
+        format!("{along:.2} px along the turn against a noise of about {noise:.2} px decides it")
+    } else {
+        format!(
+            "{along:.2} px along the turn is within twice the noise of about {noise:.2} px: the \
+             branch is a guess"
+        )
+    }
+}
+
 /// Runs the command.
 pub fn run(a: PoseArgs) -> anyhow::Result<()> {
     let v = parse_floats(&a.ellipse, &[4, 5], "--ellipse")?;
@@ -195,8 +251,10 @@ pub fn run(a: PoseArgs) -> anyhow::Result<()> {
     // from (none, or three collinear survivors of the synthetic `roll`), the solver's error
     // says what keeps more.
     let kept = p.len();
+    // The essential matrix's eight-point solve needs eight matches, the blocks three.
+    let need = if solver.is_none() { 8 } else { 3 };
     let hint = |err: anyhow::Error| {
-        if a.reject == Reject::Paper && inside >= 3 && (kept < 3 || 2 * kept < inside) {
+        if a.reject == Reject::Paper && inside >= need && (kept < need || 2 * kept < inside) {
             anyhow::anyhow!(
                 "{err}: the paper's outlier rejection kept {kept} of the {inside} matches \
                  inside the ellipse (it rejects matches that move in different directions, as \
@@ -240,7 +298,31 @@ pub fn run(a: PoseArgs) -> anyhow::Result<()> {
     };
     match solved {
         Solved::Block(i) => {
-            outln!("residual {:.3} px", i.block.residual)?;
+            let fit = BlockFit::of(&i, &p, &q);
+            match fit.completed_residual {
+                Some(r) => outln!(
+                    "residual {r:.3} px (of the rotation's block; {:.3} px of the unconstrained \
+                     block, which no rotation has)",
+                    i.block.residual
+                )?,
+                None => outln!("residual {:.3} px", i.block.residual)?,
+            }
+            if let Some(s) = fit.scale {
+                let effect = if s < 1.0 - 1e-9 {
+                    format!("a shrink ({:.1} % here) reads as a turn", 100.0 * (1.0 - s))
+                } else if s > 1.0 + 1e-9 {
+                    format!(
+                        "a growth ({:.1} % here) hides part of a turn",
+                        100.0 * (s - 1.0)
+                    )
+                } else {
+                    "as the matches show it".to_string()
+                };
+                outln!(
+                    "scale: x{s:.3} by the unconstrained fit (1 for a turn at a constant \
+                     distance); the solvers hold the size constant, so {effect}"
+                )?;
+            }
             // Weak perspective cannot tell a tilt and pan from their mirror (the Necker pair):
             // the branch is the one whose parallax the features show against the object's centre,
             // as the tracker's TPE mode picks it, with the centre's motion from block matching.
@@ -255,10 +337,10 @@ pub fn run(a: PoseArgs) -> anyhow::Result<()> {
                     };
                     show("rotation", &chosen)?;
                     show("its Necker mirror", &mirror)?;
+                    let verdict = branch_verdict(&chosen, offset, fit.translation_noise);
                     outln!(
-                        "branch: the features move {:.2},{:.2} px against the object's block-matched \
-                     centre (parallax: the nearer surface leads a turn); a shift that small \
-                     against the noise leaves it a guess",
+                        "branch: the features move {:.2},{:.2} px against the object's \
+                         block-matched centre (parallax: the nearer surface leads a turn); {verdict}",
                         offset[0],
                         offset[1]
                     )?;
