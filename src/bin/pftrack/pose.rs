@@ -99,10 +99,16 @@ struct BlockFit {
     scale: Option<f64>,
     /// The standard error of the fitted translation, `residual / √n` (pixels).
     translation_noise: f64,
+    /// SEA's Newton residual where it stopped short of convergence (its block is then its
+    /// best iterate, projected onto the valid blocks).
+    sea_unconverged: Option<f64>,
+    /// The certified minimiser's residual where it fits better than SEA's block: SEA finds a
+    /// stationary point of the constrained problem, not always its minimum.
+    optimal_better: Option<f64>,
 }
 
 impl BlockFit {
-    fn of(i: &pftrack::pose::InterFrame, p: &[[f64; 2]], q: &[[f64; 2]]) -> Self {
+    fn of(i: &pftrack::pose::InterFrame, kind: SolverKind, p: &[[f64; 2]], q: &[[f64; 2]]) -> Self {
         use pftrack::pose::{complete::singular_values, lsm::lsm_block, moments, rms_residual};
         let (up, uq) = select(p, q, &i.block.inliers);
         let m = moments(&up, &uq, 3).ok();
@@ -116,10 +122,28 @@ impl BlockFit {
             .and_then(|m| lsm_block(&m).ok())
             .map(|b| singular_values(&b).0);
         let residual = completed_residual.unwrap_or(i.block.residual);
+        let sea_unconverged = match (kind, m) {
+            (SolverKind::Sea, Some(m)) => pftrack::pose::Sea::default()
+                .solve_moments(&m)
+                .ok()
+                .filter(|s| !s.converged)
+                .map(|s| s.residual_norm),
+            _ => None,
+        };
+        let optimal_better = match kind {
+            SolverKind::Sea => pftrack::pose::solver(SolverKind::Optimal)
+                .solve(&up, &uq)
+                .ok()
+                .map(|o| o.residual)
+                .filter(|&r| r < i.block.residual * (1.0 - 1e-6) - 1e-9),
+            _ => None,
+        };
         Self {
             completed_residual,
             scale,
             translation_noise: residual / (up.len().max(1) as f64).sqrt(),
+            sea_unconverged,
+            optimal_better,
         }
     }
 }
@@ -298,7 +322,8 @@ pub fn run(a: PoseArgs) -> anyhow::Result<()> {
     };
     match solved {
         Solved::Block(i) => {
-            let fit = BlockFit::of(&i, &p, &q);
+            let kind = solver.unwrap_or(SolverKind::Sea);
+            let fit = BlockFit::of(&i, kind, &p, &q);
             match fit.completed_residual {
                 Some(r) => outln!(
                     "residual {r:.3} px (of the rotation's block; {:.3} px of the unconstrained \
@@ -306,6 +331,19 @@ pub fn run(a: PoseArgs) -> anyhow::Result<()> {
                     i.block.residual
                 )?,
                 None => outln!("residual {:.3} px", i.block.residual)?,
+            }
+            if let Some(r) = fit.sea_unconverged {
+                outln!(
+                    "SEA stopped short of convergence (Newton residual {r:.1e}): its block is \
+                     the best iterate, moved onto a rotation's; `--solver optimal` gives the \
+                     certified minimiser"
+                )?;
+            }
+            if let Some(r) = fit.optimal_better {
+                outln!(
+                    "SEA's block is a stationary point, not the least-squares minimum: \
+                     `--solver optimal` fits the same matches to {r:.3} px"
+                )?;
             }
             if let Some(s) = fit.scale {
                 let effect = if s < 1.0 - 1e-9 {
