@@ -22,7 +22,8 @@ pub struct BenchArgs {
     /// the sequence has 59 of them per pass].
     #[arg(long, value_delimiter = ',')]
     pub particles: Vec<usize>,
-    /// Frame size `WxH`, 8 to 8192 pixels a side (with `--step`, 24 or more, as `synth` renders).
+    /// Frame size `WxH`, 8 to 8192 pixels a side (with `--step`, as `synth` renders: 24 or more,
+    /// and 2^25 pixels, 8192x4096, at most in all).
     #[arg(long, default_value = "160x120", value_parser = parse_size, allow_hyphen_values = true)]
     pub size: (u32, u32),
     /// Which engines to time: `cpu`, `gpu` (an error without a Vulkan adapter), or `auto`:
