@@ -322,6 +322,20 @@ fn synth_dir(name: &str, frames: usize, size: &str) -> PathBuf {
     dir
 }
 
+/// The staging folders `synth` renders frames into inside `frames` (`.pftrack-synth-*`).
+fn synth_staging(frames: &Path) -> impl Iterator<Item = PathBuf> {
+    std::fs::read_dir(frames)
+        .into_iter()
+        .flatten()
+        .flatten()
+        .filter(|e| {
+            e.file_name()
+                .to_string_lossy()
+                .starts_with(".pftrack-synth-")
+        })
+        .map(|e| e.path())
+}
+
 /// Runs `pftrack args` and checks it fails with one line naming `needle`, without a panic,
 /// leaving no `unwritten` file (the output a complete run would have written).
 fn assert_one_line_error(args: &[&str], needle: &str, unwritten: &Path) {
@@ -1251,16 +1265,8 @@ fn cli_an_interrupted_synth_leaves_the_folder_as_it_was() {
         // Wait for frames in the staging folder: the render is under way.
         let frames = into.join("frames");
         let rendering = || {
-            std::fs::read_dir(&frames)
-                .into_iter()
-                .flatten()
-                .flatten()
-                .filter(|e| {
-                    e.file_name()
-                        .to_string_lossy()
-                        .starts_with(".pftrack-synth-")
-                })
-                .filter_map(|e| std::fs::read_dir(e.path()).ok())
+            synth_staging(&frames)
+                .filter_map(|d| std::fs::read_dir(d).ok())
                 .map(|d| d.count())
                 .sum::<usize>()
                 > 0
@@ -1313,18 +1319,7 @@ fn cli_an_interrupted_demo_leaves_the_earlier_run_whole() {
     let child = spawn_with_default_signals(&mut demo("nod", "600"), false);
     // Once the last frame is rendered into the staging folder the track is under way.
     let frames = dir.join("sequence/frames");
-    let rendered = || {
-        std::fs::read_dir(&frames)
-            .into_iter()
-            .flatten()
-            .flatten()
-            .filter(|e| {
-                e.file_name()
-                    .to_string_lossy()
-                    .starts_with(".pftrack-synth-")
-            })
-            .any(|e| e.path().join("00599.png").exists())
-    };
+    let rendered = || synth_staging(&frames).any(|d| d.join("00599.png").exists());
     wait_for_a_frame(rendered);
     std::thread::sleep(std::time::Duration::from_millis(100));
     send(&child, libc::SIGTERM);

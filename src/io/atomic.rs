@@ -51,6 +51,15 @@ struct Rename {
 }
 
 impl AtomicFile {
+    /// Writes straight into `file`, opened on `path`: nothing to rename at the commit.
+    fn in_place(path: &Path, file: std::fs::File) -> Self {
+        Self {
+            target: path.to_path_buf(),
+            rename: None,
+            writer: Some(BufWriter::new(file)),
+        }
+    }
+
     /// Opens `path` for writing as the module says: a partial file beside it (or beside the
     /// file it links to), or the target itself when it is a stream or device.
     pub fn create(path: &Path) -> Result<Self, FormatError> {
@@ -65,11 +74,7 @@ impl AtomicFile {
                 .append(true)
                 .open(path)
                 .map_err(err)?;
-            return Ok(Self {
-                target: path.to_path_buf(),
-                rename: None,
-                writer: Some(BufWriter::new(file)),
-            });
+            return Ok(Self::in_place(path, file));
         }
         // What the path names, through its links (the kernel's view: a link in /proc to a
         // pipe names the pipe).
@@ -87,11 +92,7 @@ impl AtomicFile {
                     .truncate(true)
                     .open(path)
                     .map_err(err)?;
-                return Ok(Self {
-                    target: path.to_path_buf(),
-                    rename: None,
-                    writer: Some(BufWriter::new(file)),
-                });
+                return Ok(Self::in_place(path, file));
             }
             _ => {}
         }
