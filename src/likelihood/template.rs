@@ -15,8 +15,9 @@
 //!
 //! The grid: `grid x grid` points `(u, v)` on `[-1, 1]²` (cell centres), those with
 //! `u² + v² <= 1` kept, mapped to the image by the ellipse, `centre + Rθ (a u, b v)` with
-//! `θ = theta0 + rz` (the orientation the ellipse is drawn with): the template turns and
-//! scales with the ellipse.
+//! `θ = theta0 + rz` (the orientation the ellipse is drawn with), or `θ + π`, the same
+//! ellipse, where the target's up axis points that way ([`upright_sin_cos`]): the template
+//! turns and scales with the ellipse, and stays upright as the angles pass a pan of 90°.
 //!
 //! The same template can also be turned out of the image plane
 //! ([`Template::correlate_turned`]): its grid points lifted onto the feature term's ellipsoid
@@ -51,12 +52,41 @@ pub fn disk_grid(grid: usize) -> Vec<[f32; 2]> {
     pts
 }
 
+/// `(sin, cos)` of the orientation a template is laid on the ellipse of particle `p` with:
+/// the ellipse's own `theta0 + p.rz`, or that turned by half a turn (the same ellipse) where
+/// the target's up axis, the image direction `(−r12, r22)` of its rotation's y axis, points
+/// against it.
+///
+/// Why: a rotation has two sets of angles, and [`crate::geometry::Euler::from_matrix`] keeps
+/// the pan within ±90°, so a target that pans past 90° is given the other set, its roll
+/// turned by 180°: the ellipse is the same, but a template laid by the roll alone turned
+/// upside down there, and compared particles on either side of 90° with it the wrong way up
+/// (a head could not be tracked across a pan of 90° with the template on). The up axis
+/// belongs to the rotation, not to its angles. With a pan and tilt within 90° it agrees with
+/// the roll, whatever the roll, and nothing turns.
+pub fn upright_sin_cos(theta0: f32, p: &Particle) -> (f32, f32) {
+    let (s, c) = (theta0 + p.rz).sin_cos();
+    if upside_down(p) { (-s, -c) } else { (s, c) }
+}
+
+/// Whether the target's up axis points against its roll's direction, so that
+/// [`upright_sin_cos`] turns the roll's orientation by half a turn.
+pub fn upside_down(p: &Particle) -> bool {
+    let (sx, cx) = p.rx.sin_cos();
+    let (sy, cy) = p.ry.sin_cos();
+    let (sz, cz) = p.rz.sin_cos();
+    // R = Rx Ry Rz: r12 = −cos ry sin rz, r22 = cos rx cos rz − sin rx sin ry sin rz; the up
+    // axis against the roll's own direction (sin rz, cos rz).
+    let (r12, r22) = (-cy * sz, cx * cz - sx * sy * sz);
+    -r12 * sz + r22 * cz < 0.0
+}
+
 /// The grey levels of `gray` at the grid points `pts` of the ellipse of particle `p`
-/// (orientation `theta0 + p.rz`), bilinear, edges replicated; into `out` (cleared first).
+/// (orientation [`upright_sin_cos`]), bilinear, edges replicated; into `out` (cleared first).
 pub fn sample(gray: &GrayF32, p: &Particle, theta0: f32, pts: &[[f32; 2]], out: &mut Vec<f32>) {
     out.clear();
     out.resize(pts.len(), 0.0);
-    let (s, c) = (theta0 + p.rz).sin_cos();
+    let (s, c) = upright_sin_cos(theta0, p);
     // The positions of a chunk of points, then their samples in one batch.
     let (mut xs, mut ys) = ([0f32; CHUNK], [0f32; CHUNK]);
     for (chunk, o) in pts.chunks(CHUNK).zip(out.chunks_mut(CHUNK)) {
@@ -239,7 +269,8 @@ impl Template {
             out.resize(particles.len(), 0.0);
             return;
         }
-        let (s0, c0) = (theta0 + first.rz).sin_cos();
+        // Laid as the template was sampled ([`sample`]).
+        let (s0, c0) = upright_sin_cos(theta0, first);
         let mut lifted: Vec<[f32; 3]> = self
             .pts
             .iter()
@@ -259,7 +290,12 @@ impl Template {
                 cy: first.cy as f64,
                 a: first.a as f64,
                 b: first.b as f64,
-                theta: (theta0 + first.rz) as f64,
+                theta: f64::from(theta0 + first.rz)
+                    + if upside_down(first) {
+                        std::f64::consts::PI
+                    } else {
+                        0.0
+                    },
             };
             let seen: Vec<[f64; 2]> = lifted
                 .iter()
@@ -410,6 +446,61 @@ mod tests {
             b,
             rz,
             ..Particle::default()
+        }
+    }
+
+    /// The template stays upright as a pan passes 90°: the angles `Euler::from_matrix`
+    /// gives there (tilt and roll turned by 180°, pan mirrored) sample what the angles just
+    /// short of 90° sample, and so does the other set of angles of any rotation; with pan and
+    /// tilt within 60° nothing turns, whatever the roll.
+    #[test]
+    fn the_template_stays_upright_through_a_pan_of_90_degrees() {
+        use crate::geometry::Euler;
+        let g = scene(80, 60);
+        let pts = disk_grid(14);
+        let at = |e: &Euler| Particle {
+            rx: e.rx as f32,
+            ry: e.ry as f32,
+            rz: e.rz as f32,
+            ..particle(40.0, 30.0, 12.0, 16.0, 0.0)
+        };
+        let (mut before, mut after) = (Vec::new(), Vec::new());
+        let short = Euler::new(0.0, 89f64.to_radians(), 0.0);
+        let past = Euler::from_matrix(&Euler::new(0.0, 91f64.to_radians(), 0.0).matrix());
+        assert!(past.rz.abs() > 3.0, "the other set of angles: {past:?}");
+        sample(&g, &at(&short), 0.3, &pts, &mut before);
+        sample(&g, &at(&past), 0.3, &pts, &mut after);
+        let worst = before
+            .iter()
+            .zip(&after)
+            .map(|(x, y)| (x - y).abs())
+            .fold(0.0f32, f32::max);
+        assert!(worst < 1e-4, "{worst}");
+        // Either set of angles of one rotation, laid alike.
+        let mut seed = 7u64;
+        let mut next = || {
+            seed = seed
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            ((seed >> 11) as f64 / (1u64 << 53) as f64 - 0.5) * std::f64::consts::TAU
+        };
+        for _ in 0..500 {
+            let e = Euler::new(next(), next() / 2.0, next());
+            let other = Euler::new(
+                e.rx + std::f64::consts::PI,
+                std::f64::consts::PI - e.ry,
+                e.rz + std::f64::consts::PI,
+            );
+            let (a, b) = (
+                upright_sin_cos(0.3, &at(&e)),
+                upright_sin_cos(0.3, &at(&other)),
+            );
+            assert!(
+                (a.0 - b.0).abs() < 1e-5 && (a.1 - b.1).abs() < 1e-5,
+                "{e:?}: {a:?} {b:?}"
+            );
+            let moderate = Euler::new(e.rx / 3.0, e.ry / 1.5, e.rz);
+            assert!(!upside_down(&at(&moderate)), "{moderate:?}");
         }
     }
 

@@ -172,7 +172,8 @@ pub struct Estimate {
     /// its templates), or the target is re-acquired.
     pub lost: bool,
     /// Feature matches with the previous frame (after the outlier rejection), which the
-    /// inter-frame rotation is estimated from; 0 when there were none. The keyframe fits and
+    /// inter-frame rotation is estimated from; 0 when fewer than 3 matched inside the
+    /// previous ellipse, too few to reject outliers among. The keyframe fits and
     /// the feature term use matches of their own, so 0 does not mean the rotation went
     /// unmeasured (the confidence says that: see [`Estimate::confidence`]).
     pub matches: usize,
@@ -280,6 +281,10 @@ pub struct Tracker {
     /// [`TrackerConfig::found_above`]), which the filter's proposals are held near while the
     /// tracker is unsure ([`TrackerConfig::size_hold`]).
     held_axes: (f64, f64),
+    /// The rotation of the last trusted estimate (when [`Self::held_axes`] were taken): a lost
+    /// target is looked for and recognised in it, not in the estimate's, which the filter's
+    /// widened proposals walk about while nothing measures the turn.
+    trusted_rot: Matrix3<f64>,
     /// The previous frame's confidence (1 after an initialisation).
     prev_confidence: f64,
     /// The last step's proposed particles, their terms and their total log-weights
@@ -471,6 +476,7 @@ impl Tracker {
             frames_relit: 0,
             failed: None,
             held_axes: (1.0, 1.0),
+            trusted_rot: Matrix3::identity(),
             prev_confidence: 1.0,
             particles: Vec::new(),
             terms: Vec::new(),
@@ -642,6 +648,7 @@ impl Tracker {
         self.low_count = 0;
         self.lost = false;
         self.held_axes = (hyp.a, hyp.b);
+        self.trusted_rot = hyp.rot;
         self.prev_confidence = 1.0;
         self.frame = index;
         self.first = Estimate {
@@ -1092,14 +1099,21 @@ impl Tracker {
         // A lost target is found again by its confidence only where it is recognised: a
         // keyframe fit placed it this frame, or its templates correlate there (consulted only
         // on a lost frame confident enough for it to matter).
+        // Both look for the target as it was last trusted: the estimate's rotation has walked
+        // while lost (a roll of 25-55 degrees on a target that never turned, whose template,
+        // laid at that roll, then never recognised it again).
+        let as_trusted = Hypothesis {
+            rot: self.trusted_rot,
+            ..est
+        };
         let recognised = !self.lost
             || confidence < self.cfg.found_above
             || keyframe_fitted
-            || self.recognised_at(&gray, &est);
+            || self.recognised_at(&gray, &as_trusted);
         (self.low_count, self.lost) =
             lost_state(&self.cfg, self.low_count, self.lost, confidence, recognised);
         if self.low_count >= self.cfg.lost_after
-            && let Some((found, c)) = self.reacquire(frame, &gray, &est)?
+            && let Some((found, c)) = self.reacquire(frame, &gray, &as_trusted)?
         {
             let found = self.filter.bounded(&found);
             self.filter.reset(&found);
@@ -1132,6 +1146,7 @@ impl Tracker {
         };
         if !holds_size(&self.cfg, self.lost, confidence) {
             self.held_axes = (est.a, est.b);
+            self.trusted_rot = est.rot;
         }
         self.prev_confidence = confidence;
         self.spin = self.cfg.coast_rate.map_or_else(Vector3::zeros, |rate| {

@@ -301,6 +301,10 @@ impl Tracker {
     /// confidence, when it lies where it was searched ([`placed_within`]), passes the
     /// candidate's colour test and is as confident as a found track ([`reacquired`]).
     ///
+    /// The candidates are laid in `est`'s rotation, which the tracker gives as the last
+    /// trusted estimate's (a lost estimate's own has walked), and a candidate the templates
+    /// alone recognised is found in it.
+    ///
     /// The sizes come from the initial ellipse, not from the track: a track is declared lost
     /// only after its estimate has drifted for a while, and by then its size is no guide (on
     /// OTB girl the last estimate above the lost threshold was 2 x 2 px on a 13 x 17 px head,
