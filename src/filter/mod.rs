@@ -211,7 +211,9 @@ pub struct FilterParams {
     pub proposal: StateSigma,
     /// Σ_P: the random-walk dynamics `p(x_k | x_{k-1})`.
     pub dynamics: StateSigma,
-    /// Resample when the effective sample size falls below this fraction of N.
+    /// Resample when the effective sample size falls below this fraction of N, or to 1 (one
+    /// particle holds all the weight; with 2 particles and 0.5 the fraction alone never
+    /// resamples). 0: never.
     pub resample_below: f64,
     /// Smallest semi-axis a particle may take (pixels); proposals are clamped to it.
     pub min_axis: f64,
@@ -745,7 +747,11 @@ impl ParticleFilter {
             };
         }
         let ess = resample::effective_sample_size(&self.weights);
-        let resampled = ess < self.params.resample_below * n as f64;
+        // One particle holding all the weight is resampled whatever N: with 2 particles
+        // the ESS never falls below 0.5 N = 1, and a particle whose weight had underflowed
+        // to 0 was carried, weightless, for the rest of the track.
+        let collapsed = n > 1 && self.params.resample_below > 0.0 && ess <= 1.0 + 1e-12;
+        let resampled = ess < self.params.resample_below * n as f64 || collapsed;
         self.estimate = self.weighted_estimate();
         self.last_resampling = None;
         if resampled {
@@ -1393,6 +1399,32 @@ mod tests {
         f.params.resample_below = 0.0;
         f.update(&[0.0, (3.0f32).ln()]).unwrap();
         assert!((f.estimate().cx - (0.25 * 50.0 + 0.75 * 60.0)).abs() < 1e-5);
+    }
+
+    /// Two particles resample once one holds all the weight (0.5 N = 1 is an ESS they never
+    /// fall below), and 0 still means never.
+    #[test]
+    fn two_particles_resample_when_one_holds_all_the_weight() {
+        let mut f = ParticleFilter::new(
+            FilterParams {
+                particles: 2,
+                ..FilterParams::default()
+            },
+            1,
+            &init(),
+        )
+        .unwrap();
+        f.particles[1].cx = 60.0;
+        f.log_ratio = vec![0.0, 0.0];
+        let info = f.update(&[0.0, -1.0]).unwrap();
+        assert!(!info.resampled && info.ess > 1.0, "{info:?}");
+        let info = f.update(&[0.0, f32::NEG_INFINITY]).unwrap();
+        assert!(info.resampled, "{info:?}");
+        assert!(f.particles().iter().all(|p| p.cx == 50.0));
+        f.params.resample_below = 0.0;
+        f.particles[1].cx = 60.0;
+        let info = f.update(&[0.0, f32::NEG_INFINITY]).unwrap();
+        assert!(!info.resampled, "{info:?}");
     }
 
     #[test]
