@@ -97,7 +97,11 @@ struct BlockFit {
     /// The larger singular value of the unconstrained least-squares block: the change of size
     /// the matches show (1 for a turn at a constant distance), which the solvers do not model.
     scale: Option<f64>,
-    /// The standard error of the fitted translation, `residual / √n` (pixels).
+    /// The image motion of the object's centre under the printed rotation's map (the
+    /// completed block's, where completion moved it), which the parallax test reads.
+    motion: Vector2<f64>,
+    /// The standard error of one component of the fitted translation, `residual / √(2n)`
+    /// (pixels; the residual is the RMS of the 2D error).
     translation_noise: f64,
     /// SEA's Newton residual where it stopped short of convergence (its block is then its
     /// best iterate, projected onto the valid blocks).
@@ -108,16 +112,27 @@ struct BlockFit {
 }
 
 impl BlockFit {
-    fn of(i: &pftrack::pose::InterFrame, kind: SolverKind, p: &[[f64; 2]], q: &[[f64; 2]]) -> Self {
+    fn of(
+        i: &pftrack::pose::InterFrame,
+        kind: SolverKind,
+        centre: Vector2<f64>,
+        p: &[[f64; 2]],
+        q: &[[f64; 2]],
+    ) -> Self {
         use pftrack::pose::{complete::singular_values, lsm::lsm_block, moments, rms_residual};
         let (up, uq) = select(p, q, &i.block.inliers);
         let m = moments(&up, &uq, 3).ok();
         let r2 = i.pair.a.fixed_view::<2, 2>(0, 0).into_owned();
         let moved = (r2 - i.block.r2).norm() > 1e-9;
-        let completed_residual = m.filter(|_| moved).map(|m| {
+        let completed = m.filter(|_| moved).map(|m| {
             let l = m.mean_q - r2 * m.mean_p;
-            rms_residual(&r2, &l, &up, &uq, None)
+            (
+                rms_residual(&r2, &l, &up, &uq, None),
+                r2 * centre + l - centre,
+            )
         });
+        let completed_residual = completed.map(|c| c.0);
+        let motion = completed.map_or(i.translation, |c| c.1);
         let scale = m
             .and_then(|m| lsm_block(&m).ok())
             .map(|b| singular_values(&b).0);
@@ -135,13 +150,14 @@ impl BlockFit {
                 .solve(&up, &uq)
                 .ok()
                 .map(|o| o.residual)
-                .filter(|&r| r < i.block.residual * (1.0 - 1e-6) - 1e-9),
+                .filter(|&r| r < residual * (1.0 - 1e-6) - 1e-9),
             _ => None,
         };
         Self {
             completed_residual,
             scale,
-            translation_noise: residual / (up.len().max(1) as f64).sqrt(),
+            motion,
+            translation_noise: residual / (2.0 * up.len().max(1) as f64).sqrt(),
             sea_unconverged,
             optimal_better,
         }
@@ -150,7 +166,8 @@ impl BlockFit {
 
 /// Whether the parallax `offset` decides the Necker branch of `chosen`: its component along
 /// the direction the turn moves the surface in (the rotation's `(r13, r23)`), against twice
-/// the translation's standard error `noise`.
+/// the features' translation's standard error `noise` (block matching's own error, which
+/// nothing here measures, is not counted).
 fn branch_verdict(chosen: &nalgebra::Matrix3<f64>, offset: Vector2<f64>, noise: f64) -> String {
     let c = Vector2::new(chosen[(0, 2)], chosen[(1, 2)]);
     if c.norm() < 1e-9 {
@@ -158,11 +175,14 @@ fn branch_verdict(chosen: &nalgebra::Matrix3<f64>, offset: Vector2<f64>, noise: 
     }
     let along = c.normalize().dot(&offset).abs();
     if along > 2.0 * noise {
-        format!("{along:.2} px along the turn against a noise of about {noise:.2} px decides it")
+        format!(
+            "{along:.2} px along the turn, over twice the features' noise of about {noise:.2} \
+             px: it points to this branch"
+        )
     } else {
         format!(
-            "{along:.2} px along the turn is within twice the noise of about {noise:.2} px: the \
-             branch is a guess"
+            "{along:.2} px along the turn is within twice the features' noise of about \
+             {noise:.2} px: the branch is a guess"
         )
     }
 }
@@ -323,7 +343,7 @@ pub fn run(a: PoseArgs) -> anyhow::Result<()> {
     match solved {
         Solved::Block(i) => {
             let kind = solver.unwrap_or(SolverKind::Sea);
-            let fit = BlockFit::of(&i, kind, &p, &q);
+            let fit = BlockFit::of(&i, kind, Vector2::new(e.cx, e.cy), &p, &q);
             match fit.completed_residual {
                 Some(r) => outln!(
                     "residual {r:.3} px (of the rotation's block; {:.3} px of the unconstrained \
@@ -346,19 +366,23 @@ pub fn run(a: PoseArgs) -> anyhow::Result<()> {
                 )?;
             }
             if let Some(s) = fit.scale {
-                let effect = if s < 1.0 - 1e-9 {
-                    format!("a shrink ({:.1} % here) reads as a turn", 100.0 * (1.0 - s))
-                } else if s > 1.0 + 1e-9 {
+                // Within half a permille the line says no more than its three decimals.
+                let effect = if s < 1.0 - 5e-4 {
                     format!(
-                        "a growth ({:.1} % here) hides part of a turn",
+                        ", so a shrink ({:.1} % here) reads as a turn",
+                        100.0 * (1.0 - s)
+                    )
+                } else if s > 1.0 + 5e-4 {
+                    format!(
+                        ", so a growth ({:.1} % here) hides part of a turn",
                         100.0 * (s - 1.0)
                     )
                 } else {
-                    "as the matches show it".to_string()
+                    ", as the matches show it".to_string()
                 };
                 outln!(
                     "scale: x{s:.3} by the unconstrained fit (1 for a turn at a constant \
-                     distance); the solvers hold the size constant, so {effect}"
+                     distance); the solvers hold the size constant{effect}"
                 )?;
             }
             // Weak perspective cannot tell a tilt and pan from their mirror (the Necker pair):
@@ -366,7 +390,7 @@ pub fn run(a: PoseArgs) -> anyhow::Result<()> {
             // as the tracker's TPE mode picks it, with the centre's motion from block matching.
             match block_match(&ga, &gb, &e, &AbmParams::for_target(&e)) {
                 Ok(m) if m.is_fitted() => {
-                    let offset = i.translation - Vector2::new(m.translation[0], m.translation[1]);
+                    let offset = fit.motion - Vector2::new(m.translation[0], m.translation[1]);
                     let chosen = resolve_by_parallax(&i.pair, offset);
                     let mirror = if chosen == i.pair.a {
                         i.pair.b
