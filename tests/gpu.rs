@@ -1494,8 +1494,6 @@ fn a_refused_allocation_fails_that_call_only() {
     }
 }
 
-/// `evaluate_batched` gives as many particles as asked for in batches the engine's buffers
-/// hold, the same terms bit for bit as one call on a device whose buffers hold them all.
 /// More matched features than a device's buffers hold is a typed error naming them, and only
 /// when the feature term reads them: without it, the same call runs.
 #[test]
@@ -1563,6 +1561,8 @@ fn features_beyond_the_buffer_limit_are_a_typed_error() {
     );
 }
 
+/// `evaluate_batched` gives as many particles as asked for in batches the engine's buffers
+/// hold, the same terms bit for bit as one call on a device whose buffers hold them all.
 #[test]
 fn batched_evaluation_passes_the_buffer_limit_with_the_same_terms() {
     let Some(mut own) = engine() else { return };

@@ -54,16 +54,17 @@ pub fn disk_grid(grid: usize) -> Vec<[f32; 2]> {
 
 /// `(sin, cos)` of the orientation a template is laid on the ellipse of particle `p` with:
 /// the ellipse's own `theta0 + p.rz`, or that turned by half a turn (the same ellipse) where
-/// the target's up axis, the image direction `(−r12, r22)` of its rotation's y axis, points
-/// against it.
+/// the target's up axis, the image direction `(r12, r22)` of its rotation's y axis, points
+/// against the roll's own, `(−sin rz, cos rz)`.
 ///
 /// Why: a rotation has two sets of angles, and [`crate::geometry::Euler::from_matrix`] keeps
 /// the pan within ±90°, so a target that pans past 90° is given the other set, its roll
 /// turned by 180°: the ellipse is the same, but a template laid by the roll alone turned
 /// upside down there, and compared particles on either side of 90° with it the wrong way up
 /// (a head could not be tracked across a pan of 90° with the template on). The up axis
-/// belongs to the rotation, not to its angles. With a pan and tilt within 90° it agrees with
-/// the roll, whatever the roll, and nothing turns.
+/// belongs to the rotation, not to its angles. With a pan and tilt within 60° it agrees with
+/// the roll, whatever the roll, and nothing turns (the first turn comes with both near 66°
+/// and the roll near 45°).
 pub fn upright_sin_cos(theta0: f32, p: &Particle) -> (f32, f32) {
     let (s, c) = (theta0 + p.rz).sin_cos();
     if upside_down(p) { (-s, -c) } else { (s, c) }
@@ -76,9 +77,9 @@ pub fn upside_down(p: &Particle) -> bool {
     let (sy, cy) = p.ry.sin_cos();
     let (sz, cz) = p.rz.sin_cos();
     // R = Rx Ry Rz: r12 = −cos ry sin rz, r22 = cos rx cos rz − sin rx sin ry sin rz; the up
-    // axis against the roll's own direction (sin rz, cos rz).
+    // axis (r12, r22) against the roll's own (−sin rz, cos rz).
     let (r12, r22) = (-cy * sz, cx * cz - sx * sy * sz);
-    -r12 * sz + r22 * cz < 0.0
+    r12 * -sz + r22 * cz < 0.0
 }
 
 /// The grey levels of `gray` at the grid points `pts` of the ellipse of particle `p`

@@ -1110,8 +1110,18 @@ impl Tracker {
             || confidence < self.cfg.found_above
             || keyframe_fitted
             || self.recognised_at(&gray, &as_trusted);
+        let was_lost = self.lost;
         (self.low_count, self.lost) =
             lost_state(&self.cfg, self.low_count, self.lost, confidence, recognised);
+        if was_lost && !self.lost && !keyframe_fitted {
+            // Found again by its templates, laid in the trusted pose: the target is in that
+            // pose, not in the walked one, which the template would otherwise learn and the
+            // next trusted frame take as the pose to look for it in.
+            let found = self.filter.bounded(&as_trusted);
+            self.filter.reset(&found);
+            est = found;
+            jumped = true;
+        }
         if self.low_count >= self.cfg.lost_after
             && let Some((found, c)) = self.reacquire(frame, &gray, &as_trusted)?
         {
@@ -1564,7 +1574,7 @@ impl Tracker {
 /// Confidence in `[0, 1]`: the weighted colour similarity ρ̄ (recovered from the colour
 /// term, `ρ = 1 + 2σc² ln p_colour`) mapped from [0.5, 1] to [0, 1], times the weighted
 /// share of normal lines with contour support, square-rooted (a geometric mean); times 0.8
-/// when no features measured the rotation. Undefined terms (NaN) give 0.
+/// when no features measured the rotation. An undefined term (NaN) supports nothing.
 fn confidence(
     terms: &[TermLogs],
     lp: &LikelihoodParams,
@@ -1576,7 +1586,7 @@ fn confidence(
         let rho: f64 = terms
             .iter()
             .zip(w)
-            .map(|(t, w)| w * rho_from_log(t.colour, lp.sigma_colour))
+            .map(|(t, &w)| supported(w, rho_from_log(t.colour, lp.sigma_colour)))
             .sum();
         colour = ((rho - 0.5) / 0.5).clamp(0.0, 1.0);
     }
@@ -1588,7 +1598,7 @@ fn confidence(
         let g: f64 = terms
             .iter()
             .zip(w)
-            .map(|(t, w)| w * t.gradient as f64)
+            .map(|(t, &w)| supported(w, t.gradient as f64))
             .sum();
         // `check` holds K at f32's epsilon or more, so `full` is positive.
         edges = if full > 0.0 {
@@ -1597,11 +1607,18 @@ fn confidence(
             0.0
         };
     }
-    // A term an engine left undefined (NaN: only a third-party engine's) supports nothing,
-    // so the frame reads as lost rather than as a NaN the lost bar never catches.
+    // Should anything still come out undefined, the frame reads as lost rather than as a NaN
+    // the lost bar never catches.
     let c = (colour * edges).sqrt();
     let c = if c.is_nan() { 0.0 } else { c };
     if rotation_measured { c } else { 0.8 * c }
+}
+
+/// A particle's share `w · v` of a weighted term in [`confidence`]: nothing from a particle of
+/// no weight or a term an engine left undefined (NaN: only a third-party engine's), which
+/// supports nothing; `0 · NaN` made the whole frame's sum NaN for one such particle.
+fn supported(w: f64, v: f64) -> f64 {
+    if w > 0.0 && v.is_finite() { w * v } else { 0.0 }
 }
 
 /// Whether the ellipse's size is held ([`TrackerConfig::size_hold`]) on the frame after one
@@ -1715,8 +1732,9 @@ mod tests {
     use super::*;
     use crate::geometry::angle_between;
 
-    /// Terms an engine left undefined give a confidence of 0 (the frame reads as lost), not
-    /// a NaN that compares false against the lost bar; defined ones give one in [0, 1].
+    /// Terms an engine left undefined support nothing (alone, a confidence of 0: the frame
+    /// reads as lost, not a NaN that compares false against the lost bar); defined ones give
+    /// one in [0, 1].
     #[test]
     fn undefined_terms_give_no_confidence() {
         let lp = LikelihoodParams::default();
@@ -1737,7 +1755,12 @@ mod tests {
                 ..good
             },
         ] {
-            assert_eq!(confidence(&[good, bad], &lp, &[0.5, 0.5], true), 0.0);
+            // Supporting nothing, it halves its half's share; of no weight, it changes
+            // nothing (one such particle among thousands made the frame's confidence NaN,
+            // then 0).
+            let half = confidence(&[good, bad], &lp, &[0.5, 0.5], true);
+            assert!(half < c, "{half} against {c}");
+            assert_eq!(confidence(&[good, bad], &lp, &[1.0, 0.0], true), c);
             assert_eq!(confidence(&[bad], &lp, &[1.0], false), 0.0);
         }
     }
