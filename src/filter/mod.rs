@@ -1383,8 +1383,8 @@ mod tests {
         assert!(held.check().is_ok());
     }
 
-    #[test]
-    fn weighted_mean_estimate_uses_weights() {
+    /// Two particles, at cx 50 and 60, with no proposal ratio.
+    fn two_particles() -> ParticleFilter {
         let mut f = ParticleFilter::new(
             FilterParams {
                 particles: 2,
@@ -1396,6 +1396,12 @@ mod tests {
         .unwrap();
         f.particles[1].cx = 60.0;
         f.log_ratio = vec![0.0, 0.0];
+        f
+    }
+
+    #[test]
+    fn weighted_mean_estimate_uses_weights() {
+        let mut f = two_particles();
         f.params.resample_below = 0.0;
         f.update(&[0.0, (3.0f32).ln()]).unwrap();
         assert!((f.estimate().cx - (0.25 * 50.0 + 0.75 * 60.0)).abs() < 1e-5);
@@ -1405,17 +1411,7 @@ mod tests {
     /// fall below), and 0 still means never.
     #[test]
     fn two_particles_resample_when_one_holds_all_the_weight() {
-        let mut f = ParticleFilter::new(
-            FilterParams {
-                particles: 2,
-                ..FilterParams::default()
-            },
-            1,
-            &init(),
-        )
-        .unwrap();
-        f.particles[1].cx = 60.0;
-        f.log_ratio = vec![0.0, 0.0];
+        let mut f = two_particles();
         let info = f.update(&[0.0, -1.0]).unwrap();
         assert!(!info.resampled && info.ess > 1.0, "{info:?}");
         let info = f.update(&[0.0, f32::NEG_INFINITY]).unwrap();

@@ -277,14 +277,12 @@ pub struct Tracker {
     frames_without_sift: usize,
     /// Frames stepped with a change of light undone ([`TrackerConfig::exposure_jump`]).
     frames_relit: usize,
-    /// The semi-axes of the last trusted estimate (confidence at least
-    /// [`TrackerConfig::found_above`]), which the filter's proposals are held near while the
-    /// tracker is unsure ([`TrackerConfig::size_hold`]).
-    held_axes: (f64, f64),
-    /// The rotation of the last trusted estimate (when [`Self::held_axes`] were taken): a lost
-    /// target is looked for and recognised in it, not in the estimate's, which the filter's
-    /// widened proposals walk about while nothing measures the turn.
-    trusted_rot: Matrix3<f64>,
+    /// The last trusted estimate (the start, or a frame of confidence at least
+    /// [`TrackerConfig::found_above`] that left the target found). The filter's proposals
+    /// are held near its semi-axes while the tracker is unsure ([`TrackerConfig::size_hold`]),
+    /// and a lost target is looked for and recognised in its rotation, not in the estimate's,
+    /// which the filter's widened proposals walk about while nothing measures the turn.
+    trusted: Hypothesis,
     /// The previous frame's confidence (1 after an initialisation).
     prev_confidence: f64,
     /// The last step's proposed particles, their terms and their total log-weights
@@ -475,8 +473,7 @@ impl Tracker {
             frames_without_sift: 0,
             frames_relit: 0,
             failed: None,
-            held_axes: (1.0, 1.0),
-            trusted_rot: Matrix3::identity(),
+            trusted: Hypothesis::from_state(&PoseState::default()),
             prev_confidence: 1.0,
             particles: Vec::new(),
             terms: Vec::new(),
@@ -647,8 +644,7 @@ impl Tracker {
             .reset(&self.prev_features, &init.ellipse, hyp, model);
         self.low_count = 0;
         self.lost = false;
-        self.held_axes = (hyp.a, hyp.b);
-        self.trusted_rot = hyp.rot;
+        self.trusted = hyp;
         self.prev_confidence = 1.0;
         self.frame = index;
         self.first = Estimate {
@@ -1030,7 +1026,7 @@ impl Tracker {
             self.cfg
                 .size_hold
                 .filter(|_| unsure)
-                .and_then(|k| SizeRange::around(self.held_axes.0, self.held_axes.1, k)),
+                .and_then(|k| SizeRange::around(self.trusted.a, self.trusted.b, k)),
         );
         self.filter.propose(&motion, spread);
         self.filter.particles_f32(&mut self.particles);
@@ -1103,7 +1099,7 @@ impl Tracker {
         // while lost (a roll of 25-55 degrees on a target that never turned, whose template,
         // laid at that roll, then never recognised it again).
         let as_trusted = Hypothesis {
-            rot: self.trusted_rot,
+            rot: self.trusted.rot,
             ..est
         };
         let recognised = !self.lost
@@ -1155,8 +1151,7 @@ impl Tracker {
             rz: euler.rz,
         };
         if !holds_size(&self.cfg, self.lost, confidence) {
-            self.held_axes = (est.a, est.b);
-            self.trusted_rot = est.rot;
+            self.trusted = est;
         }
         self.prev_confidence = confidence;
         self.spin = self.cfg.coast_rate.map_or_else(Vector3::zeros, |rate| {
