@@ -311,7 +311,7 @@ pub fn run(a: PoseArgs) -> anyhow::Result<()> {
     /// What the solver gave.
     enum Solved {
         /// The 2x2 block's solvers, completed to the Necker pair.
-        Block(pftrack::pose::InterFrame),
+        Block(SolverKind, pftrack::pose::InterFrame),
         /// The essential matrix's rotation.
         Essential(pftrack::pose::essential::EssentialPose),
     }
@@ -326,7 +326,8 @@ pub fn run(a: PoseArgs) -> anyhow::Result<()> {
     };
     let solved = match solver {
         Some(kind) => {
-            Solved::Block(interframe(&p, &q, [e.cx, e.cy], kind).map_err(|err| hint(err.into()))?)
+            let i = interframe(&p, &q, [e.cx, e.cy], kind).map_err(|err| hint(err.into()))?;
+            Solved::Block(kind, i)
         }
         None => Solved::Essential(
             essential_rotation(&p, &q, &intrinsics).map_err(|err| hint(err.into()))?,
@@ -341,8 +342,7 @@ pub fn run(a: PoseArgs) -> anyhow::Result<()> {
         outln!("{name}: tilt {x:.2} pan {y:.2} roll {z:.2} (degrees)")
     };
     match solved {
-        Solved::Block(i) => {
-            let kind = solver.unwrap_or(SolverKind::Sea);
+        Solved::Block(kind, i) => {
             let fit = BlockFit::of(&i, kind, Vector2::new(e.cx, e.cy), &p, &q);
             match fit.completed_residual {
                 Some(r) => outln!(
