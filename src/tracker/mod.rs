@@ -34,13 +34,15 @@
 //! (every setting, with why it has its default), `checks` ([`TrackerConfig::check`],
 //! [`Init::check`]), `keyframe` (the reference views the rotation is fitted against, and
 //! their bundle adjustment), `spin` (the turn carried through frames that measure none),
-//! `recovery` (the lost flag, the loop closures on the first view, the re-acquisition) and
-//! `init_refine` (an optional start moved onto the object's outline).
+//! `recovery` (the lost flag, the loop closures on the first view, the re-acquisition),
+//! `init_refine` (an optional start moved onto the object's outline) and `pool` (the step on
+//! rayon's pool, a second thread kept at hand).
 
 mod checks;
 mod config;
 mod init_refine;
 mod keyframe;
+mod pool;
 mod recovery;
 mod spin;
 
@@ -803,7 +805,10 @@ impl Tracker {
     /// `pool.install(|| tracker.step(&frame))` with `pool` from
     /// `rayon::ThreadPoolBuilder::new().num_threads(n).build()`; the output is the same on
     /// any number of threads. [`crate::likelihood::cpu::CpuEngine::with_threads`] bounds only
-    /// the likelihood pass.
+    /// the likelihood pass. For the length of a step one thread of the pool, where it has more
+    /// than one, waits for the step's parallel work by spinning rather than sleeping (running
+    /// any work the pool has meanwhile): waking a sleeping thread costs more than most of the
+    /// step's forks save, some 30 µs on a virtual machine.
     ///
     /// Errors: a frame of another size than the start's is refused and changes nothing (the
     /// next frame steps as if it had not come). An error after that (the likelihood engine's:
@@ -828,7 +833,7 @@ impl Tracker {
                 want_h: self.size.1,
             }));
         }
-        let stepped = rayon::scope(|_| self.step_in_pool(frame, index));
+        let stepped = pool::with_helper(|| self.step_in_pool(frame, index));
         if let Err(e) = &stepped {
             self.clear_weighing();
             self.failed = Some((index, e.to_string()));
