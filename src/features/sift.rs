@@ -702,7 +702,15 @@ impl Sift {
         }
         let mut octaves: Vec<Octave> = Vec::with_capacity(n_oct);
         let mut blurred = take_buf(bw * bh);
-        blur(&base, &mut blurred, bw, bh, &self.base_kernel, scratch);
+        blur(
+            &base,
+            &mut blurred,
+            None,
+            bw,
+            bh,
+            &self.base_kernel,
+            scratch,
+        );
         recycle(std::mem::replace(&mut base, blurred));
         let (mut ow, mut oh) = (bw, bh);
         for o in 0..n_oct {
@@ -721,20 +729,19 @@ impl Sift {
             gauss.push(std::mem::take(&mut base));
             for i in 1..n + 3 {
                 let mut next = take_buf(ow * oh);
+                // Each difference with its blur, band by band, while both scales are still in
+                // cache (the first octave's eleven images do not fit in L2) and on the thread
+                // that wrote the band.
+                let mut d = take_buf(ow * oh);
                 blur(
                     &gauss[i - 1],
                     &mut next,
+                    Some(&mut d),
                     ow,
                     oh,
                     &self.layer_kernels[i],
                     scratch,
                 );
-                // Each difference right after its blur, while both scales are still in cache
-                // (the first octave's eleven images do not fit in L2).
-                let mut d = take_buf(ow * oh);
-                for ((d, b), a) in d.iter_mut().zip(&next).zip(&gauss[i - 1]) {
-                    *d = b - a;
-                }
                 dog.push(d);
                 gauss.push(next);
             }
@@ -1183,12 +1190,23 @@ fn conv_row<'a>(
     }
 }
 
-/// Separable Gaussian blur of a `w x h` image with reflect-101 borders. Images of at least
+/// Separable Gaussian blur of a `w x h` image with reflect-101 borders, and with `dog` the
+/// difference of the blurred image and `src` (`dst - src`) into it. Images of at least
 /// [`PARALLEL_MIN_PIXELS`] are cut into bands of rows spread over rayon's current pool (the
-/// horizontal pass, then the vertical one); every pixel is computed the same way however the
-/// rows are split, so the result does not depend on the number of threads.
+/// horizontal pass, then the vertical one and the difference); every pixel is computed the
+/// same way however the rows are split, so the result does not depend on the number of
+/// threads.
+#[allow(clippy::too_many_arguments)]
 #[inline(always)]
-fn blur(src: &[f32], dst: &mut [f32], w: usize, h: usize, k: &Kernel, s: &mut BlurScratch) {
+fn blur(
+    src: &[f32],
+    dst: &mut [f32],
+    dog: Option<&mut [f32]>,
+    w: usize,
+    h: usize,
+    k: &Kernel,
+    s: &mut BlurScratch,
+) {
     let r = k.radius();
     let kh = &k.half[..];
     // Grow only: the caller sizes `tmp` for the largest octave, so it is never refilled.
@@ -1201,6 +1219,9 @@ fn blur(src: &[f32], dst: &mut [f32], w: usize, h: usize, k: &Kernel, s: &mut Bl
     if bands <= 1 {
         blur_rows_h(src, tmp, w, 0, kh, r, &mut s.row);
         blur_rows_v(tmp, dst, w, h, 0, kh, r, &mut s.offs);
+        if let Some(d) = dog {
+            difference(dst, &src[..w * h], &mut d[..w * h]);
+        }
         return;
     }
     use rayon::prelude::*;
@@ -1219,15 +1240,34 @@ fn blur(src: &[f32], dst: &mut [f32], w: usize, h: usize, k: &Kernel, s: &mut Bl
             );
         });
     let tmp = &*tmp;
+    // The difference's bands beside the blur's (none without a difference).
+    let mut dog_bands: Vec<Option<&mut [f32]>> = match dog {
+        Some(d) => d[..w * h].chunks_mut(rows * w).map(Some).collect(),
+        None => (0..bands).map(|_| None).collect(),
+    };
     dst.par_chunks_mut(rows * w)
         .zip(scratch.par_iter_mut())
+        .zip(dog_bands.par_iter_mut())
         .enumerate()
-        .for_each(|(i, (d, (_, offs)))| {
+        .for_each(|(i, ((d, (_, offs)), dog))| {
             with_simd(
                 #[inline(always)]
-                || blur_rows_v(tmp, d, w, h, i * rows, kh, r, offs),
+                || {
+                    blur_rows_v(tmp, d, w, h, i * rows, kh, r, offs);
+                    if let Some(g) = dog {
+                        difference(d, &src[i * rows * w..][..d.len()], g);
+                    }
+                },
             );
         });
+}
+
+/// `out = b - a`, element by element.
+#[inline(always)]
+fn difference(b: &[f32], a: &[f32], out: &mut [f32]) {
+    for ((d, b), a) in out.iter_mut().zip(b).zip(a) {
+        *d = b - a;
+    }
 }
 
 /// Fewest pixels of an image whose blur, differences of Gaussians and extremum search are
@@ -1900,7 +1940,7 @@ mod tests {
         let src: Vec<f32> = (0..w * h).map(|i| ((i * 37 % 11) as f32) / 11.0).collect();
         let k = Kernel::gaussian(1.2);
         let mut dst = vec![0f32; w * h];
-        blur(&src, &mut dst, w, h, &k, &mut BlurScratch::default());
+        blur(&src, &mut dst, None, w, h, &k, &mut BlurScratch::default());
         let r = k.radius() as isize;
         for y in 0..h {
             for x in 0..w {
@@ -2000,7 +2040,7 @@ mod tests {
     }
 
     #[test]
-    fn a_blur_by_bands_is_the_blur_on_one_thread() {
+    fn a_blur_and_its_difference_by_bands_are_those_on_one_thread() {
         // Large enough to be cut into bands, with rows that do not divide evenly.
         let (w, h) = (131, 97);
         assert!(w * h >= PARALLEL_MIN_PIXELS);
@@ -2011,14 +2051,39 @@ mod tests {
         let run = |n| {
             on_threads(n, || {
                 assert_eq!(parallel_bands(w, h), n);
-                let mut dst = vec![0f32; w * h];
-                blur(&src, &mut dst, w, h, &k, &mut BlurScratch::default());
-                dst
+                let (mut dst, mut dog) = (vec![0f32; w * h], vec![f32::NAN; w * h]);
+                blur(
+                    &src,
+                    &mut dst,
+                    Some(&mut dog),
+                    w,
+                    h,
+                    &k,
+                    &mut BlurScratch::default(),
+                );
+                let mut alone = vec![0f32; w * h];
+                blur(
+                    &src,
+                    &mut alone,
+                    None,
+                    w,
+                    h,
+                    &k,
+                    &mut BlurScratch::default(),
+                );
+                assert!(alone == dst, "the difference changed the blur on {n} bands");
+                (dst, dog)
             })
         };
-        let one = run(1);
+        let (one, one_dog) = run(1);
+        // The difference is the blurred image less the source, on every pixel.
+        for ((d, b), a) in one_dog.iter().zip(&one).zip(&src) {
+            assert_eq!(d.to_bits(), (b - a).to_bits());
+        }
         for n in [2, 3, 5] {
-            assert!(run(n) == one, "{n} bands differ from one");
+            let (dst, dog) = run(n);
+            assert!(dst == one, "{n} bands differ from one");
+            assert!(dog == one_dog, "{n} bands' differences differ from one");
         }
     }
 
