@@ -141,6 +141,10 @@ impl LikelihoodEngine for FallbackEngine {
         self.notice.take()
     }
 
+    fn runs_on_calling_pool(&self) -> bool {
+        self.active.runs_on_calling_pool()
+    }
+
     fn check_capacity(
         &self,
         particles: usize,
@@ -322,6 +326,19 @@ mod tests {
         cpu.evaluate(&frame, &params, &[frame.prev], &mut want)
             .unwrap();
         assert_eq!(out, want);
+    }
+
+    /// Where the work runs follows the engine in use: the device's elsewhere, the CPU
+    /// engine's on the caller's pool once the device is lost.
+    #[test]
+    fn the_work_runs_on_the_calling_pool_once_fallen_back_to_the_cpu() {
+        let mut e = FallbackEngine::new(Box::new(LostAfterModel { models: 0 }));
+        assert!(e.set_colour_model(&red_model()).is_ok());
+        assert!(!e.fell_back() && !e.runs_on_calling_pool());
+        // The device is lost on the second model.
+        assert!(e.set_colour_model(&red_model()).is_ok());
+        assert!(e.fell_back());
+        assert!(e.runs_on_calling_pool());
     }
 
     #[test]

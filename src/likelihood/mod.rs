@@ -670,6 +670,16 @@ pub trait LikelihoodEngine {
         None
     }
 
+    /// Whether [`Self::evaluate`] does its work on the rayon pool it is called in (the CPU
+    /// engine on the global pool), rather than somewhere the caller waits for: a GPU, or a pool
+    /// of the engine's own. A tracker keeps a thread of its pool spinning for the step's forks
+    /// ([`crate::tracker::Tracker::step`]) and lets it rest during an evaluation that does not
+    /// run there, where spinning would only take a core from the work (a software Vulkan
+    /// driver's threads). False by default.
+    fn runs_on_calling_pool(&self) -> bool {
+        false
+    }
+
     /// Whether the engine can evaluate `particles` particles on `width x height` frames with
     /// `params`, checked before anything is allocated: the error its
     /// [`LikelihoodEngine::evaluate`] would give on the first frame, for an engine whose

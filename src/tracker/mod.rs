@@ -249,6 +249,8 @@ pub struct Tracker {
     /// are grey ([`TrackerConfig::grey_luma`], [`Tracker::switch_colour_bins`]).
     likelihood: LikelihoodParams,
     engine: Box<dyn LikelihoodEngine + Send>,
+    /// What a step shares with the pool thread kept at hand for it ([`pool::with_helper`]).
+    helper: std::sync::Arc<pool::Helper>,
     /// The frame and message of a step or restart that failed after changing the state, which
     /// only a successful start clears ([`TrackError::Failed`]).
     failed: Option<(usize, String)>,
@@ -456,6 +458,7 @@ impl Tracker {
             cfg,
             likelihood,
             engine,
+            helper: Default::default(),
             sift,
             sift_large,
             filter,
@@ -833,7 +836,8 @@ impl Tracker {
                 want_h: self.size.1,
             }));
         }
-        let stepped = pool::with_helper(|| self.step_in_pool(frame, index));
+        let helper = std::sync::Arc::clone(&self.helper);
+        let stepped = pool::with_helper(&helper, || self.step_in_pool(frame, index));
         if let Err(e) = &stepped {
             self.clear_weighing();
             self.failed = Some((index, e.to_string()));
@@ -1043,8 +1047,10 @@ impl Tracker {
             prev: lik_prev.to_particle(),
             theta0: self.theta0 as f32,
         };
-        self.engine
-            .evaluate(&input, &lp, &self.particles, &mut self.terms)?;
+        let (engine, particles, terms) = (&mut self.engine, &self.particles, &mut self.terms);
+        self.helper.beside(engine.runs_on_calling_pool(), || {
+            engine.evaluate(&input, &lp, particles, terms)
+        })?;
         self.correlate_template(&gray);
         self.totals = self.weighted_totals(&lp);
         let info = self.filter.update(&self.totals)?;
@@ -1558,8 +1564,10 @@ impl Tracker {
         let mut shown = self.likelihood;
         shown.terms &= TERM_COLOUR | TERM_GRADIENT;
         lp.terms = TERM_COLOUR | shown.terms;
-        self.engine
-            .evaluate(input, &lp, &[h.to_particle()], &mut self.own_terms)?;
+        let (engine, terms) = (&mut self.engine, &mut self.own_terms);
+        self.helper.beside(engine.runs_on_calling_pool(), || {
+            engine.evaluate(input, &lp, &[h.to_particle()], terms)
+        })?;
         let rho = self
             .own_terms
             .first()

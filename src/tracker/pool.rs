@@ -11,36 +11,101 @@
 //! the pool has pending (the step's forks, or any other work given to the pool) and checks
 //! again, and is back to sleeping the usual way once the step returns.
 
-use std::sync::atomic::{AtomicBool, Ordering};
+//!
+//! Where the step waits on work done elsewhere (a GPU engine's evaluation, or a CPU engine on
+//! a pool of its own) the helper rests, [`Helper::resting`]: spinning beside a software Vulkan
+//! driver took a core from the driver's own threads and made a step on lavapipe half as fast
+//! again.
 
-/// Runs `f` on the current rayon pool (the global one when called from outside any pool) with
-/// a second thread of the pool, where it has one, spinning for work until `f` returns. The
-/// result is `f`'s; a panic in `f` is passed on once the helper has stopped. On a pool of
-/// one thread `f` simply runs there.
-pub(super) fn with_helper<R: Send>(f: impl FnOnce() -> R + Send) -> R {
-    /// Tells the helper to stop when dropped, so that it stops when `f` panics too (rayon's
-    /// `join` waits for both halves before passing a panic on).
-    struct Done<'a>(&'a AtomicBool);
-    impl Drop for Done<'_> {
-        fn drop(&mut self) {
-            self.0.store(true, Ordering::Release);
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Condvar, Mutex, PoisonError};
+
+/// The state a step shares with its helper thread: whether the step is done, and whether the
+/// helper is to rest (blocked, not spinning) for now.
+#[derive(Debug, Default)]
+pub(super) struct Helper {
+    done: AtomicBool,
+    rest: AtomicBool,
+    /// Guards the helper's wait for `rest` to clear (or `done` to be set).
+    lock: Mutex<()>,
+    wake: Condvar,
+}
+
+impl Helper {
+    /// Runs `f` with the helper blocked instead of spinning (it runs no pool work meanwhile),
+    /// for work that does not run on the step's pool.
+    pub(super) fn resting<R>(&self, f: impl FnOnce() -> R) -> R {
+        /// Wakes the helper again when dropped, so that a panic in `f` wakes it too.
+        struct Rested<'a>(&'a Helper);
+        impl Drop for Rested<'_> {
+            fn drop(&mut self) {
+                self.0.set(&self.0.rest, false);
+            }
+        }
+        self.rest.store(true, Ordering::Release);
+        let _rested = Rested(self);
+        f()
+    }
+
+    /// Runs `f`, an engine's evaluation, with the helper at rest unless the work runs on the
+    /// step's pool (`on_pool`, [`crate::likelihood::LikelihoodEngine::runs_on_calling_pool`]).
+    pub(super) fn beside<R>(&self, on_pool: bool, f: impl FnOnce() -> R) -> R {
+        if on_pool { f() } else { self.resting(f) }
+    }
+
+    /// Sets `flag` under the lock the helper waits with, then wakes it: a helper about to wait
+    /// either sees the new value or is waiting when the wake comes.
+    fn set(&self, flag: &AtomicBool, value: bool) {
+        {
+            let _g = self.lock.lock().unwrap_or_else(PoisonError::into_inner);
+            flag.store(value, Ordering::Release);
+        }
+        self.wake.notify_all();
+    }
+
+    /// The helper's loop: runs the pool's pending work, spins where there is none, blocks
+    /// while told to rest, until the step is done.
+    fn serve(&self) {
+        while !self.done.load(Ordering::Acquire) {
+            if self.rest.load(Ordering::Acquire) {
+                let g = self.lock.lock().unwrap_or_else(PoisonError::into_inner);
+                let _g = self
+                    .wake
+                    .wait_while(g, |()| {
+                        self.rest.load(Ordering::Acquire) && !self.done.load(Ordering::Acquire)
+                    })
+                    .unwrap_or_else(PoisonError::into_inner);
+            } else if rayon::yield_now() != Some(rayon::Yield::Executed) {
+                std::hint::spin_loop();
+            }
         }
     }
-    let done = AtomicBool::new(false);
+}
+
+/// Runs `f` on the current rayon pool (the global one when called from outside any pool) with
+/// a second thread of the pool, where it has one, spinning for work until `f` returns, except
+/// while `f` has it rest ([`Helper::resting`]). The result is `f`'s; a panic in `f` is passed
+/// on once the helper has stopped. On a pool of one thread `f` simply runs there. `helper`
+/// must not be in use by another call at the same time.
+pub(super) fn with_helper<R: Send>(helper: &Helper, f: impl FnOnce() -> R + Send) -> R {
+    /// Tells the helper to stop when dropped, so that it stops when `f` panics too (rayon's
+    /// `join` waits for both halves before passing a panic on).
+    struct Done<'a>(&'a Helper);
+    impl Drop for Done<'_> {
+        fn drop(&mut self) {
+            self.0.set(&self.0.done, true);
+        }
+    }
+    helper.done.store(false, Ordering::Release);
+    helper.rest.store(false, Ordering::Release);
     let (r, ()) = rayon::join(
         || {
-            let _done = Done(&done);
+            let _done = Done(helper);
             f()
         },
-        || {
-            // Run by the forking thread itself only after `f` (nobody stole it): then `done`
-            // is already set and this returns at once.
-            while !done.load(Ordering::Acquire) {
-                if rayon::yield_now() != Some(rayon::Yield::Executed) {
-                    std::hint::spin_loop();
-                }
-            }
-        },
+        // Run by the forking thread itself only after `f` (nobody stole it): then the step is
+        // done and this returns at once.
+        || helper.serve(),
     );
     r
 }
@@ -48,6 +113,7 @@ pub(super) fn with_helper<R: Send>(f: impl FnOnce() -> R + Send) -> R {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use rayon::prelude::*;
 
     fn pool(threads: usize) -> rayon::ThreadPool {
         rayon::ThreadPoolBuilder::new()
@@ -56,40 +122,67 @@ mod tests {
             .expect("a thread pool")
     }
 
+    fn squares(n: u64) -> u64 {
+        (0..n).into_par_iter().map(|i| i * i).sum::<u64>()
+    }
+
+    /// Runs `f` on a thread of its own and waits at most two minutes for it: a helper that
+    /// never stops (or never wakes) holds its step forever, which fails here instead of
+    /// hanging the tests.
+    fn watched<R: Send + 'static>(f: impl FnOnce() -> R + Send + 'static) -> R {
+        let (tx, rx) = std::sync::mpsc::channel();
+        std::thread::spawn(move || {
+            let _ = tx.send(f());
+        });
+        rx.recv_timeout(std::time::Duration::from_secs(120))
+            .expect("the step never returned: its helper never stopped")
+    }
+
     #[test]
     fn returns_what_the_work_returns_with_its_forks_done_on_any_pool() {
+        let want = (0..10_000u64).map(|i| i * i).sum::<u64>();
         for threads in [1, 2, 3] {
-            let sum = pool(threads).install(|| {
-                with_helper(|| {
-                    use rayon::prelude::*;
-                    // Forks inside, as a step's: all of them run.
-                    (0..10_000u64).into_par_iter().map(|i| i * i).sum::<u64>()
-                })
+            let got = watched(move || {
+                let (p, helper) = (pool(threads), Helper::default());
+                // Many steps in a row, each with forks, some of them while the helper rests.
+                (0..200)
+                    .map(|k| {
+                        p.install(|| {
+                            with_helper(&helper, || match k % 3 {
+                                0 => squares(10_000),
+                                1 => helper.resting(|| squares(10_000)),
+                                _ => helper.resting(|| 0) + squares(10_000),
+                            })
+                        })
+                    })
+                    .collect::<Vec<u64>>()
             });
-            assert_eq!(sum, (0..10_000u64).map(|i| i * i).sum::<u64>(), "{threads}");
+            assert!(got.iter().all(|&s| s == want), "{threads} threads");
         }
     }
 
     #[test]
-    fn a_panic_in_the_work_is_passed_on_and_stops_the_helper() {
-        // On a thread of its own, watched: a helper that never stops holds the panic back
-        // forever (rayon's join waits for both halves), which fails here instead of hanging.
-        let (tx, rx) = std::sync::mpsc::channel();
-        std::thread::spawn(move || {
-            let p = pool(2);
-            for _ in 0..20 {
+    fn a_panic_in_the_work_is_passed_on_and_stops_the_helper_resting_or_not() {
+        let got = watched(|| {
+            let (p, helper) = (pool(2), Helper::default());
+            for k in 0..20 {
                 let caught = p.install(|| {
                     std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
-                        with_helper(|| -> u32 { panic!("the step failed") })
+                        with_helper(&helper, || -> u32 {
+                            if k % 2 == 0 {
+                                helper.resting(|| panic!("the step failed"))
+                            } else {
+                                panic!("the step failed")
+                            }
+                        })
                     }))
                 });
                 let msg = caught.expect_err("the panic comes back");
                 assert_eq!(msg.downcast_ref::<&str>(), Some(&"the step failed"));
             }
             // The pool is free again: the helper stopped.
-            let _ = tx.send(p.install(|| with_helper(|| 7)));
+            p.install(|| with_helper(&helper, || 7))
         });
-        let got = rx.recv_timeout(std::time::Duration::from_secs(120));
-        assert_eq!(got, Ok(7), "the panicking work's helper never stopped");
+        assert_eq!(got, 7);
     }
 }

@@ -322,8 +322,10 @@ impl Tracker {
         // The grid covers the frame, so its size has no bound the filter's count sets: in
         // batches the engine's buffers hold (a 4 px target on a 4K frame is 7.8 million
         // candidates, 249 MB of GPU buffer).
-        self.engine
-            .evaluate_batched(&input, &lp, &cands, &mut out)?;
+        let engine = &mut self.engine;
+        self.helper.beside(engine.runs_on_calling_pool(), || {
+            engine.evaluate_batched(&input, &lp, &cands, &mut out)
+        })?;
         let rhos: Vec<f64> = out
             .iter()
             .map(|t| rho_from_log(t.colour, lp.sigma_colour))

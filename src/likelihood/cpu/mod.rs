@@ -353,6 +353,12 @@ pub fn validate(frame: &FrameInput<'_>, params: &LikelihoodParams) -> Result<(),
 }
 
 impl LikelihoodEngine for CpuEngine {
+    /// On the global pool (from [`CpuEngine::new`]) the engine works on the pool it is called
+    /// in; on a pool of its own or the calling thread alone it does not.
+    fn runs_on_calling_pool(&self) -> bool {
+        matches!(self.exec, Exec::Global)
+    }
+
     fn name(&self) -> String {
         match self.threads() {
             1 => "cpu (1 thread)".to_string(),
@@ -397,6 +403,15 @@ impl LikelihoodEngine for CpuEngine {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn only_the_engine_on_the_global_pool_works_on_the_calling_pool() {
+        assert!(CpuEngine::new().runs_on_calling_pool());
+        for n in [1, 2] {
+            let e = CpuEngine::with_threads(n).expect("a pool");
+            assert!(!e.runs_on_calling_pool(), "{n} threads of its own");
+        }
+    }
 
     fn hist(pairs: &[(usize, f32)]) -> ColourHistogram {
         let mut q = vec![0.0; crate::likelihood::HIST_BINS];
