@@ -7,15 +7,17 @@
 //! virtual machine, some 30 µs before the woken thread runs: measured on a 2-vCPU VM, a
 //! `join` of two 20 µs halves took 48-60 µs after a serial stretch of 20 µs or more, longer
 //! than running both halves in turn, and 22 µs with the second thread kept awake. So for the
-//! length of a step, one of the pool's threads waits for work by spinning: it runs whatever
-//! the pool has pending (the step's forks, or any other work given to the pool) and checks
-//! again, and is back to sleeping the usual way once the step returns.
-
+//! length of a step, one of the pool's threads waits for work without sleeping: it runs
+//! whatever the pool has pending (the step's forks, or any other work given to the pool), and
+//! where there is none it yields its core to any other thread that wants it and checks again.
+//! Once the step returns it sleeps the usual way.
 //!
-//! Where the step waits on work done elsewhere (a GPU engine's evaluation, or a CPU engine on
-//! a pool of its own) the helper rests, [`Helper::resting`]: spinning beside a software Vulkan
-//! driver took a core from the driver's own threads and made a step on lavapipe half as fast
-//! again.
+//! Yielding, not spinning, keeps the helper from holding a core another process needs: two
+//! trackers at once on two cores took 2.0-2.2 s over `nod` with a spinning helper against
+//! 1.1-1.3 s without a helper, and as long as without one when it yields. Where the step
+//! waits on work done elsewhere (a GPU engine's evaluation, or a CPU engine on a pool of its
+//! own) the helper rests, blocked, [`Helper::resting`]: waiting beside a software Vulkan
+//! driver took a core from the driver's own threads, a 160x120 step on lavapipe 8 -> 11-16 ms.
 
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Condvar, Mutex, PoisonError};
@@ -76,7 +78,10 @@ impl Helper {
                     })
                     .unwrap_or_else(PoisonError::into_inner);
             } else if rayon::yield_now() != Some(rayon::Yield::Executed) {
-                std::hint::spin_loop();
+                // Nothing pending: the core goes to any other thread that wants it (another
+                // process's; a plain spin held it from them), and comes straight back when
+                // none does.
+                std::thread::yield_now();
             }
         }
     }
