@@ -672,10 +672,10 @@ pub trait LikelihoodEngine {
 
     /// Whether [`Self::evaluate`] does its work on the rayon pool it is called in (the CPU
     /// engine on the global pool), rather than somewhere the caller waits for: a GPU, or a pool
-    /// of the engine's own. A tracker keeps a thread of its pool spinning for the step's forks
+    /// of the engine's own. A tracker keeps a thread of its pool awake for the step's forks
     /// ([`crate::tracker::Tracker::step`]) and lets it rest during an evaluation that does not
-    /// run there, where spinning would only take a core from the work (a software Vulkan
-    /// driver's threads). False by default.
+    /// run there, where it would only take a core from the work (a software Vulkan driver's
+    /// threads). False by default.
     fn runs_on_calling_pool(&self) -> bool {
         false
     }

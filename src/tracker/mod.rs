@@ -809,9 +809,10 @@ impl Tracker {
     /// `rayon::ThreadPoolBuilder::new().num_threads(n).build()`; the output is the same on
     /// any number of threads. [`crate::likelihood::cpu::CpuEngine::with_threads`] bounds only
     /// the likelihood pass. For the length of a step one thread of the pool, where it has more
-    /// than one, waits for the step's parallel work by spinning rather than sleeping (running
-    /// any work the pool has meanwhile): waking a sleeping thread costs more than most of the
-    /// step's forks save, some 30 µs on a virtual machine.
+    /// than one, waits for the step's parallel work without sleeping: it runs any work the
+    /// pool has, yields its core to any other thread that wants it, and rests while an engine
+    /// that works elsewhere (a GPU) evaluates. Waking a sleeping thread costs more than most of
+    /// the step's forks save, some 30 µs on a virtual machine.
     ///
     /// Errors: a frame of another size than the start's is refused and changes nothing (the
     /// next frame steps as if it had not come). An error after that (the likelihood engine's:

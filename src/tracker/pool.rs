@@ -23,7 +23,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Condvar, Mutex, PoisonError};
 
 /// The state a step shares with its helper thread: whether the step is done, and whether the
-/// helper is to rest (blocked, not spinning) for now.
+/// helper is to rest (blocked, not polling) for now.
 #[derive(Debug, Default)]
 pub(super) struct Helper {
     done: AtomicBool,
@@ -34,7 +34,7 @@ pub(super) struct Helper {
 }
 
 impl Helper {
-    /// Runs `f` with the helper blocked instead of spinning (it runs no pool work meanwhile),
+    /// Runs `f` with the helper blocked instead of polling (it runs no pool work meanwhile),
     /// for work that does not run on the step's pool.
     pub(super) fn resting<R>(&self, f: impl FnOnce() -> R) -> R {
         /// Wakes the helper again when dropped, so that a panic in `f` wakes it too.
@@ -65,8 +65,8 @@ impl Helper {
         self.wake.notify_all();
     }
 
-    /// The helper's loop: runs the pool's pending work, spins where there is none, blocks
-    /// while told to rest, until the step is done.
+    /// The helper's loop: runs the pool's pending work, yields its core where there is none,
+    /// blocks while told to rest, until the step is done.
     fn serve(&self) {
         while !self.done.load(Ordering::Acquire) {
             if self.rest.load(Ordering::Acquire) {
@@ -88,7 +88,7 @@ impl Helper {
 }
 
 /// Runs `f` on the current rayon pool (the global one when called from outside any pool) with
-/// a second thread of the pool, where it has one, spinning for work until `f` returns, except
+/// a second thread of the pool, where it has one, polling for work until `f` returns, except
 /// while `f` has it rest ([`Helper::resting`]). The result is `f`'s; a panic in `f` is passed
 /// on once the helper has stopped. On a pool of one thread `f` simply runs there. `helper`
 /// must not be in use by another call at the same time.
