@@ -1568,6 +1568,46 @@ fn a_wrong_sized_frame_changes_nothing() {
     );
 }
 
+/// A CPU engine on a pool of its own gives the same track as the one on the step's pool, on a
+/// step's pool of one thread or of two. A step on a pool of one thread used to hang on the first
+/// frame here: waiting for the engine's pool, its thread ran the step's own helper, which
+/// served until a step that could not go on was done (`tracker::pool`). Watched, so that a
+/// hang fails the test.
+#[test]
+fn an_engine_on_a_pool_of_its_own_tracks_as_the_one_on_the_steps_pool() {
+    let (tx, rx) = std::sync::mpsc::channel();
+    std::thread::spawn(move || {
+        let r = Renderer::new(&SynthConfig::new(Scenario::Nod)).unwrap();
+        let init = Init::frontal(r.init_ellipse());
+        let (first, _) = r.render(0);
+        let frames: Vec<_> = (1..=4).map(|k| r.render(k).0).collect();
+        let track = |engine: pftrack::likelihood::cpu::CpuEngine, threads: usize| {
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap();
+            pool.install(|| {
+                let cfg = TrackerConfig::default();
+                let mut t = Tracker::with_engine(cfg, Box::new(engine), &first, init).unwrap();
+                frames
+                    .iter()
+                    .map(|f| t.step(f).unwrap().state)
+                    .collect::<Vec<_>>()
+            })
+        };
+        let own = |n| pftrack::likelihood::cpu::CpuEngine::with_threads(n).unwrap();
+        let want = track(pftrack::likelihood::cpu::CpuEngine::new(), 2);
+        let got = [track(own(2), 1), track(own(2), 2), track(own(3), 1)];
+        let _ = tx.send((want, got));
+    });
+    let (want, got) = rx
+        .recv_timeout(std::time::Duration::from_secs(300))
+        .expect("a tracker with its engine on a pool of its own never finished its steps");
+    for g in got {
+        assert_eq!(g, want);
+    }
+}
+
 /// A step or restart that fails part-way (the engine's fault) stops the tracker: every later
 /// step says so, naming the frame and the cause, with no weighing to read, until a restart
 /// succeeds; then it tracks as a tracker started on that frame does.

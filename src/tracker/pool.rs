@@ -18,9 +18,15 @@
 //! waits on work done elsewhere (a GPU engine's evaluation, or a CPU engine on a pool of its
 //! own) the helper rests, blocked, [`Helper::resting`]: waiting beside a software Vulkan
 //! driver took a core from the driver's own threads, a 160x120 step on lavapipe 8 -> 11-16 ms.
+//!
+//! The helper is never served by the stepping thread itself, which rayon can hand it while
+//! the step waits (on a pool of one thread, or waiting for an engine's own pool): there it
+//! would wait for a step that cannot go on below it. While it waits the helper may run other
+//! work given to the pool (another tracker's step, say), and the step then returns once that
+//! work is done, as a rayon `join` does.
 
 use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::{Condvar, Mutex, PoisonError};
+use std::sync::{Condvar, Mutex, OnceLock, PoisonError};
 
 /// The state a step shares with its helper thread: whether the step is done, and whether the
 /// helper is to rest (blocked, not polling) for now.
@@ -37,15 +43,16 @@ impl Helper {
     /// Runs `f` with the helper blocked instead of polling (it runs no pool work meanwhile),
     /// for work that does not run on the step's pool.
     pub(super) fn resting<R>(&self, f: impl FnOnce() -> R) -> R {
-        /// Wakes the helper again when dropped, so that a panic in `f` wakes it too.
-        struct Rested<'a>(&'a Helper);
+        /// Puts the helper back as it was (woken, unless an outer `resting` holds it) when
+        /// dropped, so that a panic in `f` does too.
+        struct Rested<'a>(&'a Helper, bool);
         impl Drop for Rested<'_> {
             fn drop(&mut self) {
-                self.0.set(&self.0.rest, false);
+                self.0.set(&self.0.rest, self.1);
             }
         }
-        self.rest.store(true, Ordering::Release);
-        let _rested = Rested(self);
+        let was = self.rest.swap(true, Ordering::AcqRel);
+        let _rested = Rested(self, was);
         f()
     }
 
@@ -103,14 +110,23 @@ pub(super) fn with_helper<R: Send>(helper: &Helper, f: impl FnOnce() -> R + Send
     }
     helper.done.store(false, Ordering::Release);
     helper.rest.store(false, Ordering::Release);
+    // The thread that runs `f`. Rayon may hand the helper's half to that very thread while `f`
+    // waits, with the helper's half still in its deque: on a pool of one thread, or where work
+    // handed to another pool (an engine's own) waits by running the jobs of its thread's
+    // deque. Served there, on top of `f`'s stack, the helper would wait for a step that cannot
+    // go on until it returns; so there it returns at once, and the step goes on without one.
+    let stepper = OnceLock::new();
     let (r, ()) = rayon::join(
         || {
+            let _ = stepper.set(std::thread::current().id());
             let _done = Done(helper);
             f()
         },
-        // Run by the forking thread itself only after `f` (nobody stole it): then the step is
-        // done and this returns at once.
-        || helper.serve(),
+        || {
+            if stepper.get() != Some(&std::thread::current().id()) {
+                helper.serve();
+            }
+        },
     );
     r
 }
@@ -139,8 +155,15 @@ mod tests {
         std::thread::spawn(move || {
             let _ = tx.send(f());
         });
-        rx.recv_timeout(std::time::Duration::from_secs(120))
-            .expect("the step never returned: its helper never stopped")
+        match rx.recv_timeout(std::time::Duration::from_secs(120)) {
+            Ok(r) => r,
+            Err(std::sync::mpsc::RecvTimeoutError::Timeout) => {
+                panic!("the step never returned: its helper never stopped")
+            }
+            Err(std::sync::mpsc::RecvTimeoutError::Disconnected) => {
+                panic!("the watched work panicked (its message is above)")
+            }
+        }
     }
 
     #[test]
@@ -163,6 +186,35 @@ mod tests {
                     .collect::<Vec<u64>>()
             });
             assert!(got.iter().all(|&s| s == want), "{threads} threads");
+        }
+    }
+
+    /// Work handed to another pool, as an engine with a pool of its own does, waits there by
+    /// running jobs of its own thread's deque, the helper's among them where no other thread
+    /// took it (always on a pool of one thread): run there, on the step's own stack, the
+    /// helper served until a step that could not go on was done, and hung.
+    #[test]
+    fn work_handed_to_another_pool_returns_with_the_helper_resting_or_not() {
+        for threads in [1, 2] {
+            let got = watched(move || {
+                let (p, other, helper) = (pool(threads), pool(2), Helper::default());
+                (0..200u64)
+                    .map(|k| {
+                        p.install(|| {
+                            with_helper(&helper, || {
+                                let there = || other.install(|| squares(1000 + k));
+                                if k % 2 == 0 {
+                                    helper.resting(there)
+                                } else {
+                                    there()
+                                }
+                            })
+                        })
+                    })
+                    .sum::<u64>()
+            });
+            let want = (0..200u64).map(|k| (0..1000 + k).map(|i| i * i).sum::<u64>());
+            assert_eq!(got, want.sum::<u64>(), "{threads} threads");
         }
     }
 

@@ -407,9 +407,10 @@ mod tests {
     #[test]
     fn only_the_engine_on_the_global_pool_works_on_the_calling_pool() {
         assert!(CpuEngine::new().runs_on_calling_pool());
+        // One thread: the calling thread alone; two: a pool of the engine's own.
         for n in [1, 2] {
-            let e = CpuEngine::with_threads(n).expect("a pool");
-            assert!(!e.runs_on_calling_pool(), "{n} threads of its own");
+            let e = CpuEngine::with_threads(n).expect("an engine");
+            assert!(!e.runs_on_calling_pool(), "with_threads({n})");
         }
     }
 
