@@ -675,7 +675,9 @@ pub trait LikelihoodEngine {
     /// of the engine's own. A tracker keeps a thread of its pool awake for the step's forks
     /// ([`crate::tracker::Tracker::step`]) and lets it rest during an evaluation that does not
     /// run there, where it would only take a core from the work (a software Vulkan driver's
-    /// threads). False by default.
+    /// threads). False by default. An engine that answers false must not hand work to the
+    /// calling pool and block until it is done (`rayon::spawn`, then a channel's `recv`): with
+    /// the helper resting, a pool of two threads then has none left to run it.
     fn runs_on_calling_pool(&self) -> bool {
         false
     }
