@@ -1048,9 +1048,9 @@ impl Tracker {
             prev: lik_prev.to_particle(),
             theta0: self.theta0 as f32,
         };
-        let (engine, particles, terms) = (&mut self.engine, &self.particles, &mut self.terms);
-        self.helper.beside(engine.runs_on_calling_pool(), || {
-            engine.evaluate(&input, &lp, particles, terms)
+        let (particles, terms) = (&self.particles, &mut self.terms);
+        self.helper.beside(&mut *self.engine, |e| {
+            e.evaluate(&input, &lp, particles, terms)
         })?;
         self.correlate_template(&gray);
         self.totals = self.weighted_totals(&lp);
@@ -1565,9 +1565,9 @@ impl Tracker {
         let mut shown = self.likelihood;
         shown.terms &= TERM_COLOUR | TERM_GRADIENT;
         lp.terms = TERM_COLOUR | shown.terms;
-        let (engine, terms) = (&mut self.engine, &mut self.own_terms);
-        self.helper.beside(engine.runs_on_calling_pool(), || {
-            engine.evaluate(input, &lp, &[h.to_particle()], terms)
+        let terms = &mut self.own_terms;
+        self.helper.beside(&mut *self.engine, |e| {
+            e.evaluate(input, &lp, &[h.to_particle()], terms)
         })?;
         let rho = self
             .own_terms

@@ -28,6 +28,8 @@
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Condvar, Mutex, OnceLock, PoisonError};
 
+use crate::likelihood::LikelihoodEngine;
+
 /// The state a step shares with its helper thread: whether the step is done, and whether the
 /// helper is to rest (blocked, not polling) for now.
 #[derive(Debug, Default)]
@@ -56,10 +58,18 @@ impl Helper {
         f()
     }
 
-    /// Runs `f`, an engine's evaluation, with the helper at rest unless the work runs on the
-    /// step's pool (`on_pool`, [`crate::likelihood::LikelihoodEngine::runs_on_calling_pool`]).
-    pub(super) fn beside<R>(&self, on_pool: bool, f: impl FnOnce() -> R) -> R {
-        if on_pool { f() } else { self.resting(f) }
+    /// Runs `f` on `engine` (its evaluation), with the helper at rest unless the engine works
+    /// on the step's pool ([`LikelihoodEngine::runs_on_calling_pool`]).
+    pub(super) fn beside<E: LikelihoodEngine + ?Sized, R>(
+        &self,
+        engine: &mut E,
+        f: impl FnOnce(&mut E) -> R,
+    ) -> R {
+        if engine.runs_on_calling_pool() {
+            f(engine)
+        } else {
+            self.resting(|| f(engine))
+        }
     }
 
     /// Sets `flag` under the lock the helper waits with, then wakes it: a helper about to wait

@@ -322,9 +322,8 @@ impl Tracker {
         // The grid covers the frame, so its size has no bound the filter's count sets: in
         // batches the engine's buffers hold (a 4 px target on a 4K frame is 7.8 million
         // candidates, 249 MB of GPU buffer).
-        let engine = &mut self.engine;
-        self.helper.beside(engine.runs_on_calling_pool(), || {
-            engine.evaluate_batched(&input, &lp, &cands, &mut out)
+        self.helper.beside(&mut *self.engine, |e| {
+            e.evaluate_batched(&input, &lp, &cands, &mut out)
         })?;
         let rhos: Vec<f64> = out
             .iter()
