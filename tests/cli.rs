@@ -1059,6 +1059,36 @@ fn cli_out_to_standard_output_appends_to_the_file_behind_it() {
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
+/// A track that fails part way (a frame of another size) writes nothing to `--out
+/// /dev/stdout`, as it leaves no file: the rows before the failure, redirected into a file,
+/// would look like a whole pose CSV.
+#[cfg(target_os = "linux")]
+#[test]
+fn cli_a_failed_track_writes_nothing_to_standard_output() {
+    let dir = synth_dir("failed-stdout", 4, "64x48");
+    image::RgbImage::new(32, 24)
+        .save(dir.join("frames/00003.png"))
+        .unwrap();
+    let log = dir.join("log.csv");
+    let into = std::fs::File::create(&log).unwrap();
+    let out = pftrack_to(
+        &[
+            "track",
+            dir.to_str().unwrap(),
+            "--backend",
+            "cpu",
+            "--out",
+            "/dev/stdout",
+        ],
+        Stdio::from(into),
+    );
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success(), "{err}");
+    assert!(err.contains("reading frame 3"), "{err}");
+    assert_eq!(std::fs::read_to_string(&log).unwrap(), "");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
 /// Standard output that cannot be written (a full disk: `/dev/full`) is a one-line error
 /// with a non-zero exit, for a command that prints a table and for one that prints its CSV,
 /// not the panic of `println!`.

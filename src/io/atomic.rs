@@ -15,8 +15,13 @@
 //!   rules;
 //! - a directory: refused before anything is written;
 //! - anything else (a terminal, a pipe, a device): written to directly, since such a target
-//!   cannot be replaced by a rename and is read as a stream anyway. A write error there
-//!   (`/dev/full`) is reported as for any file.
+//!   cannot be replaced by a rename. A write error there (`/dev/full`) is reported as for any
+//!   file.
+//!
+//! What goes to a target written in place (a descriptor, a pipe, a device) is held in memory
+//! until [`AtomicFile::commit`] and written then, all of it: a run that fails part way
+//! writes nothing there, as it leaves no file, where a buffer flushed as it filled would have
+//! left the rows before the failure looking like a whole output (`-o /dev/stdout > f`).
 //!
 //! A regular file replaced keeps its permissions; being a new file, it no longer shares
 //! the old one's hard links, nor its owner when another user's file is replaced.
@@ -38,7 +43,32 @@ pub struct AtomicFile {
     target: PathBuf,
     /// Where the data goes on commit: `None` when it is written in place (a stream).
     rename: Option<Rename>,
-    writer: Option<BufWriter<File>>,
+    /// `None` once committed.
+    writer: Option<Sink>,
+}
+
+/// Where the bytes go until the commit.
+#[derive(Debug)]
+enum Sink {
+    /// The partial file, buffered.
+    Staged(BufWriter<File>),
+    /// A target written in place, and everything written to it so far, held for the commit.
+    Held { file: File, data: Vec<u8> },
+}
+
+impl Sink {
+    /// Writes what is held (a target written in place) and flushes: the file, ready for a
+    /// sync.
+    fn finish(self) -> std::io::Result<File> {
+        match self {
+            Sink::Staged(w) => w.into_inner().map_err(|e| e.into_error()),
+            Sink::Held { mut file, data } => {
+                file.write_all(&data)?;
+                file.flush()?;
+                Ok(file)
+            }
+        }
+    }
 }
 
 /// The partial file and the regular file it replaces.
@@ -56,7 +86,10 @@ impl AtomicFile {
         Self {
             target: path.to_path_buf(),
             rename: None,
-            writer: Some(BufWriter::new(file)),
+            writer: Some(Sink::Held {
+                file,
+                data: Vec::new(),
+            }),
         }
     }
 
@@ -137,7 +170,7 @@ impl AtomicFile {
                 to,
                 registered,
             }),
-            writer: Some(BufWriter::new(file)),
+            writer: Some(Sink::Staged(BufWriter::new(file))),
         })
     }
 
@@ -153,7 +186,7 @@ impl AtomicFile {
         let Some(w) = self.writer.take() else {
             return Ok(());
         };
-        let file = w.into_inner().map_err(|e| e.into_error());
+        let file = w.finish();
         let Some(r) = self.rename.take() else {
             return file.map(drop).map_err(err);
         };
@@ -184,10 +217,7 @@ impl AtomicFile {
                 renamed: false,
             });
         };
-        let synced = w
-            .into_inner()
-            .map_err(|e| e.into_error())
-            .and_then(|file| match &rename {
+        let synced = w.finish().and_then(|file| match &rename {
                 Some(_) => file.sync_all(),
                 None => Ok(()),
             });
@@ -313,15 +343,21 @@ fn resolve_links(path: &Path) -> std::io::Result<PathBuf> {
 impl Write for AtomicFile {
     fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
         match self.writer.as_mut() {
-            Some(w) => w.write(buf),
+            Some(Sink::Staged(w)) => w.write(buf),
+            Some(Sink::Held { data, .. }) => {
+                data.extend_from_slice(buf);
+                Ok(buf.len())
+            }
             None => Err(std::io::Error::other("file already committed")),
         }
     }
 
+    /// Flushes the partial file's buffer; what a target written in place holds stays held
+    /// until the commit.
     fn flush(&mut self) -> std::io::Result<()> {
         match self.writer.as_mut() {
-            Some(w) => w.flush(),
-            None => Ok(()),
+            Some(Sink::Staged(w)) => w.flush(),
+            Some(Sink::Held { .. }) | None => Ok(()),
         }
     }
 }
@@ -526,6 +562,40 @@ mod tests {
         assert!(!through_descriptor(&log));
         assert!(!through_descriptor(&d.join("new.csv")));
         assert!(!through_descriptor(Path::new("/dev/null")));
+        std::fs::remove_dir_all(&d).unwrap();
+    }
+
+    /// A target written in place (here a file behind one of the process's descriptors) gets
+    /// nothing from a write that is dropped uncommitted, however much was written, and all of
+    /// it, appended, on the commit.
+    #[cfg(target_os = "linux")]
+    #[test]
+    fn a_stream_gets_nothing_from_a_write_that_fails() {
+        use std::os::fd::AsRawFd;
+        let d = dir("held");
+        let log = d.join("log.csv");
+        std::fs::write(&log, "before\n").unwrap();
+        let behind = std::fs::OpenOptions::new()
+            .append(true)
+            .open(&log)
+            .unwrap();
+        let via = PathBuf::from(format!("/proc/self/fd/{}", behind.as_raw_fd()));
+        {
+            let mut f = AtomicFile::create(&via).unwrap();
+            // More than any write buffer holds.
+            for _ in 0..10_000 {
+                writeln!(f, "a row of a run that then fails").unwrap();
+            }
+            f.flush().unwrap();
+            assert_eq!(std::fs::read_to_string(&log).unwrap(), "before\n");
+        }
+        assert_eq!(std::fs::read_to_string(&log).unwrap(), "before\n");
+        let mut f = AtomicFile::create(&via).unwrap();
+        writeln!(f, "whole").unwrap();
+        f.commit().unwrap();
+        assert_eq!(std::fs::read_to_string(&log).unwrap(), "before\nwhole\n");
+        assert_eq!(entries(&d), ["log.csv"]);
+        drop(behind);
         std::fs::remove_dir_all(&d).unwrap();
     }
 
