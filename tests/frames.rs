@@ -619,6 +619,16 @@ fn y4m_errors() {
             let got = collect(src).unwrap();
             assert_eq!(got.len(), 2);
             assert_eq!(got[0].dimensions(), (32, 24));
+            // Cut inside its last frame, the file gives its whole frames, as through the
+            // parser, and says where it ends: ffmpeg itself ends it with success and no word.
+            let cut = d.join(format!("cut-{pix}.y4m"));
+            std::fs::write(&cut, &head[..head.len() - 7]).unwrap();
+            let mut src = frames::open(&cut, &SourceOptions::default()).unwrap();
+            assert_eq!(src.len_hint(), Some(1));
+            assert_eq!(src.by_ref().map(Result::unwrap).count(), 1);
+            let short = src.shortfall().expect("a cut file says so");
+            assert!(short.contains("ends inside frame 1"), "{short}");
+            assert!(!short.contains('\n'), "{short}");
         }
     }
 

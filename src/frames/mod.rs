@@ -262,6 +262,9 @@ pub struct FrameSource {
     /// Where a y4m stream ended inside a frame after complete ones: that frame's index and
     /// what was missing ([`FrameSource::shortfall`]).
     cut: Option<(usize, String)>,
+    /// For a y4m file ffmpeg decodes: its whole frames, and where it ends inside one, as its
+    /// length says ([`y4m::file_extent`]): ffmpeg ends such a file without a word.
+    y4m_extent: Option<y4m::FileExtent>,
 }
 
 /// The path [`open`] reads as standard input, a y4m stream (`ffmpeg ... -f yuv4mpegpipe - |
@@ -286,7 +289,15 @@ pub fn open(path: &Path, opts: &SourceOptions) -> Result<FrameSource, FrameError
     {
         FrameSource::from_y4m(path, opts)
     } else {
-        FrameSource::from_video(path, opts, &FfmpegTools::default())
+        let mut source = FrameSource::from_video(path, opts, &FfmpegTools::default())?;
+        if path
+            .extension()
+            .is_some_and(|e| e.eq_ignore_ascii_case("y4m"))
+            && path.is_file()
+        {
+            source.y4m_extent = y4m::file_extent(path);
+        }
+        Ok(source)
     }
 }
 
@@ -441,6 +452,7 @@ impl FrameSource {
             done: false,
             ended: false,
             cut: None,
+            y4m_extent: None,
         })
     }
 
@@ -526,7 +538,9 @@ impl FrameSource {
         match &self.inner {
             Inner::Dir(d) => Some(d.len()),
             Inner::Y4m(_, hint) => *hint,
-            Inner::Ffmpeg(f) => f.len_hint(),
+            Inner::Ffmpeg(f) => f
+                .len_hint()
+                .or(self.y4m_extent.as_ref().map(|e| e.complete)),
         }
     }
 
@@ -560,6 +574,26 @@ impl FrameSource {
         let Inner::Ffmpeg(f) = &self.inner else {
             return None;
         };
+        if let Some(extent) = self.y4m_extent.as_ref().filter(|_| self.ended) {
+            if self.produced < extent.complete {
+                return Some(format!(
+                    "{}: ffmpeg decoded {} of the {} whole frames the file holds{}",
+                    self.path,
+                    self.produced,
+                    extent.complete,
+                    f.complaint()
+                        .map(|c| format!(" ({c})"))
+                        .unwrap_or_default()
+                ));
+            }
+            if let Some(msg) = extent.cut.as_ref().filter(|_| self.produced == extent.complete) {
+                return Some(format!(
+                    "{}: the stream ends inside frame {} ({msg}); the {} complete frames \
+                     before it were read",
+                    self.path, extent.complete, self.produced
+                ));
+            }
+        }
         let complaint = f.complaint()?;
         if !self.ended {
             return None;

@@ -75,6 +75,117 @@ pub fn unsupported_colour_space(header: &str) -> Option<&str> {
         .filter(|v| Chroma::parse(v).is_none())
 }
 
+/// Bytes of one frame's pixel data in a colour space ffmpeg reads from y4m (its `C` tag's
+/// value: `420jpeg`, `422`, `411`, `444alpha`, `mono16`, `420p10`, ...) at `w × h`; `None`
+/// for a name it does not know. Samples above 8 bits take two bytes; chroma planes of a
+/// subsampled format are rounded up (`ceil(W/2)`).
+pub fn frame_bytes(colour_space: &str, w: u32, h: u32) -> Option<u64> {
+    let (w, h) = (u64::from(w), u64::from(h));
+    let bits = |rest: &str| -> Option<u64> {
+        match rest {
+            "" => Some(8),
+            _ => rest.strip_prefix('p').or(Some(rest)).and_then(|b| {
+                b.parse::<u64>()
+                    .ok()
+                    .filter(|b| (9..=16).contains(b))
+            }),
+        }
+    };
+    let luma = w * h;
+    let (planes, depth) = if let Some(rest) = colour_space.strip_prefix("mono") {
+        (luma, bits(rest)?)
+    } else {
+        let (base, rest) = colour_space.split_at_checked(3)?;
+        let (cw, ch) = match base {
+            "420" => (w.div_ceil(2), h.div_ceil(2)),
+            "422" => (w.div_ceil(2), h),
+            "411" => (w.div_ceil(4), h),
+            "444" => (w, h),
+            _ => return None,
+        };
+        match (base, rest) {
+            ("420", "jpeg" | "mpeg2" | "paldv") => (luma + 2 * cw * ch, 8),
+            ("444", "alpha") => (2 * luma + 2 * cw * ch, 8),
+            _ if rest.is_empty() || rest.starts_with('p') => (luma + 2 * cw * ch, bits(rest)?),
+            _ => return None,
+        }
+    };
+    Some(planes * if depth > 8 { 2 } else { 1 })
+}
+
+/// The complete frames of a y4m file, and where it ends inside one, found by walking its
+/// `FRAME` headers with the pixel data's size ([`frame_bytes`]) and the file's length, none of
+/// the pixels read: for a file another decoder reads (ffmpeg ends a y4m cut inside a frame
+/// without a word).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct FileExtent {
+    /// Whole frames in the file.
+    pub complete: usize,
+    /// What the frame after them lacks, when the file ends inside it.
+    pub cut: Option<String>,
+}
+
+/// Walks the y4m file `path` as [`FileExtent`] says; `None` where the header cannot be read,
+/// names a colour space of unknown size, or something other than a `FRAME` header is found
+/// where one belongs (the decoder then says what is wrong).
+pub fn file_extent(path: &std::path::Path) -> Option<FileExtent> {
+    use std::io::{Seek, SeekFrom};
+    let mut file = std::io::BufReader::new(std::fs::File::open(path).ok()?);
+    let len = file.get_ref().metadata().ok()?.len();
+    let mut line = Vec::new();
+    (&mut file).take(MAX_LINE).read_until(b'\n', &mut line).ok()?;
+    let header = std::str::from_utf8(line.strip_suffix(b"\n")?).ok()?;
+    let tag = |letter: char| {
+        header
+            .split_ascii_whitespace()
+            .skip(1)
+            .find_map(|t| t.strip_prefix(letter))
+    };
+    let side = |letter| tag(letter)?.parse::<u32>().ok().filter(|&n| n > 0);
+    let bytes = frame_bytes(tag('C').unwrap_or("420jpeg"), side('W')?, side('H')?)?;
+    let mut at = line.len() as u64;
+    let mut complete = 0;
+    loop {
+        if at == len {
+            return Some(FileExtent {
+                complete,
+                cut: None,
+            });
+        }
+        file.seek(SeekFrom::Start(at)).ok()?;
+        line.clear();
+        (&mut file).take(MAX_LINE).read_until(b'\n', &mut line).ok()?;
+        if line.last() != Some(&b'\n') {
+            // The file ends inside the header line (what is there must begin one).
+            let begins = b"FRAME".starts_with(&line) || line.starts_with(b"FRAME");
+            return begins.then(|| FileExtent {
+                complete,
+                cut: Some("in its FRAME header".into()),
+            });
+        }
+        if line == b"\n" && at + 1 == len {
+            // A blank line after the last frame ends the stream as its end would.
+            return Some(FileExtent {
+                complete,
+                cut: None,
+            });
+        }
+        if !line.starts_with(b"FRAME") {
+            return None;
+        }
+        let data = at + line.len() as u64;
+        let got = len - data;
+        if got < bytes {
+            return Some(FileExtent {
+                complete,
+                cut: Some(format!("{got} of {bytes} bytes of pixel data")),
+            });
+        }
+        at = data + bytes;
+        complete += 1;
+    }
+}
+
 impl Chroma {
     /// Parses the value of a `C` tag.
     fn parse(v: &str) -> Option<Self> {
@@ -533,6 +644,76 @@ impl<R: BufRead> Y4mReader<R> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn frame_bytes_of_the_colour_spaces_ffmpeg_writes() {
+        // 34x26: chroma 17x13 (4:2:0), 17x26 (4:2:2), 9x26 (4:1:1).
+        let cases = [
+            ("420jpeg", 884 + 2 * 221),
+            ("420paldv", 884 + 2 * 221),
+            ("422", 884 + 2 * 442),
+            ("411", 884 + 2 * 234),
+            ("444", 3 * 884),
+            ("444alpha", 4 * 884),
+            ("mono", 884),
+            ("mono16", 2 * 884),
+            ("420p10", 2 * (884 + 2 * 221)),
+            ("422p12", 2 * (884 + 2 * 442)),
+            ("444p9", 2 * 3 * 884),
+        ];
+        for (tag, want) in cases {
+            assert_eq!(frame_bytes(tag, 34, 26), Some(want), "{tag}");
+        }
+        for tag in ["", "42", "420x", "422jpeg", "444p", "420p8", "420p17", "mono7", "abc"] {
+            assert_eq!(frame_bytes(tag, 34, 26), None, "{tag}");
+        }
+    }
+
+    #[test]
+    fn a_files_extent_counts_its_whole_frames_and_finds_where_it_is_cut() {
+        let d = std::env::temp_dir().join(format!("pftrack-y4m-extent-{}", std::process::id()));
+        std::fs::create_dir_all(&d).unwrap();
+        let frame = |params: &str| {
+            let mut f = format!("FRAME{params}\n").into_bytes();
+            f.extend(std::iter::repeat_n(128u8, 8 * 6 * 2));
+            f
+        };
+        let mut whole = b"YUV4MPEG2 W8 H6 C422 F25:1\n".to_vec();
+        whole.extend(frame(""));
+        whole.extend(frame(" Ip"));
+        whole.extend(frame(""));
+        let p = d.join("f.y4m");
+        let extent = |bytes: &[u8]| {
+            std::fs::write(&p, bytes).unwrap();
+            file_extent(&p)
+        };
+        let done = |complete| {
+            Some(FileExtent {
+                complete,
+                cut: None,
+            })
+        };
+        assert_eq!(extent(&whole), done(3));
+        let mut blank = whole.clone();
+        blank.push(b'\n');
+        assert_eq!(extent(&blank), done(3));
+        let last = whole.len() - 96;
+        let cut = extent(&whole[..whole.len() - 1]).unwrap();
+        assert_eq!(cut.complete, 2);
+        assert_eq!(cut.cut.as_deref(), Some("95 of 96 bytes of pixel data"));
+        let in_header = extent(&whole[..last - 3]).unwrap();
+        assert_eq!(in_header.complete, 2);
+        assert_eq!(in_header.cut.as_deref(), Some("in its FRAME header"));
+        // Not a FRAME header where one belongs, a size unknown, or no header: left to the
+        // decoder.
+        let mut junk = whole.clone();
+        junk[last - 6..last - 1].copy_from_slice(b"JUNK!");
+        assert_eq!(extent(&junk), None);
+        assert_eq!(extent(b"YUV4MPEG2 W8 H6 C999\nFRAME\n"), None);
+        assert_eq!(extent(b"YUV4MPEG2 W8 H6"), None);
+        assert_eq!(extent(b"YUV4MPEG2 W8 H6\n"), done(0));
+        std::fs::remove_dir_all(&d).unwrap();
+    }
 
     #[test]
     fn frame_bytes_saturate_beyond_the_readers_sizes() {
