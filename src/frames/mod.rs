@@ -581,12 +581,14 @@ impl FrameSource {
                     self.path,
                     self.produced,
                     extent.complete,
-                    f.complaint()
-                        .map(|c| format!(" ({c})"))
-                        .unwrap_or_default()
+                    f.complaint().map(|c| format!(" ({c})")).unwrap_or_default()
                 ));
             }
-            if let Some(msg) = extent.cut.as_ref().filter(|_| self.produced == extent.complete) {
+            if let Some(msg) = extent
+                .cut
+                .as_ref()
+                .filter(|_| self.produced == extent.complete)
+            {
                 return Some(format!(
                     "{}: the stream ends inside frame {} ({msg}); the {} complete frames \
                      before it were read",

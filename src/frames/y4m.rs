@@ -84,11 +84,10 @@ pub fn frame_bytes(colour_space: &str, w: u32, h: u32) -> Option<u64> {
     let bits = |rest: &str| -> Option<u64> {
         match rest {
             "" => Some(8),
-            _ => rest.strip_prefix('p').or(Some(rest)).and_then(|b| {
-                b.parse::<u64>()
-                    .ok()
-                    .filter(|b| (9..=16).contains(b))
-            }),
+            _ => rest
+                .strip_prefix('p')
+                .or(Some(rest))
+                .and_then(|b| b.parse::<u64>().ok().filter(|b| (9..=16).contains(b))),
         }
     };
     let luma = w * h;
@@ -133,7 +132,10 @@ pub fn file_extent(path: &std::path::Path) -> Option<FileExtent> {
     let mut file = std::io::BufReader::new(std::fs::File::open(path).ok()?);
     let len = file.get_ref().metadata().ok()?.len();
     let mut line = Vec::new();
-    (&mut file).take(MAX_LINE).read_until(b'\n', &mut line).ok()?;
+    (&mut file)
+        .take(MAX_LINE)
+        .read_until(b'\n', &mut line)
+        .ok()?;
     let header = std::str::from_utf8(line.strip_suffix(b"\n")?).ok()?;
     let tag = |letter: char| {
         header
@@ -154,7 +156,10 @@ pub fn file_extent(path: &std::path::Path) -> Option<FileExtent> {
         }
         file.seek(SeekFrom::Start(at)).ok()?;
         line.clear();
-        (&mut file).take(MAX_LINE).read_until(b'\n', &mut line).ok()?;
+        (&mut file)
+            .take(MAX_LINE)
+            .read_until(b'\n', &mut line)
+            .ok()?;
         if line.last() != Some(&b'\n') {
             // The file ends inside the header line (what is there must begin one).
             let begins = b"FRAME".starts_with(&line) || line.starts_with(b"FRAME");
@@ -664,7 +669,9 @@ mod tests {
         for (tag, want) in cases {
             assert_eq!(frame_bytes(tag, 34, 26), Some(want), "{tag}");
         }
-        for tag in ["", "42", "420x", "422jpeg", "444p", "420p8", "420p17", "mono7", "abc"] {
+        for tag in [
+            "", "42", "420x", "422jpeg", "444p", "420p8", "420p17", "mono7", "abc",
+        ] {
             assert_eq!(frame_bytes(tag, 34, 26), None, "{tag}");
         }
     }

@@ -218,9 +218,9 @@ impl AtomicFile {
             });
         };
         let synced = w.finish().and_then(|file| match &rename {
-                Some(_) => file.sync_all(),
-                None => Ok(()),
-            });
+            Some(_) => file.sync_all(),
+            None => Ok(()),
+        });
         if let Err(e) = synced {
             if let Some(r) = &rename {
                 let _ = std::fs::remove_file(&r.partial);
@@ -575,10 +575,7 @@ mod tests {
         let d = dir("held");
         let log = d.join("log.csv");
         std::fs::write(&log, "before\n").unwrap();
-        let behind = std::fs::OpenOptions::new()
-            .append(true)
-            .open(&log)
-            .unwrap();
+        let behind = std::fs::OpenOptions::new().append(true).open(&log).unwrap();
         let via = PathBuf::from(format!("/proc/self/fd/{}", behind.as_raw_fd()));
         {
             let mut f = AtomicFile::create(&via).unwrap();
