@@ -193,6 +193,16 @@ fn directory_errors() {
     std::fs::create_dir(&bad0).unwrap();
     std::fs::write(bad0.join("1.jpg"), b"not a jpeg at all").unwrap();
     assert!(frames::open(&bad0, &SourceOptions::default()).is_err());
+    // A first frame of no size fails at open, as decoding it would, not as a frame of no size
+    // that no start fits.
+    let zero = d.join("zero");
+    std::fs::create_dir(&zero).unwrap();
+    std::fs::write(zero.join("00000.pgm"), b"P5 0 24 255\n").unwrap();
+    save_flat(&zero.join("00001.png"), 4, 3, 1);
+    let e = frames::open(&zero, &SourceOptions::default()).unwrap_err();
+    assert!(matches!(e, FrameError::Decode { .. }), "{e}");
+    assert!(e.to_string().contains("00000.pgm"), "{e}");
+    assert!(e.to_string().contains("an empty image (0x24)"), "{e}");
 
     // Hidden files are not frames; a dangling link is one, and fails naming itself rather
     // than being skipped (which renumbered every later frame).

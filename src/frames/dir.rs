@@ -350,6 +350,14 @@ fn image_size(p: &Path) -> Result<(u32, u32), FrameError> {
         .into_decoder()
         .map_err(dec)?;
     let (w, h) = decoder.dimensions();
+    // As decoding it would say ([`decode_rgb`]): a frame of no size is not a frame, and the
+    // size read here is what a start is checked against.
+    if w == 0 || h == 0 {
+        return Err(FrameError::Decode {
+            path: p.display().to_string(),
+            msg: format!("an empty image ({w}x{h})"),
+        });
+    }
     Ok(match decoder.orientation().map_err(dec)? {
         Orientation::Rotate90
         | Orientation::Rotate270
