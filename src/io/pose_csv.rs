@@ -114,7 +114,18 @@ pub fn parse_pose_csv(text: &str, path: &Path) -> Result<Vec<PoseRecord>, Format
         }
         let score = match score_col {
             Some(c) => {
-                Some(parse_f64(f[c], "score").map_err(|m| FormatError::parse(path, lineno, m))?)
+                let score =
+                    parse_f64(f[c], "score").map_err(|m| FormatError::parse(path, lineno, m))?;
+                // A confidence, as the tracker writes it: out of [0, 1] it is not one, and a
+                // mean of such would be reported as a mean confidence.
+                if !(0.0..=1.0).contains(&score) {
+                    return Err(FormatError::parse(
+                        path,
+                        lineno,
+                        format!("score {score} is not a confidence in [0, 1]"),
+                    ));
+                }
+                Some(score)
             }
             None => None,
         };
@@ -353,9 +364,14 @@ mod tests {
             "frame,cx,cy,a,b,rx,ry,rz\n1,1,2,3,4,5,6,7\n1,1,2,3,4,5,6,7\n",
             "frame,cx,cy,a,b,rx,ry,rz\n-1,1,2,3,4,5,6,7\n",
             "frame,cx,cy,a,b,rx,ry,rz,lost\n0,1,2,3,4,5,6,7,maybe\n",
+            "frame,cx,cy,a,b,rx,ry,rz,score\n0,1,2,3,4,5,6,7,5\n",
+            "frame,cx,cy,a,b,rx,ry,rz,score\n0,1,2,3,4,5,6,7,-0.01\n",
         ];
         for text in bad {
             assert!(parse_pose_csv(text, p).is_err(), "accepted: {text:?}");
         }
+        let edges = "frame,cx,cy,a,b,rx,ry,rz,score\n0,1,2,3,4,5,6,7,0\n1,1,2,3,4,5,6,7,1\n";
+        let r = parse_pose_csv(edges, p).unwrap();
+        assert_eq!((r[0].score, r[1].score), (Some(0.0), Some(1.0)));
     }
 }
