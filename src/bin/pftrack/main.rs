@@ -276,7 +276,8 @@ fn in_cli_terms(msg: &str) -> String {
 /// 1e-300 as 300 zeros. Only a number standing alone is touched (after a space, a bracket, a
 /// comma, `=`, `:` or a quote, and before one, a full stop or the end), and nothing before
 /// the first `": "`, where a message names its file: digits inside a name
-/// (`run_20240101120000000000000001/video.mp4`, or a name all digits) are left as written.
+/// (`run_20240101120000000000000001/video.mp4`, or a name all digits) are left as written,
+/// and neither is a number a colon follows, which names a file after a context.
 fn compact_numbers(msg: &str) -> String {
     // What comes before the first ": " is a path or a flag, as given: left alone.
     let (lead, msg) = msg.split_at(msg.find(": ").unwrap_or(0));
@@ -299,7 +300,10 @@ fn compact_numbers(msg: &str) -> String {
             Some(n) => (n, "."),
             None => (num, ""),
         };
-        let alone_after = apart(after.chars().next()) || after.starts_with('°');
+        // Followed by a colon it is what a message names (a file named in digits after a
+        // context: `reading the truth: 1000...0001: no such file`), never a value.
+        let alone_after = (apart(after.chars().next()) && !after.starts_with(':'))
+            || after.starts_with('°');
         match num.parse::<f64>() {
             Ok(v) if num.len() > 24 && alone_before && alone_after => {
                 out.push_str(&format!("{v:e}"));
@@ -410,6 +414,7 @@ mod tests {
             "192.168.100.200",
             "1000000000000000000000000000001: no such file or directory",
             "my 1000000000000000000000000000001: no such file or directory",
+            "reading the truth: 1000000000000000000000000000001: no such file or directory",
         ] {
             assert_eq!(compact_numbers(kept), kept);
         }
