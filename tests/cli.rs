@@ -803,7 +803,7 @@ fn cli_sift_and_pose_reject_bad_input_in_one_line() {
         ("48,36,14,18,1e308", "at most 360 either way"),
         (
             "148,36,14,18",
-            "centre (148.0, 36.0) lies outside the 96x72 frame",
+            "centre (148, 36) lies outside the 96x72 frame",
         ),
         ("48,36,1,18", "at least 2 px"),
     ] {

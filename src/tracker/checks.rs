@@ -39,8 +39,9 @@ impl Init {
         }
         if !e.centre_inside(w, h) {
             return Err(TrackError::BadInit(format!(
-                "centre ({:.1}, {:.1}) lies outside the {w}x{h} frame",
-                e.cx, e.cy
+                "centre ({}, {}) lies outside the {w}x{h} frame",
+                short(e.cx),
+                short(e.cy)
             )));
         }
         let p = &self.pose;
@@ -320,10 +321,15 @@ pub(crate) fn check_ellipse(e: &crate::geometry::Ellipse) -> Result<(), TrackErr
     )))
 }
 
-/// `x` for a message: one decimal, or in exponent form when large.
+/// `x` for a message: up to six decimals, trailing zeros dropped (so that a value refused
+/// for being a hair out of its range, 1.96 px against 2, or a centre at 63.54 in a frame
+/// whose edge is at 63.5, is not shown rounded into it), or in exponent form when large.
 fn short(x: f64) -> String {
     if x.abs() < 1e6 {
-        format!("{x:.1}")
+        let text = format!("{x:.6}");
+        let text = text.trim_end_matches('0').trim_end_matches('.');
+        let text = if text == "-0" { "0" } else { text };
+        text.to_string()
     } else {
         format!("{x:.3e}")
     }
@@ -358,6 +364,29 @@ fn check_factor(name: &str, k: Option<f64>, none_does: &str) -> Result<(), Track
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_refused_value_is_not_shown_rounded_into_its_range() {
+        assert_eq!(short(1.96), "1.96");
+        assert_eq!(short(63.54), "63.54");
+        assert_eq!(short(360.04f64.to_radians().to_degrees()), "360.04");
+        assert_eq!(short(2.0), "2");
+        assert_eq!(short(-0.0000001), "0");
+        assert_eq!(short(-12.5), "-12.5");
+        assert_eq!(short(1e308), "1.000e308");
+        let start = |cx, a, rx: f64| Init {
+            ellipse: crate::geometry::Ellipse::new(cx, 23.0, a, 5.0),
+            pose: crate::geometry::Euler::new(rx.to_radians(), 0.0, 0.0),
+        };
+        for (init, want) in [
+            (start(31.0, 1.96, 0.0), "semi-axes 1.96 x 5 px"),
+            (start(63.54, 5.0, 0.0), "centre (63.54, 23)"),
+            (start(31.0, 5.0, 360.04), "initial pose 360.04, 0, 0 degrees"),
+        ] {
+            let e = init.check(64, 48).unwrap_err().to_string();
+            assert!(e.contains(want), "{e}");
+        }
+    }
     use crate::geometry::Ellipse;
     use crate::tracker::Reanchor;
 
