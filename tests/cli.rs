@@ -1089,6 +1089,45 @@ fn cli_a_failed_track_writes_nothing_to_standard_output() {
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
+/// A warning naming a folder whose name holds a newline stays on one line, as an error does:
+/// each line on standard error is one message.
+#[cfg(unix)]
+#[test]
+fn cli_a_warning_is_one_line_whatever_the_file_names() {
+    let seq = synth_dir("warn-name", 3, "64x48");
+    let odd = seq.join("odd\nname");
+    std::fs::create_dir(&odd).unwrap();
+    for (from, to) in [(0, 0), (1, 1), (2, 5)] {
+        std::fs::copy(
+            seq.join(format!("frames/{from:05}.png")),
+            odd.join(format!("{to:05}.png")),
+        )
+        .unwrap();
+    }
+    let init = seq.join("init.txt");
+    let out = pftrack_ok(&[
+        "track",
+        odd.to_str().unwrap(),
+        "--init-file",
+        init.to_str().unwrap(),
+        "--backend",
+        "cpu",
+    ]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    let lines: Vec<&str> = err.lines().collect();
+    assert!(
+        lines
+            .iter()
+            .any(|l| l.contains("warning") && l.contains("odd\\nname")),
+        "{err}"
+    );
+    assert!(
+        lines.iter().all(|l| l.starts_with("pftrack: ")),
+        "a message went over two lines: {err}"
+    );
+    std::fs::remove_dir_all(&seq).unwrap();
+}
+
 /// Standard output that cannot be written (a full disk: `/dev/full`) is a one-line error
 /// with a non-zero exit, for a command that prints a table and for one that prints its CSV,
 /// not the panic of `println!`.

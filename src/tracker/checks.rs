@@ -381,7 +381,10 @@ mod tests {
         for (init, want) in [
             (start(31.0, 1.96, 0.0), "semi-axes 1.96 x 5 px"),
             (start(63.54, 5.0, 0.0), "centre (63.54, 23)"),
-            (start(31.0, 5.0, 360.04), "initial pose 360.04, 0, 0 degrees"),
+            (
+                start(31.0, 5.0, 360.04),
+                "initial pose 360.04, 0, 0 degrees",
+            ),
         ] {
             let e = init.check(64, 48).unwrap_err().to_string();
             assert!(e.contains(want), "{e}");

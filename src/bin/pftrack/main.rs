@@ -20,11 +20,14 @@ macro_rules! out {
     };
 }
 
-/// `eprintln!` that ignores a failure to write standard error instead of panicking.
+/// `eprintln!` that ignores a failure to write standard error instead of panicking, and
+/// keeps its message to one line: control characters in it (a file name holding a newline)
+/// are escaped, as in an error ([`escape_controls`]).
 macro_rules! errln {
     ($($arg:tt)*) => {{
         use std::io::Write as _;
-        let _ = writeln!(std::io::stderr(), $($arg)*);
+        let line = crate::escape_controls(&format!($($arg)*));
+        let _ = writeln!(std::io::stderr(), "{line}");
     }};
 }
 
@@ -251,7 +254,13 @@ fn one_line_chain(chain: impl Iterator<Item = String>) -> String {
             msg.push_str(&c);
         }
     }
-    msg.chars()
+    escape_controls(&msg)
+}
+
+/// `text` with its control characters escaped (`\n`, `\u{1b}`), so that it prints as one
+/// line and cannot move a terminal's cursor.
+fn escape_controls(text: &str) -> String {
+    text.chars()
         .map(|c| {
             if c.is_control() {
                 c.escape_default().to_string()
@@ -302,8 +311,8 @@ fn compact_numbers(msg: &str) -> String {
         };
         // Followed by a colon it is what a message names (a file named in digits after a
         // context: `reading the truth: 1000...0001: no such file`), never a value.
-        let alone_after = (apart(after.chars().next()) && !after.starts_with(':'))
-            || after.starts_with('°');
+        let alone_after =
+            (apart(after.chars().next()) && !after.starts_with(':')) || after.starts_with('°');
         match num.parse::<f64>() {
             Ok(v) if num.len() > 24 && alone_before && alone_after => {
                 out.push_str(&format!("{v:e}"));
