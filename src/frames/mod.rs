@@ -353,8 +353,9 @@ pub struct Layout {
 
 /// A frame size of square pixels for a picture `picture` times as wide as tall: at `height`
 /// rows, scaled down (both sides) where that would pass [`y4m::MAX_SIDE`] or
-/// [`y4m::MAX_PIXELS`], the sizes `--resize` takes.
-fn square_size(picture: f64, height: u32) -> (u32, u32) {
+/// [`y4m::MAX_PIXELS`], the sizes `--resize` takes; `None` where a side would then be under
+/// a pixel (a shape of thousands to one, which no such size gives square).
+fn square_size(picture: f64, height: u32) -> Option<(u32, u32)> {
     let h = f64::from(height);
     let w = h * picture;
     let side = f64::from(y4m::MAX_SIDE);
@@ -368,9 +369,9 @@ fn square_size(picture: f64, height: u32) -> (u32, u32) {
         } else {
             v.round()
         };
-        (v as u32).max(1)
+        (v >= 1.0).then_some(v as u32)
     };
-    (size(w), size(h))
+    Some((size(w)?, size(h)?))
 }
 
 impl Layout {
@@ -409,10 +410,17 @@ impl Layout {
                     out.0, out.1
                 )
             };
-            let (sw, sh) = square_size(picture, out.1);
+            let fix = match square_size(picture, out.1) {
+                Some((sw, sh)) => format!("--resize {sw}x{sh} makes them square"),
+                None => format!(
+                    "no --resize within {} pixels a side makes them square (is the stated \
+                     shape right?)",
+                    y4m::MAX_SIDE
+                ),
+            };
             lines.push(format!(
                 "{path}: {what}, not square, and the ellipse and the rotation assume square \
-                 ones; --resize {sw}x{sh} makes them square"
+                 ones; {fix}"
             ));
         }
         lines
@@ -845,6 +853,18 @@ mod tests {
         };
         let c = tall.caveats("v", (352, 288), (352, 288));
         assert!(c[0].contains("--resize 323x288"), "{}", c[0]);
+        // A shape so far from square that no size --resize takes squares it names none
+        // (32768x1 had been named, itself not square).
+        for aspect in [(u32::MAX, 1), (100_000, 1), (1, 100_000)] {
+            let c = Layout {
+                interlaced: None,
+                pixel_aspect: Some(aspect),
+            }
+            .caveats("v", (32, 24), (32, 24));
+            assert_eq!(c.len(), 1, "{c:?}");
+            assert!(c[0].contains("no --resize"), "{}", c[0]);
+            assert!(!c[0].contains("--resize 3"), "{}", c[0]);
+        }
         // Square pixels, stated or not, say nothing; nor does an unknown field order.
         for l in [
             Layout::default(),
