@@ -287,10 +287,15 @@ impl FilterParams {
             )));
         }
         if !(self.min_axis.is_finite() && self.min_axis > 0.0 && self.max_axis >= self.min_axis) {
+            let max = if self.max_axis == f64::INFINITY {
+                "unbounded".to_string()
+            } else {
+                self.max_axis.to_string()
+            };
             return Err(FilterError::BadParams(format!(
-                "min_axis {} and max_axis {} must satisfy 0 < min_axis <= max_axis (min_axis \
+                "min_axis {} and max_axis {max} must satisfy 0 < min_axis <= max_axis (min_axis \
                  finite)",
-                self.min_axis, self.max_axis
+                self.min_axis
             )));
         }
         Ok(())

@@ -65,13 +65,17 @@ impl Init {
         let (e, f) = (&self.ellipse, &cfg.filter);
         let inside = |v: f64| (f.min_axis..=f.max_axis).contains(&v);
         if !inside(e.a) || !inside(e.b) {
+            // No upper bound is `null` in a settings file, `inf` in the library: said in words.
+            let bounds = if f.max_axis == f64::INFINITY {
+                format!("at least {} px, with no upper bound", short(f.min_axis))
+            } else {
+                format!("{} to {} px", short(f.min_axis), short(f.max_axis))
+            };
             return Err(TrackError::BadInit(format!(
-                "semi-axes {} x {} px: outside the filter's bounds, {} to {} px \
+                "semi-axes {} x {} px: outside the filter's bounds, {bounds} \
                  (filter.min_axis, filter.max_axis)",
                 short(e.a),
                 short(e.b),
-                short(f.min_axis),
-                short(f.max_axis)
             )));
         }
         Ok(())
@@ -321,18 +325,24 @@ pub(crate) fn check_ellipse(e: &crate::geometry::Ellipse) -> Result<(), TrackErr
     )))
 }
 
-/// `x` for a message: up to six decimals, trailing zeros dropped (so that a value refused
-/// for being a hair out of its range, 1.96 px against 2, or a centre at 63.54 in a frame
-/// whose edge is at 63.5, is not shown rounded into it), or in exponent form when large.
+/// `x` for a message: two decimals, trailing zeros dropped, or in exponent form when large.
+/// The bounds a start is held to are whole or half pixels and degrees, so a value that two
+/// decimals would round onto a half (1.999 px against at least 2, a centre at 63.501 where
+/// the frame's edge is 63.5) gets six: a refused value is never shown as an accepted one.
 fn short(x: f64) -> String {
-    if x.abs() < 1e6 {
-        let text = format!("{x:.6}");
-        let text = text.trim_end_matches('0').trim_end_matches('.');
-        let text = if text == "-0" { "0" } else { text };
-        text.to_string()
-    } else {
-        format!("{x:.3e}")
+    if x.abs() >= 1e6 {
+        return format!("{x:.3e}");
     }
+    let two = (x * 100.0).round() / 100.0;
+    let onto_half = (two * 2.0).fract() == 0.0 && x != two;
+    let text = if onto_half {
+        format!("{x:.6}")
+    } else {
+        format!("{x:.2}")
+    };
+    let text = text.trim_end_matches('0').trim_end_matches('.');
+    let text = if text == "-0" { "0" } else { text };
+    text.to_string()
 }
 
 /// An optional part of the configuration, `name`, passes its own `check` (`None` when the
@@ -372,6 +382,10 @@ mod tests {
         assert_eq!(short(360.04f64.to_radians().to_degrees()), "360.04");
         assert_eq!(short(2.0), "2");
         assert_eq!(short(-0.0000001), "0");
+        assert_eq!(short(7.428929), "7.43");
+        assert_eq!(short(1.999), "1.999");
+        assert_eq!(short(63.5004), "63.5004");
+        assert_eq!(short(63.5), "63.5");
         assert_eq!(short(-12.5), "-12.5");
         assert_eq!(short(1e308), "1.000e308");
         let start = |cx, a, rx: f64| Init {
