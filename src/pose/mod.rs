@@ -64,8 +64,9 @@ pub enum PoseError {
         /// Length of the second set.
         q: usize,
     },
-    /// A coordinate is NaN or infinite.
-    #[error("non-finite coordinate in the input")]
+    /// A coordinate is NaN or infinite, or so large (beyond about 1e150) that its moments
+    /// overflow.
+    #[error("non-finite coordinate in the input, or one too large to square")]
     NonFinite,
     /// The points are all identical or collinear: the rotation is not determined.
     #[error("degenerate point configuration ({0})")]
@@ -252,8 +253,16 @@ pub fn moments(p: &[[f64; 2]], q: &[[f64; 2]], need: usize) -> Result<Moments, P
         b += qq * pp.transpose();
         k += qq.norm_squared();
     }
-    let ta = a.trace();
+    // Finite coordinates as large as 1e154 overflow the moments (or the tests below), as in
+    // the 3D case: a NaN block would otherwise come back as an estimate.
     let scale = mp.norm().max(mq.norm()).max(1.0);
+    let ta = a.trace();
+    if a.iter().chain(b.iter()).any(|x| !x.is_finite())
+        || !(k * ta * ta).is_finite()
+        || !(scale * scale).is_finite()
+    {
+        return Err(PoseError::NonFinite);
+    }
     if ta <= n * (1e-12 * scale).powi(2) {
         return Err(PoseError::Degenerate("frame-t points coincide"));
     }
@@ -563,6 +572,22 @@ mod tests {
         ));
         let nan = [[0.0, 0.0], [f64::NAN, 0.0], [0.0, 1.0]];
         assert_eq!(moments(&nan, &p, 3), Err(PoseError::NonFinite));
+        // Finite but too large to square: an error, not a NaN block from a solver.
+        let huge = [[0.0, 0.0], [1e200, 0.0], [0.0, 1e200], [1e200, 3e200]];
+        let small = [[0.0, 0.0], [1.0, 0.0], [0.0, 1.0], [1.0, 3.0]];
+        for (p, q) in [(&huge, &small), (&small, &huge), (&huge, &huge)] {
+            assert_eq!(moments(p, q, 3), Err(PoseError::NonFinite));
+            for kind in SolverKind::ALL {
+                let got = solver(kind).solve(p, q);
+                assert!(
+                    got.as_ref().is_err()
+                        || got
+                            .as_ref()
+                            .is_ok_and(|e| e.r2.iter().all(|v| v.is_finite())),
+                    "{kind:?}: {got:?}"
+                );
+            }
+        }
         let same = [[2.0, 3.0]; 4];
         assert!(matches!(
             moments(&same, &same, 3),
