@@ -517,3 +517,64 @@ fn without_a_vulkan_driver_backend_gpu_fails_clearly_and_auto_falls_back() {
     assert_eq!(String::from_utf8_lossy(&out.stdout).lines().count(), 1 + 3);
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// An `RgbImage` may hold a buffer longer than its pixels (`ImageBuffer::from_raw` takes one
+/// at least `3 w h` bytes long). The GPU engine had uploaded all of it, past its pixel
+/// buffer's end, which wgpu refused on every frame; both engines now read the pixels only,
+/// and the tracks are those of the same frames held exactly.
+#[test]
+fn frames_held_in_longer_buffers_track_as_exact_ones() {
+    let (r, frames) = scenario_frames(Scenario::Roll, 6);
+    let padded = |img: &image::RgbImage| {
+        let mut raw = img.as_raw().clone();
+        // Bytes that are no pixel: white, and not a whole pixel.
+        raw.extend([255; 7]);
+        image::RgbImage::from_raw(img.width(), img.height(), raw).expect("a longer buffer")
+    };
+    let track = |engine: Box<dyn LikelihoodEngine + Send>, pad: bool| {
+        let hold = |img: &image::RgbImage| if pad { padded(img) } else { img.clone() };
+        let mut t = Tracker::with_engine(
+            TrackerConfig::default(),
+            engine,
+            &hold(&frames[0]),
+            Init::frontal(r.init_ellipse()),
+        )
+        .unwrap();
+        frames[1..]
+            .iter()
+            .map(|img| {
+                let e = t.step(&hold(img)).unwrap();
+                (e.state, e.confidence, e.lost)
+            })
+            .collect::<Vec<_>>()
+    };
+    // One engine at a time, each held (with its device's slot) for its own track only.
+    let on_gpu = |pad| engine().map(|gpu| track(Box::new(gpu.engine), pad));
+    let Some(gpu_exact) = on_gpu(false) else {
+        return;
+    };
+    assert_eq!(on_gpu(true), Some(gpu_exact));
+    let cpu_exact = track(Box::new(CpuEngine::new()), false);
+    assert_eq!(track(Box::new(CpuEngine::new()), true), cpu_exact);
+}
+
+/// Sizes past anything an adapter holds are refused, whatever they are: the byte counts had
+/// been multiplied unchecked, which panics in a debug build for counts near the integer
+/// limits and wraps in a release one.
+#[test]
+fn absurd_sizes_are_refused_not_overflowed() {
+    let Some(gpu) = engine() else { return };
+    let params = TrackerConfig::default().likelihood;
+    for (n, w, h) in [
+        (200, u32::MAX, u32::MAX),
+        (usize::MAX, 160, 120),
+        (usize::MAX / 3, 160, 120),
+        (usize::MAX, u32::MAX, u32::MAX),
+    ] {
+        assert!(
+            gpu.engine.check_capacity(n, w, h, &params).is_err(),
+            "{n} particles, {w}x{h}"
+        );
+    }
+    assert!(gpu.engine.check_capacity(200, 160, 120, &params).is_ok());
+}

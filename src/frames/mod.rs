@@ -267,6 +267,16 @@ pub struct FrameSource {
     y4m_extent: Option<y4m::FileExtent>,
 }
 
+/// The pixels of `img`, three bytes each, row after row: its buffer's first `3 w h` bytes.
+/// An `RgbImage` may hold a longer buffer (`ImageBuffer::from_raw` takes one at least that
+/// long), and what follows is no pixel of it: every pass over an image's bytes as a whole
+/// goes through here.
+pub fn rgb_bytes(img: &image::RgbImage) -> &[u8] {
+    let raw = img.as_raw();
+    let len = 3 * img.width() as usize * img.height() as usize;
+    &raw[..len.min(raw.len())]
+}
+
 /// The path [`open`] reads as standard input, a y4m stream (`ffmpeg ... -f yuv4mpegpipe - |
 /// pftrack track - ...`).
 pub const STDIN: &str = "-";

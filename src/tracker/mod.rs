@@ -1647,8 +1647,7 @@ const GREY_SWITCH_AFTER: usize = 2;
 
 /// Whether every pixel of `frame` is grey (`R = G = B`): grayscale footage read as RGB.
 fn is_grey(frame: &image::RgbImage) -> bool {
-    frame
-        .as_raw()
+    crate::frames::rgb_bytes(frame)
         .chunks_exact(3)
         .all(|p| p[0] == p[1] && p[1] == p[2])
 }

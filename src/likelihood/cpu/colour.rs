@@ -217,8 +217,7 @@ impl BinImage {
         self.height = image.height();
         self.bins.clear();
         self.bins.extend(
-            image
-                .as_raw()
+            crate::frames::rgb_bytes(image)
                 .chunks_exact(3)
                 .map(|p| bin_in(colour_bins, p[0], p[1], p[2])),
         );

@@ -63,8 +63,7 @@ impl GradientImage {
         self.height = h as u32;
         luma.clear();
         luma.extend(
-            image
-                .as_raw()
+            crate::frames::rgb_bytes(image)
                 .chunks_exact(3)
                 .map(|p| luma_int(p[0], p[1], p[2])),
         );

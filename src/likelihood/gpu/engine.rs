@@ -89,7 +89,12 @@ impl GrowBuf {
 
     /// The bytes a buffer asked to hold `bytes` is allocated with.
     fn allocated(bytes: u64) -> u64 {
-        bytes.max(16).next_multiple_of(256)
+        // Saturating: a size near `u64::MAX` (a count checked against the limits) stays past
+        // them instead of wrapping to a small one.
+        bytes
+            .max(16)
+            .checked_next_multiple_of(256)
+            .unwrap_or(u64::MAX)
     }
 
     /// Makes room for `bytes`; true when the buffer was replaced. The size is recorded before
@@ -421,7 +426,7 @@ impl GpuEngine {
         let limit = self.max_binding();
         // The gradient image (two i32 per pixel) is the largest per-frame buffer, allocated
         // rounded up.
-        let bytes = GrowBuf::allocated(width as u64 * height as u64 * 8);
+        let bytes = GrowBuf::allocated((width as u64 * height as u64).saturating_mul(8));
         let max_dim = self.gpu.limits.max_compute_workgroups_per_dimension;
         if bytes > limit
             || width.div_ceil(TILE) > max_dim
@@ -446,15 +451,18 @@ impl GpuEngine {
     ) -> Result<(), LikelihoodError> {
         let limit = self.max_binding();
         let n64 = n as u64;
-        let mut bytes = (n64 * 32)
-            .max(n64 * num_lines as u64 * 4)
-            .max((n64 + num_lines as u64) * 8);
+        // Saturating: a count near `u64::MAX` is refused, not wrapped (or a panic in a
+        // debug build).
+        let lines = n64.saturating_mul(num_lines as u64);
+        let mut bytes = n64
+            .saturating_mul(32)
+            .max(lines.saturating_mul(4))
+            .max(n64.saturating_add(num_lines as u64).saturating_mul(8));
         if debug {
-            bytes = bytes.max(n64 * HIST_BINS as u64 * 4);
+            bytes = bytes.max(n64.saturating_mul(HIST_BINS as u64 * 4));
         }
         let bytes = GrowBuf::allocated(bytes);
         let max_dim = self.gpu.limits.max_compute_workgroups_per_dimension;
-        let lines = n64 * num_lines as u64;
         let too_many = bytes > limit
             || lines > u32::MAX as u64 - WG as u64
             || n64 > u32::MAX as u64
@@ -468,7 +476,8 @@ impl GpuEngine {
 
     fn check_features(&self, n: usize) -> Result<(), LikelihoodError> {
         let limit = self.max_binding();
-        let bytes = GrowBuf::allocated(n as u64 * size_of::<LiftedFeature>() as u64);
+        let bytes =
+            GrowBuf::allocated((n as u64).saturating_mul(size_of::<LiftedFeature>() as u64));
         if bytes > limit || n > u32::MAX as usize {
             return Err(LikelihoodError::TooManyFeatures { n, bytes, limit });
         }
@@ -515,6 +524,9 @@ impl GpuEngine {
         timing: Option<&mut StageTimes>,
     ) -> Result<(), LikelihoodError> {
         self.gpu.check()?;
+        // Input the engine refuses is refused before any GPU work, and leaves its buffers
+        // as they are.
+        self.check_input(frame, params, particles.len(), debug.is_some())?;
         let scopes = self.gpu.push_scopes();
         let result = self.run_scoped(frame, params, particles, out, debug, timing);
         let result = self
@@ -531,6 +543,32 @@ impl GpuEngine {
         result
     }
 
+    /// The checks of the input before any GPU work: the CPU engine's ([`cpu::validate`]),
+    /// so the same errors, then the model and table the terms on need, and the sizes the
+    /// buffers can hold.
+    fn check_input(
+        &self,
+        frame: &FrameInput<'_>,
+        params: &LikelihoodParams,
+        n: usize,
+        debug: bool,
+    ) -> Result<(), LikelihoodError> {
+        cpu::validate(frame, params)?;
+        if params.terms & TERM_COLOUR != 0 && !self.has_model {
+            return Err(LikelihoodError::NoModel);
+        }
+        if params.terms & TERM_CONTRAST != 0 && !self.has_contrast {
+            return Err(LikelihoodError::NoContrastTable);
+        }
+        let (w, h) = frame.image.dimensions();
+        self.check_frame_size(w, h)?;
+        self.check_particles(n, gradient_lines(params), debug)?;
+        if params.terms & TERM_FEATURE != 0 && !frame.features.is_empty() {
+            self.check_features(frame.features.len())?;
+        }
+        Ok(())
+    }
+
     fn run_scoped(
         &mut self,
         frame: &FrameInput<'_>,
@@ -541,29 +579,16 @@ impl GpuEngine {
         timing: Option<&mut StageTimes>,
     ) -> Result<(), LikelihoodError> {
         let t_start = Instant::now();
-        // The same input checks, and so the same errors, as the CPU engine.
-        cpu::validate(frame, params)?;
         let colour_on = params.terms & TERM_COLOUR != 0;
         let num_lines = gradient_lines(params);
         let grad_on = num_lines > 0;
         let feat_on = params.terms & TERM_FEATURE != 0 && !frame.features.is_empty();
         let contrast_on = params.terms & TERM_CONTRAST != 0;
-        if colour_on && !self.has_model {
-            return Err(LikelihoodError::NoModel);
-        }
-        if contrast_on && !self.has_contrast {
-            return Err(LikelihoodError::NoContrastTable);
-        }
         // The colour kernel builds the histogram both terms read.
         let hist_on = colour_on || contrast_on;
         let logs = size_of::<TermLogs>() as u64;
         let (w, h) = frame.image.dimensions();
-        self.check_frame_size(w, h)?;
         let n = particles.len();
-        self.check_particles(n, num_lines, debug.is_some())?;
-        if feat_on {
-            self.check_features(frame.features.len())?;
-        }
         out.clear();
         if n == 0 {
             return Ok(());
@@ -644,7 +669,10 @@ impl GpuEngine {
         queue.write_buffer(&b.params, 0, bytemuck::bytes_of(params));
         queue.write_buffer(&b.frame, 0, bytemuck::bytes_of(&fu));
         if hist_on || grad_on {
-            pack_pixels(frame.image.as_raw(), &mut self.pixel_scratch);
+            pack_pixels(
+                crate::frames::rgb_bytes(frame.image),
+                &mut self.pixel_scratch,
+            );
             queue.write_buffer(&b.pixels.buf, 0, bytemuck::cast_slice(&self.pixel_scratch));
         }
         queue.write_buffer(&b.particles.buf, 0, bytemuck::cast_slice(particles));
