@@ -170,8 +170,8 @@ fn residual3(a: &Matrix3<f64>, b: &Matrix3<f64>, x: &V6) -> Option<(V6, M6, Matr
 /// Every stationary point of the least squares solves the equation, and Newton from `Λ0`
 /// reaches one other than the minimum for large turns (on exact data, for turns of about 110
 /// degrees or more, the rotation half a turn from the truth about an axis of `A`'s). The
-/// solution is therefore checked ([`is_minimum`]), and one that is not the minimum is moved to
-/// it ([`minimum_beside`]: the stationary points differ by the signs of `S = B R^T`'s
+/// solution is therefore checked (`is_minimum`), and one that is not the minimum is moved to
+/// it (`minimum_beside`: the stationary points differ by the signs of `S = B R^T`'s
 /// eigenvalues) and solved for again from that Λ. Where Newton from `Λ0` does not converge
 /// (it can fail for turns past about 130 degrees), it starts again from `Λ = 0`, and then the
 /// minimum is followed by continuation from the trivial problem `B = A` (`Λ = 0`, `R = I`)
