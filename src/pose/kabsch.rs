@@ -178,16 +178,24 @@ fn residual3(a: &Matrix3<f64>, b: &Matrix3<f64>, x: &V6) -> Option<(V6, M6, Matr
 /// along `B_τ = (1 - τ) A + τ B`, Newton correcting at each step, a step halved where the
 /// correction fails or leaves the minimum.
 ///
-/// Errors: bad input as in [`kabsch`]; [`PoseError::NoSolution`] where no solution of the
-/// equation found is the minimum: always for coplanar points (three, or more on one plane:
-/// `A` is singular, and so is the Kronecker system near `Λ = 0`), which [`kabsch`] solves,
-/// and for a few per cent of sets of four or five points under heavy noise (0.2-0.3 of their
-/// spread), none on exact data of four points or more (tested over the whole range of
-/// turns).
+/// Errors: bad input as in [`kabsch`]; [`PoseError::Degenerate`] for coplanar first points
+/// (three, or more on one plane: `A` is singular, and so is the Kronecker system near
+/// `Λ = 0`), which [`kabsch`] solves; [`PoseError::NoSolution`] where no solution of the
+/// equation found is the minimum: a few per cent of sets of four or five points under heavy
+/// noise (0.2-0.3 of their spread), none on exact data of four points or more (tested over
+/// the whole range of turns).
 pub fn sea_3d(p3: &[[f64; 3]], q3: &[[f64; 3]]) -> Result<Matrix3<f64>, PoseError> {
     let (a, b) = moments3(p3, q3)?;
     let s = a.trace();
     let (a, b) = (a / s, b / s);
+    // Coplanar first points (three always are): `A` is singular, and with it the Kronecker
+    // system at and near `Λ = 0`, where the minimum lies on exact data.
+    if a.symmetric_eigenvalues().min() <= 1e-12 {
+        return Err(PoseError::Degenerate(
+            "the first 3D points are coplanar: SEA's Kronecker system is singular there \
+             (kabsch solves them)",
+        ));
+    }
     let l0 = b - a;
     let l0 = (l0 + l0.transpose()) * 0.5;
     let x0 = V6::from_fn(|i, _| l0[SYM[i]]);
@@ -430,6 +438,31 @@ mod tests {
         let s = b * other.transpose();
         assert!((s - s.transpose()).norm() < 1e-9 * s.norm());
         assert!(!is_minimum(&b, &other));
+    }
+
+    #[test]
+    fn coplanar_points_are_degenerate_for_sea_3d_and_solved_by_kabsch() {
+        let r = Euler::new(0.3, -0.4, 0.2).matrix();
+        for n in [3, 6] {
+            let p: Vec<[f64; 3]> = (0..n)
+                .map(|i| {
+                    let t = i as f64;
+                    [t.cos() * (1.0 + t), t.sin(), 0.5]
+                })
+                .collect();
+            let q: Vec<[f64; 3]> = p
+                .iter()
+                .map(|x| {
+                    let y = r * Vector3::from(*x);
+                    [y[0], y[1], y[2]]
+                })
+                .collect();
+            assert!(
+                matches!(sea_3d(&p, &q), Err(PoseError::Degenerate(_))),
+                "{n}"
+            );
+            assert!(angle_between(&kabsch(&p, &q).unwrap(), &r) < 1e-10, "{n}");
+        }
     }
 
     #[test]
