@@ -97,6 +97,56 @@ fn ellipse_pixels_lie_on_the_contour_and_the_rest_is_untouched() {
     }
 }
 
+/// The outline at scale 1 (a line a pixel wide, what footage 320 px wide or more gets) is one
+/// 8-connected ring, however it falls between pixel centres: where it ran nearly level or
+/// upright between them it had broken into pieces, which read as the dashed line of a lost
+/// target.
+#[test]
+fn a_one_pixel_outline_is_unbroken() {
+    let src = RgbImage::new(320, 240);
+    for (cx, cy, a, b, theta) in [
+        (160.0, 120.0, 50.5, 30.5, 0.0),
+        (160.25, 119.5, 50.0, 30.0, 0.0),
+        (100.5, 80.5, 12.25, 40.75, 0.3),
+        (200.0, 120.0, 80.0, 79.5, 1.2),
+        (60.0, 60.0, 3.0, 5.0, 0.7),
+    ] {
+        let e = Ellipse {
+            cx,
+            cy,
+            a,
+            b,
+            theta,
+        };
+        let img = render_overlay(&src, &overlay(e, [0.0; 3], false), 1);
+        let lit: std::collections::HashSet<(i64, i64)> = (0..240)
+            .flat_map(|y| (0..320).map(move |x| (x, y)))
+            .filter(|&(x, y)| *img.get_pixel(x as u32, y as u32) == ELLIPSE_OK)
+            .collect();
+        // One 8-connected piece holds every lit pixel.
+        let start = *lit.iter().next().expect("an outline");
+        let mut seen = std::collections::HashSet::from([start]);
+        let mut todo = vec![start];
+        while let Some((x, y)) = todo.pop() {
+            for (dx, dy) in (-1..=1).flat_map(|dx| (-1..=1).map(move |dy| (dx, dy))) {
+                let n = (x + dx, y + dy);
+                if lit.contains(&n) && seen.insert(n) {
+                    todo.push(n);
+                }
+            }
+        }
+        assert_eq!(seen.len(), lit.len(), "{e:?}: the outline is in pieces");
+        // And still a thin line: no more than a pixel and a half of it per pixel of
+        // perimeter.
+        let perimeter = std::f64::consts::PI * (a + b);
+        assert!(
+            (lit.len() as f64) < 1.5 * perimeter,
+            "{e:?}: {} pixels",
+            lit.len()
+        );
+    }
+}
+
 /// A scale that would make a render of gigabytes (160x120 at 1000 wanted 64 GB; u32::MAX
 /// overflowed the layout's sizes) is lowered so the frame part fits MAX_SCALED_SIDE.
 #[test]

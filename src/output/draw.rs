@@ -78,6 +78,22 @@ pub fn fill_rect(img: &mut RgbImage, r: Rect, colour: Rgb<u8>) {
 /// parametric angle of the point in the ellipse's own frame. `None` near the centre, where
 /// the approximation breaks down (the point is far from the contour there anyway).
 pub fn contour_distance(e: &Ellipse, x: f64, y: f64) -> Option<(f64, f64)> {
+    contour_point(e, x, y).map(|p| (p.distance, p.angle))
+}
+
+/// Where a point stands to an ellipse's contour ([`contour_point`]).
+struct ContourPoint {
+    /// First-order distance to the contour (pixels).
+    distance: f64,
+    /// Parametric angle of the point.
+    angle: f64,
+    /// The larger of the contour's unit normal's components there, `|n_x|` or `|n_y|`: 1
+    /// where the contour runs level or upright, `1/√2` at 45 degrees.
+    steepest: f64,
+}
+
+/// [`contour_distance`], with the normal's larger component.
+fn contour_point(e: &Ellipse, x: f64, y: f64) -> Option<ContourPoint> {
     let (s, c) = e.theta.sin_cos();
     let (dx, dy) = (x - e.cx, y - e.cy);
     let u = (c * dx + s * dy) / e.a;
@@ -93,12 +109,20 @@ pub fn contour_distance(e: &Ellipse, x: f64, y: f64) -> Option<(f64, f64)> {
     if g.is_nan() || g <= 0.0 {
         return None;
     }
-    Some((f.abs() / g, v.atan2(u)))
+    Some(ContourPoint {
+        distance: f.abs() / g,
+        angle: v.atan2(u),
+        steepest: gx.abs().max(gy.abs()) / g,
+    })
 }
 
 /// Draws the outline of `e` (image coordinates of `img`) as a line `width` pixels wide:
 /// every pixel whose centre is within `width / 2` of the contour (by the first-order distance,
-/// with a 0.05 px margin for its error), and inside `clip`. With
+/// with a 0.05 px margin for its error), and inside `clip`. A line too thin for that to
+/// close it (a pixel wide, where the contour runs nearly level or upright between pixel
+/// centres) also takes every pixel whose centre lies within half a pixel of it along the
+/// image axis nearest its normal, as a line drawn column by column (or row by row) does, so
+/// that it never breaks. With
 /// `dash = Some((on, off))` the line is interrupted along the contour (lengths in pixels,
 /// measured approximately by the parametric angle times the mean radius).
 pub fn draw_ellipse(
@@ -130,10 +154,16 @@ pub fn draw_ellipse(
     let mean_r = 0.5 * (e.a + e.b);
     for y in r.y0..r.y1 {
         for x in r.x0..r.x1 {
-            let Some((d, phi)) = contour_distance(e, x as f64, y as f64) else {
+            let Some(ContourPoint {
+                distance: d,
+                angle: phi,
+                steepest,
+            }) = contour_point(e, x as f64, y as f64)
+            else {
                 continue;
             };
-            if d > half {
+            // Half a pixel along the axis nearest the normal is `steepest / 2` across it.
+            if d > half.max(0.5 * steepest) {
                 continue;
             }
             if let Some((on, off)) = dash {
