@@ -355,7 +355,9 @@ fn cli_table_and_json() {
     assert_eq!(code, 0, "{err}");
     for want in [
         "truth frames",
-        "MISSING           1",
+        "MISSING           1  <-- failures in precision and success",
+        "(mean, over the 9 frames evaluated)",
+        "(over the 9 frames evaluated)",
         "precision@20px    0.9000",
         "success AUC       0.7857",
         "rx           3.000       3.000",

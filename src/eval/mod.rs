@@ -491,12 +491,19 @@ impl Report {
                 .collect();
             let more = if self.missing > 8 { ", ..." } else { "" };
             format!(
-                "{}  <-- counted as failures (frames {}{more})",
+                "{}  <-- failures in precision and success (frames {}{more})",
                 self.missing,
                 shown.join(", ")
             )
         };
         row(&mut s, "MISSING", missing);
+        // The means are over the frames evaluated: with frames missing, say so where they
+        // are read.
+        let over = if self.missing > 0 {
+            format!(", over the {} frames evaluated", self.evaluated)
+        } else {
+            String::new()
+        };
         if self.ignored > 0 {
             row(
                 &mut s,
@@ -518,7 +525,7 @@ impl Report {
         row(
             &mut s,
             "centre error",
-            format!("{} px (mean)", fixed(self.mean_centre_error_px, 3)),
+            format!("{} px (mean{})", fixed(self.mean_centre_error_px, 3), over),
         );
         row(
             &mut s,
@@ -530,7 +537,18 @@ impl Report {
             "success AUC",
             format!("{:.4}  (OTB: IoU > t, 21 t in [0, 1])", self.success_auc),
         );
-        row(&mut s, "mean IoU", format!("{:.4}", self.mean_iou));
+        row(
+            &mut s,
+            "mean IoU",
+            if self.missing > 0 {
+                format!(
+                    "{:.4}  (over the {} frames evaluated)",
+                    self.mean_iou, self.evaluated
+                )
+            } else {
+                format!("{:.4}", self.mean_iou)
+            },
+        );
         if let Some(l) = self.lost {
             row(&mut s, "lost frames", l.to_string());
         }
