@@ -164,17 +164,26 @@ impl BlockFit {
     }
 }
 
+/// The least parallax that decides a branch (pixels): on exact or identical images the
+/// features' noise is nil, and a rounding error of 1e-14 px had been "over twice" it.
+const LEAST_PARALLAX_PX: f64 = 0.01;
+
 /// Whether the parallax `offset` decides the Necker branch of `chosen`: its component along
 /// the direction the turn moves the surface in (the rotation's `(r13, r23)`), against twice
 /// the features' translation's standard error `noise` (block matching's own error, which
-/// nothing here measures, is not counted).
+/// nothing here measures, is not counted), and never on less than [`LEAST_PARALLAX_PX`].
 fn branch_verdict(chosen: &nalgebra::Matrix3<f64>, offset: Vector2<f64>, noise: f64) -> String {
     let c = Vector2::new(chosen[(0, 2)], chosen[(1, 2)]);
     if c.norm() < 1e-9 {
         return "the turn is in the image plane, which has no mirror to tell apart".to_string();
     }
     let along = c.normalize().dot(&offset).abs();
-    if along > 2.0 * noise {
+    if along <= LEAST_PARALLAX_PX {
+        format!(
+            "{along:.3} px along the turn, under {LEAST_PARALLAX_PX} px: no parallax to speak \
+             of, the branch is a guess"
+        )
+    } else if along > 2.0 * noise {
         format!(
             "{along:.2} px along the turn, over twice the features' noise of about {noise:.2} \
              px: it points to this branch"
@@ -430,4 +439,24 @@ pub fn run(a: PoseArgs) -> anyhow::Result<()> {
         outln!("matches drawn in {}", path.display())?;
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_branch_is_decided_only_by_a_parallax_above_the_noise_and_the_floor() {
+        // A pan: the surface moves along x.
+        let pan = *nalgebra::Rotation3::from_euler_angles(0.0, 0.2, 0.0).matrix();
+        let verdict = |dx: f64, noise: f64| branch_verdict(&pan, Vector2::new(dx, 0.0), noise);
+        assert!(verdict(1.0, 0.2).contains("it points to this branch"));
+        assert!(verdict(0.3, 0.2).contains("the branch is a guess"));
+        // Identical images: no noise and a rounding error's parallax decide nothing.
+        assert!(verdict(1e-14, 0.0).contains("the branch is a guess"));
+        assert!(verdict(0.005, 0.0).contains("no parallax to speak of"));
+        assert!(verdict(0.05, 0.0).contains("it points to this branch"));
+        let roll = *nalgebra::Rotation3::from_euler_angles(0.0, 0.0, 0.3).matrix();
+        assert!(branch_verdict(&roll, Vector2::new(1.0, 0.0), 0.0).contains("image plane"));
+    }
 }
