@@ -74,8 +74,8 @@ subprocess.run([cfg["pftrack"], "synth", syn_dir, "--size", "640x480", "--frames
 imgs["pftrack synth 640x480"] = cv2.imread(os.path.join(syn_dir, "frames", "00000.png"))
 
 def gray(img):
-    # Same luma as pftrack (BT.601 on RGB), as float in [0, 255]: OpenCV converts 8-bit
-    # input to float internally, so give it the identical float image.
+    # Same luma as pftrack (BT.601 on RGB), as float in [0, 255]; it is rounded to 8 bits
+    # below, and both sides get that 8-bit image.
     b, g_, r = [img[:, :, i].astype(np.float32) for i in range(3)]
     return 0.299 * r + 0.587 * g_ + 0.114 * b
 

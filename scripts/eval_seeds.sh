@@ -66,6 +66,10 @@ if [[ $seeds =~ ^([0-9]+)-([0-9]+)$ ]]; then
 fi
 for s in $seeds; do [[ $s =~ ^[0-9]+$ ]] || die "bad seed '$s'"; done
 [ -n "${seeds// /}" ] || die "no seeds"
+# A seed given twice would run twice into the same files and count twice in the means,
+# shrinking their standard errors.
+repeated=$(tr ' ' '\n' <<<"$seeds" | grep . | sort -n | uniq -d | tr '\n' ' ')
+[ -z "$repeated" ] || die "seeds given more than once: $repeated"
 out=${out:-$(mktemp -d /tmp/pftrack-seeds.XXXXXX)}
 mkdir -p "$out"
 if [ "$mode" = real ]; then
@@ -120,8 +124,21 @@ if [ -n "$failed" ]; then
     exit 1
 fi
 
-# A number field of a one-line JSON report ("key":value, or within "angle_rmse_deg").
-field() { grep -o "\"$2\":[-0-9.eE+]*" "$1" | head -1 | cut -d: -f2; }
+# A number field of a one-line JSON report ("key":value, or within "angle_rmse_deg"); a
+# `null` gives nothing rather than an empty value read as 0.
+field() { grep -o "\"$2\":[-0-9.eE+][-0-9.eE+]*" "$1" | head -1 | cut -d: -f2 || true; }
+
+# A track shorter than its truth (track arguments such as --max-frames) has its angle and
+# centre errors taken over the frames tracked: said, so that no row passes for a whole one.
+short=""
+for n in $names; do for s in $seeds; do
+    m=$(field "$out/$n-$s.json" missing)
+    [ "${m:-0}" = 0 ] || short+="$n-$s ($m) "
+done; done
+if [ -n "$short" ]; then
+    echo "eval_seeds: warning: these runs miss truth frames (how many), and their errors are" \
+        "over the frames tracked only: $short" >&2
+fi
 # One axis of a report's angle gain; empty where the truth hardly turns about it (null).
 gain() {
     grep -o '"angle_gain":{[^}]*}' "$1" | grep -o "\"$2\":[-0-9.eE+][-0-9.eE+]*" |
@@ -129,9 +146,10 @@ gain() {
 }
 # The mean of the numbers on stdin to 3 places, "-" when there are none.
 mean_or_dash() { awk '{ s += $1; n++ } END { if (n) printf "%.3f", s / n; else printf "-" }'; }
-# Mean and standard error of the numbers on stdin.
+# Mean and standard error of the numbers on stdin ("-" for the error of a single number).
 stats() { awk '{ s += $1; q += $1 * $1; n++ } END {
-    m = s / n; v = n > 1 ? (q - n * m * m) / (n - 1) : 0; if (v < 0) v = 0;
+    m = s / n; if (n < 2) { printf "%.3f ± -", m; exit }
+    v = (q - n * m * m) / (n - 1); if (v < 0) v = 0;
     printf "%.3f ± %.3f", m, sqrt(v / n) }'; }
 
 echo "pftrack: $bin"
