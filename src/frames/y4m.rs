@@ -91,11 +91,12 @@ pub fn frame_bytes(colour_space: &str, w: u32, h: u32) -> Option<u64> {
         }
     };
     let luma = w * h;
-    let (planes, depth) = if let Some(rest) = colour_space.strip_prefix("mono") {
-        (luma, bits(rest)?)
+    // (luma planes, chroma planes of `cw × ch`, bits a sample).
+    let (lumas, (cw, ch), depth) = if let Some(rest) = colour_space.strip_prefix("mono") {
+        (1, (0, 0), bits(rest)?)
     } else {
         let (base, rest) = colour_space.split_at_checked(3)?;
-        let (cw, ch) = match base {
+        let chroma = match base {
             "420" => (w.div_ceil(2), h.div_ceil(2)),
             "422" => (w.div_ceil(2), h),
             "411" => (w.div_ceil(4), h),
@@ -103,13 +104,16 @@ pub fn frame_bytes(colour_space: &str, w: u32, h: u32) -> Option<u64> {
             _ => return None,
         };
         match (base, rest) {
-            ("420", "jpeg" | "mpeg2" | "paldv") => (luma + 2 * cw * ch, 8),
-            ("444", "alpha") => (2 * luma + 2 * cw * ch, 8),
-            _ if rest.is_empty() || rest.starts_with('p') => (luma + 2 * cw * ch, bits(rest)?),
+            ("420", "jpeg" | "mpeg2" | "paldv") => (1, chroma, 8),
+            ("444", "alpha") => (2, chroma, 8),
+            _ if rest.is_empty() || rest.starts_with('p') => (1, chroma, bits(rest)?),
             _ => return None,
         }
     };
-    Some(planes * if depth > 8 { 2 } else { 1 })
+    // Checked: sides near `u32::MAX` pass `u64` (`None` then, as for an unknown space).
+    luma.checked_mul(lumas)?
+        .checked_add((cw * ch).checked_mul(2)?)?
+        .checked_mul(if depth > 8 { 2 } else { 1 })
 }
 
 /// The complete frames of a y4m file, and where it ends inside one, found by walking its
@@ -354,13 +358,13 @@ impl Y4mHeader {
         }
     }
 
-    /// Bytes of pixel data per frame (after the `FRAME` line); saturates at `usize::MAX` for
-    /// sizes the reader refuses (its sides are at most [`MAX_SIDE`]).
+    /// Bytes of pixel data per frame (after the `FRAME` line; [`frame_bytes`] of its colour
+    /// space); saturates at `usize::MAX` for sizes the reader refuses (its sides are at most
+    /// [`MAX_SIDE`]).
     pub fn frame_bytes(&self) -> usize {
-        let (cw, ch) = self.chroma_size();
-        (self.width as usize)
-            .saturating_mul(self.height as usize)
-            .saturating_add(cw.saturating_mul(ch).saturating_mul(2))
+        frame_bytes(self.chroma.tag(), self.width, self.height)
+            .and_then(|b| usize::try_from(b).ok())
+            .unwrap_or(usize::MAX)
     }
 }
 
@@ -674,6 +678,9 @@ mod tests {
         ] {
             assert_eq!(frame_bytes(tag, 34, 26), None, "{tag}");
         }
+        // Past u64: no size rather than a wrapped one.
+        assert_eq!(frame_bytes("444alpha", u32::MAX, u32::MAX), None);
+        assert_eq!(frame_bytes("420p16", u32::MAX, u32::MAX), None);
     }
 
     #[test]
