@@ -499,11 +499,8 @@ impl Report {
         row(&mut s, "MISSING", missing);
         // The means are over the frames evaluated: with frames missing, say so where they
         // are read.
-        let over = if self.missing > 0 {
-            format!(", over the {} frames evaluated", self.evaluated)
-        } else {
-            String::new()
-        };
+        let over =
+            (self.missing > 0).then(|| format!("over the {} frames evaluated", self.evaluated));
         if self.ignored > 0 {
             row(
                 &mut s,
@@ -525,7 +522,10 @@ impl Report {
         row(
             &mut s,
             "centre error",
-            format!("{} px (mean{})", fixed(self.mean_centre_error_px, 3), over),
+            match &over {
+                Some(o) => format!("{} px (mean, {o})", fixed(self.mean_centre_error_px, 3)),
+                None => format!("{} px (mean)", fixed(self.mean_centre_error_px, 3)),
+            },
         );
         row(
             &mut s,
@@ -540,13 +540,9 @@ impl Report {
         row(
             &mut s,
             "mean IoU",
-            if self.missing > 0 {
-                format!(
-                    "{:.4}  (over the {} frames evaluated)",
-                    self.mean_iou, self.evaluated
-                )
-            } else {
-                format!("{:.4}", self.mean_iou)
+            match &over {
+                Some(o) => format!("{:.4}  ({o})", self.mean_iou),
+                None => format!("{:.4}", self.mean_iou),
             },
         );
         if let Some(l) = self.lost {
