@@ -292,19 +292,15 @@ pub fn open(path: &Path, opts: &SourceOptions) -> Result<FrameSource, FrameError
         FrameSource::from_y4m_reader(stdin, "standard input", opts)
     } else if path.is_dir() {
         FrameSource::from_dir(path, opts)
-    } else if path
-        .extension()
-        .is_some_and(|e| e.eq_ignore_ascii_case("y4m"))
-        && !y4m_for_ffmpeg(path)
-    {
-        FrameSource::from_y4m(path, opts)
     } else {
-        let mut source = FrameSource::from_video(path, opts, &FfmpegTools::default())?;
-        if path
+        let y4m = path
             .extension()
-            .is_some_and(|e| e.eq_ignore_ascii_case("y4m"))
-            && path.is_file()
-        {
+            .is_some_and(|e| e.eq_ignore_ascii_case("y4m"));
+        if y4m && !y4m_for_ffmpeg(path) {
+            return FrameSource::from_y4m(path, opts);
+        }
+        let mut source = FrameSource::from_video(path, opts, &FfmpegTools::default())?;
+        if y4m {
             source.y4m_extent = y4m::file_extent(path);
         }
         Ok(source)

@@ -128,11 +128,15 @@ pub struct FileExtent {
     pub cut: Option<String>,
 }
 
-/// Walks the y4m file `path` as [`FileExtent`] says; `None` where the header cannot be read,
-/// names a colour space of unknown size, or something other than a `FRAME` header is found
+/// Walks the y4m file `path` as [`FileExtent`] says; `None` where it is no regular file (a
+/// named pipe would lose the bytes read here), where the header cannot be read or names a
+/// colour space of unknown size, or where something other than a `FRAME` header is found
 /// where one belongs (the decoder then says what is wrong).
 pub fn file_extent(path: &std::path::Path) -> Option<FileExtent> {
     use std::io::{Seek, SeekFrom};
+    if !path.is_file() {
+        return None;
+    }
     let mut file = std::io::BufReader::new(std::fs::File::open(path).ok()?);
     let len = file.get_ref().metadata().ok()?.len();
     let mut line = Vec::new();

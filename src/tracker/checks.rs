@@ -374,6 +374,8 @@ fn check_factor(name: &str, k: Option<f64>, none_does: &str) -> Result<(), Track
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::geometry::Ellipse;
+    use crate::tracker::Reanchor;
 
     #[test]
     fn a_refused_value_is_not_shown_rounded_into_its_range() {
@@ -389,7 +391,7 @@ mod tests {
         assert_eq!(short(-12.5), "-12.5");
         assert_eq!(short(1e308), "1.000e308");
         let start = |cx, a, rx: f64| Init {
-            ellipse: crate::geometry::Ellipse::new(cx, 23.0, a, 5.0),
+            ellipse: Ellipse::new(cx, 23.0, a, 5.0),
             pose: crate::geometry::Euler::new(rx.to_radians(), 0.0, 0.0),
         };
         for (init, want) in [
@@ -404,8 +406,6 @@ mod tests {
             assert!(e.contains(want), "{e}");
         }
     }
-    use crate::geometry::Ellipse;
-    use crate::tracker::Reanchor;
 
     /// A contrast limit that passes the check is one the engine takes: 1e-50 is 0 in f32,
     /// which `Tracker::new` refused with the engine's error after `check()` had passed it.
