@@ -225,7 +225,13 @@ impl Compensator {
         let (w, h) = frame.dimensions();
         let measured = self.gains_over(frame, [0, 0, w, h]);
         let on_target = target.and_then(|b| self.gains_over(frame, b));
-        self.keep(frame);
+        // A frame too dark or too bright to measure (too few pixels in range) is no
+        // reference for the next: the change into it and the change out of it would both go
+        // unmeasured, and the light coming back after it would never be seen. The next
+        // frame is measured against the last one that was measured.
+        if measured.is_some() || self.prev.dimensions() != frame.dimensions() {
+            self.keep(frame);
+        }
         let bar = (1.0 + self.jump).ln();
         for ch in 0..3 {
             let d = measured.map_or(0.0, |g| g[ch].ln());
@@ -493,6 +499,42 @@ mod tests {
         c.reset(&f);
         c.next(&scaled(&f, [0.5; 3]), Some([200, 200, 300, 300]));
         assert_gain_near(&c, 0.5);
+    }
+
+    /// Light halved, then one frame too dark to measure, then the start's light again: the
+    /// light coming back is measured against the last frame that was measured, and nothing
+    /// is undone after it. (Measured against the dark frame, the change out of it went
+    /// unmeasured and the halved light's gain was held for good.)
+    #[test]
+    fn light_back_after_a_frame_too_dark_to_measure_is_seen() {
+        let f = textured(80, 60);
+        let half = scaled(&f, [0.5; 3]);
+        // Nearly black, with a little colour noise (not grey): every value under the
+        // darkest measured.
+        let dark = RgbImage::from_fn(80, 60, |x, y| {
+            image::Rgb([((x + y) % 5) as u8, ((x * 3 + y) % 7) as u8, (y % 4) as u8])
+        });
+        let mut c = Compensator::new(0.15);
+        c.reset(&f);
+        for _ in 0..3 {
+            c.next(&half, None);
+            assert_gain_near(&c, 0.5);
+        }
+        assert_eq!(channel_gains(&half, &dark, 1), None);
+        c.next(&dark, None);
+        assert_eq!(*c.next(&f, None), f, "{:?}", c.gain());
+        assert_eq!(c.gain(), [1.0; 3]);
+        // Two such frames in a row, and the light back at the half it was before them.
+        for _ in 0..2 {
+            c.next(&half, None);
+        }
+        assert_gain_near(&c, 0.5);
+        c.next(&dark, None);
+        c.next(&dark, None);
+        c.next(&half, None);
+        assert_gain_near(&c, 0.5);
+        c.next(&f, None);
+        assert_eq!(c.gain(), [1.0; 3]);
     }
 
     /// A strobe (every second frame at half the light) is undone on its dark frames, and once
