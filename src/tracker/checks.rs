@@ -5,6 +5,9 @@ use nalgebra::Matrix3;
 
 use super::{Init, MAX_DEPTH_RATIO, TrackError, TrackerConfig};
 
+/// The least semi-axis of a start (px), and so of the filter's floor.
+pub const MIN_START_AXIS: f64 = 2.0;
+
 impl Init {
     /// Checks the start against a `w x h` frame, as [`super::Tracker::new`] and
     /// [`super::Tracker::reinit`] do: a valid ellipse of semi-axes at least 2 px and at most
@@ -14,9 +17,9 @@ impl Init {
     pub fn check(&self, w: u32, h: u32) -> Result<(), TrackError> {
         let e = &self.ellipse;
         check_ellipse(e)?;
-        if e.a < 2.0 || e.b < 2.0 {
+        if e.a < MIN_START_AXIS || e.b < MIN_START_AXIS {
             return Err(TrackError::BadInit(format!(
-                "semi-axes {} x {} px: at least 2 px each",
+                "semi-axes {} x {} px: at least {MIN_START_AXIS} px each",
                 short(e.a),
                 short(e.b)
             )));
@@ -85,17 +88,30 @@ impl Init {
 impl TrackerConfig {
     /// Checks every setting, as [`super::Tracker::new`] does before anything else, with a
     /// [`TrackError::BadConfig`] that names the setting (and, for an optional part, what
-    /// `None` would do instead): the filter's ([`crate::filter::FilterParams::check`]), the
+    /// `None` would do instead): the filter's ([`crate::filter::FilterParams::check`], and a
+    /// floor on the semi-axes of at least the 2 px a start needs, since an estimate is one:
+    /// [`super::Estimate::to_init`]), the
     /// likelihood's with the colour term included, which re-acquisition always uses
     /// ([`crate::likelihood::LikelihoodParams::check`]), SIFT's, matching's and block
     /// matching's own checks; the lost and re-acquisition thresholds; the keyframe fits'
     /// bounds, their motion prior by the rule of the fit itself
     /// ([`crate::pose::prior::MotionPrior::check`]) and the camera; and each optional part's
     /// own `check` (anchor refit, bundle adjustment, colour update, contrast, inter-frame
-    /// consensus, re-anchoring, template) and widening factors (size hold, aspect slack).
+    /// consensus, re-anchoring, template; the start's refinement with the gradient settings,
+    /// which it scores with whether or not the term is on) and widening factors (size hold,
+    /// aspect slack).
     pub fn check(&self) -> Result<(), TrackError> {
         let bad = |e: String| TrackError::BadConfig(e);
         self.filter.check().map_err(|e| bad(e.to_string()))?;
+        // The filter holds every estimate to its semi-axes' floor, and an estimate is a start
+        // (`Estimate::to_init`), which needs 2 px at least ([`Init::check`]).
+        if self.filter.min_axis < MIN_START_AXIS {
+            return Err(bad(format!(
+                "filter.min_axis {} px: at least {MIN_START_AXIS} px, the least semi-axis a \
+                 start may have, since every estimate must be one",
+                short(self.filter.min_axis)
+            )));
+        }
         if self.likelihood.terms & crate::likelihood::TERM_CONTRAST != 0 && self.contrast.is_none()
         {
             return Err(bad(
@@ -214,6 +230,16 @@ impl TrackerConfig {
             self.init_refine.as_ref().map(|p| p.check()),
             "to keep the given ellipse",
         )?;
+        // The refinement scores outlines with the gradient term's settings, on or off.
+        if self.init_refine.is_some() {
+            let scoring = super::init_refine::scoring_params(&self.likelihood);
+            scoring.check().map_err(|e| {
+                TrackError::BadConfig(format!(
+                    "init_refine scores outlines with the gradient settings: {e}; set \
+                     init_refine to None to keep the given ellipse"
+                ))
+            })?;
+        }
         if let Some(d) = self.sift_upsample_below
             && !(d.is_finite() && d > 0.0)
         {
@@ -471,6 +497,16 @@ mod tests {
         let mut c = d();
         c.filter.min_axis = f64::NAN;
         cases.push((c, "min_axis NaN"));
+        // An estimate under 2 px would be a start `reinit` refuses.
+        let mut c = d();
+        c.filter.min_axis = 0.5;
+        cases.push((c, "filter.min_axis 0.5"));
+        // The start's refinement scores outlines with the gradient settings, term on or off.
+        let mut c = d();
+        c.likelihood.terms = crate::likelihood::TERM_COLOUR;
+        c.likelihood.sigma_z = 0.0;
+        c.init_refine = Some(Default::default());
+        cases.push((c, "init_refine"));
         // Re-acquisition weighs by colour even when the filter's weights do not.
         let mut c = d();
         c.likelihood.terms = crate::likelihood::TERM_GRADIENT;

@@ -119,6 +119,15 @@ impl Scorer<'_> {
     }
 }
 
+/// `params` as the refinement reads them: its outline score is the gradient term's, whether
+/// or not the filter's weights use it, so the gradient settings are checked as if it were on.
+pub(crate) fn scoring_params(params: &LikelihoodParams) -> LikelihoodParams {
+    LikelihoodParams {
+        terms: params.terms | crate::likelihood::TERM_GRADIENT,
+        ..*params
+    }
+}
+
 /// The ellipse near `init` whose outline best lies on edges and whose inside best differs in
 /// colour from its surroundings (see the module documentation): centre within
 /// `max_shift · min(a, b)` of the initial one, semi-axes within a factor `1 ± max_scale` of
@@ -132,7 +141,7 @@ pub fn refine_ellipse(
     params: &LikelihoodParams,
     cfg: &InitRefine,
 ) -> Result<Ellipse, TrackError> {
-    params
+    scoring_params(params)
         .check()
         .map_err(|e| TrackError::BadConfig(e.to_string()))?;
     cfg.check().map_err(TrackError::BadConfig)?;
