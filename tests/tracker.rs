@@ -998,6 +998,71 @@ fn grayscale_footage_gets_luma_bins_and_is_followed() {
     assert!(worst < 5.0, "centre off by {worst:.2} px");
 }
 
+/// A target lost before the footage turns grey is found again in the grey frames: the luma
+/// model comes from the colour start's own frame (a lost track has nowhere else to learn
+/// it). Before, the switch to luma waited for a followed frame, which the RGB model, scoring
+/// every grey place 0, never gave: lost for the whole grey stretch. The same with
+/// `lost_after` 1, where the first grey frame alone declared the target lost.
+#[test]
+fn a_target_lost_before_the_footage_turns_grey_is_found_in_it() {
+    let r = Renderer::new(&SynthConfig::new(Scenario::Nod)).unwrap();
+    // Frames 10-17 a noisy magenta screen (colour, no target), grey from frame 18 on.
+    let shown = |k: usize| {
+        let img = r.render(k).0;
+        match k {
+            10..=17 => image::RgbImage::from_fn(img.width(), img.height(), |x, y| {
+                let n = ((x * 7 + y * 13 + k as u32 * 5) % 23) as u8;
+                image::Rgb([200 + n, 20 + n, 190 + n])
+            }),
+            18.. => greyed(&img),
+            _ => img,
+        }
+    };
+    let grey_from_10 = |k: usize| {
+        let img = r.render(k).0;
+        if k >= 10 { greyed(&img) } else { img }
+    };
+    type Shown<'a> = &'a dyn Fn(usize) -> image::RgbImage;
+    let seq: [(Shown, TrackerConfig, usize); 2] = [
+        (&shown, TrackerConfig::default(), 18),
+        (
+            &grey_from_10,
+            TrackerConfig {
+                lost_after: 1,
+                ..TrackerConfig::default()
+            },
+            10,
+        ),
+    ];
+    for (case, (frame, cfg, grey_from)) in seq.into_iter().enumerate() {
+        let mut t = Tracker::new(cfg, &frame(0), Init::frontal(r.init_ellipse())).unwrap();
+        let mut lost_on = Vec::new();
+        let mut worst: f64 = 0.0;
+        for k in 1..40 {
+            let e = t.step(&frame(k)).unwrap();
+            if e.lost {
+                lost_on.push(k);
+            }
+            if k >= grey_from + 10 {
+                let truth = r.truth(k);
+                worst = worst.max((e.state.cx - truth.cx).hypot(e.state.cy - truth.cy));
+            }
+        }
+        if case == 0 {
+            assert!(
+                lost_on.contains(&12),
+                "case {case}: never lost: {lost_on:?}"
+            );
+        }
+        // Found again within a few grey frames, and followed from there.
+        assert!(
+            lost_on.iter().all(|&k| k < grey_from + 5),
+            "case {case}: lost on {lost_on:?}"
+        );
+        assert!(worst < 5.0, "case {case}: centre off by {worst:.2} px");
+    }
+}
+
 /// Mean and largest relative error of the ellipse's size `sqrt(a b)` over a track.
 fn size_errors((est, truth): &Track) -> (f64, f64) {
     let errs: Vec<f64> = est
@@ -1030,6 +1095,46 @@ fn the_contrast_term_keeps_the_ellipse_to_the_targets_size() {
     eprintln!("size error (mean, max): with contrast {with:?}, without {without:?}");
     assert!(with.0 < 0.02 && with.1 < 0.07, "{with:?}");
     assert!(with.0 < without.0, "{with:?} against {without:?}");
+}
+
+/// The contrast term's flag given in the settings, on a start whose ring around the ellipse
+/// holds no pixel (a target filling the frame): the term has no background there, so the
+/// tracker leaves it off, and the track goes on (every step had failed for want of a table).
+#[test]
+fn the_contrast_flag_on_a_target_filling_the_frame_leaves_the_term_off() {
+    let r = Renderer::new(&SynthConfig::new(Scenario::Nod)).unwrap();
+    let (first, _) = r.render(0);
+    let mut tc = TrackerConfig::default();
+    tc.likelihood.terms = pftrack::likelihood::TERM_ALL;
+    assert!(tc.contrast.is_some());
+    let fill = Ellipse {
+        cx: 79.5,
+        cy: 59.5,
+        a: 100.0,
+        b: 100.0,
+        theta: 0.0,
+    };
+    let mut t = Tracker::new(tc.clone(), &first, Init::frontal(fill)).unwrap();
+    for k in 1..4 {
+        let est = t.step(&r.render(k).0).unwrap();
+        assert!(est.state.cx.is_finite() && est.confidence.is_finite());
+    }
+    // Where the ring has pixels, the flag given is the term the tracker turns on anyway.
+    let mut given = Tracker::new(tc, &first, Init::frontal(r.init_ellipse())).unwrap();
+    let mut default = Tracker::new(
+        TrackerConfig::default(),
+        &first,
+        Init::frontal(r.init_ellipse()),
+    )
+    .unwrap();
+    for k in 1..4 {
+        let img = r.render(k).0;
+        assert_eq!(
+            given.step(&img).unwrap(),
+            default.step(&img).unwrap(),
+            "frame {k}"
+        );
+    }
 }
 
 /// The proposal leaves the semi-axes alone unless `motion_scale` is on: with no axis noise in

@@ -46,6 +46,7 @@ mod pool;
 mod recovery;
 mod spin;
 
+pub use checks::MIN_START_AXIS;
 pub use config::{
     AnchorRefit, BundleAdjust, ColourUpdate, Contrast, HFOV_RANGE_DEG, Init, MAX_DEPTH_RATIO,
     MAX_WEIGHT, Mode, Reanchor, TemplateTerm, TrackerConfig,
@@ -305,6 +306,9 @@ pub struct Tracker {
     /// The RGB colour model and background, put aside while the footage is grey
     /// ([`Tracker::switch_colour_bins`]).
     other_appearance: Option<(ColourHistogram, Option<ColourHistogram>)>,
+    /// The target's luma appearance on a colour start's frame: what a switch to luma bins
+    /// takes while the target is lost, with no place to learn one at.
+    luma_start: Option<(ColourHistogram, Option<ColourHistogram>)>,
     /// Frames in a row of the other kind (grey where the colour term counts RGB, colour
     /// where it counts luma), up to [`GREY_SWITCH_AFTER`].
     other_kind_frames: usize,
@@ -487,6 +491,7 @@ impl Tracker {
             colour_model: ColourHistogram(Vec::new()),
             background: None,
             other_appearance: None,
+            luma_start: None,
             other_kind_frames: 0,
             template: None,
             correlations: Vec::new(),
@@ -531,8 +536,12 @@ impl Tracker {
         init.check_for(&self.cfg, w, h).map_err(track_err)?;
         self.engine
             .check_capacity(self.cfg.filter.particles, w, h, &self.cfg.likelihood)?;
-        // Grey footage gets luma bins, decided on each start's own frame.
+        // Grey footage gets luma bins, decided on each start's own frame. The contrast term
+        // is the tracker's to turn on, on the frames where it has a background
+        // (`enable_contrast`): a start whose ring holds no pixel (a target filling the frame)
+        // has none, and the flag left on would have every step ask for a table never made.
         let mut likelihood = self.cfg.likelihood;
+        likelihood.terms &= !TERM_CONTRAST;
         if self.cfg.grey_luma && is_grey(frame) {
             likelihood.colour_bins = COLOUR_LUMA;
         }
@@ -591,6 +600,9 @@ impl Tracker {
         self.colour_model = model;
         self.background = background;
         self.other_appearance = None;
+        self.luma_start = (self.cfg.grey_luma && self.likelihood.colour_bins != COLOUR_LUMA)
+            .then(|| self.appearance_at(frame, &init.ellipse, COLOUR_LUMA).ok())
+            .flatten();
         self.other_kind_frames = 0;
         self.send_contrast_table()?;
         let state = PoseState::from_parts(&init.ellipse, init.pose);
@@ -806,7 +818,7 @@ impl Tracker {
     /// pool (one thread a core, or `RAYON_NUM_THREADS`) unless the caller installs its own.
     /// To hold a tracker to `n` threads, build a pool and step inside it:
     /// `pool.install(|| tracker.step(&frame))` with `pool` from
-    /// `rayon::ThreadPoolBuilder::new().num_threads(n).build()`; the output is the same on
+    /// `pftrack::rayon::ThreadPoolBuilder::new().num_threads(n).build()`; the output is the same on
     /// any number of threads. [`crate::likelihood::cpu::CpuEngine::with_threads`] bounds only
     /// the likelihood pass. For the length of a step one thread of the pool, where it has more
     /// than one, waits for the step's parallel work without sleeping: it runs any work the
@@ -1290,8 +1302,10 @@ impl Tracker {
     /// frame; an infrared image shows it in other grey levels than the luma of its colours,
     /// so the new frame, not the old one). RGB is the model and background put aside when the
     /// footage turned grey, or, for a track started on grey frames, learnt the same way. A
-    /// lost track, or an estimate that holds no pixel of the frame, teaches nothing: the
-    /// switch waits for a frame where the target is followed.
+    /// lost track, or an estimate that holds no pixel of the frame, teaches nothing: a lost
+    /// track turning to luma takes the luma of its colour start's frame at the start's
+    /// ellipse instead, and otherwise the switch waits for a frame where the target is
+    /// followed.
     fn switch_colour_bins(&mut self, frame: &image::RgbImage, at: &Ellipse) -> crate::Result<bool> {
         let to_luma = self.likelihood.colour_bins != COLOUR_LUMA;
         let bins = if to_luma {
@@ -1304,12 +1318,20 @@ impl Tracker {
             other => {
                 self.other_appearance = other;
                 if self.lost {
-                    return Ok(false);
+                    // The estimate rests on nothing to learn from: the start's own luma
+                    // appearance, so that the lost target can be recognised in the grey
+                    // frames (the RGB model shares no bin with them, and scores every
+                    // place 0).
+                    match self.luma_start.clone().filter(|_| to_luma) {
+                        Some(start) => start,
+                        None => return Ok(false),
+                    }
+                } else {
+                    let Ok(learnt) = self.appearance_at(frame, at, bins) else {
+                        return Ok(false);
+                    };
+                    learnt
                 }
-                let Ok(learnt) = self.appearance_at(frame, at, bins) else {
-                    return Ok(false);
-                };
-                learnt
             }
         };
         self.engine.set_colour_model(&model)?;
