@@ -37,6 +37,10 @@ pub use image;
 /// 2x2 blocks of the solvers, translations), re-exported so that a caller names them in the
 /// same version.
 pub use nalgebra;
+/// The `rayon` crate whose thread pools run the CPU path, re-exported so that an embedding
+/// program sets the threads of a tracker (`ThreadPool::install` around its calls) without a
+/// dependency of its own.
+pub use rayon;
 /// The `wgpu` crate the GPU engine runs on, re-exported so that an application that opens its
 /// own device for it ([`likelihood::gpu::GpuDevice::from_wgpu`]) uses the same version.
 pub use wgpu;
