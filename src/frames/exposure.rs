@@ -137,7 +137,12 @@ const FLOOR: f64 = 0.02;
 /// four real sequences no run of such changes passes 7.8 %), and a slow change of light is
 /// left to the models that adapt. More than half of the frame changing at once (a large
 /// object, a pan onto a brighter scene, a cut) reads as a change of light to the frame's
-/// median; the target's box, given, must read it too ([`Compensator::next`]).
+/// median; the target's box, given, must read it too ([`Compensator::next`]). While a change
+/// is undone, each frame is also measured directly against the last frame handed on as it
+/// was: light back where it was there is undone no more, whatever the changes counted one
+/// by one add up to (a strobe's flashes, or a cut away and back, leave nothing behind).
+/// A frame too dark or too bright to measure is passed over: the next one is measured
+/// against the last that could be.
 #[derive(Debug, Clone)]
 pub struct Compensator {
     jump: f64,
@@ -154,6 +159,11 @@ pub struct Compensator {
     prev: RgbImage,
     samples: (Vec<[u8; 3]>, Vec<[u8; 3]>),
     ratios: Vec<f32>,
+    /// The last frame handed on as it was (unit gain, no change of light being taken), sampled
+    /// over the whole frame, its size,
+    /// and `total` then: what a frame in other light is measured against directly, to see
+    /// the light come back ([`Compensator::next`]).
+    reference: (Vec<[u8; 3]>, (u32, u32), [f64; 3]),
 }
 
 impl Compensator {
@@ -168,6 +178,7 @@ impl Compensator {
             prev: RgbImage::new(0, 0),
             samples: (Vec::new(), Vec::new()),
             ratios: Vec::new(),
+            reference: (Vec::new(), (0, 0), [0.0; 3]),
         }
     }
 
@@ -177,6 +188,34 @@ impl Compensator {
         self.run = [(0.0, false, 0.0); 3];
         self.total = [0.0; 3];
         self.keep(frame);
+        self.take_reference(frame);
+    }
+
+    /// Samples `frame` over the whole of it ([`sample`], about 2000 pixels) into `out`.
+    fn sample_whole(frame: &RgbImage, out: &mut Vec<[u8; 3]>) {
+        let (w, h) = frame.dimensions();
+        sample(frame, [0, 0, w, h], stride_for(w, h), out);
+    }
+
+    /// Takes `frame`, handed on as it is, as the reference light.
+    fn take_reference(&mut self, frame: &RgbImage) {
+        let (samples, size, total) = &mut self.reference;
+        Self::sample_whole(frame, samples);
+        *size = frame.dimensions();
+        *total = self.total;
+    }
+
+    /// Whether `frame` is in the reference's light: its gain from the reference frame,
+    /// measured directly, within the floor of 1 in every channel.
+    fn in_reference_light(&mut self, frame: &RgbImage) -> bool {
+        let (samples, size, _) = &self.reference;
+        if *size != frame.dimensions() || samples.is_empty() {
+            return false;
+        }
+        let cur = &mut self.samples.1;
+        Self::sample_whole(frame, cur);
+        gains_of(samples, cur, &mut self.ratios)
+            .is_some_and(|g| g.iter().all(|g| g.ln().abs() <= FLOOR))
     }
 
     /// Keeps `frame` as the previous one, reusing the buffer.
@@ -222,6 +261,7 @@ impl Compensator {
         frame: &'a RgbImage,
         target: Option<[u32; 4]>,
     ) -> std::borrow::Cow<'a, RgbImage> {
+        let undoing = self.gain != [1.0; 3];
         let (w, h) = frame.dimensions();
         let measured = self.gains_over(frame, [0, 0, w, h]);
         let on_target = target.and_then(|b| self.gains_over(frame, b));
@@ -268,7 +308,20 @@ impl Compensator {
             // Within the floor of 1 is the start's light.
             *g = if held.abs() <= FLOOR { 1.0 } else { held.exp() };
         }
-        if self.gain == [1.0; 3] {
+        // Light back where it was on the last frame handed on as it was, measured against
+        // that frame directly (where a change was being undone, or one is taken): nothing is
+        // undone, and the changes counted since are dropped.
+        // Counted one by one, the changes into other light and back need not cancel (8-bit
+        // values' ratios are biased one way, and a cut to another scene and back measures
+        // two different medians), and what they leave would be undone on every later frame.
+        if (undoing || self.run.iter().any(|r| r.1)) && self.in_reference_light(frame) {
+            self.gain = [1.0; 3];
+            self.total = self.reference.2;
+            self.run = [(0.0, false, 0.0); 3];
+        }
+        let taken = self.run.iter().any(|r| r.1);
+        if self.gain == [1.0; 3] && !taken {
+            self.take_reference(frame);
             std::borrow::Cow::Borrowed(frame)
         } else {
             std::borrow::Cow::Owned(undo_gain(frame, self.gain))
@@ -535,6 +588,67 @@ mod tests {
         assert_gain_near(&c, 0.5);
         c.next(&f, None);
         assert_eq!(c.gain(), [1.0; 3]);
+    }
+
+    /// `f` with a little noise of its own for `k` (up to a level either way, as a sensor
+    /// gives), and its light scaled by `g` with the values cut down to whole levels, as a
+    /// camera's do.
+    fn noisy(f: &RgbImage, k: u32, g: f64) -> RgbImage {
+        let mut out = f.clone();
+        for (x, y, p) in out.enumerate_pixels_mut() {
+            for (ch, v) in p.0.iter_mut().enumerate() {
+                let n = f64::from((x * 7 + y * 11 + k * 13 + ch as u32 * 5) % 3) - 1.0;
+                *v = ((f64::from(*v) + n) * g).floor().clamp(0.0, 255.0) as u8;
+            }
+        }
+        out
+    }
+
+    /// A strobe on noisy frames of whole levels, then steady light: once the strobe stops,
+    /// nothing is undone. Counted frame by frame, each dark frame and the bright one after
+    /// it did not cancel (the ratios of whole levels lean one way), and 30 flashes left a
+    /// gain of several percent undone on every frame after them.
+    #[test]
+    fn a_strobe_on_whole_levels_leaves_no_gain_behind() {
+        let f = textured(80, 60);
+        let mut c = Compensator::new(0.15);
+        c.reset(&noisy(&f, 0, 1.0));
+        for k in 1..=60 {
+            let g = if k % 2 == 1 { 0.5 } else { 1.0 };
+            c.next(&noisy(&f, k, g), None);
+            assert_gain_near(&c, g);
+        }
+        for k in 61..70 {
+            c.next(&noisy(&f, k, 1.0), None);
+            assert_eq!(c.gain(), [1.0; 3], "frame {k}");
+        }
+    }
+
+    /// A cut to another scene for a few frames, then back: the changes measured into the
+    /// other scene and out of it are medians of different things and need not cancel, but
+    /// the light is the start's again, and nothing is undone.
+    #[test]
+    fn a_cut_away_and_back_leaves_no_gain_behind() {
+        let f = textured(80, 60);
+        // A darker scene of other colours, with its own noise on each frame.
+        let other = RgbImage::from_fn(80, 60, |x, y| {
+            let v = |m: u32| (20 + (x * m * 3 + y * (m + 1) * 5) % 120) as u8;
+            image::Rgb([v(5), v(2), v(9)])
+        });
+        let mut c = Compensator::new(0.15);
+        c.reset(&f);
+        for k in 1..=4 {
+            c.next(&noisy(&other, k, 1.0), None);
+        }
+        assert_ne!(
+            c.gain(),
+            [1.0; 3],
+            "the cut was not taken as a change of light"
+        );
+        for k in 5..10 {
+            c.next(&noisy(&f, k, 1.0), None);
+            assert_eq!(c.gain(), [1.0; 3], "frame {k}");
+        }
     }
 
     /// A strobe (every second frame at half the light) is undone on its dark frames, and once
