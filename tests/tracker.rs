@@ -1137,6 +1137,43 @@ fn the_contrast_flag_on_a_target_filling_the_frame_leaves_the_term_off() {
     }
 }
 
+/// Frames handed over in a camera's layout (BGRA rows padded to a stride) track as the same
+/// frames in RGB do, and a view of another size is refused without changing the track.
+#[test]
+fn frames_in_a_cameras_buffer_track_as_rgb_frames_do() {
+    use pftrack::frames::{FrameView, PixelFormat};
+    let r = Renderer::new(&SynthConfig::new(Scenario::Nod)).unwrap();
+    let (first, _) = r.render(0);
+    let init = Init::frontal(r.init_ellipse());
+    let mut by_rgb = Tracker::new(TrackerConfig::default(), &first, init).unwrap();
+    let mut by_view = Tracker::new(TrackerConfig::default(), &first, init).unwrap();
+    let (w, h) = first.dimensions();
+    let stride = 4 * w as usize + 12;
+    for k in 1..6 {
+        let img = r.render(k).0;
+        let mut bgra = vec![0u8; stride * h as usize];
+        for (x, y, p) in img.enumerate_pixels() {
+            let at = y as usize * stride + 4 * x as usize;
+            bgra[at..at + 4].copy_from_slice(&[p.0[2], p.0[1], p.0[0], 255]);
+        }
+        let view = FrameView::new(&bgra, w, h, stride, PixelFormat::Bgra8).unwrap();
+        if k == 3 {
+            // A view of another size: refused, and the next frame steps as if it had not come.
+            let small = FrameView::new(&bgra, w - 1, h, stride, PixelFormat::Bgra8).unwrap();
+            let err = by_view.step_view(&small).unwrap_err();
+            assert!(
+                matches!(err, pftrack::Error::Track(TrackError::FrameSize { .. })),
+                "{err}"
+            );
+        }
+        assert_eq!(
+            by_view.step_view(&view).unwrap(),
+            by_rgb.step(&img).unwrap(),
+            "frame {k}"
+        );
+    }
+}
+
 /// The proposal leaves the semi-axes alone unless `motion_scale` is on: with no axis noise in
 /// the filter (Σ_G and Σ_P zero on `a` and `b`), a track of the approaching head keeps the
 /// first ellipse's size exactly by default, and follows the measured growth with the option.

@@ -31,6 +31,7 @@ pub mod exposure;
 pub mod ffmpeg;
 pub mod gray;
 pub mod resize;
+pub mod view;
 pub mod y4m;
 
 use std::fs::File;
@@ -40,6 +41,7 @@ use std::path::Path;
 pub use ffmpeg::FfmpegTools;
 pub use gray::GrayF32;
 pub use resize::{Rescale, resize_bilinear};
+pub use view::{FrameView, PixelFormat};
 pub use y4m::{Y4mHeader, Y4mReader};
 
 /// One video frame, 8-bit RGB.
@@ -151,6 +153,13 @@ pub enum FrameError {
         limit: u64,
         /// Whether scaling the frames down would do (the stored size was within bounds).
         resizable: bool,
+    },
+    /// A pixel buffer that holds no frame of the size and layout given
+    /// ([`view::FrameView::new`]).
+    #[error("frame buffer: {msg}")]
+    BadView {
+        /// What is wrong.
+        msg: String,
     },
     /// A bad `WxH` size.
     #[error("bad size '{input}': {msg}")]

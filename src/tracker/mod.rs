@@ -58,7 +58,7 @@ use nalgebra::{Matrix3, Vector3};
 use crate::features::{Features, Sift, keep_slope_length, match_features};
 use crate::filter::rotation_mean::{exp_so3, log_so3};
 use crate::filter::{AspectRange, Hypothesis, Motion, ParticleFilter, SizeRange};
-use crate::frames::GrayF32;
+use crate::frames::{FrameView, GrayF32};
 use crate::geometry::{BoxRect, Ellipse, Euler, PoseState, deg};
 use crate::likelihood::cpu::colour::rho_from_log;
 use crate::likelihood::{
@@ -306,6 +306,8 @@ pub struct Tracker {
     /// The RGB colour model and background, put aside while the footage is grey
     /// ([`Tracker::switch_colour_bins`]).
     other_appearance: Option<(ColourHistogram, Option<ColourHistogram>)>,
+    /// The buffer [`Tracker::step_view`] turns a view's pixels into, kept for the next.
+    view_frame: image::RgbImage,
     /// The target's luma appearance on a colour start's frame: what a switch to luma bins
     /// takes while the target is lost, with no place to learn one at.
     luma_start: Option<(ColourHistogram, Option<ColourHistogram>)>,
@@ -492,6 +494,7 @@ impl Tracker {
             background: None,
             other_appearance: None,
             luma_start: None,
+            view_frame: image::RgbImage::new(0, 0),
             other_kind_frames: 0,
             template: None,
             correlations: Vec::new(),
@@ -804,6 +807,19 @@ impl Tracker {
     /// ([`crate::likelihood::FallbackEngine`]). Callers should show it to the user.
     pub fn take_engine_notice(&mut self) -> Option<String> {
         self.engine.take_notice()
+    }
+
+    /// [`Self::step`] on a frame in someone else's buffer (a camera's BGR or BGRA rows with
+    /// padding, say): its pixels are turned into RGB in a buffer the tracker keeps, which
+    /// frames of one size reuse, so no frame allocates. The same estimate as
+    /// [`Self::step`] on [`FrameView::to_rgb`]'s image (tested). A view of another size than
+    /// the start's is refused and changes nothing, as there.
+    pub fn step_view(&mut self, view: &FrameView) -> crate::Result<Estimate> {
+        let mut frame = std::mem::replace(&mut self.view_frame, image::RgbImage::new(0, 0));
+        view.write_rgb(&mut frame);
+        let stepped = self.step(&frame);
+        self.view_frame = frame;
+        stepped
     }
 
     /// Tracks the target into the next frame.
