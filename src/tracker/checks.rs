@@ -258,6 +258,17 @@ impl TrackerConfig {
             self.anchor_refit.as_ref().map(|p| p.check()),
             "to measure against the nearest views alone",
         )?;
+        // An anchor fit of fewer matches than any fit needs is taken, and then counts as no
+        // fit at all when the next keyframe is weighed: one would be due on every frame.
+        if let Some(r) = &self.anchor_refit
+            && r.min_inliers < self.min_fit_inliers
+        {
+            return Err(TrackError::BadConfig(format!(
+                "anchor_refit.min_inliers {} is fewer than min_fit_inliers {}: the anchor's fit \
+                 needs at least the matches any fit does",
+                r.min_inliers, self.min_fit_inliers
+            )));
+        }
         check_part(
             "colour_update",
             self.colour_update.as_ref().map(|p| p.check()),
@@ -497,6 +508,11 @@ mod tests {
         let mut c = d();
         c.filter.min_axis = f64::NAN;
         cases.push((c, "min_axis NaN"));
+        let mut c = d();
+        if let Some(r) = c.anchor_refit.as_mut() {
+            r.min_inliers = 8;
+        }
+        cases.push((c, "anchor_refit.min_inliers 8"));
         // An estimate under 2 px would be a start `reinit` refuses.
         let mut c = d();
         c.filter.min_axis = 0.5;

@@ -913,7 +913,8 @@ impl BundleAdjust {
 pub struct AnchorRefit {
     /// Largest RMS reprojection error (pixels) over the inliers; 0.5 by default.
     pub max_residual: f64,
-    /// Fewest inlier matches (at least 6, the fit's parameters); 14 by default.
+    /// Fewest inlier matches (at least 6, the fit's parameters, and at least
+    /// [`TrackerConfig::min_fit_inliers`], checked by [`TrackerConfig::check`]); 14 by default.
     pub min_inliers: usize,
 }
 
