@@ -414,10 +414,24 @@ impl KeyframePool {
         n < min_inliers.max(initial * refresh_percent / 100)
     }
 
-    /// Adds a keyframe; when the pool is full, the non-anchor keyframe nearest the new one in
-    /// rotation gives way (the anchor, the first view, is never dropped).
-    pub fn add(&mut self, features: &Features, e: &Ellipse, hyp: Hypothesis, model: Ellipsoid) {
+    /// Adds a keyframe of the features inside `e`, where there are at least `min_features`
+    /// of them (a fit needs that many matches), and says whether it did; when the pool is
+    /// full, the non-anchor keyframe nearest the new one in rotation gives way (the anchor,
+    /// the first view, is never dropped). A view with fewer features (a blurred frame, or a
+    /// frame SIFT skipped) could never be fitted, and would push out the keyframe best placed
+    /// for its pose.
+    pub fn add(
+        &mut self,
+        features: &Features,
+        e: &Ellipse,
+        hyp: Hypothesis,
+        model: Ellipsoid,
+        min_features: usize,
+    ) -> bool {
         let k = make(features, e, hyp, model, self.now);
+        if k.features.keypoints.len() < min_features {
+            return false;
+        }
         if self.frames.len() >= self.capacity {
             let victim = self
                 .frames
@@ -435,6 +449,7 @@ impl KeyframePool {
         } else {
             self.frames.push(k);
         }
+        true
     }
 }
 
@@ -512,12 +527,14 @@ mod tests {
             &e,
             hyp(Euler::from_degrees(20.0, 0.0, 0.0)),
             model(),
+            3,
         );
         pool.add(
             &features(4),
             &e,
             hyp(Euler::from_degrees(-20.0, 0.0, 0.0)),
             model(),
+            3,
         );
         assert_eq!(pool.len(), 3);
         pool.add(
@@ -525,20 +542,28 @@ mod tests {
             &e,
             hyp(Euler::from_degrees(25.0, 0.0, 0.0)),
             model(),
+            3,
         );
         assert_eq!(pool.len(), 3);
-        let angles: Vec<f64> = pool
-            .frames
-            .iter()
-            .map(|k| Euler::from_matrix(&k.hyp.rot).rx.to_degrees().round())
-            .collect();
-        assert_eq!(angles, vec![0.0, 25.0, -20.0]);
+        let angles = |pool: &KeyframePool| -> Vec<f64> {
+            pool.frames
+                .iter()
+                .map(|k| Euler::from_matrix(&k.hyp.rot).rx.to_degrees().round())
+                .collect()
+        };
+        assert_eq!(angles(&pool), vec![0.0, 25.0, -20.0]);
+        // A view with fewer features than a fit needs is no keyframe, and pushes none out
+        // (here 4 features, with 5 needed; none at all, as on a frame SIFT skipped).
+        let h = hyp(Euler::from_degrees(24.0, 0.0, 0.0));
+        assert!(!pool.add(&features(4), &e, h, model(), 5));
+        assert!(!pool.add(&Features::default(), &e, h, model(), 3));
+        assert_eq!(angles(&pool), vec![0.0, 25.0, -20.0]);
         // A pool asked to hold one keyframe holds two: the anchor stays.
         let mut pool = KeyframePool::new(1);
         pool.reset(&features(4), &e, hyp(Euler::default()), model());
         for deg in [10.0, 20.0] {
             let h = hyp(Euler::from_degrees(deg, 0.0, 0.0));
-            pool.add(&features(4), &e, h, model());
+            pool.add(&features(4), &e, h, model(), 3);
         }
         let first = Euler::from_matrix(&pool.frames[0].hyp.rot).rx;
         assert_eq!((pool.len(), first), (2, 0.0));
@@ -713,7 +738,7 @@ mod tests {
             .collect();
         let mut pool = KeyframePool::new(4);
         pool.reset(&feats, &e, key, m);
-        pool.add(&feats, &e, key, m);
+        pool.add(&feats, &e, key, m, 3);
         let cfg = BundleAdjust::default();
         let view = |k: usize, index: usize| {
             let turn = Euler::from_degrees(0.0, 4.0 * k as f64, 0.0).matrix();

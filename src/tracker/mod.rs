@@ -840,7 +840,11 @@ impl Tracker {
     /// than one, waits for the step's parallel work without sleeping: it runs any work the
     /// pool has, yields its core to any other thread that wants it, and rests while an engine
     /// that works elsewhere (a GPU) evaluates. Waking a sleeping thread costs more than most of
-    /// the step's forks save, some 30 µs on a virtual machine.
+    /// the step's forks save, some 30 µs on a virtual machine. That thread runs whatever the
+    /// pool has queued, so a step called while holding a lock that other jobs of the same pool
+    /// wait for (trackers behind mutexes, stepped from a `par_iter` over frames) can deadlock,
+    /// and does more often than plain rayon would: step outside such locks, or give the
+    /// trackers a pool of their own.
     ///
     /// Errors: a frame of another size than the start's is refused and changes nothing (the
     /// next frame steps as if it had not come). An error after that (the likelihood engine's:
@@ -1236,7 +1240,8 @@ impl Tracker {
         if due && !self.unsure() {
             let e = state.ellipse(self.theta0);
             let model = self.model(&est.rot, &e);
-            self.keyframes.add(&features, &e, est, model);
+            self.keyframes
+                .add(&features, &e, est, model, self.cfg.min_fit_inliers);
         }
         self.prev_features = features;
         self.frame = index;
