@@ -17,7 +17,9 @@ pub struct SynthArgs {
     #[arg(long, default_value = "combo", value_parser = crate::values::scenario)]
     pub scenario: Scenario,
     /// Number of frames (default: the scenario's own, e.g. 180 for nod, 2400 for long). The
-    /// scenario's whole motion plays over them: fewer frames, faster motion per frame.
+    /// scenario's whole motion plays over them: fewer frames, faster motion per frame (and
+    /// very few sample it coarsely: nod, pan, roll and depth swing out and back, so over 2 or
+    /// 3 frames they do not move at all).
     #[arg(long)]
     pub frames: Option<usize>,
     /// Image size WIDTHxHEIGHT, 24 to 8192 pixels a side, 2^25 pixels (8192x4096) at most in all, as `track` reads frames.
