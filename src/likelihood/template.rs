@@ -402,8 +402,9 @@ struct CameraF32 {
     principal: [f32; 2],
 }
 
-/// The smallest `1 + z / focal` a projection divides by.
-const MIN_DEPTH_FACTOR: f32 = 0.05;
+/// The smallest `1 + z / focal` a projection divides by, as the keyframe fits' projection
+/// holds it ([`crate::pose::prior`]).
+const MIN_DEPTH_FACTOR: f32 = crate::pose::prior::MIN_DEPTH_FACTOR as f32;
 
 impl From<&Pinhole> for CameraF32 {
     fn from(c: &Pinhole) -> Self {

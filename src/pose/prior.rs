@@ -333,9 +333,17 @@ pub fn view_of(
     project(x, r, s, t, camera).0
 }
 
+/// The smallest `1 + z / focal` a projection divides by: a point of the model nearer the
+/// camera than that is taken at that depth. The camera's plane lies at `1 + z / focal = 0`,
+/// which a model point reaches only where the object's image is wider than the focal length
+/// (a wide field of view and a near target: the model's depths are then too deep for the
+/// camera), and past which the projection would mirror.
+pub(crate) const MIN_DEPTH_FACTOR: f64 = 0.05;
+
 /// The image of the lifted point `x` in a view where the object has turned by `r`, is seen at
 /// scale `s` relative to the keyframe and its centre projects to `t`; with the Jacobian of
-/// that image with respect to `(ω, ln s, t)` (a rotation update `exp(ω) r`).
+/// that image with respect to `(ω, ln s, t)` (a rotation update `exp(ω) r`). With a camera,
+/// `1 + s y_z / f` is held at [`MIN_DEPTH_FACTOR`] at least, where it does not change.
 pub(crate) fn project(
     x: &Vector3<f64>,
     r: &Matrix3<f64>,
@@ -362,16 +370,19 @@ pub(crate) fn project(
         Some(c) => {
             // q = pp + ((t - pp) + s y_xy) / (1 + s y_z / f)
             let f = c.focal;
-            let g = 1.0 + s * y.z / f;
+            let free = 1.0 + s * y.z / f;
+            let g = free.max(MIN_DEPTH_FACTOR);
+            // Held at the floor, `g` does not move with the pose.
+            let moves = if free >= MIN_DEPTH_FACTOR { 1.0 } else { 0.0 };
             let n = Vector2::new(t.x - c.principal.x + s * y.x, t.y - c.principal.y + s * y.y);
             let q = c.principal + n / g;
             let g2 = g * g;
             for k in 0..3 {
-                let dg = s * dy[(2, k)] / f;
+                let dg = moves * s * dy[(2, k)] / f;
                 jac[(0, k)] = s * dy[(0, k)] / g - n.x * dg / g2;
                 jac[(1, k)] = s * dy[(1, k)] / g - n.y * dg / g2;
             }
-            let dg = s * y.z / f;
+            let dg = moves * s * y.z / f;
             jac[(0, 3)] = s * y.x / g - n.x * dg / g2;
             jac[(1, 3)] = s * y.y / g - n.y * dg / g2;
             jac[(0, 4)] = 1.0 / g;
@@ -1035,12 +1046,36 @@ mod tests {
         assert!(x[0].z < -15.0);
     }
 
+    /// A model point past the camera's plane (an object's image wider than the focal length)
+    /// is held at the smallest depth factor: a finite image on the right side, and the
+    /// Jacobian of that (where before, the image mirrored or went infinite).
+    #[test]
+    fn a_point_past_the_cameras_plane_is_held_in_front_of_it() {
+        let cam = camera();
+        let r = Matrix3::identity();
+        let t = Vector2::new(70.0, 64.0);
+        for z in [-cam.focal, -3.0 * cam.focal] {
+            let x = Vector3::new(7.0, -4.0, z);
+            let (q, jac) = project(&x, &r, 1.0, &t, Some(&cam));
+            let want = cam.principal + (t - cam.principal + x.xy()) / MIN_DEPTH_FACTOR;
+            assert!((q - want).norm() < 1e-9, "{q:?} against {want:?}");
+            assert!(jac.iter().all(|v| v.is_finite()));
+        }
+    }
+
     #[test]
     fn the_jacobian_matches_finite_differences() {
-        let x = Vector3::new(7.0, -4.0, -15.0);
         let r = Euler::from_degrees(12.0, -20.0, 5.0).matrix();
         let t = Vector2::new(70.0, 64.0);
-        for cam in [None, Some(camera())] {
+        // In front of the camera, and held at the depth factor's floor.
+        for (x, cam) in [
+            (Vector3::new(7.0, -4.0, -15.0), None),
+            (Vector3::new(7.0, -4.0, -15.0), Some(camera())),
+            (
+                Vector3::new(7.0, -4.0, -3.0 * camera().focal),
+                Some(camera()),
+            ),
+        ] {
             let (q0, jac) = project(&x, &r, 1.1, &t, cam.as_ref());
             let h = 1e-6;
             for k in 0..6 {
@@ -1055,8 +1090,10 @@ mod tests {
                     cam.as_ref(),
                 );
                 let num = (qk - q0) / h;
+                // Relative past 1: held at the floor, the image moves 20 times as fast.
+                let close = |a: f64, b: f64| (a - b).abs() < 1e-4 * (1.0 + b.abs());
                 assert!(
-                    (num.x - jac[(0, k)]).abs() < 1e-4 && (num.y - jac[(1, k)]).abs() < 1e-4,
+                    close(num.x, jac[(0, k)]) && close(num.y, jac[(1, k)]),
                     "column {k}: {num:?} vs {:?}",
                     jac.column(k)
                 );
