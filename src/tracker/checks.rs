@@ -25,6 +25,12 @@ impl Init {
             )));
         }
         let side = f64::from(w.max(h));
+        if side < MIN_START_AXIS {
+            return Err(TrackError::BadInit(format!(
+                "a {w}x{h} frame holds no start: semi-axes must be at least {MIN_START_AXIS} px \
+                 and at most the frame's longer side"
+            )));
+        }
         if e.a > side || e.b > side {
             return Err(TrackError::BadInit(format!(
                 "semi-axes {} x {} px: at most {side} px each, the {w}x{h} frame's longer side",
@@ -668,5 +674,12 @@ mod tests {
         assert!(zero.check(100, 80).is_err());
         let nan = Init::frontal(Ellipse::new(f64::NAN, 40.0, 10.0, 12.0));
         assert!(nan.check(100, 80).is_err());
+        // A frame smaller than the least start: said so, not "at most 1 px" against "at least 2".
+        let least = Init::frontal(Ellipse::new(0.0, 0.0, 2.0, 2.0));
+        assert!(least.check(2, 1).is_ok());
+        let Err(TrackError::BadInit(why)) = least.check(1, 1) else {
+            panic!("a start in a 1x1 frame passed");
+        };
+        assert!(why.contains("a 1x1 frame holds no start"), "{why}");
     }
 }
