@@ -625,9 +625,10 @@ impl FrameSource {
         }
         match f.len_hint() {
             Some(declared) if self.produced < declared => Some(format!(
-                "{}: ffmpeg decoded {} of the {declared} frames the file declares ({complaint}); \
-                 frames are numbered as decoded, so past a frame lost before the end the numbers \
-                 run behind the video's",
+                "{}: ffmpeg decoded {} of the {declared} frames the file declares, and \
+                 complained ({complaint}: not necessarily about the missing frame, which a \
+                 container may also mark to be skipped); frames are numbered as decoded, so \
+                 if one was lost before the end, the numbers after it run behind the video's",
                 self.path, self.produced
             )),
             Some(_) => None,
