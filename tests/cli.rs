@@ -2283,3 +2283,26 @@ fn cli_track_reads_a_synth_folder_without_its_init_and_refuses_render_to_stdout(
     assert_eq!(std::fs::read(&truth).unwrap(), before);
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+/// An object too large for the frame's height (its size follows the width) is rendered whole
+/// in the truth, and `synth` says that it reaches past the frame; one that fits is rendered
+/// without a word.
+#[test]
+fn synth_warns_where_the_object_reaches_past_the_frame() {
+    for (size, warned) in [("320x96", true), ("160x120", false)] {
+        let dir = tmp_dir(&format!("synth-wide-{size}"));
+        let out = pftrack_ok(&[
+            "synth",
+            dir.to_str().unwrap(),
+            "--scenario",
+            "nod",
+            "--frames",
+            "1",
+            "--size",
+            size,
+        ]);
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(err.contains("reaches past the"), warned, "{size}: {err}");
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+}

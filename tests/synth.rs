@@ -1027,30 +1027,3 @@ fn head_colours_differ_from_the_background_but_overlap() {
     );
     assert!(rho > 0.15, "head trivially separable by colour: {rho}");
 }
-
-/// The object's size follows the frame's width: a frame too wide for its height would cut the
-/// first view's outline, and the start `init.txt` gives, so it is refused with a word on why;
-/// every scenario fits 160x120's proportions, and a tall frame.
-#[test]
-fn a_frame_too_wide_for_the_object_is_refused() {
-    for &sc in Scenario::all() {
-        for (w, h) in [(160, 120), (96, 320), (24, 24)] {
-            let cfg = SynthConfig {
-                width: w,
-                height: h,
-                frames: 2,
-                ..SynthConfig::new(sc)
-            };
-            assert!(Renderer::new(&cfg).is_ok(), "{sc} at {w}x{h}");
-        }
-    }
-    let cfg = SynthConfig {
-        width: 320,
-        height: 96,
-        ..SynthConfig::new(Scenario::Nod)
-    };
-    let Err(e) = Renderer::new(&cfg) else {
-        panic!("320x96 accepted");
-    };
-    assert!(e.to_string().contains("does not fit a 320x96 frame"), "{e}");
-}

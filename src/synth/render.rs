@@ -53,7 +53,7 @@ impl Renderer {
         let texture = SolidTexture::new(cfg.seed, material, texel);
         let trajectory = Trajectory::new(cfg.scenario, cfg.frames, cfg.seed, &orientation0);
         let background = render_background(cfg.seed, cfg.width, cfg.height);
-        let r = Renderer {
+        Ok(Renderer {
             cfg: *cfg,
             camera,
             shape,
@@ -61,27 +61,7 @@ impl Renderer {
             texture,
             background,
             trajectory,
-        };
-        // The object's size follows the width (the camera's field of view is horizontal):
-        // a frame much wider than tall cuts the first view's outline, and with it the start
-        // `init.txt` gives, which would then hold pixels the frame does not have.
-        let e = r.init_ellipse();
-        let (w, h) = (f64::from(cfg.width), f64::from(cfg.height));
-        if e.cx - e.a < -0.5 || e.cx + e.a > w - 0.5 || e.cy - e.b < -0.5 || e.cy + e.b > h - 0.5 {
-            return Err(SynthError::InvalidConfig(format!(
-                "the {} at frame 0 ({:.0}x{:.0} px around {:.0},{:.0}) does not fit a {}x{} \
-                 frame: its size follows the width, so make the frame taller for its width \
-                 (160x120's proportions fit every scenario)",
-                cfg.scenario,
-                2.0 * e.a,
-                2.0 * e.b,
-                e.cx,
-                e.cy,
-                cfg.width,
-                cfg.height
-            )));
-        }
-        Ok(r)
+        })
     }
 
     /// The configuration.

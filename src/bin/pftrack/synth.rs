@@ -50,6 +50,18 @@ pub fn run(args: SynthArgs) -> anyhow::Result<()> {
     let summary = write_sequence(&cfg, &args.dir, std::io::stderr().is_terminal())
         .with_context(|| format!("rendering {} into {}", scenario, args.dir.display()))?;
     let e = summary.init;
+    // The object's size follows the width (the field of view is horizontal): in a frame much
+    // wider than tall it reaches past the top and bottom. The truth stays the whole outline's.
+    let (w, h) = (f64::from(width), f64::from(height));
+    if e.cx - e.a < -0.5 || e.cx + e.a > w - 0.5 || e.cy - e.b < -0.5 || e.cy + e.b > h - 0.5 {
+        errln!(
+            "pftrack: warning: the {scenario} at frame 0 ({:.0}x{:.0} px) reaches past the \
+             {width}x{height} frame's edges: its size follows the width, so the start and the \
+             truth hold pixels the frames do not (a taller frame keeps it whole)",
+            2.0 * e.a,
+            2.0 * e.b
+        );
+    }
     outln!(
         "wrote {} frame{} of '{}' ({}x{}, seed {}) to {}; truth {}; init {:.2},{:.2},{:.2},{:.2}",
         cfg.frames,
