@@ -50,6 +50,10 @@ pub struct PoseArgs {
     pub draw: Option<PathBuf>,
 }
 
+/// The least spread of the matches across their best-fitting line (RMS, pixels) `pose` solves
+/// from: about three times SIFT's error (0.24-0.49 px RMS, `examples/bundle_bias.rs`).
+const MIN_SPREAD_ACROSS_PX: f64 = 1.0;
+
 /// Outlier rejection of `pftrack pose`'s matches.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
 pub enum Reject {
@@ -317,6 +321,19 @@ pub fn run(a: PoseArgs) -> anyhow::Result<()> {
             err
         }
     };
+    // Matches along a line (a textured strip, an edge) determine no turn about it, however
+    // exactly they lie there: refused as the solvers refuse points exactly in line, where
+    // their spread across the line is not several times SIFT's error.
+    if kept >= need
+        && let Some(across) = pftrack::pose::spread_across(&p)
+        && across < MIN_SPREAD_ACROSS_PX
+    {
+        return Err(hint(anyhow::anyhow!(
+            "degenerate point configuration: the {kept} matches lie along a line ({across:.2} \
+             px across it, RMS; {MIN_SPREAD_ACROSS_PX} px at least): the rotation is not \
+             determined"
+        )));
+    }
     /// What the solver gave.
     enum Solved {
         /// The 2x2 block's solvers, completed to the Necker pair.
