@@ -20,8 +20,9 @@ pub struct SiftArgs {
     #[arg(long, value_parser = parse_region, allow_hyphen_values = true)]
     pub region: Option<BoxRect>,
     /// Write keypoints and descriptors as CSV: `x,y,scale,angle_deg,response,octave,d0..d127`
-    /// (`scale` is σ in pixels; OpenCV's `size` is 2σ), `-` for standard output. Without it,
-    /// print a summary.
+    /// (`scale` is σ in pixels; OpenCV's `size` is 2σ; `d0..d127` Lowe's normalised
+    /// descriptor, clipped at 0.2 and normalised again, as integers 0-255: the unit vector
+    /// times 512, as OpenCV stores it), `-` for standard output. Without it, print a summary.
     #[arg(long)]
     pub out: Option<PathBuf>,
     /// Do not double the image for the first octave.
