@@ -2354,3 +2354,35 @@ fn pose_refuses_matches_along_a_line() {
     }
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+/// `pose --draw` draws at `track --render`'s scale (160x120 twice), the ellipse given in green
+/// and the matches as red arrows from where they were to where they went.
+#[test]
+fn pose_draws_the_ellipse_and_the_matches_at_the_renders_scale() {
+    let dir = synth_dir("pose-draw", 6, "160x120");
+    let frame = |k: usize| dir.join(format!("frames/{k:05}.png"));
+    let drawn = dir.join("drawn.png");
+    pftrack_ok(&[
+        "pose",
+        frame(0).to_str().unwrap(),
+        frame(5).to_str().unwrap(),
+        "--ellipse",
+        "79.5,59.5,18.5,24.7",
+        "--draw",
+        drawn.to_str().unwrap(),
+    ]);
+    let img = pftrack::image::open(&drawn).unwrap().to_rgb8();
+    assert_eq!(img.dimensions(), (320, 240));
+    let count = |c: [u8; 3]| img.pixels().filter(|p| p.0 == c).count();
+    // The ellipse's outline, two pixels wide, about 2 pi sqrt((a^2 + b^2) / 2) long at twice
+    // the size: some 270 px of it, twice.
+    assert!(count([40, 220, 40]) > 300, "{}", count([40, 220, 40]));
+    // The green outline passes through the top of the ellipse, (79.5, 34.8) scaled.
+    let top = (2.0 * 79.5 + 0.5) as u32;
+    assert!(
+        (65..72).any(|y| img.get_pixel(top, y).0 == [40, 220, 40]),
+        "no outline at the top"
+    );
+    assert!(count([255, 40, 40]) > 20, "{}", count([255, 40, 40]));
+    std::fs::remove_dir_all(&dir).unwrap();
+}

@@ -66,7 +66,7 @@ pub enum Reject {
 }
 
 /// Draws a line with a small arrow head (nearest-pixel steps).
-fn arrow(img: &mut RgbImage, a: [f64; 2], b: [f64; 2], c: Rgb<u8>) {
+fn arrow(img: &mut RgbImage, a: [f64; 2], b: [f64; 2], c: Rgb<u8>, head: usize) {
     let mut put = |x: f64, y: f64| {
         let (xi, yi) = (x.round() as i64, y.round() as i64);
         if xi >= 0 && yi >= 0 && (xi as u32) < img.width() && (yi as u32) < img.height() {
@@ -84,7 +84,7 @@ fn arrow(img: &mut RgbImage, a: [f64; 2], b: [f64; 2], c: Rgb<u8>) {
         let (ux, uy) = (dx / len, dy / len);
         for s in [-1.0, 1.0] {
             let (hx, hy) = (-ux * 0.8 + s * uy * 0.6, -uy * 0.8 - s * ux * 0.6);
-            for k in 0..=3 {
+            for k in 0..=head {
                 put(b[0] + hx * k as f64, b[1] + hy * k as f64);
             }
         }
@@ -446,9 +446,28 @@ pub fn run(a: PoseArgs) -> anyhow::Result<()> {
         Solved::Essential(r) => show("essential (focal = image width assumed)", &r.rotation)?,
     }
     if let Some(mut file) = draw {
-        let mut img = ib.clone();
+        // Scaled up as `track --render` scales small frames (160x120 twice), so that arrows of
+        // a pixel or two can be seen; the ellipse given is drawn in green beneath them.
+        use pftrack::output::{
+            capped_scale, default_scale,
+            draw::{Rect, draw_ellipse, upscale_nearest},
+        };
+        let k = capped_scale(ib.width(), ib.height(), default_scale(ib.width()));
+        let mut img = upscale_nearest(&ib, k);
+        let s = f64::from(k);
+        // A pixel's centre `x` is the centre of its `k` x `k` block: `k x + (k - 1) / 2`.
+        let at = |v: f64| s * v + 0.5 * (s - 1.0);
+        let clip = Rect {
+            x0: 0,
+            y0: 0,
+            x1: i64::from(img.width()),
+            y1: i64::from(img.height()),
+        };
+        let shown = Ellipse::new(at(e.cx), at(e.cy), s * e.a, s * e.b);
+        draw_ellipse(&mut img, &shown, s, Rgb([40, 220, 40]), None, clip);
         for (p, q) in p.iter().zip(&q) {
-            arrow(&mut img, *p, *q, Rgb([255, 40, 40]));
+            let (a, b) = ([at(p[0]), at(p[1])], [at(q[0]), at(q[1])]);
+            arrow(&mut img, a, b, Rgb([255, 40, 40]), 3 * k as usize);
         }
         pftrack::output::encode_png(&mut file, &img)?;
         let path = file.path().to_path_buf();

@@ -846,17 +846,16 @@ pub fn progress(len: Option<usize>) -> indicatif::ProgressBar {
         None => indicatif::ProgressBar::no_length(),
     };
     // The rate to a tenth of a frame a second (indicatif's own `per_sec` shows four decimals).
-    let style =
-        indicatif::ProgressStyle::with_template("{bar:40} {pos}/{len} frames {fps} {msg}")
-            .map(|s| {
-                s.with_key(
-                    "fps",
-                    |state: &indicatif::ProgressState, w: &mut dyn std::fmt::Write| {
-                        let _ = write!(w, "{:.1}/s", state.per_sec());
-                    },
-                )
-            })
-            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar());
+    let style = indicatif::ProgressStyle::with_template("{bar:40} {pos}/{len} frames {fps} {msg}")
+        .map(|s| {
+            s.with_key(
+                "fps",
+                |state: &indicatif::ProgressState, w: &mut dyn std::fmt::Write| {
+                    let _ = write!(w, "{:.1}/s", state.per_sec());
+                },
+            )
+        })
+        .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar());
     pb.set_style(style);
     pb
 }
