@@ -73,6 +73,18 @@ fn stride_for(w: u32, h: u32) -> u32 {
     ((f64::from(w) * f64::from(h) / 2000.0).sqrt().round() as u32).max(1)
 }
 
+/// Whether a frame's samples hold enough pixels in range in every channel to measure a gain
+/// from ([`gains_of`]'s rule for one frame: 64 at least, and a quarter of those sampled).
+fn in_range_enough(samples: &[[u8; 3]]) -> bool {
+    (0..3).all(|ch| {
+        let n = samples
+            .iter()
+            .filter(|p| p[ch] > DARK && p[ch] < BRIGHT)
+            .count();
+        n >= MIN_PIXELS && n * 4 >= samples.len()
+    })
+}
+
 /// [`channel_gains`] on two frames' samples taken alike; `ratios` is scratch space.
 fn gains_of(prev: &[[u8; 3]], cur: &[[u8; 3]], ratios: &mut Vec<f32>) -> Option<[f64; 3]> {
     if prev.len() != cur.len() {
@@ -268,8 +280,14 @@ impl Compensator {
         // A frame too dark or too bright to measure (too few pixels in range) is no
         // reference for the next: the change into it and the change out of it would both go
         // unmeasured, and the light coming back after it would never be seen. The next
-        // frame is measured against the last one that was measured.
-        if measured.is_some() || self.prev.dimensions() != frame.dimensions() {
+        // frame is measured against the last one that was measured. A frame that could be
+        // measured on its own, where the previous could not (a dark start), takes its place.
+        let alone = {
+            let cur = &mut self.samples.1;
+            Self::sample_whole(frame, cur);
+            in_range_enough(cur)
+        };
+        if measured.is_some() || alone || self.prev.dimensions() != frame.dimensions() {
             self.keep(frame);
         }
         let bar = (1.0 + self.jump).ln();
@@ -319,9 +337,14 @@ impl Compensator {
             self.total = self.reference.2;
             self.run = [(0.0, false, 0.0); 3];
         }
-        let taken = self.run.iter().any(|r| r.1);
-        if self.gain == [1.0; 3] && !taken {
-            self.take_reference(frame);
+        // The reference: a frame handed on as it is, measured against the one before, with no
+        // change under way (one still building up to the jump is handed on as it is too, and
+        // taken as the reference would snap the change back once it is taken).
+        let idle = self.run.iter().all(|r| r.0 == 0.0 && !r.1);
+        if self.gain == [1.0; 3] {
+            if idle && measured.is_some() {
+                self.take_reference(frame);
+            }
             std::borrow::Cow::Borrowed(frame)
         } else {
             std::borrow::Cow::Owned(undo_gain(frame, self.gain))
@@ -554,19 +577,22 @@ mod tests {
         assert_gain_near(&c, 0.5);
     }
 
-    /// Light halved, then one frame too dark to measure, then the start's light again: the
-    /// light coming back is measured against the last frame that was measured, and nothing
-    /// is undone after it. (Measured against the dark frame, the change out of it went
-    /// unmeasured and the halved light's gain was held for good.)
-    #[test]
-    fn light_back_after_a_frame_too_dark_to_measure_is_seen() {
-        let f = textured(80, 60);
-        let half = scaled(&f, [0.5; 3]);
-        // Nearly black, with a little colour noise (not grey): every value under the
-        // darkest measured.
-        let dark = RgbImage::from_fn(80, 60, |x, y| {
+    /// Nearly black, with a little colour noise (not grey): every value under the darkest
+    /// measured.
+    fn near_black(w: u32, h: u32) -> RgbImage {
+        RgbImage::from_fn(w, h, |x, y| {
             image::Rgb([((x + y) % 5) as u8, ((x * 3 + y) % 7) as u8, (y % 4) as u8])
-        });
+        })
+    }
+
+    /// Light halved, then a frame too dark to measure, then light at 70 %: the change out of
+    /// the dark frame is measured against the last frame that was measured, so 70 % is undone.
+    /// (Measured against the dark frame, it went unmeasured, and the halved light's gain was
+    /// held for good.) The start's light after such frames is seen as well.
+    #[test]
+    fn light_after_a_frame_too_dark_to_measure_is_measured() {
+        let f = textured(80, 60);
+        let (half, dark) = (scaled(&f, [0.5; 3]), near_black(80, 60));
         let mut c = Compensator::new(0.15);
         c.reset(&f);
         for _ in 0..3 {
@@ -574,20 +600,70 @@ mod tests {
             assert_gain_near(&c, 0.5);
         }
         assert_eq!(channel_gains(&half, &dark, 1), None);
+        for _ in 0..2 {
+            c.next(&dark, None);
+        }
+        c.next(&scaled(&f, [0.7; 3]), None);
+        assert_gain_near(&c, 0.7);
         c.next(&dark, None);
         assert_eq!(*c.next(&f, None), f, "{:?}", c.gain());
         assert_eq!(c.gain(), [1.0; 3]);
-        // Two such frames in a row, and the light back at the half it was before them.
+    }
+
+    /// A start too dark to measure: the first frame that can be measured takes its place, and
+    /// a change of light after it is undone (the dark start had stayed the previous frame of
+    /// every later one, each pair unmeasurable).
+    #[test]
+    fn a_start_too_dark_to_measure_gives_way_to_the_first_that_can_be() {
+        let f = textured(80, 60);
+        let mut c = Compensator::new(0.15);
+        c.reset(&near_black(80, 60));
         for _ in 0..2 {
-            c.next(&half, None);
+            c.next(&f, None);
+            assert_eq!(c.gain(), [1.0; 3]);
         }
-        assert_gain_near(&c, 0.5);
-        c.next(&dark, None);
-        c.next(&dark, None);
-        c.next(&half, None);
-        assert_gain_near(&c, 0.5);
-        c.next(&f, None);
+        for _ in 0..3 {
+            c.next(&scaled(&f, [0.5; 3]), None);
+            assert_gain_near(&c, 0.5);
+        }
+    }
+
+    /// A frame too dark to measure, handed on as it is, is no reference light: a strobe after
+    /// it is still measured against the start's light, and leaves nothing behind.
+    #[test]
+    fn a_frame_too_dark_to_measure_is_no_reference_light() {
+        let f = textured(80, 60);
+        let mut c = Compensator::new(0.15);
+        c.reset(&noisy(&f, 0, 1.0));
+        c.next(&near_black(80, 60), None);
+        for k in 1..=40 {
+            let g = if k % 2 == 1 { 0.5 } else { 1.0 };
+            c.next(&noisy(&f, k, g), None);
+        }
+        for k in 41..45 {
+            c.next(&noisy(&f, k, 1.0), None);
+            assert_eq!(c.gain(), [1.0; 3], "frame {k}");
+        }
+    }
+
+    /// Light changing in two steps, the first under the jump: the frame of the first step is
+    /// handed on as it is, but is no reference light, so when the light comes back to it
+    /// the change from the start stays undone (it had been snapped back to 1).
+    #[test]
+    fn a_change_under_way_is_no_reference_light() {
+        let f = textured(80, 60);
+        let mut c = Compensator::new(0.15);
+        c.reset(&f);
+        c.next(&scaled(&f, [0.87; 3]), None);
         assert_eq!(c.gain(), [1.0; 3]);
+        for _ in 0..2 {
+            c.next(&scaled(&f, [0.75; 3]), None);
+            assert_gain_near(&c, 0.75);
+        }
+        for _ in 0..3 {
+            c.next(&scaled(&f, [0.87; 3]), None);
+            assert_gain_near(&c, 0.87);
+        }
     }
 
     /// `f` with a little noise of its own for `k` (up to a level either way, as a sensor
