@@ -2384,5 +2384,28 @@ fn pose_draws_the_ellipse_and_the_matches_at_the_renders_scale() {
         "no outline at the top"
     );
     assert!(count([255, 40, 40]) > 20, "{}", count([255, 40, 40]));
+    // The ellipse's angle is drawn: a long thin one upright (90 degrees) reaches above the
+    // frame's middle by its long semi-axis, not by its short one.
+    pftrack_ok(&[
+        "pose",
+        frame(0).to_str().unwrap(),
+        frame(5).to_str().unwrap(),
+        "--ellipse",
+        "79.5,59.5,40,8,90",
+        "--reject",
+        "none",
+        "--draw",
+        drawn.to_str().unwrap(),
+    ]);
+    let img = pftrack::image::open(&drawn).unwrap().to_rgb8();
+    let green_rows: Vec<u32> = (0..240)
+        .filter(|&y| (0..320).any(|x| img.get_pixel(x, y).0 == [40, 220, 40]))
+        .collect();
+    let (top, bottom) = (green_rows[0], green_rows[green_rows.len() - 1]);
+    // Upright: 2 * (59.5 - 40) + 0.5 = 39.5 at the top, 199.5 at the bottom.
+    assert!(
+        (37..=42).contains(&top) && (197..=202).contains(&bottom),
+        "{top}..{bottom}"
+    );
     std::fs::remove_dir_all(&dir).unwrap();
 }

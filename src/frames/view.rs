@@ -263,7 +263,7 @@ mod tests {
         assert!(FrameView::new(&data, 10, 3, 33, PixelFormat::Rgb8).is_ok());
         assert!(refused(FrameView::new(&data, 10, 4, 33, PixelFormat::Rgb8)));
         assert!(refused(FrameView::packed(&data, 10, 4, PixelFormat::Rgb8)));
-        // Sizes whose byte counts overflow.
+        // Sizes whose byte counts overflow (the first), or reach past any buffer.
         assert!(refused(FrameView::new(
             &data,
             u32::MAX,

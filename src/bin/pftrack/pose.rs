@@ -463,7 +463,13 @@ pub fn run(a: PoseArgs) -> anyhow::Result<()> {
             x1: i64::from(img.width()),
             y1: i64::from(img.height()),
         };
-        let shown = Ellipse::new(at(e.cx), at(e.cy), s * e.a, s * e.b);
+        let shown = Ellipse {
+            cx: at(e.cx),
+            cy: at(e.cy),
+            a: s * e.a,
+            b: s * e.b,
+            theta: e.theta,
+        };
         draw_ellipse(&mut img, &shown, s, Rgb([40, 220, 40]), None, clip);
         for (p, q) in p.iter().zip(&q) {
             let (a, b) = ([at(p[0]), at(p[1])], [at(q[0]), at(q[1])]);
