@@ -150,11 +150,12 @@ const FLOOR: f64 = 0.02;
 /// left to the models that adapt. More than half of the frame changing at once (a large
 /// object, a pan onto a brighter scene, a cut) reads as a change of light to the frame's
 /// median; the target's box, given, must read it too ([`Compensator::next`]). While a change
-/// is undone, each frame is also measured directly against the last frame handed on as it
-/// was: light back where it was there is undone no more, whatever the changes counted one
-/// by one add up to (a strobe's flashes, or a cut away and back, leave nothing behind).
-/// A frame too dark or too bright to measure is passed over: the next one is measured
-/// against the last that could be.
+/// is undone, each frame is also measured directly against the reference light, the last
+/// frame handed on as it was, measured, with no change under way: light back where it was
+/// there is undone no more, whatever the changes counted one by one add up to (a strobe's
+/// flashes, or a cut away and back, leave nothing behind). A frame too dark or too bright to
+/// measure is passed over: the next one is measured against the last that could be (or,
+/// where that one could not be, replaces it).
 #[derive(Debug, Clone)]
 pub struct Compensator {
     jump: f64,
@@ -171,8 +172,8 @@ pub struct Compensator {
     prev: RgbImage,
     samples: (Vec<[u8; 3]>, Vec<[u8; 3]>),
     ratios: Vec<f32>,
-    /// The last frame handed on as it was (unit gain, no change of light being taken), sampled
-    /// over the whole frame, its size,
+    /// The reference light: the last frame handed on as it was, measured against the one
+    /// before, with no change under way, sampled over the whole frame; its size,
     /// and `total` then: what a frame in other light is measured against directly, to see
     /// the light come back ([`Compensator::next`]).
     reference: (Vec<[u8; 3]>, (u32, u32), [f64; 3]),
