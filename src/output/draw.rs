@@ -64,6 +64,23 @@ pub fn upscale_nearest(img: &RgbImage, s: u32) -> RgbImage {
     })
 }
 
+/// Where an input coordinate lies in an image upscaled `s` times ([`upscale_nearest`]): the
+/// centre of input pixel `u` is the centre of its `s × s` block, `(u + 0.5)·s − 0.5`.
+pub fn upscaled(v: f64, s: u32) -> f64 {
+    (v + 0.5) * f64::from(s) - 0.5
+}
+
+/// `e` in an image upscaled `s` times ([`upscaled`] centre, semi-axes `s` times longer).
+pub fn upscaled_ellipse(e: &Ellipse, s: u32) -> Ellipse {
+    Ellipse {
+        cx: upscaled(e.cx, s),
+        cy: upscaled(e.cy, s),
+        a: e.a * f64::from(s),
+        b: e.b * f64::from(s),
+        theta: e.theta,
+    }
+}
+
 /// Fills `r` (clipped to the image) with `colour`.
 pub fn fill_rect(img: &mut RgbImage, r: Rect, colour: Rgb<u8>) {
     let r = r.clip_to(img);
@@ -262,6 +279,10 @@ mod tests {
         assert_eq!((up.width(), up.height()), (6, 3));
         assert_eq!(*up.get_pixel(3, 2), Rgb([9, 8, 7]));
         assert_eq!(*up.get_pixel(2, 2), Rgb([0, 0, 0]));
+        // Input pixel 1's centre is the centre of its block, columns 3-5.
+        assert_eq!(upscaled(1.0, 3), 4.0);
+        let e = upscaled_ellipse(&Ellipse::new(1.0, 0.0, 2.0, 0.5), 3);
+        assert_eq!((e.cx, e.cy, e.a, e.b), (4.0, 1.0, 6.0, 1.5));
         let mut img = RgbImage::new(4, 4);
         fill_rect(&mut img, Rect::new(-2, 2, 4, 10), Rgb([1, 1, 1]));
         assert_eq!(img.pixels().filter(|p| p[0] == 1).count(), 4);

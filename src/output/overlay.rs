@@ -30,7 +30,9 @@
 
 use image::{Rgb, RgbImage};
 
-use super::draw::{BarAxis, Rect, draw_bar, draw_ellipse, fill_rect, upscale_nearest};
+use super::draw::{
+    BarAxis, Rect, draw_bar, draw_ellipse, fill_rect, upscale_nearest, upscaled_ellipse,
+};
 use super::font::{LINE_H, draw_text, text_size};
 use crate::geometry::Ellipse;
 
@@ -225,15 +227,7 @@ pub fn render_overlay(frame: &RgbImage, o: &Overlay, scale: u32) -> RgbImage {
     for (x, y, p) in up.enumerate_pixels() {
         img.put_pixel(x, y, *p);
     }
-    // Input pixel centre (u, v) sits at ((u + 0.5)·s − 0.5, (v + 0.5)·s − 0.5).
-    let sf = s as f64;
-    let e = Ellipse {
-        cx: (o.ellipse.cx + 0.5) * sf - 0.5,
-        cy: (o.ellipse.cy + 0.5) * sf - 0.5,
-        a: o.ellipse.a * sf,
-        b: o.ellipse.b * sf,
-        theta: o.ellipse.theta,
-    };
+    let e = upscaled_ellipse(&o.ellipse, s);
     let width = if s >= 2 { 2.0 } else { 1.0 };
     let (colour, dash) = if o.lost {
         (ELLIPSE_LOST, Some((6.0 * width, 4.0 * width)))

@@ -450,30 +450,28 @@ pub fn run(a: PoseArgs) -> anyhow::Result<()> {
         // a pixel or two can be seen; the ellipse given is drawn in green beneath them.
         use pftrack::output::{
             capped_scale, default_scale,
-            draw::{Rect, draw_ellipse, upscale_nearest},
+            draw::{Rect, draw_ellipse, upscale_nearest, upscaled, upscaled_ellipse},
         };
         let k = capped_scale(ib.width(), ib.height(), default_scale(ib.width()));
         let mut img = upscale_nearest(&ib, k);
-        let s = f64::from(k);
-        // A pixel's centre `x` is the centre of its `k` x `k` block: `k x + (k - 1) / 2`.
-        let at = |v: f64| s * v + 0.5 * (s - 1.0);
         let clip = Rect {
             x0: 0,
             y0: 0,
             x1: i64::from(img.width()),
             y1: i64::from(img.height()),
         };
-        let shown = Ellipse {
-            cx: at(e.cx),
-            cy: at(e.cy),
-            a: s * e.a,
-            b: s * e.b,
-            theta: e.theta,
-        };
-        draw_ellipse(&mut img, &shown, s, Rgb([40, 220, 40]), None, clip);
+        let shown = upscaled_ellipse(&e, k);
+        draw_ellipse(
+            &mut img,
+            &shown,
+            f64::from(k),
+            Rgb([40, 220, 40]),
+            None,
+            clip,
+        );
+        let at = |v: [f64; 2]| [upscaled(v[0], k), upscaled(v[1], k)];
         for (p, q) in p.iter().zip(&q) {
-            let (a, b) = ([at(p[0]), at(p[1])], [at(q[0]), at(q[1])]);
-            arrow(&mut img, a, b, Rgb([255, 40, 40]), 3 * k as usize);
+            arrow(&mut img, at(*p), at(*q), Rgb([255, 40, 40]), 3 * k as usize);
         }
         pftrack::output::encode_png(&mut file, &img)?;
         let path = file.path().to_path_buf();
