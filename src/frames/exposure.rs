@@ -171,6 +171,10 @@ pub struct Compensator {
     /// samples ([`sample`]) and their ratios.
     prev: RgbImage,
     samples: (Vec<[u8; 3]>, Vec<[u8; 3]>),
+    /// The previous frame's samples over the whole frame ([`Compensator::sample_whole`]) and
+    /// the current frame's: each frame is sampled once, for its gain, whether it can be
+    /// measured at all, the reference light, and as the next frame's previous.
+    whole: (Vec<[u8; 3]>, Vec<[u8; 3]>),
     ratios: Vec<f32>,
     /// The reference light: the last frame handed on as it was, measured against the one
     /// before, with no change under way, sampled over the whole frame; its size,
@@ -190,6 +194,7 @@ impl Compensator {
             total: [0.0; 3],
             prev: RgbImage::new(0, 0),
             samples: (Vec::new(), Vec::new()),
+            whole: (Vec::new(), Vec::new()),
             ratios: Vec::new(),
             reference: (Vec::new(), (0, 0), [0.0; 3]),
         }
@@ -200,8 +205,9 @@ impl Compensator {
         self.gain = [1.0; 3];
         self.run = [(0.0, false, 0.0); 3];
         self.total = [0.0; 3];
+        Self::sample_whole(frame, &mut self.whole.1);
         self.keep(frame);
-        self.take_reference(frame);
+        self.take_reference(frame.dimensions());
     }
 
     /// Samples `frame` over the whole of it ([`sample`], about 2000 pixels) into `out`.
@@ -210,34 +216,36 @@ impl Compensator {
         sample(frame, [0, 0, w, h], stride_for(w, h), out);
     }
 
-    /// Takes `frame`, handed on as it is, as the reference light.
-    fn take_reference(&mut self, frame: &RgbImage) {
-        let (samples, size, total) = &mut self.reference;
-        Self::sample_whole(frame, samples);
-        *size = frame.dimensions();
+    /// Takes the current frame (of `size`, sampled in `whole.1`), handed on as it is, as the
+    /// reference light.
+    fn take_reference(&mut self, size: (u32, u32)) {
+        let (samples, at, total) = &mut self.reference;
+        samples.clone_from(&self.whole.1);
+        *at = size;
         *total = self.total;
     }
 
-    /// Whether `frame` is in the reference's light: its gain from the reference frame,
-    /// measured directly, within the floor of 1 in every channel.
-    fn in_reference_light(&mut self, frame: &RgbImage) -> bool {
-        let (samples, size, _) = &self.reference;
-        if *size != frame.dimensions() || samples.is_empty() {
+    /// Whether the current frame (of `size`, sampled in `whole.1`) is in the reference's
+    /// light: its gain from the reference frame, measured directly, within the floor of 1 in
+    /// every channel.
+    fn in_reference_light(&mut self, size: (u32, u32)) -> bool {
+        let (samples, at, _) = &self.reference;
+        if *at != size || samples.is_empty() {
             return false;
         }
-        let cur = &mut self.samples.1;
-        Self::sample_whole(frame, cur);
-        gains_of(samples, cur, &mut self.ratios)
+        gains_of(samples, &self.whole.1, &mut self.ratios)
             .is_some_and(|g| g.iter().all(|g| g.ln().abs() <= FLOOR))
     }
 
-    /// Keeps `frame` as the previous one, reusing the buffer.
+    /// Keeps `frame` as the previous one, reusing the buffer, with its samples over the whole
+    /// frame (taken into `whole.1` before).
     fn keep(&mut self, frame: &RgbImage) {
         if self.prev.dimensions() == frame.dimensions() {
             self.prev.copy_from_slice(frame);
         } else {
             self.prev = frame.clone();
         }
+        self.whole.0.clone_from(&self.whole.1);
     }
 
     /// Each channel's gain from the previous frame to `frame` over the box `b`, sampled at
@@ -275,20 +283,21 @@ impl Compensator {
         target: Option<[u32; 4]>,
     ) -> std::borrow::Cow<'a, RgbImage> {
         let undoing = self.gain != [1.0; 3];
-        let (w, h) = frame.dimensions();
-        let measured = self.gains_over(frame, [0, 0, w, h]);
+        let size = frame.dimensions();
+        // The gain over the whole frame, from the previous frame's samples (`gains_over` of
+        // the whole frame, each frame sampled once).
+        Self::sample_whole(frame, &mut self.whole.1);
+        let measured = (self.prev.dimensions() == size)
+            .then(|| gains_of(&self.whole.0, &self.whole.1, &mut self.ratios))
+            .flatten();
         let on_target = target.and_then(|b| self.gains_over(frame, b));
         // A frame too dark or too bright to measure (too few pixels in range) is no
         // reference for the next: the change into it and the change out of it would both go
         // unmeasured, and the light coming back after it would never be seen. The next
         // frame is measured against the last one that was measured. A frame that could be
         // measured on its own, where the previous could not (a dark start), takes its place.
-        let alone = {
-            let cur = &mut self.samples.1;
-            Self::sample_whole(frame, cur);
-            in_range_enough(cur)
-        };
-        if measured.is_some() || alone || self.prev.dimensions() != frame.dimensions() {
+        let alone = in_range_enough(&self.whole.1);
+        if measured.is_some() || alone || self.prev.dimensions() != size {
             self.keep(frame);
         }
         let bar = (1.0 + self.jump).ln();
@@ -333,7 +342,7 @@ impl Compensator {
         // Counted one by one, the changes into other light and back need not cancel (8-bit
         // values' ratios are biased one way, and a cut to another scene and back measures
         // two different medians), and what they leave would be undone on every later frame.
-        if (undoing || self.run.iter().any(|r| r.1)) && self.in_reference_light(frame) {
+        if (undoing || self.run.iter().any(|r| r.1)) && self.in_reference_light(size) {
             self.gain = [1.0; 3];
             self.total = self.reference.2;
             self.run = [(0.0, false, 0.0); 3];
@@ -344,7 +353,7 @@ impl Compensator {
         let idle = self.run.iter().all(|r| r.0 == 0.0 && !r.1);
         if self.gain == [1.0; 3] {
             if idle && measured.is_some() {
-                self.take_reference(frame);
+                self.take_reference(size);
             }
             std::borrow::Cow::Borrowed(frame)
         } else {
