@@ -2362,16 +2362,17 @@ fn pose_draws_the_ellipse_and_the_matches_at_the_renders_scale() {
     let dir = synth_dir("pose-draw", 6, "160x120");
     let frame = |k: usize| dir.join(format!("frames/{k:05}.png"));
     let drawn = dir.join("drawn.png");
-    pftrack_ok(&[
-        "pose",
-        frame(0).to_str().unwrap(),
-        frame(5).to_str().unwrap(),
-        "--ellipse",
-        "79.5,59.5,18.5,24.7",
-        "--draw",
-        drawn.to_str().unwrap(),
-    ]);
-    let img = pftrack::image::open(&drawn).unwrap().to_rgb8();
+    // Frames 0 and 5 posed with the ellipse and options given; the drawing.
+    let draw = |ellipse: &str, options: &[&str]| {
+        let (a, b) = (frame(0), frame(5));
+        let mut args = vec!["pose", a.to_str().unwrap(), b.to_str().unwrap()];
+        args.extend(["--ellipse", ellipse]);
+        args.extend(options);
+        args.extend(["--draw", drawn.to_str().unwrap()]);
+        pftrack_ok(&args);
+        pftrack::image::open(&drawn).unwrap().to_rgb8()
+    };
+    let img = draw("79.5,59.5,18.5,24.7", &[]);
     assert_eq!(img.dimensions(), (320, 240));
     let count = |c: [u8; 3]| img.pixels().filter(|p| p.0 == c).count();
     // The ellipse's outline, two pixels wide, about 2 pi sqrt((a^2 + b^2) / 2) long at twice
@@ -2386,18 +2387,7 @@ fn pose_draws_the_ellipse_and_the_matches_at_the_renders_scale() {
     assert!(count([255, 40, 40]) > 20, "{}", count([255, 40, 40]));
     // The ellipse's angle is drawn: a long thin one upright (90 degrees) reaches above the
     // frame's middle by its long semi-axis, not by its short one.
-    pftrack_ok(&[
-        "pose",
-        frame(0).to_str().unwrap(),
-        frame(5).to_str().unwrap(),
-        "--ellipse",
-        "79.5,59.5,40,8,90",
-        "--reject",
-        "none",
-        "--draw",
-        drawn.to_str().unwrap(),
-    ]);
-    let img = pftrack::image::open(&drawn).unwrap().to_rgb8();
+    let img = draw("79.5,59.5,40,8,90", &["--reject", "none"]);
     let green_rows: Vec<u32> = (0..240)
         .filter(|&y| (0..320).any(|x| img.get_pixel(x, y).0 == [40, 220, 40]))
         .collect();

@@ -638,24 +638,6 @@ mod tests {
         }
     }
 
-    /// A frame too dark to measure, handed on as it is, is no reference light: a strobe after
-    /// it is still measured against the start's light, and leaves nothing behind.
-    #[test]
-    fn a_frame_too_dark_to_measure_is_no_reference_light() {
-        let f = textured(80, 60);
-        let mut c = Compensator::new(0.15);
-        c.reset(&noisy(&f, 0, 1.0));
-        c.next(&near_black(80, 60), None);
-        for k in 1..=40 {
-            let g = if k % 2 == 1 { 0.5 } else { 1.0 };
-            c.next(&noisy(&f, k, g), None);
-        }
-        for k in 41..45 {
-            c.next(&noisy(&f, k, 1.0), None);
-            assert_eq!(c.gain(), [1.0; 3], "frame {k}");
-        }
-    }
-
     /// Light changing in two steps, the first under the jump: the frame of the first step is
     /// handed on as it is, but is no reference light, so when the light comes back to it
     /// the change from the start stays undone (it had been snapped back to 1).
@@ -693,20 +675,27 @@ mod tests {
     /// A strobe on noisy frames of whole levels, then steady light: once the strobe stops,
     /// nothing is undone. Counted frame by frame, each dark frame and the bright one after
     /// it did not cancel (the ratios of whole levels lean one way), and 30 flashes left a
-    /// gain of several percent undone on every frame after them.
+    /// gain of several percent undone on every frame after them. The same after a frame too
+    /// dark to measure, handed on as it is: it is no reference light (taken as one, the
+    /// strobe's bright frames were never back in it, and left a gain of 26 %).
     #[test]
     fn a_strobe_on_whole_levels_leaves_no_gain_behind() {
         let f = textured(80, 60);
-        let mut c = Compensator::new(0.15);
-        c.reset(&noisy(&f, 0, 1.0));
-        for k in 1..=60 {
-            let g = if k % 2 == 1 { 0.5 } else { 1.0 };
-            c.next(&noisy(&f, k, g), None);
-            assert_gain_near(&c, g);
-        }
-        for k in 61..70 {
-            c.next(&noisy(&f, k, 1.0), None);
-            assert_eq!(c.gain(), [1.0; 3], "frame {k}");
+        for dark_first in [false, true] {
+            let mut c = Compensator::new(0.15);
+            c.reset(&noisy(&f, 0, 1.0));
+            if dark_first {
+                c.next(&near_black(80, 60), None);
+            }
+            for k in 1..=60 {
+                let g = if k % 2 == 1 { 0.5 } else { 1.0 };
+                c.next(&noisy(&f, k, g), None);
+                assert_gain_near(&c, g);
+            }
+            for k in 61..70 {
+                c.next(&noisy(&f, k, 1.0), None);
+                assert_eq!(c.gain(), [1.0; 3], "dark first {dark_first}, frame {k}");
+            }
         }
     }
 
