@@ -166,17 +166,18 @@ if [ "$mode" = real ]; then
 else
     echo "angle RMSE in degrees, mean over scenario seeds $seeds (filter seed $filter_seed);"
     echo "gain: slope of the estimate against the truth per axis, mean over the seeds where the truth turns"
-    printf '%-6s %7s %7s %7s %10s %5s %8s %7s %7s %7s\n' scenario rx ry rz centre_px lost worst \
-        gain_rx gain_ry gain_rz
+    echo "turn: RMSE of the whole rotation's error (the angle of R_est R_truth^T), mean over the seeds"
+    printf '%-6s %7s %7s %7s %7s %10s %5s %8s %7s %7s %7s\n' scenario rx ry rz turn centre_px lost \
+        worst gain_rx gain_ry gain_rz
     total=0
     for sc in $scenarios; do
         row=$(for s in $seeds; do
             f=$out/$sc-$s.json
-            echo "$(field "$f" rx) $(field "$f" ry) $(field "$f" rz) $(field "$f" mean_centre_error_px) $(field "$f" lost)"
-        done | awk -v sc="$sc" '{ x += $1; y += $2; z += $3; c += $4; l += $5; n++;
+            echo "$(field "$f" rx) $(field "$f" ry) $(field "$f" rz) $(field "$f" mean_centre_error_px) $(field "$f" lost) $(field "$f" rmse)"
+        done | awk -v sc="$sc" '{ x += $1; y += $2; z += $3; c += $4; l += $5; t += $6; n++;
                 w = $1 + $2 + $3; if (w > worst) worst = w }
-            END { printf "%-6s %7.2f %7.2f %7.2f %10.2f %5d %8.1f %.6f\n", sc, x / n, y / n, z / n,
-                  c / n, l, worst, (x + y + z) / n }')
+            END { printf "%-6s %7.2f %7.2f %7.2f %7.2f %10.2f %5d %8.1f %.6f\n", sc, x / n, y / n,
+                  z / n, t / n, c / n, l, worst, (x + y + z) / n }')
         g=""
         for ax in rx ry rz; do
             g+=" $(for s in $seeds; do gain "$out/$sc-$s.json" "$ax"; done | mean_or_dash)"

@@ -362,6 +362,7 @@ fn cli_table_and_json() {
         "success AUC       0.7857",
         "rx           3.000       3.000",
         "ry           0.000       0.000",
+        "turn         3.000       3.000       -",
     ] {
         assert!(out.contains(want), "missing '{want}' in:\n{out}");
     }
@@ -382,6 +383,11 @@ fn cli_table_and_json() {
         3.0,
         "json rmse",
     );
+    close(
+        v["rotation_error_deg"]["max"].as_f64().unwrap(),
+        3.0,
+        "json turn",
+    );
 
     // OTB truth: no angle table, `null` angles in JSON.
     let otb = d.join("boxes.txt");
@@ -392,7 +398,7 @@ fn cli_table_and_json() {
     assert_eq!(code, 0);
     let v: serde_json::Value = serde_json::from_str(&out).unwrap();
     assert_eq!(v["truth_kind"], "boxes");
-    assert!(v["angle_rmse_deg"].is_null());
+    assert!(v["angle_rmse_deg"].is_null() && v["rotation_error_deg"].is_null());
     let (code, out, _) = pftrack(&[&otb, &bp]);
     assert_eq!(code, 0);
     assert!(!out.contains("RMSE"), "{out}");

@@ -11,6 +11,11 @@
 //!   wrapping never breaks the line), 1 when the estimate follows the truth's swing, above 1
 //!   when it over-reads the turn and below when it under-reads it; an axis about which the
 //!   truth hardly turns (standard deviation under [`GAIN_MIN_SPREAD_DEG`]) has none;
+//! - the rotation error: the angle of `R_est · R_truthᵀ` in degrees (the geodesic distance
+//!   between the two rotations, the measure of the paper's Fig. 3), summarised as RMSE, mean
+//!   and maximum. It does not depend on how the angles are written (a pan past 90 degrees
+//!   written with the tilt and roll half a turn round is the same rotation), and it is the
+//!   single figure of the whole turn's error where the per-axis errors are three;
 //! - centre error: distance between the estimated centre `(cx, cy)` and the truth centre
 //!   (pose centre, or box centre), mean over the evaluated frames;
 //! - IoU between the estimate's box `state.ellipse(0).to_box() = (cx − a, cy − b, 2a, 2b)` and
@@ -42,7 +47,7 @@ use std::path::Path;
 
 use serde::Serialize;
 
-use crate::geometry::{BoxRect, deg, wrap_180};
+use crate::geometry::{BoxRect, Euler, angle_between, deg, wrap_180};
 use crate::io::boxes::parse_otb_boxes;
 use crate::io::pose_csv::parse_pose_csv;
 use crate::io::{FormatError, PoseRecord};
@@ -236,6 +241,23 @@ impl Axes {
     }
 }
 
+/// The rotation error's summary ([`Report::rotation_error_deg`]), in degrees.
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize)]
+pub struct RotationError {
+    /// Root mean square over the evaluated frames.
+    pub rmse: f64,
+    /// Mean over the evaluated frames.
+    pub mean: f64,
+    /// Largest over the evaluated frames.
+    pub max: f64,
+}
+
+/// The angle in degrees, in `[0, 180]`, of the rotation taking the truth's pose to the
+/// estimate's (`R_est · R_truthᵀ`), from Euler angles in radians.
+pub fn rotation_error_deg(est: Euler, truth: Euler) -> f64 {
+    deg(angle_between(&est.matrix(), &truth.matrix()))
+}
+
 /// Per-axis gains of the estimated angles ([`Report::angle_gain`]); `None` on an axis about
 /// which the truth hardly turns.
 #[derive(Debug, Clone, Copy, PartialEq, Default, Serialize)]
@@ -290,6 +312,9 @@ pub struct Report {
     /// Gain of the estimated angle per axis (the slope of estimate against truth, over
     /// evaluated frames); `None` for box truth.
     pub angle_gain: Option<Gains>,
+    /// The angle of `R_est · R_truthᵀ` (degrees, over evaluated frames): the whole rotation's
+    /// error, whichever way its angles are written; `None` for box truth.
+    pub rotation_error_deg: Option<RotationError>,
     /// Mean centre error over evaluated frames (pixels).
     pub mean_centre_error_px: f64,
     /// Share of truth frames with centre error `≤ 20` px (missing frames fail).
@@ -386,6 +411,7 @@ pub fn evaluate(truth: &Truth, est: &[PoseRecord]) -> Result<Report, EvalError> 
     let mut sq = [0.0f64; 3];
     let mut abs = [0.0f64; 3];
     let mut swings: [Vec<(f64, f64)>; 3] = Default::default();
+    let mut turn_errs = Vec::with_capacity(n);
     let (mut lost, mut any_lost_col) = (0usize, false);
     let (mut score_sum, mut score_n) = (0.0f64, 0usize);
     let unwrapped = unwrapped_truth_deg(&tf);
@@ -409,6 +435,11 @@ pub fn evaluate(truth: &Truth, est: &[PoseRecord]) -> Result<Report, EvalError> 
                 // 358, and would otherwise swell the spread the gain divides by.
                 swings[k].push((swing.map_or(deg(angles[k]), |u| u[k]), d));
             }
+            let [rx, ry, rz] = angles;
+            turn_errs.push(rotation_error_deg(
+                Euler::new(s.rx, s.ry, s.rz),
+                Euler::new(rx, ry, rz),
+            ));
         }
         if let Some(l) = r.lost {
             any_lost_col = true;
@@ -448,6 +479,11 @@ pub fn evaluate(truth: &Truth, est: &[PoseRecord]) -> Result<Report, EvalError> 
             rx: gain(&swings[0]),
             ry: gain(&swings[1]),
             rz: gain(&swings[2]),
+        }),
+        rotation_error_deg: has_angles.then(|| RotationError {
+            rmse: (turn_errs.iter().map(|e| e * e).sum::<f64>() / m).sqrt(),
+            mean: turn_errs.iter().sum::<f64>() / m,
+            max: turn_errs.iter().copied().fold(0.0, f64::max),
         }),
         mean_centre_error_px: centre_errs.iter().sum::<f64>() / m,
         precision_20px: centre_errs
@@ -567,6 +603,17 @@ impl Report {
                 let _ = writeln!(s, "{name:<6}{:>12}{:>12}{g:>8}", fixed(a, 3), fixed(b, 3));
             }
         }
+        if let Some(t) = self.rotation_error_deg {
+            let _ = writeln!(
+                s,
+                "{:<6}{:>12}{:>12}{:>8}\n(turn: the angle of R_est R_truth^T; its largest {} deg)",
+                "turn",
+                fixed(t.rmse, 3),
+                fixed(t.mean, 3),
+                "-",
+                fixed(t.max, 3)
+            );
+        }
         s
     }
 }
@@ -584,7 +631,7 @@ fn fixed(x: f64, decimals: usize) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::geometry::{PoseState, rad};
+    use crate::geometry::{PoseState, rad, rot_y};
 
     #[test]
     fn huge_values_are_shown_in_exponent_form() {
@@ -641,6 +688,49 @@ mod tests {
         assert!((rmse.rx - 10f64.sqrt()).abs() < 1e-9, "{}", rmse.rx);
         assert!((r.angle_mae_deg.unwrap().rx - 3.0).abs() < 1e-9);
         assert_eq!(rmse.ry, 0.0);
+        // Only the tilt differs, so the whole rotation's error is the tilt's: 2 and 4 degrees.
+        let t = r.rotation_error_deg.unwrap();
+        assert!((t.rmse - 10f64.sqrt()).abs() < 1e-9, "{t:?}");
+        assert!(
+            (t.mean - 3.0).abs() < 1e-9 && (t.max - 4.0).abs() < 1e-9,
+            "{t:?}"
+        );
+    }
+
+    #[test]
+    fn the_rotation_error_does_not_depend_on_how_the_angles_are_written() {
+        // R = Rx(a) Ry(b) Rz(c) = Rx(a + 180) Ry(180 - b) Rz(c + 180): one rotation, every
+        // angle of it written another way.
+        let (a, b, c) = (20.0, 70.0, -35.0);
+        let one = Euler::from_degrees(a, b, c);
+        let other = Euler::from_degrees(a + 180.0, 180.0 - b, c + 180.0);
+        assert!((one.matrix() - other.matrix()).abs().max() < 1e-12);
+        let pose = |frame, e: Euler| {
+            let mut r = rec(frame, 50.0, 0.0);
+            (r.state.rx, r.state.ry, r.state.rz) = (e.rx, e.ry, e.rz);
+            r
+        };
+        let truth = Truth::Poses(vec![pose(0, one), pose(1, one)]);
+        // Frame 1 is off by 5 degrees about y, written the same way as the truth.
+        let off = Euler::from_matrix(&(rot_y(rad(5.0)) * one.matrix()));
+        let r = evaluate(&truth, &[pose(0, other), pose(1, off)]).unwrap();
+        let t = r.rotation_error_deg.unwrap();
+        assert!(
+            (t.mean - 2.5).abs() < 1e-9 && (t.max - 5.0).abs() < 1e-9,
+            "{t:?}"
+        );
+        assert!((t.rmse - 12.5f64.sqrt()).abs() < 1e-9, "{t:?}");
+        // The per-axis errors see frame 0's angles as 180 degrees apart.
+        assert!(r.angle_mae_deg.unwrap().rx > 89.0, "{:?}", r.angle_mae_deg);
+        assert!(rotation_error_deg(one, other) < 1e-9);
+        // A box truth has none.
+        let boxes = Truth::Boxes(vec![BoxRect::new(40.0, 25.0, 20.0, 30.0)]);
+        assert_eq!(
+            evaluate(&boxes, &[rec(0, 50.0, 0.0)])
+                .unwrap()
+                .rotation_error_deg,
+            None
+        );
     }
 
     #[test]
