@@ -7,7 +7,7 @@
 use std::io::Write;
 
 use image::{Rgb, RgbImage};
-use pftrack::likelihood::gpu::{GpuDevice, GpuEngine, NO_EDGE};
+use pftrack::likelihood::gpu::{GpuDevice, GpuEngine, NO_EDGE, SHRINK_AFTER_CALLS};
 use pftrack::likelihood::{
     COLOUR_LUMA, COLOUR_RGB, ColourHistogram, ContrastTable, FrameInput, HIST_BINS,
     LikelihoodEngine, LikelihoodError, LikelihoodParams, Particle, TERM_ALL, TERM_COLOUR,
@@ -941,6 +941,27 @@ fn seventy_thousand_particles_agree_with_cpu_on_a_subset() {
     }
     let a = compare(&mut gpu, &image, &e, &frame, &params, &sub);
     assert_agreement("every 97th of 70000 particles", &a);
+
+    // The buffers grown for the 70000 shrink back once enough calls in a row need far less,
+    // and the terms come out the same from the new buffers.
+    let big = gpu.buffer_bytes();
+    assert!(big > 70_000 * 32, "{big} bytes for 70000 particles");
+    let mut again = Vec::new();
+    for _ in 0..SHRINK_AFTER_CALLS {
+        gpu.evaluate(&frame, &params, &sub, &mut again).unwrap();
+    }
+    let small = gpu.buffer_bytes();
+    assert!(small < big / 4, "{small} bytes held after {big}");
+    assert_eq!(again, part, "the terms from the shrunk buffers");
+    // Another large call grows them again (those of the debug histograms, grown by
+    // `compare`, stay small).
+    gpu.evaluate(&frame, &params, &ps, &mut again).unwrap();
+    assert_eq!(again, got);
+    assert!(
+        gpu.buffer_bytes() > 4 * small,
+        "{} bytes",
+        gpu.buffer_bytes()
+    );
 }
 
 /// `auto` takes a hardware adapter or a named one; the best adapter when it renders in

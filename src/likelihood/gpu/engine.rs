@@ -62,12 +62,25 @@ pub struct DebugOutput {
     pub line_distances: Vec<i32>,
 }
 
-/// A storage buffer that grows (never shrinks) to the size asked for.
+/// Calls in a row asking a buffer for under a quarter of what it holds after which it is
+/// made smaller ([`GrowBuf::ensure`]).
+pub const SHRINK_AFTER_CALLS: u32 = 64;
+
+/// Below this many bytes a buffer is never made smaller: too little memory to be worth a new
+/// allocation and bind group.
+const SHRINK_ABOVE_BYTES: u64 = 1 << 20;
+
+/// A storage buffer that grows to the size asked for, and shrinks to it once
+/// [`SHRINK_AFTER_CALLS`] calls in a row have asked for under a quarter of what it holds
+/// (a million particles evaluated once, then 200 a frame, had kept the million's buffers,
+/// about 320 MB on lavapipe, for as long as the engine lived).
 struct GrowBuf {
     buf: wgpu::Buffer,
     size: u64,
     usage: wgpu::BufferUsages,
     label: &'static str,
+    /// Calls in a row that asked for under a quarter of `size`.
+    small_calls: u32,
 }
 
 impl GrowBuf {
@@ -84,6 +97,7 @@ impl GrowBuf {
             size,
             usage,
             label,
+            small_calls: 0,
         }
     }
 
@@ -97,12 +111,21 @@ impl GrowBuf {
             .unwrap_or(u64::MAX)
     }
 
-    /// Makes room for `bytes`; true when the buffer was replaced. The size is recorded before
-    /// wgpu says whether the allocation worked: a failed one must be [`Self::forget`]ten.
+    /// Makes room for `bytes`; true when the buffer was replaced (grown, or shrunk after
+    /// [`SHRINK_AFTER_CALLS`] calls in a row asking for under a quarter of it). The size is
+    /// recorded before wgpu says whether the allocation worked: a failed one must be
+    /// [`Self::forget`]ten.
     fn ensure(&mut self, device: &wgpu::Device, bytes: u64) -> bool {
         let bytes = Self::allocated(bytes);
         if bytes <= self.size {
-            return false;
+            if self.size > SHRINK_ABOVE_BYTES && bytes < self.size / 4 {
+                self.small_calls += 1;
+            } else {
+                self.small_calls = 0;
+            }
+            if self.small_calls < SHRINK_AFTER_CALLS {
+                return false;
+            }
         }
         self.buf = device.create_buffer(&wgpu::BufferDescriptor {
             label: Some(self.label),
@@ -111,6 +134,7 @@ impl GrowBuf {
             mapped_at_creation: false,
         });
         self.size = bytes;
+        self.small_calls = 0;
         true
     }
 
@@ -118,6 +142,7 @@ impl GrowBuf {
     /// an error, this buffer may be one wgpu refused to create.
     fn forget(&mut self) {
         self.size = 0;
+        self.small_calls = 0;
     }
 }
 
@@ -399,6 +424,29 @@ impl GpuEngine {
     /// The opened device (adapter description, limits).
     pub fn device(&self) -> &GpuDevice {
         &self.gpu
+    }
+
+    /// The bytes of GPU memory the buffers that follow the work's size hold now (the
+    /// frame's pixels and gradients, the particles and their results, the features):
+    /// they grow with the largest call and shrink again after [`SHRINK_AFTER_CALLS`] calls
+    /// in a row that need under a quarter of them. The fixed buffers (uniforms, the colour
+    /// model, timestamps) are not counted.
+    pub fn buffer_bytes(&self) -> u64 {
+        let b = &self.bufs;
+        [
+            &b.pixels,
+            &b.grad,
+            &b.particles,
+            &b.trig,
+            &b.features,
+            &b.terms,
+            &b.line_d,
+            &b.hist,
+            &b.staging,
+        ]
+        .iter()
+        .map(|g| g.size)
+        .sum()
     }
 
     /// Whether kernel times come from GPU timestamps.

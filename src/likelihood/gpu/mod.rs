@@ -26,7 +26,9 @@
 //! | `combine` | one invocation per particle: line terms summed in line order, total |
 //!
 //! More than 65535 workgroups are laid out in 2D. Pipelines, the bind group and the buffers
-//! are created once and grown when `N`, the frame or the feature count grows. On lavapipe the
+//! are created once and grown when `N`, the frame or the feature count grows; a buffer of a
+//! megabyte or more shrinks again after [`SHRINK_AFTER_CALLS`] calls in a row that need under
+//! a quarter of it ([`GpuEngine::buffer_bytes`] says what they hold). On lavapipe the
 //! colour kernel takes 75-90 % of the GPU time (workgroup atomics are slow in software),
 //! the normal lines most of the rest; upload and readback are below a millisecond.
 //!
@@ -41,7 +43,7 @@ mod engine;
 pub mod workload;
 
 pub use device::{ADAPTER_ENV, GpuDevice, adapter_names, named_adapter};
-pub use engine::{DebugOutput, GpuEngine, StageTimes, TimingSource};
+pub use engine::{DebugOutput, GpuEngine, SHRINK_AFTER_CALLS, StageTimes, TimingSource};
 
 use bytemuck::{Pod, Zeroable};
 
