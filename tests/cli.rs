@@ -1089,6 +1089,133 @@ fn cli_a_failed_track_writes_nothing_to_standard_output() {
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
+/// `--stream` writes the same pose CSV as a whole run, but row by row as the frames are
+/// tracked: read through a pipe, the first rows arrive while the input is still coming. A run
+/// that fails part-way has written the rows before the failure and says which, exiting
+/// non-zero; `--out FILE` is refused beside it.
+#[test]
+fn cli_stream_writes_each_row_as_its_frame_is_tracked() {
+    use std::io::{BufRead, Write};
+    let dir = synth_dir("stream", 6, "64x48");
+    let seq = dir.to_str().unwrap();
+    let whole = pftrack_ok(&["track", seq, "--backend", "cpu"]);
+    let streamed = pftrack_ok(&["track", seq, "--backend", "cpu", "--stream"]);
+    assert_eq!(streamed.stdout, whole.stdout);
+    assert_eq!(String::from_utf8_lossy(&whole.stdout).lines().count(), 7);
+
+    // Live: frames fed one at a time through standard input as y4m (4:4:4, the frames'
+    // RGB converted as the parser reads it back, near enough for a track). The row of frame
+    // 1 must come out before frame 2 is sent.
+    let frames: Vec<image::RgbImage> = (0..6)
+        .map(|k| {
+            image::open(dir.join(format!("frames/{k:05}.png")))
+                .unwrap()
+                .to_rgb8()
+        })
+        .collect();
+    let y4m_frame = |img: &image::RgbImage| {
+        let (w, h) = img.dimensions();
+        let mut planes = vec![0u8; 3 * (w * h) as usize];
+        for (i, p) in img.pixels().enumerate() {
+            let [r, g, b] = p.0.map(f64::from);
+            let y = 16.0 + (65.481 * r + 128.553 * g + 24.966 * b) / 255.0;
+            let cb = 128.0 + (-37.797 * r - 74.203 * g + 112.0 * b) / 255.0;
+            let cr = 128.0 + (112.0 * r - 93.786 * g - 18.214 * b) / 255.0;
+            let n = (w * h) as usize;
+            planes[i] = y.round() as u8;
+            planes[n + i] = cb.round() as u8;
+            planes[2 * n + i] = cr.round() as u8;
+        }
+        let mut out = b"FRAME\n".to_vec();
+        out.extend(planes);
+        out
+    };
+    let init = std::fs::read_to_string(dir.join("init.txt")).unwrap();
+    let ellipse = init.lines().next().unwrap().to_string();
+    let mut child = Command::new(env!("CARGO_BIN_EXE_pftrack"))
+        .args([
+            "track",
+            "-",
+            "--init-ellipse",
+            &ellipse,
+            "--backend",
+            "cpu",
+            "--stream",
+        ])
+        .stdin(Stdio::piped())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut stdin = child.stdin.take().unwrap();
+    let stdout = child.stdout.take().unwrap();
+    // Lines as they come, through a thread, so that a row held back fails in time rather than
+    // hanging the test.
+    let (tx, rx) = std::sync::mpsc::channel();
+    let reader = std::thread::spawn(move || {
+        for line in std::io::BufReader::new(stdout).lines() {
+            if tx.send(line.unwrap()).is_err() {
+                break;
+            }
+        }
+    });
+    let next_line = |what: &str| {
+        rx.recv_timeout(std::time::Duration::from_secs(60))
+            .unwrap_or_else(|e| panic!("{what}: no line came ({e})"))
+    };
+    stdin
+        .write_all(b"YUV4MPEG2 W64 H48 F25:1 Ip A1:1 C444\n")
+        .unwrap();
+    for (k, img) in frames.iter().enumerate() {
+        stdin.write_all(&y4m_frame(img)).unwrap();
+        stdin.flush().unwrap();
+        if k == 0 {
+            let header = next_line("the header");
+            assert!(header.starts_with("frame,cx,cy"), "{header}");
+        }
+        // The frame's row, before the next frame exists.
+        let row = next_line(&format!(
+            "the row of frame {k}, the next frame not yet sent"
+        ));
+        assert!(row.starts_with(&format!("{k},")), "frame {k}: {row:?}");
+    }
+    drop(stdin);
+    reader.join().unwrap();
+    assert!(rx.try_recv().is_err(), "a row after the last frame's");
+    assert!(child.wait().unwrap().success());
+
+    // A frame of another size fails the track at frame 3, after the rows of frames 0-2.
+    image::RgbImage::new(32, 24)
+        .save(dir.join("frames/00003.png"))
+        .unwrap();
+    let out = pftrack(&["track", seq, "--backend", "cpu", "--stream"]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success(), "{err}");
+    assert_eq!(
+        err.lines().filter(|l| l.contains("error")).count(),
+        1,
+        "{err}"
+    );
+    assert!(
+        err.contains("after the pose rows of frames 0 to 2") && err.contains("reading frame 3"),
+        "{err}"
+    );
+    let text = String::from_utf8_lossy(&out.stdout);
+    let whole = String::from_utf8_lossy(&whole.stdout);
+    assert_eq!(
+        text.lines().collect::<Vec<_>>(),
+        whole.lines().take(4).collect::<Vec<_>>()
+    );
+
+    let csv = dir.join("poses.csv");
+    let out = pftrack(&["track", seq, "--stream", "--out", csv.to_str().unwrap()]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    assert!(err.contains("--stream") && err.contains("--out"), "{err}");
+    assert!(!csv.exists());
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
 /// A warning naming a folder whose name holds a newline stays on one line, as an error does:
 /// each line on standard error is one message.
 #[cfg(unix)]

@@ -317,9 +317,18 @@ pub struct TrackArgs {
     #[arg(long)]
     pub max_frames: Option<usize>,
     /// Pose CSV to write (`frame,cx,cy,a,b,rx,ry,rz,score,lost,theta`); standard output if absent
-    /// or `-`.
+    /// or `-`. Either way the poses are written once the whole track is done, so that a run
+    /// that fails part-way writes none (see --stream for rows as they come).
     #[arg(long, short)]
     pub out: Option<PathBuf>,
+    /// Write each pose row to standard output as soon as its frame is tracked, flushed, instead
+    /// of all at the end: for live input, such as a camera through ffmpeg (`ffmpeg -f v4l2 -i
+    /// /dev/video0 -f yuv4mpegpipe - | pftrack track - --init-box ... --stream`). A run that
+    /// fails part-way has then written the rows of the frames before the failure, and its
+    /// error says how many; it still exits non-zero. Not with --out FILE, which is written
+    /// whole or not at all.
+    #[arg(long)]
+    pub stream: bool,
     /// Write each frame with the ellipse, pan/tilt bars and angles drawn, as PNG (NNNNN.png),
     /// here. The frames are drawn into a hidden folder inside and moved into place when the
     /// whole track is done: a run that fails leaves the folder as it found it, as it writes no
@@ -866,6 +875,15 @@ pub fn run(mut a: TrackArgs) -> anyhow::Result<()> {
     if a.out.as_deref() == Some(Path::new(frames::STDIN)) {
         a.out = None;
     }
+    if a.stream
+        && let Some(o) = &a.out
+    {
+        bail!(
+            "--stream writes the poses to standard output as they come, and --out {} is written \
+             whole or not at all: give one of them",
+            o.display()
+        );
+    }
     if a.max_frames == Some(0) {
         bail!("--max-frames must be at least 1 (the first frame is the initial estimate)");
     }
@@ -1203,42 +1221,64 @@ fn run_loop(
         None => None,
     };
     let mut stdout_rows = Vec::new();
+    // With --stream, the rows written so far.
+    let mut streamed = 0usize;
+    if a.stream {
+        outln!("{}", pftrack::io::pose_csv_header(true))?;
+        std::io::Write::flush(&mut std::io::stdout()).map_err(crate::StdoutError)?;
+    }
     let mut emit = |e: &Estimate, frame: &image::RgbImage| -> anyhow::Result<()> {
         let r = to_input.record(&e.to_record());
         match csv_out.as_mut() {
             Some(w) => w.write(&r)?,
+            None if a.stream => {
+                // Drawn first: a render that fails is the failure of this frame, whose row
+                // then was not written.
+                render_frame(render, e, frame)?;
+                outln!("{}", pftrack::io::format_pose_row(&r, true))?;
+                std::io::Write::flush(&mut std::io::stdout()).map_err(crate::StdoutError)?;
+                streamed += 1;
+                pb.inc(1);
+                return Ok(());
+            }
             None => stdout_rows.push(r),
         }
-        if let Some(dir) = render {
-            let o = Overlay {
-                frame_index: e.frame,
-                ellipse: e.ellipse,
-                angles_deg: e.angles_deg(),
-                score: e.confidence,
-                lost: e.lost,
-            };
-            let scale = default_scale(frame.width());
-            write_png(&dir.frame(e.frame), &render_overlay(frame, &o, scale))?;
-        }
+        render_frame(render, e, frame)?;
         pb.inc(1);
         Ok(())
     };
-    emit(&tracker.initial_estimate(), first)?;
     let mut n = 1;
-    while n < limit {
-        let Some(frame) = source.next() else { break };
-        let frame = frame.with_context(|| format!("reading frame {n}"))?;
-        let est = tracker
-            .step(&frame)
-            .with_context(|| format!("tracking frame {n}"))?;
-        if let Some(notice) = tracker.take_engine_notice() {
-            let notice = crate::in_cli_terms(&notice);
-            pb.suspend(|| errln!("pftrack: frame {n}: {notice}"));
+    let mut track = || -> anyhow::Result<()> {
+        emit(&tracker.initial_estimate(), first)?;
+        while n < limit {
+            let Some(frame) = source.next() else { break };
+            let frame = frame.with_context(|| format!("reading frame {n}"))?;
+            let est = tracker
+                .step(&frame)
+                .with_context(|| format!("tracking frame {n}"))?;
+            if let Some(notice) = tracker.take_engine_notice() {
+                let notice = crate::in_cli_terms(&notice);
+                pb.suspend(|| errln!("pftrack: frame {n}: {notice}"));
+            }
+            emit(&est, &frame)?;
+            n += 1;
         }
-        emit(&est, &frame)?;
-        n += 1;
-    }
+        Ok(())
+    };
+    let tracked = track();
     pb.finish_and_clear();
+    if let Err(e) = tracked {
+        return Err(match streamed {
+            // A closed standard output is no failure to explain.
+            _ if !a.stream || e.chain().any(crate::closed_pipe) => e,
+            0 => e.context("before any pose row (--stream)"),
+            k => e.context(format!(
+                "after the pose rows of frames 0 to {} (written to standard output as they came, \
+                 --stream)",
+                k - 1
+            )),
+        });
+    }
     // The rendered frames' places are checked before the poses are committed: a render that
     // cannot be moved in fails the run with no pose CSV.
     let moves = render
@@ -1247,9 +1287,30 @@ fn run_loop(
         .unwrap_or_default();
     match csv_out {
         Some(w) => w.finish()?,
+        None if a.stream => {}
         None => out!("{}", pftrack::io::format_pose_csv(&stdout_rows, true))?,
     }
     Ok((n, moves))
+}
+
+/// Draws frame `e.frame` with its estimate into the render's staging folder, if rendering.
+fn render_frame(
+    render: Option<&RenderStaging>,
+    e: &Estimate,
+    frame: &image::RgbImage,
+) -> anyhow::Result<()> {
+    if let Some(dir) = render {
+        let o = Overlay {
+            frame_index: e.frame,
+            ellipse: e.ellipse,
+            angles_deg: e.angles_deg(),
+            score: e.confidence,
+            lost: e.lost,
+        };
+        let scale = default_scale(frame.width());
+        write_png(&dir.frame(e.frame), &render_overlay(frame, &o, scale))?;
+    }
+    Ok(())
 }
 
 #[cfg(test)]
