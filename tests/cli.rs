@@ -1216,6 +1216,121 @@ fn cli_stream_writes_each_row_as_its_frame_is_tracked() {
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
+/// `--render-video` writes the frames `--render` draws as one video, the same frames (read
+/// back through ffmpeg, within the codec's loss); a failed run leaves none, partial or whole;
+/// names that clash with the inputs or the render are refused.
+#[test]
+fn cli_render_video_writes_the_rendered_frames_or_nothing() {
+    if !pftrack::frames::FfmpegTools::default().available() {
+        eprintln!("skip: ffmpeg not on PATH");
+        return;
+    }
+    let dir = synth_dir("render-video", 5, "65x49");
+    let seq = dir.to_str().unwrap();
+    let (render, video) = (dir.join("render"), dir.join("track.mkv"));
+    let out = pftrack_ok(&[
+        "track",
+        seq,
+        "--backend",
+        "cpu",
+        "--render",
+        render.to_str().unwrap(),
+        "--render-video",
+        video.to_str().unwrap(),
+        "--render-fps",
+        "10",
+        "-o",
+        dir.join("poses.csv").to_str().unwrap(),
+    ]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("video in"), "{err}");
+    let drawn: Vec<image::RgbImage> = (0..5)
+        .map(|k| {
+            image::open(render.join(format!("{k:05}.png")))
+                .unwrap()
+                .to_rgb8()
+        })
+        .collect();
+    let (w, h) = drawn[0].dimensions();
+    let mut read =
+        pftrack::frames::open(&video, &pftrack::frames::SourceOptions { resize: None }).unwrap();
+    assert_eq!(read.size(), (w + w % 2, h + h % 2));
+    let mut n = 0;
+    for (k, frame) in read.by_ref().enumerate() {
+        let frame = frame.unwrap();
+        // Mean absolute difference over the drawn part: the codec's loss only.
+        let mut sum = 0u64;
+        for (x, y, p) in drawn[k].enumerate_pixels() {
+            let q = frame.get_pixel(x, y);
+            sum += (0..3).map(|c| p[c].abs_diff(q[c]) as u64).sum::<u64>();
+        }
+        let mad = sum as f64 / (3 * w * h) as f64;
+        assert!(mad < 6.0, "frame {k}: mean difference {mad}");
+        n += 1;
+    }
+    assert_eq!(n, 5);
+    let hidden: Vec<String> = names(&dir)
+        .into_iter()
+        .filter(|n| n.starts_with('.'))
+        .collect();
+    assert!(hidden.is_empty(), "{hidden:?}");
+
+    // A frame of another size fails the run at frame 3: no video, partial or whole.
+    std::fs::remove_file(&video).unwrap();
+    image::RgbImage::new(32, 24)
+        .save(dir.join("frames/00003.png"))
+        .unwrap();
+    let out = pftrack(&[
+        "track",
+        seq,
+        "--backend",
+        "cpu",
+        "--render-video",
+        video.to_str().unwrap(),
+    ]);
+    assert!(!out.status.success());
+    let left: Vec<String> = names(&dir)
+        .into_iter()
+        .filter(|n| n.contains("track.mkv"))
+        .collect();
+    assert!(left.is_empty(), "{left:?}");
+
+    // Clashes, refused before anything is tracked.
+    let init = dir.join("init.txt");
+    for (args, needle) in [
+        (
+            vec!["--render-video", init.to_str().unwrap()],
+            "is an input",
+        ),
+        (
+            vec![
+                "--render-video",
+                render.to_str().unwrap(),
+                "--render",
+                render.to_str().unwrap(),
+            ],
+            "both name",
+        ),
+        (vec!["--render-video", "x.png"], "still image"),
+        (vec!["--render-fps", "10"], "--render-video"),
+        (
+            vec!["--render-video", "x.mp4", "--render-fps", "0"],
+            "frame rate",
+        ),
+    ] {
+        let mut all = vec!["track", seq, "--backend", "cpu"];
+        all.extend(args);
+        let out = pftrack(&all);
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(
+            !out.status.success() && err.contains(needle),
+            "{all:?}: {err}"
+        );
+        assert_eq!(err.lines().count(), 1, "{err}");
+    }
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
 /// A warning naming a folder whose name holds a newline stays on one line, as an error does:
 /// each line on standard error is one message.
 #[cfg(unix)]
@@ -1352,6 +1467,7 @@ fn cli_an_interrupted_track_leaves_nothing_behind() {
         stream.extend((0..w * h).map(|i| (((i % w + k) * 37 + (i / w) * 11) % 251) as u8));
         stream.extend(std::iter::repeat_n(128u8, 2 * w * h));
     }
+    let ffmpeg = pftrack::frames::FfmpegTools::default().available();
     // (signal sent first, SIGHUP ignored from the start, the signal that ends the run)
     for (first, nohup, ends) in [
         (libc::SIGINT, false, libc::SIGINT),
@@ -1360,6 +1476,7 @@ fn cli_an_interrupted_track_leaves_nothing_behind() {
     ] {
         let csv = dir.join("poses.csv");
         let render = dir.join("render");
+        let video = dir.join("track.mkv");
         let mut cmd = Command::new(env!("CARGO_BIN_EXE_pftrack"));
         cmd.args([
             "track",
@@ -1375,6 +1492,13 @@ fn cli_an_interrupted_track_leaves_nothing_behind() {
             "--render",
             render.to_str().unwrap(),
         ])
+        // The video too, where ffmpeg is at hand to write it.
+        .args(
+            ffmpeg
+                .then_some(["--render-video", video.to_str().unwrap()])
+                .into_iter()
+                .flatten(),
+        )
         .stdin(Stdio::piped())
         .stdout(Stdio::piped())
         .stderr(Stdio::piped());
@@ -1400,6 +1524,13 @@ fn cli_an_interrupted_track_leaves_nothing_behind() {
                 .any(|n| n.starts_with(".poses.csv.") && n.ends_with(".partial"))
         };
         assert!(partial_csv(&names_then), "{names_then:?}");
+        assert!(
+            !ffmpeg
+                || names_then
+                    .iter()
+                    .any(|n| n.starts_with(".track.mkv.") && n.ends_with(".partial.mkv")),
+            "{names_then:?}"
+        );
         send(&child, first);
         if nohup {
             // Ignored: still running, its partial files in place.
@@ -1419,7 +1550,7 @@ fn cli_an_interrupted_track_leaves_nothing_behind() {
         let err = String::from_utf8_lossy(&out.stderr);
         assert!(err.ends_with("pftrack: interrupted\n"), "{first}: {err}");
         assert!(out.stdout.is_empty());
-        // Nothing of the run stays: no CSV, partial or whole, and no render folder.
+        // Nothing of the run stays: no CSV or video, partial or whole, and no render folder.
         assert!(names(&dir).is_empty(), "{first}: {:?}", names(&dir));
     }
     std::fs::remove_dir_all(&dir).unwrap();

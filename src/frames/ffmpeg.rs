@@ -91,7 +91,7 @@ fn spawn_error(program: &Path, input: &Path, e: std::io::Error) -> FrameError {
 
 /// A line of ffmpeg's log without the address in its prefix (`[h264 @ 0x5585572f2d80]` ->
 /// `[h264]`), which differs from run to run.
-fn without_address(line: &str) -> String {
+pub(crate) fn without_address(line: &str) -> String {
     if let Some(at) = line.find(" @ 0x")
         && let Some(end) = line[at..].find(']')
         && line[at + 5..at + end]

@@ -322,7 +322,7 @@ fn through_descriptor(path: &Path) -> bool {
 
 /// `path` with its symbolic links followed, however many (`path` itself when it is none);
 /// a link to nothing gives the path it names. A loop of links is an error.
-fn resolve_links(path: &Path) -> std::io::Result<PathBuf> {
+pub(crate) fn resolve_links(path: &Path) -> std::io::Result<PathBuf> {
     let mut p = path.to_path_buf();
     // The kernel's own bound on a chain of links.
     for _ in 0..40 {

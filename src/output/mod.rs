@@ -1,10 +1,12 @@
 //! What the tracker shows a person: frames with the ellipse, pan and tilt bars, the angles
 //! ([`render_overlay`], drawn with a hand-made bitmap [`font`]), written as PNG files that
-//! appear only once complete ([`write_png`]).
+//! appear only once complete ([`write_png`]), or as one video through ffmpeg
+//! ([`VideoWriter`]).
 
 pub mod draw;
 pub mod font;
 pub mod overlay;
+pub mod video;
 
 use std::path::Path;
 
@@ -16,6 +18,7 @@ use crate::io::{AtomicFile, FormatError};
 pub use overlay::{
     Layout, MAX_SCALED_SIDE, Overlay, capped_scale, default_scale, layout, render_overlay,
 };
+pub use video::{VideoError, VideoWriter};
 
 /// Errors writing output frames.
 #[derive(Debug, thiserror::Error)]

@@ -12,7 +12,7 @@ use pftrack::io::StagingDir;
 use pftrack::io::{InitFile, PoseCsvWriter};
 // Rendered frames are numbered as synthetic ones are: NNNNN.png.
 use pftrack::likelihood::{Backend, create_engine};
-use pftrack::output::{Overlay, default_scale, render_overlay, write_png};
+use pftrack::output::{Overlay, VideoWriter, default_scale, render_overlay, write_png};
 use pftrack::synth::frame_name;
 use pftrack::tracker::{ColourUpdate, Estimate, Init, MAX_WEIGHT, Mode, Tracker, TrackerConfig};
 
@@ -339,6 +339,21 @@ pub struct TrackArgs {
     /// at one size, so `ffmpeg -i DIR/%05d.png` makes a video of them.
     #[arg(long, value_name = "DIR")]
     pub render: Option<PathBuf>,
+    /// Write the frames as --render draws them (the ellipse, the bars, the angles) as one
+    /// video through ffmpeg, in the container FILE's extension names (.mp4, .mkv, .webm, .mov,
+    /// .avi in 4:2:0, odd sizes padded by a pixel; .gif; any other ffmpeg knows), at
+    /// --render-fps. With or without --render. Like the pose CSV it appears only once the whole
+    /// track is done: a run that fails leaves none.
+    #[arg(long, value_name = "FILE")]
+    pub render_video: Option<PathBuf>,
+    /// Frame rate of --render-video, frames a second.
+    #[arg(
+        long,
+        value_name = "FPS",
+        default_value_t = 25.0,
+        requires = "render_video"
+    )]
+    pub render_fps: f64,
 }
 
 pub fn parse_floats(s: &str, n: &[usize], what: &str) -> anyhow::Result<Vec<f64>> {
@@ -904,6 +919,21 @@ pub fn run(mut a: TrackArgs) -> anyhow::Result<()> {
         );
     }
     crate::paths::track_outputs(&frames_path, &read, a.out.as_deref(), a.render.as_deref())?;
+    if let Some(v) = a.render_video.as_deref() {
+        let mut inputs = vec![frames_path.as_path(), a.input.as_path()];
+        inputs.extend(&read);
+        inputs.extend(a.out.as_deref());
+        crate::paths::not_an_input("--render-video", v, &inputs)?;
+        if a.render
+            .as_deref()
+            .is_some_and(|r| crate::paths::same(v, r))
+        {
+            bail!(
+                "--render and --render-video both name {}: the frames and the video need places of their own",
+                v.display()
+            );
+        }
+    }
     // A folder written by `synth` (its `frames` read, with or without its init file): its
     // ground truth is not read by the track, but is what the track is scored against.
     let truth = match synth_init.as_deref() {
@@ -989,6 +1019,11 @@ pub fn run(mut a: TrackArgs) -> anyhow::Result<()> {
     if let Some(n) = notice {
         errln!("pftrack: {}", crate::in_cli_terms(&n));
     }
+    let mut video = a
+        .render_video
+        .as_deref()
+        .map(|p| VideoWriter::create(p, a.render_fps, &frames::FfmpegTools::default()))
+        .transpose()?;
     let staging = a.render.as_deref().map(RenderStaging::create).transpose()?;
     let first = source.next().context("the input has no frames")??;
     let camera = match cfg.camera_hfov_deg {
@@ -1004,9 +1039,21 @@ pub fn run(mut a: TrackArgs) -> anyhow::Result<()> {
         &mut source,
         &mut tracker,
         &first,
-        staging.as_ref(),
+        Drawn {
+            render: staging.as_ref(),
+            video: video.as_mut(),
+        },
         to_frames.inverse(),
     )?;
+    // Closed in the loop before the poses were committed; its file moves in now.
+    let video_note = match video {
+        Some(v) => {
+            let path = v.path().display().to_string();
+            v.commit()?;
+            format!(", video in {path}")
+        }
+        None => String::new(),
+    };
     if let Some(s) = staging {
         let dir = s.dir.clone();
         let removed = s.finish(moves, written)?;
@@ -1019,7 +1066,7 @@ pub fn run(mut a: TrackArgs) -> anyhow::Result<()> {
         }
     }
     errln!(
-        "pftrack: tracked {written} frame{} with {} ({}, {}){}",
+        "pftrack: tracked {written} frame{} with {} ({}, {}){}{video_note}",
         if written == 1 { "" } else { "s" },
         tracker.engine_name(),
         mode.name(),
@@ -1211,9 +1258,10 @@ fn run_loop(
     source: &mut frames::FrameSource,
     tracker: &mut Tracker,
     first: &image::RgbImage,
-    render: Option<&RenderStaging>,
+    mut drawn: Drawn<'_>,
     to_input: Rescale,
 ) -> anyhow::Result<(usize, Vec<(PathBuf, PathBuf)>)> {
+    let render = drawn.render;
     let limit = a.max_frames.unwrap_or(usize::MAX);
     let pb = progress(source.len_hint().map(|n| n.min(limit)));
     let mut csv_out = match &a.out {
@@ -1234,7 +1282,7 @@ fn run_loop(
             None if a.stream => {
                 // Drawn first: a render that fails is the failure of this frame, whose row
                 // then was not written.
-                render_frame(render, e, frame)?;
+                drawn.draw(e, frame)?;
                 outln!("{}", pftrack::io::format_pose_row(&r, true))?;
                 std::io::Write::flush(&mut std::io::stdout()).map_err(crate::StdoutError)?;
                 streamed += 1;
@@ -1243,7 +1291,7 @@ fn run_loop(
             }
             None => stdout_rows.push(r),
         }
-        render_frame(render, e, frame)?;
+        drawn.draw(e, frame)?;
         pb.inc(1);
         Ok(())
     };
@@ -1285,6 +1333,11 @@ fn run_loop(
         .map(RenderStaging::moves)
         .transpose()?
         .unwrap_or_default();
+    // So is the video finished (ffmpeg's own failure fails the run with no pose CSV), to be
+    // moved in once the poses are.
+    if let Some(v) = drawn.video.as_deref_mut() {
+        v.close()?;
+    }
     match csv_out {
         Some(w) => w.finish()?,
         None if a.stream => {}
@@ -1293,13 +1346,19 @@ fn run_loop(
     Ok((n, moves))
 }
 
-/// Draws frame `e.frame` with its estimate into the render's staging folder, if rendering.
-fn render_frame(
-    render: Option<&RenderStaging>,
-    e: &Estimate,
-    frame: &image::RgbImage,
-) -> anyhow::Result<()> {
-    if let Some(dir) = render {
+/// Where each frame is drawn with its estimate: the render's staging folder (`--render`), the
+/// video (`--render-video`), both or neither.
+struct Drawn<'a> {
+    render: Option<&'a RenderStaging>,
+    video: Option<&'a mut VideoWriter>,
+}
+
+impl Drawn<'_> {
+    /// Draws frame `e.frame` with its estimate, once, into each.
+    fn draw(&mut self, e: &Estimate, frame: &image::RgbImage) -> anyhow::Result<()> {
+        if self.render.is_none() && self.video.is_none() {
+            return Ok(());
+        }
         let o = Overlay {
             frame_index: e.frame,
             ellipse: e.ellipse,
@@ -1307,10 +1366,15 @@ fn render_frame(
             score: e.confidence,
             lost: e.lost,
         };
-        let scale = default_scale(frame.width());
-        write_png(&dir.frame(e.frame), &render_overlay(frame, &o, scale))?;
+        let drawn = render_overlay(frame, &o, default_scale(frame.width()));
+        if let Some(dir) = self.render {
+            write_png(&dir.frame(e.frame), &drawn)?;
+        }
+        if let Some(v) = self.video.as_deref_mut() {
+            v.write(&drawn)?;
+        }
+        Ok(())
     }
-    Ok(())
 }
 
 #[cfg(test)]
