@@ -173,8 +173,8 @@ else
     for sc in $scenarios; do
         row=$(for s in $seeds; do
             f=$out/$sc-$s.json
-            echo "$(field "$f" rx) $(field "$f" ry) $(field "$f" rz) $(field "$f" mean_centre_error_px) $(field "$f" lost) $(field "$f" rmse)"
-        done | awk -v sc="$sc" '{ x += $1; y += $2; z += $3; c += $4; l += $5; t += $6; n++;
+            echo "$(field "$f" rx) $(field "$f" ry) $(field "$f" rz) $(field "$f" mean_centre_error_px) $(field "$f" rmse) $(field "$f" lost)"
+        done | awk -v sc="$sc" '{ x += $1; y += $2; z += $3; c += $4; t += $5; l += $6; n++;
                 w = $1 + $2 + $3; if (w > worst) worst = w }
             END { printf "%-6s %7.2f %7.2f %7.2f %7.2f %10.2f %5d %8.1f %.6f\n", sc, x / n, y / n,
                   z / n, t / n, c / n, l, worst, (x + y + z) / n }')

@@ -1291,9 +1291,77 @@ fn cli_render_video_writes_the_rendered_frames_or_nothing() {
     assert!(!out.status.success());
     let left: Vec<String> = names(&dir)
         .into_iter()
-        .filter(|n| n.contains("track.mkv"))
+        .filter(|n| n.contains("track.mkv") || n.starts_with(".pftrack-video"))
         .collect();
     assert!(left.is_empty(), "{left:?}");
+    // With the frame mended, an ffmpeg that fails only as the video ends (one that says so
+    // and exits 0, as ffmpeg 5.1 does on a full disk) fails the run with neither the video
+    // nor the poses; the real one writes both.
+    image::open(dir.join("frames/00002.png"))
+        .unwrap()
+        .save(dir.join("frames/00003.png"))
+        .unwrap();
+    let csv = dir.join("poses-after.csv");
+    let args = [
+        "track",
+        seq,
+        "--backend",
+        "cpu",
+        "--render-video",
+        video.to_str().unwrap(),
+        "--out",
+        csv.to_str().unwrap(),
+    ];
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::PermissionsExt;
+        let bin = tmp_dir("render-video-fake-ffmpeg");
+        std::fs::create_dir_all(&bin).unwrap();
+        std::fs::write(
+            bin.join("ffmpeg"),
+            "#!/bin/sh\nfor a; do out=$a; done\ncat > /dev/null\nprintf x > \"${out#file:}\"\n\
+             echo 'Error writing trailer: No space left on device' >&2\nexit 0\n",
+        )
+        .unwrap();
+        std::fs::set_permissions(bin.join("ffmpeg"), std::fs::Permissions::from_mode(0o755))
+            .unwrap();
+        let path = format!("{}:{}", bin.display(), std::env::var("PATH").unwrap());
+        let out = Command::new(env!("CARGO_BIN_EXE_pftrack"))
+            .args(args)
+            .env("PATH", path)
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(1), "{err}");
+        assert!(err.contains("No space left on device"), "{err}");
+        assert!(!csv.exists() && !video.exists());
+        let staged: Vec<String> = names(&dir)
+            .into_iter()
+            .filter(|n| n.starts_with(".pftrack-video"))
+            .collect();
+        assert!(staged.is_empty(), "{staged:?}");
+        // Streamed, the rows went out before the video failed, and the error says which.
+        let out = Command::new(env!("CARGO_BIN_EXE_pftrack"))
+            .args(&args[..6])
+            .arg("--stream")
+            .env(
+                "PATH",
+                format!("{}:{}", bin.display(), std::env::var("PATH").unwrap()),
+            )
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(1), "{err}");
+        assert!(
+            err.contains("after the pose rows of frames 0 to 4"),
+            "{err}"
+        );
+        assert_eq!(String::from_utf8_lossy(&out.stdout).lines().count(), 6);
+        std::fs::remove_dir_all(&bin).unwrap();
+    }
+    let out = pftrack(&args);
+    assert!(out.status.success(), "{out:?}");
+    assert!(csv.exists() && video.exists());
 
     // Clashes, refused before anything is tracked.
     let init = dir.join("init.txt");
@@ -1311,11 +1379,14 @@ fn cli_render_video_writes_the_rendered_frames_or_nothing() {
             ],
             "both name",
         ),
-        (vec!["--render-video", "x.png"], "still image"),
+        (vec!["--render-video", "x.png"], "container"),
+        (vec!["--render-video", "o%d.tif"], "container"),
+        (vec!["--render-video", "/dev/stdout"], "descriptors"),
+        (vec!["--render-video", "nowhere/x.mp4"], "no folder"),
         (vec!["--render-fps", "10"], "--render-video"),
         (
             vec!["--render-video", "x.mp4", "--render-fps", "0"],
-            "frame rate",
+            "--render-fps 0: a frame rate",
         ),
     ] {
         let mut all = vec!["track", seq, "--backend", "cpu"];
@@ -1528,7 +1599,7 @@ fn cli_an_interrupted_track_leaves_nothing_behind() {
             !ffmpeg
                 || names_then
                     .iter()
-                    .any(|n| n.starts_with(".track.mkv.") && n.ends_with(".partial.mkv")),
+                    .any(|n| n.starts_with(".pftrack-video-") && n.ends_with(".partial")),
             "{names_then:?}"
         );
         send(&child, first);

@@ -286,7 +286,7 @@ fn partial_path(path: &Path) -> PathBuf {
 /// descriptors: `/dev/stdout`, `/dev/stderr`, `/dev/stdin`, an entry of `/dev/fd` or of a
 /// `/proc/PID/fd` folder (each hop's folder resolved, so `/dev/fd/1` and relative spellings
 /// count too).
-fn through_descriptor(path: &Path) -> bool {
+pub(crate) fn through_descriptor(path: &Path) -> bool {
     let mut p = path.to_path_buf();
     for _ in 0..40 {
         let dir = match p.parent() {

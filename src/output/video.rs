@@ -1,19 +1,25 @@
 //! Frames written as one video file through an `ffmpeg` child process: raw RGB24 frames over
-//! its standard input, encoded in the container the file's extension names.
+//! its standard input, encoded in the container the file's extension names
+//! ([`CONTAINERS`]).
 //!
-//! The file appears under its name only once complete, as the project's other outputs do
-//! ([`crate::io::AtomicFile`]): ffmpeg writes a partial file beside it,
-//! `.NAME.PID-N.partial.EXT` (the extension last, for ffmpeg to choose the container by), which
-//! [`VideoWriter::commit`] renames into place. Dropped before that, or on any error, the
-//! writer stops ffmpeg and removes the partial file; the partial file is registered
-//! ([`crate::io::partial`]) so that an interrupted program can remove it too.
+//! The file appears under its name only once complete: ffmpeg writes it in a hidden staging
+//! folder beside the target (`.pftrack-video-PID-NANOS.partial`, a
+//! [`crate::io::StagingDir`], registered so that an interrupted program removes it), and
+//! [`VideoWriter::commit`] syncs it and renames it into place, keeping the permissions of a
+//! file it replaces, as [`crate::io::AtomicFile`] does. Dropped before that, or on any error,
+//! the writer stops ffmpeg and removes the staging folder: an ffmpeg that had not yet opened
+//! its output then finds no folder to create it in. The target is a file of its own: a
+//! folder, a stream, a device or one of the process's descriptors (`/dev/stdout`) is refused,
+//! and so is a folder that does not exist. ffmpeg runs in a process group of its own, so that
+//! a terminal's Ctrl-C reaches the program, which cleans up, and not ffmpeg half-way.
 //!
-//! ffmpeg starts with the first frame, whose size every later frame must have. Containers
-//! players expect in 4:2:0 (`mp4`, `m4v`, `mov`, `mkv`, `webm`, `avi`, `ts`) get
-//! `-pix_fmt yuv420p`, and so, as 4:2:0 needs, an odd width or height is padded to the next
-//! even one with a black column or row; other extensions take ffmpeg's defaults (`gif`
-//! its palette). ffmpeg's own failure (an extension it has no container for, a codec it
-//! lacks, a disk full) comes back with the last line it wrote on standard error.
+//! ffmpeg starts with the first frame, whose size every later frame must have. The video
+//! containers are written in 4:2:0 (`-pix_fmt yuv420p`), so an odd width or height is padded
+//! to the next even one with a black column or row; `.gif` takes ffmpeg's palette (and plays
+//! at whole hundredths of a second a frame, at most 50 frames a second), `.y4m` 4:4:4. ffmpeg's
+//! failure is the writer's: a non-zero exit, or anything it says at its `error` level (it
+//! exits 0 after failing to write a trailer to a full disk, and says so), with the last line
+//! it wrote.
 
 use std::ffi::OsString;
 use std::io::{Read, Write};
@@ -24,13 +30,40 @@ use std::thread::JoinHandle;
 use image::RgbImage;
 
 use crate::frames::FfmpegTools;
-use crate::io::{Partial, PartialKind};
+use crate::io::StagingDir;
 
 /// The lowest and highest frame rate a video is written at (frames per second).
 pub const FPS_RANGE: (f64, f64) = (0.01, 1000.0);
 
-/// The extensions whose containers are written in 4:2:0 (`-pix_fmt yuv420p`).
-const YUV420_EXTENSIONS: [&str; 7] = ["mp4", "m4v", "mov", "mkv", "webm", "avi", "ts"];
+/// The file extensions a video is written with (lower case; any case is taken), each with
+/// ffmpeg's container (muxer) and the pixel format it is written in (`None`: ffmpeg's choice).
+pub const CONTAINERS: [(&str, &str, Option<&str>); 10] = [
+    ("mp4", "mp4", Some("yuv420p")),
+    ("m4v", "mp4", Some("yuv420p")),
+    ("mov", "mov", Some("yuv420p")),
+    ("mkv", "matroska", Some("yuv420p")),
+    ("webm", "webm", Some("yuv420p")),
+    ("avi", "avi", Some("yuv420p")),
+    ("ts", "mpegts", Some("yuv420p")),
+    ("nut", "nut", Some("yuv420p")),
+    ("gif", "gif", None),
+    ("y4m", "yuv4mpegpipe", Some("yuv444p")),
+];
+
+/// The extensions of [`CONTAINERS`] as a reader is told them: `.mp4, .m4v, ...`.
+fn container_list() -> String {
+    CONTAINERS
+        .iter()
+        .map(|(e, _, _)| format!(".{e}"))
+        .collect::<Vec<_>>()
+        .join(", ")
+}
+
+/// The staging folders' prefix, for [`StagingDir`].
+const STAGING_PREFIX: &str = "pftrack-video";
+
+/// How long a staging folder must have been left untouched to be taken for a killed run's.
+const STALE_STAGING: std::time::Duration = std::time::Duration::from_secs(3600);
 
 /// The most of ffmpeg's standard error kept (its tail), bytes.
 const STDERR_KEEP: usize = 16 * 1024;
@@ -50,19 +83,22 @@ pub struct VideoError {
 pub struct VideoWriter {
     /// The name the caller gave (for messages).
     target: PathBuf,
-    /// The file the partial file replaces: the target, or the file its links end at.
+    /// The file the video replaces: the target, or the file its links end at.
     to: PathBuf,
+    /// ffmpeg's container and pixel format for the target's extension.
+    muxer: &'static str,
+    pix_fmt: Option<&'static str>,
+    /// The staging folder the video is written in, and the file in it.
+    staging: StagingDir,
     partial: PathBuf,
     fps: f64,
     tools: FfmpegTools,
     /// ffmpeg, from the first frame on.
     running: Option<Running>,
-    /// The partial file's registration, from the first frame on.
-    registered: Option<Partial>,
     /// Width and height of the frames.
     size: Option<(u32, u32)>,
     frames: usize,
-    /// Whether ffmpeg has finished and written the partial file whole.
+    /// Whether ffmpeg has finished and written the file whole.
     closed: bool,
 }
 
@@ -76,9 +112,10 @@ struct Running {
 
 impl VideoWriter {
     /// Prepares a video at `path`, `fps` frames a second, written by `tools.ffmpeg`. Checked
-    /// now: the frame rate, that `path` names a file with an extension, and that it is not a
-    /// folder nor a stream or device (a video is a file of its own, finished by a rename).
-    /// ffmpeg itself starts with the first frame ([`VideoWriter::write`]).
+    /// now, before any frame: the frame rate, that `path` names a file in an existing folder
+    /// with an extension of [`CONTAINERS`], and that it is not a folder, a stream, a device
+    /// nor one of the process's descriptors; the staging folder is made beside it. ffmpeg
+    /// itself starts with the first frame ([`VideoWriter::write`]).
     pub fn create(path: &Path, fps: f64, tools: &FfmpegTools) -> Result<Self, VideoError> {
         let fail = |message: String| VideoError {
             path: path.display().to_string(),
@@ -90,40 +127,61 @@ impl VideoWriter {
                 FPS_RANGE.0, FPS_RANGE.1
             )));
         }
-        let to = crate::io::atomic::resolve_links(path)
-            .map_err(|e| fail(format!("cannot follow its links: {e}")))?;
-        if to
-            .extension()
-            .is_none_or(|e| e.is_empty() || to.file_stem().is_none())
-        {
+        let spelled = path.as_os_str().to_string_lossy();
+        if spelled.ends_with('/') || path.file_name().is_none() {
+            return Err(fail("names a folder, not a file".to_string()));
+        }
+        if crate::io::atomic::through_descriptor(path) {
             return Err(fail(
-                "no extension to choose the video's container by (e.g. .mp4, .mkv, .gif)"
+                "is one of the process's descriptors: a video is written to a file of its own"
                     .to_string(),
             ));
         }
-        if crate::frames::dir::is_image_file(&to) {
-            return Err(fail(
-                "names a still image, not a video (.mp4, .mkv, .webm, .gif, ...)".to_string(),
-            ));
-        }
+        let to = crate::io::atomic::resolve_links(path)
+            .map_err(|e| fail(format!("cannot follow its links: {e}")))?;
         match std::fs::metadata(&to) {
             Ok(m) if m.is_dir() => return Err(fail("is a folder".to_string())),
             Ok(m) if !m.is_file() => {
                 return Err(fail(
-                    "is not a regular file (a video is written to a file of its own)".to_string(),
+                    "is not a regular file (a stream or a device): a video is written to a file \
+                     of its own"
+                        .to_string(),
                 ));
             }
             _ => {}
         }
-        let partial = partial_video_path(&to);
+        let ext = to
+            .extension()
+            .and_then(|e| e.to_str())
+            .map(str::to_ascii_lowercase)
+            .unwrap_or_default();
+        let Some(&(_, muxer, pix_fmt)) = CONTAINERS.iter().find(|(e, _, _)| *e == ext) else {
+            return Err(fail(format!(
+                "a video is written as {} (its extension chooses the container)",
+                container_list()
+            )));
+        };
+        let folder = match to.parent() {
+            Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
+            _ => PathBuf::from("."),
+        };
+        if !folder.is_dir() {
+            return Err(fail(format!("no folder {}", folder.display())));
+        }
+        StagingDir::sweep_stale(&folder, STAGING_PREFIX, STALE_STAGING);
+        let staging = StagingDir::create(&folder, STAGING_PREFIX)
+            .map_err(|e| fail(format!("cannot write in {}: {e}", folder.display())))?;
+        let partial = staging.path().join(format!("video.{ext}"));
         Ok(Self {
             target: path.to_path_buf(),
             to,
+            muxer,
+            pix_fmt,
+            staging,
             partial,
             fps,
             tools: tools.clone(),
             running: None,
-            registered: None,
             size: None,
             frames: 0,
             closed: false,
@@ -186,43 +244,33 @@ impl VideoWriter {
         }
     }
 
-    /// Starts ffmpeg for frames of `w × h`, writing the partial file (made new and
-    /// registered first, so that nothing of another's is overwritten).
+    /// Starts ffmpeg for frames of `w × h`, writing the file in the staging folder.
     fn start(&mut self, w: u32, h: u32) -> Result<(), VideoError> {
-        let partial = self.partial.clone();
-        let (registered, _) = Partial::create(&partial, PartialKind::File, || {
-            std::fs::OpenOptions::new()
-                .write(true)
-                .create_new(true)
-                .open(&partial)
-        })
-        .map_err(|e| self.error(e.to_string()))?;
-        self.registered = Some(registered);
-        let yuv420 = self
-            .to
-            .extension()
-            .and_then(|e| e.to_str())
-            .is_some_and(|e| YUV420_EXTENSIONS.contains(&e.to_ascii_lowercase().as_str()));
         let mut cmd = Command::new(&self.tools.ffmpeg);
-        cmd.args(["-v", "error", "-nostdin", "-y"])
+        // `-xerror`: an error ends ffmpeg with a failure.
+        cmd.args(["-v", "error", "-xerror", "-nostdin", "-y"])
             .args(["-f", "rawvideo", "-pix_fmt", "rgb24"])
             .arg("-s")
             .arg(format!("{w}x{h}"))
             .arg("-framerate")
             .arg(format!("{}", self.fps))
             .args(["-i", "pipe:0"]);
-        if yuv420 {
-            if w % 2 == 1 || h % 2 == 1 {
+        if let Some(fmt) = self.pix_fmt {
+            if fmt == "yuv420p" && (w % 2 == 1 || h % 2 == 1) {
                 cmd.args(["-vf", "pad=ceil(iw/2)*2:ceil(ih/2)*2"]);
             }
-            cmd.args(["-pix_fmt", "yuv420p"]);
+            cmd.args(["-pix_fmt", fmt]);
         }
+        cmd.args(["-f", self.muxer]);
         let mut out = OsString::from("file:");
-        out.push(partial.as_os_str());
+        out.push(self.partial.as_os_str());
         cmd.arg(out)
             .stdin(Stdio::piped())
             .stdout(Stdio::null())
             .stderr(Stdio::piped());
+        // A process group of its own: a terminal's Ctrl-C is the program's to handle.
+        #[cfg(unix)]
+        std::os::unix::process::CommandExt::process_group(&mut cmd, 0);
         let mut child = cmd.spawn().map_err(|e| {
             if e.kind() == std::io::ErrorKind::NotFound {
                 self.error(format!(
@@ -263,18 +311,20 @@ impl VideoWriter {
     fn wait(&mut self) -> Option<(bool, String)> {
         let mut r = self.running.take()?;
         drop(r.stdin.take());
-        let ok = r.child.wait().is_ok_and(|s| s.success());
+        let exited = r.child.wait().is_ok_and(|s| s.success());
         let text = r
             .stderr
             .take()
             .and_then(|t| t.join().ok())
             .unwrap_or_default();
+        // At the `error` level whatever ffmpeg says is a failure, even when it exits 0.
+        let ok = exited && text.trim().is_empty();
         Some((ok, self.ffmpeg_says(&text)))
     }
 
     /// What ffmpeg's standard error `text` says went wrong, in the target's terms: its last
-    /// line after `ffmpeg: `, with the partial file named as the target, or for an extension
-    /// ffmpeg has no container for, that; empty when it said nothing.
+    /// line after `ffmpeg: `, with the file in the staging folder named as the target; empty
+    /// when it said nothing.
     fn ffmpeg_says(&self, text: &str) -> String {
         if text.contains("suitable output format") || text.contains("choose an output format") {
             return format!(
@@ -333,17 +383,27 @@ impl VideoWriter {
         }
     }
 
-    /// Closes the video if it is not yet ([`VideoWriter::close`]), then renames it into
-    /// place; returns the frames written. On an error the partial file is removed.
+    /// Closes the video if it is not yet ([`VideoWriter::close`]), syncs it and renames it into
+    /// place (a file it replaces lends it its permissions); returns the frames written. On an
+    /// error the staging folder is removed, with the video in it.
     pub fn commit(mut self) -> Result<usize, VideoError> {
         self.close()?;
+        let synced = std::fs::OpenOptions::new()
+            .write(true)
+            .open(&self.partial)
+            .and_then(|f| {
+                if let Ok(old) = std::fs::symlink_metadata(&self.to)
+                    && old.is_file()
+                {
+                    f.set_permissions(old.permissions())?;
+                }
+                f.sync_all()
+            });
+        synced.map_err(|e| self.error(format!("finishing it: {e}")))?;
         let (partial, to) = (self.partial.clone(), self.to.clone());
-        let registered = self.registered.take();
-        let renamed = match registered {
-            Some(reg) => reg.commit(|| std::fs::rename(&partial, &to)),
-            None => Err(std::io::Error::other("nothing was written")),
-        };
-        renamed.map_err(|e| self.error(format!("moving it into place: {e}")))?;
+        self.staging
+            .commit(|| std::fs::rename(&partial, &to))
+            .map_err(|e| self.error(format!("moving it into place: {e}")))?;
         Ok(self.frames)
     }
 }
@@ -355,38 +415,14 @@ impl Drop for VideoWriter {
             let _ = r.child.kill();
         }
         let _ = self.wait();
-        // Still registered: never committed, so the partial file is this writer's to remove.
-        if self.registered.take().is_some() {
-            let _ = std::fs::remove_file(&self.partial);
-        }
+        // The staging folder goes with the writer (its own drop), the video in it unless
+        // committed.
     }
-}
-
-/// `.NAME.PID-N.partial.EXT` beside `path`: a name of this write's own whose extension is the
-/// target's, for ffmpeg to choose the container by.
-fn partial_video_path(path: &Path) -> PathBuf {
-    static COUNT: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
-    let n = COUNT.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
-    let mut name = OsString::from(".");
-    name.push(path.file_name().unwrap_or_default());
-    name.push(format!(".{}-{n}.partial.", std::process::id()));
-    name.push(path.extension().unwrap_or_default());
-    path.with_file_name(name)
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn the_partial_name_keeps_the_extension_last() {
-        let p = partial_video_path(Path::new("/tmp/out/track.mp4"));
-        let name = p.file_name().unwrap().to_str().unwrap();
-        assert!(name.starts_with(".track.mp4."), "{name}");
-        assert!(name.ends_with(".partial.mp4"), "{name}");
-        assert_eq!(p.parent(), Some(Path::new("/tmp/out")));
-        assert_ne!(p, partial_video_path(Path::new("/tmp/out/track.mp4")));
-    }
 
     /// Frames of an odd size come back padded by a black column and row (4:2:0 needs even
     /// sizes), the picture itself where it was; a frame of another size is refused.
@@ -400,6 +436,11 @@ mod tests {
         let dir = std::env::temp_dir().join(format!("pftrack-video-odd-{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
         let target = dir.join("odd.mkv");
+        // A file replaced keeps its permissions.
+        std::fs::write(&target, b"old").unwrap();
+        #[cfg(unix)]
+        std::fs::set_permissions(&target, std::os::unix::fs::PermissionsExt::from_mode(0o600))
+            .unwrap();
         let frame = |k: u8| {
             RgbImage::from_fn(33, 25, |x, y| {
                 image::Rgb([(x * 7) as u8 / 2 + k * 20, (y * 9) as u8, 128])
@@ -412,6 +453,14 @@ mod tests {
         let e = v.write(&RgbImage::new(32, 24)).unwrap_err();
         assert!(e.to_string().contains("after frames of 33x25"), "{e}");
         assert_eq!(v.commit().unwrap(), 3);
+        assert!(staging_left(&dir).is_empty());
+        #[cfg(unix)]
+        assert_eq!(
+            std::os::unix::fs::PermissionsExt::mode(
+                &std::fs::metadata(&target).unwrap().permissions()
+            ) & 0o777,
+            0o600
+        );
         let mut read =
             crate::frames::open(&target, &crate::frames::SourceOptions { resize: None }).unwrap();
         assert_eq!(read.size(), (34, 26));
@@ -433,32 +482,95 @@ mod tests {
         std::fs::remove_dir_all(&dir).unwrap();
     }
 
+    /// The staging folders `VideoWriter`s left in `dir`.
+    fn staging_left(dir: &Path) -> Vec<String> {
+        std::fs::read_dir(dir)
+            .unwrap()
+            .flatten()
+            .map(|e| e.file_name().to_string_lossy().into_owned())
+            .filter(|n| n.starts_with(&format!(".{STAGING_PREFIX}-")))
+            .collect()
+    }
+
+    /// An ffmpeg that says it failed but exits 0 (as ffmpeg 5.1 does when the trailer does
+    /// not fit on a full disk) fails the video: nothing under the target's name, nothing left.
+    #[cfg(unix)]
+    #[test]
+    fn what_ffmpeg_says_at_its_error_level_is_a_failure_even_with_exit_0() {
+        use std::os::unix::fs::PermissionsExt;
+        let dir = std::env::temp_dir().join(format!("pftrack-video-fake-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let fake = dir.join("ffmpeg");
+        // Reads its input, writes a short file where it was told, complains, exits 0.
+        std::fs::write(
+            &fake,
+            "#!/bin/sh\nfor a; do out=$a; done\ncat > /dev/null\nprintf x > \"${out#file:}\"\n\
+             echo \"[mp4 @ 0x5555] Error writing trailer of ${out}: No space left on device\" >&2\n\
+             exit 0\n",
+        )
+        .unwrap();
+        std::fs::set_permissions(&fake, std::fs::Permissions::from_mode(0o755)).unwrap();
+        let tools = FfmpegTools {
+            ffmpeg: fake,
+            ..FfmpegTools::default()
+        };
+        let target = dir.join("full.mp4");
+        let mut v = VideoWriter::create(&target, 25.0, &tools).unwrap();
+        v.write(&RgbImage::new(8, 8)).unwrap();
+        let e = v.commit().unwrap_err().to_string();
+        assert!(e.contains("No space left on device"), "{e}");
+        // Named as the target, not as the file in the staging folder.
+        assert!(
+            e.contains(&format!("trailer of {}", target.display())) && !e.contains("partial"),
+            "{e}"
+        );
+        assert!(!target.exists() && staging_left(&dir).is_empty());
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
     #[test]
     fn bad_settings_are_refused_before_ffmpeg_starts() {
         let tools = FfmpegTools {
             ffmpeg: PathBuf::from("/nonexistent/ffmpeg"),
             ..FfmpegTools::default()
         };
-        let dir = std::env::temp_dir();
+        let dir = std::env::temp_dir().join(format!("pftrack-video-bad-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
         for fps in [0.0, -1.0, f64::NAN, f64::INFINITY, 1e6] {
             let e = VideoWriter::create(&dir.join("a.mp4"), fps, &tools).unwrap_err();
             assert!(e.to_string().contains("frame rate"), "{e}");
         }
-        let e = VideoWriter::create(&dir.join("noext"), 25.0, &tools).unwrap_err();
-        assert!(e.to_string().contains("extension"), "{e}");
-        let e = VideoWriter::create(&dir.join("a.PNG"), 25.0, &tools).unwrap_err();
-        assert!(e.to_string().contains("still image"), "{e}");
-        let e = VideoWriter::create(&dir.join(".mp4"), 25.0, &tools).unwrap_err();
-        assert!(e.to_string().contains("extension"), "{e}");
+        for (name, needle) in [
+            ("noext", "container"),
+            ("a.PNG", "container"),
+            ("a.m3u8", "container"),
+            ("o%d.tif", "container"),
+            (".mp4", "container"),
+            ("sub/a.mp4", "no folder"),
+            ("a.mp4/", "folder"),
+        ] {
+            let e = VideoWriter::create(&dir.join(name), 25.0, &tools).unwrap_err();
+            assert!(e.to_string().contains(needle), "{name}: {e}");
+        }
         let e = VideoWriter::create(&dir, 25.0, &tools).unwrap_err();
-        assert!(e.to_string().contains("extension") || e.to_string().contains("folder"));
+        assert!(e.to_string().contains("folder"), "{e}");
+        std::fs::create_dir(dir.join("d.mkv")).unwrap();
+        let e = VideoWriter::create(&dir.join("d.mkv"), 25.0, &tools).unwrap_err();
+        assert!(e.to_string().contains("is a folder"), "{e}");
+        #[cfg(unix)]
+        {
+            let e = VideoWriter::create(Path::new("/dev/stdout"), 25.0, &tools).unwrap_err();
+            assert!(e.to_string().contains("descriptors"), "{e}");
+        }
+        assert!(staging_left(&dir).is_empty());
         // No ffmpeg: said at the first frame, and nothing is left behind.
-        let target = dir.join(format!("pftrack-video-{}.mp4", std::process::id()));
+        let target = dir.join("a.MP4");
         let mut v = VideoWriter::create(&target, 25.0, &tools).unwrap();
+        assert_eq!(staging_left(&dir).len(), 1);
         let e = v.write(&RgbImage::new(4, 4)).unwrap_err();
         assert!(e.to_string().contains("needs ffmpeg"), "{e}");
-        let partial = v.partial.clone();
         drop(v);
-        assert!(!partial.exists() && !target.exists());
+        assert!(staging_left(&dir).is_empty() && !target.exists());
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 }

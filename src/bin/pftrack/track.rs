@@ -340,10 +340,11 @@ pub struct TrackArgs {
     #[arg(long, value_name = "DIR")]
     pub render: Option<PathBuf>,
     /// Write the frames as --render draws them (the ellipse, the bars, the angles) as one
-    /// video through ffmpeg, in the container FILE's extension names (.mp4, .mkv, .webm, .mov,
-    /// .avi in 4:2:0, odd sizes padded by a pixel; .gif; any other ffmpeg knows), at
-    /// --render-fps. With or without --render. Like the pose CSV it appears only once the whole
-    /// track is done: a run that fails leaves none.
+    /// video through ffmpeg, in the container FILE's extension names: .mp4, .m4v, .mov, .mkv,
+    /// .webm, .avi, .ts or .nut (4:2:0, an odd size padded by a pixel), .gif (at most 50
+    /// frames a second) or .y4m, at --render-fps. With or without --render. Like the pose CSV
+    /// it appears only once the whole track is done, before the CSV: a run that fails leaves
+    /// neither.
     #[arg(long, value_name = "FILE")]
     pub render_video: Option<PathBuf>,
     /// Frame rate of --render-video, frames a second.
@@ -919,6 +920,17 @@ pub fn run(mut a: TrackArgs) -> anyhow::Result<()> {
         );
     }
     crate::paths::track_outputs(&frames_path, &read, a.out.as_deref(), a.render.as_deref())?;
+    if !(a.render_fps.is_finite()
+        && (pftrack::output::video::FPS_RANGE.0..=pftrack::output::video::FPS_RANGE.1)
+            .contains(&a.render_fps))
+    {
+        bail!(
+            "--render-fps {}: a frame rate from {} to {} frames a second",
+            a.render_fps,
+            pftrack::output::video::FPS_RANGE.0,
+            pftrack::output::video::FPS_RANGE.1
+        );
+    }
     if let Some(v) = a.render_video.as_deref() {
         let mut inputs = vec![frames_path.as_path(), a.input.as_path()];
         inputs.extend(&read);
@@ -1019,7 +1031,7 @@ pub fn run(mut a: TrackArgs) -> anyhow::Result<()> {
     if let Some(n) = notice {
         errln!("pftrack: {}", crate::in_cli_terms(&n));
     }
-    let mut video = a
+    let video = a
         .render_video
         .as_deref()
         .map(|p| VideoWriter::create(p, a.render_fps, &frames::FfmpegTools::default()))
@@ -1034,26 +1046,25 @@ pub fn run(mut a: TrackArgs) -> anyhow::Result<()> {
     let mut tracker = Tracker::with_engine(cfg, engine, &first, init)?;
     // On an error the staging folder is dropped with the frames drawn so far, which would
     // read as a whole track's, as the pose CSV is never moved into place.
-    let (written, moves) = run_loop(
+    let Tracked {
+        frames: written,
+        moves,
+    } = run_loop(
         &a,
         &mut source,
         &mut tracker,
         &first,
         Drawn {
             render: staging.as_ref(),
-            video: video.as_mut(),
+            video,
         },
         to_frames.inverse(),
     )?;
-    // Closed in the loop before the poses were committed; its file moves in now.
-    let video_note = match video {
-        Some(v) => {
-            let path = v.path().display().to_string();
-            v.commit()?;
-            format!(", video in {path}")
-        }
-        None => String::new(),
-    };
+    let video_note = a
+        .render_video
+        .as_ref()
+        .map(|p| format!(", video in {}", p.display()))
+        .unwrap_or_default();
     if let Some(s) = staging {
         let dir = s.dir.clone();
         let removed = s.finish(moves, written)?;
@@ -1253,14 +1264,60 @@ pub(crate) fn is_frame_name(name: &str) -> bool {
             .is_some_and(|n| frame_name(n) == name)
 }
 
+/// What [`run_loop`] leaves for its caller: the frames tracked and the rendered frames' moves
+/// into place; the pose CSV and the video are in place already.
+struct Tracked {
+    frames: usize,
+    moves: Vec<(PathBuf, PathBuf)>,
+}
+
+/// Tracks every frame, writes the poses and draws the frames; with `--stream`, an error says
+/// which rows went out before it, whatever failed (a frame, the render, the video).
 fn run_loop(
+    a: &TrackArgs,
+    source: &mut frames::FrameSource,
+    tracker: &mut Tracker,
+    first: &image::RgbImage,
+    drawn: Drawn<'_>,
+    to_input: Rescale,
+) -> anyhow::Result<Tracked> {
+    let mut streamed = 0usize;
+    let drawing = drawn.render.is_some() || drawn.video.is_some();
+    let result = track_all(a, source, tracker, first, drawn, to_input, &mut streamed);
+    result.map_err(|e| {
+        if e.chain().any(crate::closed_pipe) {
+            // The reader has what it wanted, and the run ends quietly; what else was asked
+            // for is not written, which is said.
+            if drawing {
+                errln!(
+                    "pftrack: standard output closed: the track stopped there, and wrote no \
+                     rendered frames or video"
+                );
+            }
+            return e;
+        }
+        match streamed {
+            _ if !a.stream => e,
+            0 => e.context("before any pose row, after the header (--stream)"),
+            k => e.context(format!(
+                "after the pose rows of frames 0 to {} (written to standard output as they came, \
+                 --stream)",
+                k - 1
+            )),
+        }
+    })
+}
+
+/// [`run_loop`]'s work; `streamed` counts the rows written with `--stream`.
+fn track_all(
     a: &TrackArgs,
     source: &mut frames::FrameSource,
     tracker: &mut Tracker,
     first: &image::RgbImage,
     mut drawn: Drawn<'_>,
     to_input: Rescale,
-) -> anyhow::Result<(usize, Vec<(PathBuf, PathBuf)>)> {
+    streamed: &mut usize,
+) -> anyhow::Result<Tracked> {
     let render = drawn.render;
     let limit = a.max_frames.unwrap_or(usize::MAX);
     let pb = progress(source.len_hint().map(|n| n.min(limit)));
@@ -1269,8 +1326,6 @@ fn run_loop(
         None => None,
     };
     let mut stdout_rows = Vec::new();
-    // With --stream, the rows written so far.
-    let mut streamed = 0usize;
     if a.stream {
         outln!("{}", pftrack::io::pose_csv_header(true))?;
         std::io::Write::flush(&mut std::io::stdout()).map_err(crate::StdoutError)?;
@@ -1285,7 +1340,7 @@ fn run_loop(
                 drawn.draw(e, frame)?;
                 outln!("{}", pftrack::io::format_pose_row(&r, true))?;
                 std::io::Write::flush(&mut std::io::stdout()).map_err(crate::StdoutError)?;
-                streamed += 1;
+                *streamed += 1;
                 pb.inc(1);
                 return Ok(());
             }
@@ -1315,42 +1370,31 @@ fn run_loop(
     };
     let tracked = track();
     pb.finish_and_clear();
-    if let Err(e) = tracked {
-        return Err(match streamed {
-            // A closed standard output is no failure to explain.
-            _ if !a.stream || e.chain().any(crate::closed_pipe) => e,
-            0 => e.context("before any pose row (--stream)"),
-            k => e.context(format!(
-                "after the pose rows of frames 0 to {} (written to standard output as they came, \
-                 --stream)",
-                k - 1
-            )),
-        });
-    }
+    tracked?;
     // The rendered frames' places are checked before the poses are committed: a render that
     // cannot be moved in fails the run with no pose CSV.
     let moves = render
         .map(RenderStaging::moves)
         .transpose()?
         .unwrap_or_default();
-    // So is the video finished (ffmpeg's own failure fails the run with no pose CSV), to be
-    // moved in once the poses are.
-    if let Some(v) = drawn.video.as_deref_mut() {
-        v.close()?;
+    // The video is finished and moved in before the poses: ffmpeg's failure, or a video
+    // that cannot be moved in, fails the run with no pose CSV.
+    if let Some(v) = drawn.video.take() {
+        v.commit()?;
     }
     match csv_out {
         Some(w) => w.finish()?,
         None if a.stream => {}
         None => out!("{}", pftrack::io::format_pose_csv(&stdout_rows, true))?,
     }
-    Ok((n, moves))
+    Ok(Tracked { frames: n, moves })
 }
 
 /// Where each frame is drawn with its estimate: the render's staging folder (`--render`), the
 /// video (`--render-video`), both or neither.
 struct Drawn<'a> {
     render: Option<&'a RenderStaging>,
-    video: Option<&'a mut VideoWriter>,
+    video: Option<VideoWriter>,
 }
 
 impl Drawn<'_> {
@@ -1370,7 +1414,7 @@ impl Drawn<'_> {
         if let Some(dir) = self.render {
             write_png(&dir.frame(e.frame), &drawn)?;
         }
-        if let Some(v) = self.video.as_deref_mut() {
+        if let Some(v) = self.video.as_mut() {
             v.write(&drawn)?;
         }
         Ok(())

@@ -81,6 +81,8 @@ struct GrowBuf {
     label: &'static str,
     /// Calls in a row that asked for under a quarter of `size`.
     small_calls: u32,
+    /// Whether the buffer may be one wgpu refused ([`Self::forget`]): made afresh next time.
+    stale: bool,
 }
 
 impl GrowBuf {
@@ -98,6 +100,7 @@ impl GrowBuf {
             usage,
             label,
             small_calls: 0,
+            stale: false,
         }
     }
 
@@ -117,7 +120,7 @@ impl GrowBuf {
     /// [`Self::forget`]ten.
     fn ensure(&mut self, device: &wgpu::Device, bytes: u64) -> bool {
         let bytes = Self::allocated(bytes);
-        if bytes <= self.size {
+        if bytes <= self.size && !self.stale {
             if self.size > SHRINK_ABOVE_BYTES && bytes < self.size / 4 {
                 self.small_calls += 1;
             } else {
@@ -135,13 +138,14 @@ impl GrowBuf {
         });
         self.size = bytes;
         self.small_calls = 0;
+        self.stale = false;
         true
     }
 
     /// Has the next [`Self::ensure`] allocate the buffer afresh, whatever it asks for: after
     /// an error, this buffer may be one wgpu refused to create.
     fn forget(&mut self) {
-        self.size = 0;
+        self.stale = true;
         self.small_calls = 0;
     }
 }
