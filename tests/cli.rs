@@ -2039,7 +2039,19 @@ fn cli_demo_poses_are_the_track_of_its_sequence() {
     let common = ["--backend", "cpu", "--seed", "3"];
     let mut args = vec!["demo", "--out", d, "--frames", "40"];
     args.extend(common);
-    pftrack_ok(&args);
+    let shown = String::from_utf8(pftrack_ok(&args).stdout).unwrap();
+    let poses = std::fs::read(dir.join("poses.csv")).unwrap();
+    // The command it gives to watch the track writes the same poses, and the video.
+    let watch = shown
+        .lines()
+        .find_map(|l| l.strip_prefix("to watch it: pftrack "))
+        .unwrap_or_else(|| panic!("no command to watch it in:\n{shown}"));
+    if pftrack::frames::FfmpegTools::default().available() {
+        let words: Vec<&str> = watch.split(' ').collect();
+        pftrack_ok(&words);
+        assert!(std::fs::read(dir.join("poses.csv")).unwrap() == poses);
+        assert!(dir.join("track.mp4").is_file());
+    }
     let csv = dir.join("again.csv");
     let seq = dir.join("sequence");
     let mut args = vec![

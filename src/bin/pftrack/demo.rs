@@ -128,5 +128,25 @@ pub fn run(a: DemoArgs) -> anyhow::Result<()> {
         summary.truth.display(),
         poses.display()
     )?;
+    // The same track again (the same poses: the same seed, particles and camera), drawn
+    // for a person to watch.
+    let seq = summary.frames_dir.parent().unwrap_or(&summary.frames_dir);
+    let particles = if a.particles == 200 {
+        String::new()
+    } else {
+        format!(" --particles {}", a.particles)
+    };
+    let engine = match a.backend {
+        Backend::Auto => "",
+        Backend::Cpu => " --backend cpu",
+        Backend::Gpu => " --backend gpu",
+    };
+    outln!(
+        "to watch it: pftrack track {} --seed {}{particles}{engine} -o {} --render-video {}",
+        seq.display(),
+        a.seed,
+        poses.display(),
+        a.out.join("track.mp4").display()
+    )?;
     Ok(())
 }
