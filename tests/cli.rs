@@ -1380,6 +1380,15 @@ fn cli_render_video_writes_the_rendered_frames_or_nothing() {
             "both name",
         ),
         (vec!["--render-video", "x.png"], "container"),
+        (
+            vec!["--render-video", "x.mkv", "--out", "x.mkv"],
+            "both name",
+        ),
+        (vec!["--render-video", "-"], "not to standard output"),
+        (
+            vec!["--render-video", "x.gif", "--render-fps", "60"],
+            "at most 50 frames a second",
+        ),
         (vec!["--render-video", "o%d.tif"], "container"),
         (vec!["--render-video", "/dev/stdout"], "descriptors"),
         (vec!["--render-video", "nowhere/x.mp4"], "no folder"),
@@ -1623,6 +1632,18 @@ fn cli_an_interrupted_track_leaves_nothing_behind() {
         assert!(out.stdout.is_empty());
         // Nothing of the run stays: no CSV or video, partial or whole, and no render folder.
         assert!(names(&dir).is_empty(), "{first}: {:?}", names(&dir));
+        // Nor its ffmpeg, which the interrupt stops (it runs in a process group of its own, so
+        // only the program's clean-up can).
+        if let Some(staged) = names_then.iter().find(|n| n.starts_with(".pftrack-video-")) {
+            let running: Vec<String> = std::fs::read_dir("/proc")
+                .unwrap()
+                .flatten()
+                .filter_map(|e| std::fs::read(e.path().join("cmdline")).ok())
+                .map(|c| String::from_utf8_lossy(&c).replace('\0', " "))
+                .filter(|c| c.contains(staged.as_str()))
+                .collect();
+            assert!(running.is_empty(), "{first}: still running: {running:?}");
+        }
     }
     std::fs::remove_dir_all(&dir).unwrap();
 }

@@ -12,7 +12,7 @@ pub mod pose_csv;
 pub use atomic::AtomicFile;
 pub use boxes::read_otb_boxes;
 pub use init::{InitFile, read_init, write_init};
-pub use partial::{MadeDirs, Partial, PartialKind, StagingDir, remove_partial_outputs};
+pub use partial::{MadeDirs, Partial, PartialKind, StagingDir, Stopper, remove_partial_outputs};
 pub use pose_csv::{
     PoseCsvWriter, PoseRecord, format_pose_csv, format_pose_row, pose_csv_header, read_pose_csv,
     write_pose_csv,

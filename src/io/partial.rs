@@ -1,6 +1,7 @@
 //! The outputs this process has in progress: partial files ([`super::AtomicFile`]) and staging
 //! folders, registered while they exist so that an interrupted run can remove them
-//! ([`remove_partial_outputs`]) before it exits.
+//! ([`remove_partial_outputs`]) before it exits, and what writes them on its own (a child
+//! process, [`Stopper`]), which it stops first.
 //!
 //! Unwinding and `Drop` already remove a partial output on every error; a signal (Ctrl-C,
 //! `kill`) ends a process without either. A program that wants no stray `.NAME.PID-N.partial` left by
@@ -179,11 +180,13 @@ impl StagingDir {
     }
 
     /// Removes the staging folders `.PREFIX-*.partial` in `parent` untouched for `idle` or
-    /// longer, and returns how many it removed. A run killed outright (SIGKILL, out of memory)
-    /// cannot remove its own, and each run's has a name of its own, so they stayed for good.
-    /// A running one is spared: it adds a file (a frame) far more often than any sensible
-    /// `idle`, and each addition renews the folder's modification time. Errors (an
-    /// unreadable folder, a folder removed meanwhile) are passed over: this is tidying.
+    /// longer (neither the folder nor any file in it modified), and returns how many it
+    /// removed. A run killed outright (SIGKILL, out of memory) cannot remove its own, and each
+    /// run's has a name of its own, so they stayed for good. A running one is spared: it adds
+    /// a file (a frame) or writes to one (a video growing) far more often than any sensible
+    /// `idle`, and each addition renews the folder's modification time, each write the
+    /// file's. Errors (an unreadable folder, a folder removed meanwhile) are passed over: this
+    /// is tidying.
     pub fn sweep_stale(parent: &Path, prefix: &str, idle: std::time::Duration) -> usize {
         let Ok(entries) = std::fs::read_dir(parent) else {
             return 0;
@@ -196,13 +199,19 @@ impl StagingDir {
             if !(name.starts_with(&head) && name.ends_with(".partial")) {
                 continue;
             }
-            let stale = entry
-                .metadata()
-                .ok()
-                .filter(std::fs::Metadata::is_dir)
-                .and_then(|m| m.modified().ok())
-                .and_then(|t| t.elapsed().ok())
-                .is_some_and(|age| age >= idle);
+            let idle_for = |m: std::fs::Metadata| m.modified().ok().and_then(|t| t.elapsed().ok());
+            let Some(folder) = entry.metadata().ok().filter(std::fs::Metadata::is_dir) else {
+                continue;
+            };
+            // The least time since the folder or anything in it changed.
+            let newest = std::fs::read_dir(entry.path())
+                .into_iter()
+                .flatten()
+                .flatten()
+                .filter_map(|f| f.metadata().ok().and_then(idle_for))
+                .chain(idle_for(folder))
+                .min();
+            let stale = newest.is_some_and(|age| age >= idle);
             if stale && std::fs::remove_dir_all(entry.path()).is_ok() {
                 removed += 1;
             }
@@ -231,6 +240,45 @@ impl Drop for StagingDir {
     }
 }
 
+/// Something that writes a partial output on its own, such as a child process (ffmpeg writing
+/// a video), registered so that an interrupt stops it before the outputs are removed:
+/// [`remove_partial_outputs`] calls `stop` first. Dropping the `Stopper` forgets it.
+pub struct Stopper {
+    id: u64,
+}
+
+/// The registered stops, by id.
+type Stops = Vec<(u64, Box<dyn Fn() + Send>)>;
+
+static STOPS: Mutex<(u64, Stops)> = Mutex::new((0, Vec::new()));
+
+fn stops() -> MutexGuard<'static, (u64, Stops)> {
+    STOPS.lock().unwrap_or_else(|e| e.into_inner())
+}
+
+impl Stopper {
+    /// Registers `stop`, which must return soon (kill a child, not wait long for it).
+    pub fn register(stop: impl Fn() + Send + 'static) -> Self {
+        let mut s = stops();
+        let id = s.0;
+        s.0 += 1;
+        s.1.push((id, Box::new(stop)));
+        Self { id }
+    }
+}
+
+impl std::fmt::Debug for Stopper {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Stopper").field("id", &self.id).finish()
+    }
+}
+
+impl Drop for Stopper {
+    fn drop(&mut self) {
+        stops().1.retain(|(id, _)| *id != self.id);
+    }
+}
+
 /// Removes every partial output of this process (files, then staging folders, then the
 /// folders created for them if empty, newest first) and returns how many it removed; meant for
 /// a thread that handles a signal by ending the process next (not for an asynchronous signal
@@ -238,6 +286,12 @@ impl Drop for StagingDir {
 /// no output is created or committed after this returns, and any thread that tries waits for
 /// ever: call it only on the way out, then end the process (never return to normal work).
 pub fn remove_partial_outputs() -> usize {
+    // What writes outputs of its own is stopped first, and stays unable to register more.
+    let stopping = stops();
+    for (_, stop) in &stopping.1 {
+        stop();
+    }
+    std::mem::forget(stopping);
     let reg = registry();
     let mut removed = 0;
     for kind in [PartialKind::File, PartialKind::Tree, PartialKind::EmptyDir] {
@@ -288,9 +342,15 @@ mod tests {
         let killed = root.join(".pftrack-render-123-456.partial");
         std::fs::create_dir(&killed).unwrap();
         std::fs::write(killed.join("00000.png"), b"x").unwrap();
+        age(&killed.join("00000.png"));
         age(&killed);
         let running = root.join(".pftrack-render-124-457.partial");
         std::fs::create_dir(&running).unwrap();
+        // A video growing in its folder: the folder old, the file written now.
+        let growing = root.join(".pftrack-render-125-458.partial");
+        std::fs::create_dir(&growing).unwrap();
+        std::fs::write(growing.join("video.mp4"), b"x").unwrap();
+        age(&growing);
         let other = root.join(".other-1-2.partial");
         std::fs::create_dir(&other).unwrap();
         age(&other);
@@ -304,6 +364,7 @@ mod tests {
         assert_eq!(StagingDir::sweep_stale(&root, "pftrack-render", idle), 1);
         assert!(!killed.exists());
         assert!(running.exists() && other.exists() && file.exists() && mine.exists());
+        assert!(growing.exists());
         assert_eq!(
             StagingDir::sweep_stale(&root.join("none"), "pftrack-render", idle),
             0

@@ -4,14 +4,16 @@
 //!
 //! The file appears under its name only once complete: ffmpeg writes it in a hidden staging
 //! folder beside the target (`.pftrack-video-PID-NANOS.partial`, a
-//! [`crate::io::StagingDir`], registered so that an interrupted program removes it), and
-//! [`VideoWriter::commit`] syncs it and renames it into place, keeping the permissions of a
-//! file it replaces, as [`crate::io::AtomicFile`] does. Dropped before that, or on any error,
-//! the writer stops ffmpeg and removes the staging folder: an ffmpeg that had not yet opened
-//! its output then finds no folder to create it in. The target is a file of its own: a
-//! folder, a stream, a device or one of the process's descriptors (`/dev/stdout`) is refused,
-//! and so is a folder that does not exist. ffmpeg runs in a process group of its own, so that
-//! a terminal's Ctrl-C reaches the program, which cleans up, and not ffmpeg half-way.
+//! [`crate::io::StagingDir`], registered so that an interrupted program removes it);
+//! [`VideoWriter::close`] has ffmpeg finish it and syncs it, with the permissions of a file it
+//! will replace, as [`crate::io::AtomicFile`] keeps them, and [`VideoWriter::commit`] renames
+//! it into place. Dropped before that, or on any error, the writer stops ffmpeg and removes
+//! the staging folder: an ffmpeg that had not yet opened its output then finds no folder to
+//! create it in. The target is a file of its own: a folder, a stream, a device or one of the
+//! process's descriptors (`/dev/stdout`) is refused, and so is a folder that does not exist.
+//! ffmpeg runs in a process group of its own, so that a terminal's Ctrl-C reaches the program
+//! alone, and is registered ([`crate::io::Stopper`]) for the program's interrupt handling to
+//! kill it before it removes the staging folder.
 //!
 //! ffmpeg starts with the first frame, whose size every later frame must have. The video
 //! containers are written in 4:2:0 (`-pix_fmt yuv420p`), so an odd width or height is padded
@@ -25,15 +27,20 @@ use std::ffi::OsString;
 use std::io::{Read, Write};
 use std::path::{Path, PathBuf};
 use std::process::{Child, ChildStdin, Command, Stdio};
+use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
 
 use image::RgbImage;
 
 use crate::frames::FfmpegTools;
-use crate::io::StagingDir;
+use crate::io::{StagingDir, Stopper};
 
 /// The lowest and highest frame rate a video is written at (frames per second).
 pub const FPS_RANGE: (f64, f64) = (0.01, 1000.0);
+
+/// The highest frame rate of a `.gif`: its frames' delays are whole hundredths of a second,
+/// and players hold those under two hundredths longer.
+pub const GIF_MAX_FPS: f64 = 50.0;
 
 /// The file extensions a video is written with (lower case; any case is taken), each with
 /// ffmpeg's container (muxer) and the pixel format it is written in (`None`: ffmpeg's choice).
@@ -104,10 +111,13 @@ pub struct VideoWriter {
 
 #[derive(Debug)]
 struct Running {
-    child: Child,
+    /// Shared with the interrupt's stop ([`Stopper`]), which kills it.
+    child: Arc<Mutex<Child>>,
     stdin: Option<ChildStdin>,
     /// Collects ffmpeg's standard error (its tail).
     stderr: Option<JoinHandle<String>>,
+    /// Registered while ffmpeg runs.
+    _stopper: Stopper,
 }
 
 impl VideoWriter {
@@ -128,6 +138,11 @@ impl VideoWriter {
             )));
         }
         let spelled = path.as_os_str().to_string_lossy();
+        if spelled == "-" {
+            return Err(fail(
+                "a video is written to a file of its own, not to standard output".to_string(),
+            ));
+        }
         if spelled.ends_with('/') || path.file_name().is_none() {
             return Err(fail("names a folder, not a file".to_string()));
         }
@@ -156,11 +171,22 @@ impl VideoWriter {
             .map(str::to_ascii_lowercase)
             .unwrap_or_default();
         let Some(&(_, muxer, pix_fmt)) = CONTAINERS.iter().find(|(e, _, _)| *e == ext) else {
+            let through = if to == path {
+                String::new()
+            } else {
+                format!(" (its link names {})", to.display())
+            };
             return Err(fail(format!(
-                "a video is written as {} (its extension chooses the container)",
+                "a video is written as {} (its extension chooses the container){through}",
                 container_list()
             )));
         };
+        if muxer == "gif" && fps > GIF_MAX_FPS {
+            return Err(fail(format!(
+                "a GIF plays at most {GIF_MAX_FPS} frames a second (each frame's delay is whole \
+                 hundredths of a second), not {fps}"
+            )));
+        }
         let folder = match to.parent() {
             Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
             _ => PathBuf::from("."),
@@ -298,40 +324,59 @@ impl VideoWriter {
                 String::from_utf8_lossy(&tail).into_owned()
             })
         });
+        let child = Arc::new(Mutex::new(child));
+        let for_stop = Arc::clone(&child);
+        // An interrupt kills it before removing the staging folder: in a process group of its
+        // own, it would otherwise go on encoding after the program has ended.
+        let stopper = Stopper::register(move || {
+            let mut c = for_stop.lock().unwrap_or_else(|e| e.into_inner());
+            let _ = c.kill();
+            let _ = c.wait();
+        });
         self.running = Some(Running {
             child,
             stdin,
             stderr,
+            _stopper: stopper,
         });
         Ok(())
     }
 
-    /// Waits for ffmpeg after its input was closed (or it failed) and returns its exit
-    /// status's success and the last line of its standard error.
+    /// Waits for ffmpeg after its input was closed (or it failed) and returns whether it
+    /// succeeded and what went wrong: the last line of its standard error, or how it ended.
     fn wait(&mut self) -> Option<(bool, String)> {
         let mut r = self.running.take()?;
         drop(r.stdin.take());
-        let exited = r.child.wait().is_ok_and(|s| s.success());
+        // Polled, the lock held only for a look, so that an interrupt's stop can take it.
+        let status = loop {
+            let looked = r.child.lock().unwrap_or_else(|e| e.into_inner()).try_wait();
+            match looked {
+                Ok(Some(status)) => break Some(status),
+                Ok(None) => std::thread::sleep(std::time::Duration::from_millis(2)),
+                Err(_) => break None,
+            }
+        };
         let text = r
             .stderr
             .take()
             .and_then(|t| t.join().ok())
             .unwrap_or_default();
+        let exited = status.is_some_and(|s| s.success());
         // At the `error` level whatever ffmpeg says is a failure, even when it exits 0.
         let ok = exited && text.trim().is_empty();
-        Some((ok, self.ffmpeg_says(&text)))
+        let said = self.ffmpeg_says(&text);
+        let said = match status {
+            _ if !said.is_empty() => said,
+            Some(s) if !s.success() => format!("ffmpeg ended ({s}) without a message"),
+            _ => said,
+        };
+        Some((ok, said))
     }
 
     /// What ffmpeg's standard error `text` says went wrong, in the target's terms: its last
     /// line after `ffmpeg: `, with the file in the staging folder named as the target; empty
     /// when it said nothing.
     fn ffmpeg_says(&self, text: &str) -> String {
-        if text.contains("suitable output format") || text.contains("choose an output format") {
-            return format!(
-                "ffmpeg knows no container for the extension .{} (.mp4, .mkv, .webm, .gif, ...)",
-                self.to.extension().unwrap_or_default().to_string_lossy()
-            );
-        }
         let last = text
             .lines()
             .rev()
@@ -362,9 +407,10 @@ impl VideoWriter {
         })
     }
 
-    /// Ends the input and waits for ffmpeg to finish the file: an error when no frame was
-    /// written or ffmpeg failed. The file is still partial until [`VideoWriter::commit`]; a
-    /// caller with other outputs closes every one of them before committing any.
+    /// Ends the input, waits for ffmpeg to finish the file and syncs it (giving it the
+    /// permissions of a file it will replace): an error when no frame was written or ffmpeg
+    /// failed. The video is then whole but still in the staging folder until
+    /// [`VideoWriter::commit`] renames it, which a caller with other outputs does last.
     pub fn close(&mut self) -> Result<(), VideoError> {
         if self.closed {
             return Ok(());
@@ -373,33 +419,30 @@ impl VideoWriter {
             return Err(self.error("no frame to write"));
         }
         match self.wait() {
-            Some((true, _)) => {
-                self.closed = true;
-                Ok(())
-            }
-            Some((false, said)) if !said.is_empty() => Err(self.error(said)),
-            Some((false, _)) => Err(self.error("ffmpeg failed without a message")),
-            None => Err(self.error("ffmpeg is not running")),
+            Some((true, _)) => {}
+            Some((false, said)) if !said.is_empty() => return Err(self.error(said)),
+            Some((false, _)) => return Err(self.error("ffmpeg failed without a message")),
+            None => return Err(self.error("ffmpeg is not running")),
         }
+        // Read-only is enough to sync and to set the mode, whatever the umask gave the file.
+        let synced = std::fs::File::open(&self.partial).and_then(|f| {
+            if let Ok(old) = std::fs::symlink_metadata(&self.to)
+                && old.is_file()
+            {
+                f.set_permissions(old.permissions())?;
+            }
+            f.sync_all()
+        });
+        synced.map_err(|e| self.error(format!("finishing it: {e}")))?;
+        self.closed = true;
+        Ok(())
     }
 
-    /// Closes the video if it is not yet ([`VideoWriter::close`]), syncs it and renames it into
-    /// place (a file it replaces lends it its permissions); returns the frames written. On an
-    /// error the staging folder is removed, with the video in it.
+    /// Closes the video if it is not yet ([`VideoWriter::close`]) and renames it into place;
+    /// returns the frames written. On an error the staging folder is removed, with the video
+    /// in it.
     pub fn commit(mut self) -> Result<usize, VideoError> {
         self.close()?;
-        let synced = std::fs::OpenOptions::new()
-            .write(true)
-            .open(&self.partial)
-            .and_then(|f| {
-                if let Ok(old) = std::fs::symlink_metadata(&self.to)
-                    && old.is_file()
-                {
-                    f.set_permissions(old.permissions())?;
-                }
-                f.sync_all()
-            });
-        synced.map_err(|e| self.error(format!("finishing it: {e}")))?;
         let (partial, to) = (self.partial.clone(), self.to.clone());
         self.staging
             .commit(|| std::fs::rename(&partial, &to))
@@ -412,7 +455,7 @@ impl Drop for VideoWriter {
     fn drop(&mut self) {
         if let Some(r) = self.running.as_mut() {
             drop(r.stdin.take());
-            let _ = r.child.kill();
+            let _ = r.child.lock().unwrap_or_else(|e| e.into_inner()).kill();
         }
         let _ = self.wait();
         // The staging folder goes with the writer (its own drop), the video in it unless

@@ -343,8 +343,8 @@ pub struct TrackArgs {
     /// video through ffmpeg, in the container FILE's extension names: .mp4, .m4v, .mov, .mkv,
     /// .webm, .avi, .ts or .nut (4:2:0, an odd size padded by a pixel), .gif (at most 50
     /// frames a second) or .y4m, at --render-fps. With or without --render. Like the pose CSV
-    /// it appears only once the whole track is done, before the CSV: a run that fails leaves
-    /// neither.
+    /// it appears only once the whole track is done: ffmpeg finishes it before the CSV is
+    /// written, and it moves in after, so a run that fails leaves neither.
     #[arg(long, value_name = "FILE")]
     pub render_video: Option<PathBuf>,
     /// Frame rate of --render-video, frames a second.
@@ -932,9 +932,14 @@ pub fn run(mut a: TrackArgs) -> anyhow::Result<()> {
         );
     }
     if let Some(v) = a.render_video.as_deref() {
+        if a.out.as_deref().is_some_and(|o| crate::paths::same(v, o)) {
+            bail!(
+                "--out and --render-video both name {}: the poses and the video need places of their own",
+                v.display()
+            );
+        }
         let mut inputs = vec![frames_path.as_path(), a.input.as_path()];
         inputs.extend(&read);
-        inputs.extend(a.out.as_deref());
         crate::paths::not_an_input("--render-video", v, &inputs)?;
         if a.render
             .as_deref()
@@ -1031,12 +1036,13 @@ pub fn run(mut a: TrackArgs) -> anyhow::Result<()> {
     if let Some(n) = notice {
         errln!("pftrack: {}", crate::in_cli_terms(&n));
     }
+    // The render's folder first: the video may be meant to go into it.
+    let staging = a.render.as_deref().map(RenderStaging::create).transpose()?;
     let video = a
         .render_video
         .as_deref()
         .map(|p| VideoWriter::create(p, a.render_fps, &frames::FfmpegTools::default()))
         .transpose()?;
-    let staging = a.render.as_deref().map(RenderStaging::create).transpose()?;
     let first = source.next().context("the input has no frames")??;
     let camera = match cfg.camera_hfov_deg {
         Some(h) => format!("camera hfov {h}°"),
@@ -1049,6 +1055,7 @@ pub fn run(mut a: TrackArgs) -> anyhow::Result<()> {
     let Tracked {
         frames: written,
         moves,
+        video,
     } = run_loop(
         &a,
         &mut source,
@@ -1060,11 +1067,14 @@ pub fn run(mut a: TrackArgs) -> anyhow::Result<()> {
         },
         to_frames.inverse(),
     )?;
-    let video_note = a
-        .render_video
-        .as_ref()
-        .map(|p| format!(", video in {}", p.display()))
-        .unwrap_or_default();
+    let video_note = match video {
+        Some(v) => {
+            let path = v.path().display().to_string();
+            v.commit()?;
+            format!(", video in {path}")
+        }
+        None => String::new(),
+    };
     if let Some(s) = staging {
         let dir = s.dir.clone();
         let removed = s.finish(moves, written)?;
@@ -1264,11 +1274,12 @@ pub(crate) fn is_frame_name(name: &str) -> bool {
             .is_some_and(|n| frame_name(n) == name)
 }
 
-/// What [`run_loop`] leaves for its caller: the frames tracked and the rendered frames' moves
-/// into place; the pose CSV and the video are in place already.
+/// What [`run_loop`] leaves for its caller: the frames tracked, the rendered frames' moves
+/// into place and the video, finished, to move in; the pose CSV is in place already.
 struct Tracked {
     frames: usize,
     moves: Vec<(PathBuf, PathBuf)>,
+    video: Option<VideoWriter>,
 }
 
 /// Tracks every frame, writes the poses and draws the frames; with `--stream`, an error says
@@ -1377,17 +1388,22 @@ fn track_all(
         .map(RenderStaging::moves)
         .transpose()?
         .unwrap_or_default();
-    // The video is finished and moved in before the poses: ffmpeg's failure, or a video
-    // that cannot be moved in, fails the run with no pose CSV.
-    if let Some(v) = drawn.video.take() {
-        v.commit()?;
+    // So is the video finished (ffmpeg done, the file synced): ffmpeg's failure fails the run
+    // with no pose CSV. It moves in after the poses, as the rendered frames do.
+    let mut video = drawn.video.take();
+    if let Some(v) = video.as_mut() {
+        v.close()?;
     }
     match csv_out {
         Some(w) => w.finish()?,
         None if a.stream => {}
         None => out!("{}", pftrack::io::format_pose_csv(&stdout_rows, true))?,
     }
-    Ok(Tracked { frames: n, moves })
+    Ok(Tracked {
+        frames: n,
+        moves,
+        video,
+    })
 }
 
 /// Where each frame is drawn with its estimate: the render's staging folder (`--render`), the
