@@ -1363,7 +1363,28 @@ fn cli_render_video_writes_the_rendered_frames_or_nothing() {
     assert!(out.status.success(), "{out:?}");
     assert!(csv.exists() && video.exists());
 
-    // Clashes, refused before anything is tracked.
+    // Clashes, refused before anything is tracked: among them the poses through a link to
+    // the video's name, not yet written (the video would be renamed over the poses).
+    #[cfg(unix)]
+    {
+        let link = dir.join("link.csv");
+        std::os::unix::fs::symlink("later.mkv", &link).unwrap();
+        let later = dir.join("later.mkv");
+        let out = pftrack(&[
+            "track",
+            seq,
+            "--backend",
+            "cpu",
+            "-o",
+            link.to_str().unwrap(),
+            "--render-video",
+            later.to_str().unwrap(),
+        ]);
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success() && err.contains("both name"), "{err}");
+        assert!(!later.exists());
+        std::fs::remove_file(&link).unwrap();
+    }
     let init = dir.join("init.txt");
     for (args, needle) in [
         (
@@ -2055,21 +2076,29 @@ fn cli_track_settings_errors_name_the_flag() {
 /// unrounded ellipse, and the chaotic track parted from `track`'s).
 #[test]
 fn cli_demo_poses_are_the_track_of_its_sequence() {
-    let dir = tmp_dir("demo-track");
+    // A name a shell would split or expand, to check the command it prints.
+    let top = tmp_dir("demo-track");
+    let dir = top.join("it's a $demo");
     let d = dir.to_str().unwrap();
     let common = ["--backend", "cpu", "--seed", "3"];
     let mut args = vec!["demo", "--out", d, "--frames", "40"];
     args.extend(common);
     let shown = String::from_utf8(pftrack_ok(&args).stdout).unwrap();
     let poses = std::fs::read(dir.join("poses.csv")).unwrap();
-    // The command it gives to watch the track writes the same poses, and the video.
+    // The command it gives to watch the track, run by a shell as pasted, writes the same
+    // poses, and the video.
     let watch = shown
         .lines()
         .find_map(|l| l.strip_prefix("to watch it: pftrack "))
         .unwrap_or_else(|| panic!("no command to watch it in:\n{shown}"));
     if pftrack::frames::FfmpegTools::default().available() {
-        let words: Vec<&str> = watch.split(' ').collect();
-        pftrack_ok(&words);
+        let out = Command::new("sh")
+            .arg("-c")
+            .arg(format!("\"$PFTRACK\" {watch}"))
+            .env("PFTRACK", env!("CARGO_BIN_EXE_pftrack"))
+            .output()
+            .unwrap();
+        assert!(out.status.success(), "{watch}: {out:?}");
         assert!(std::fs::read(dir.join("poses.csv")).unwrap() == poses);
         assert!(dir.join("track.mp4").is_file());
     }
@@ -2087,7 +2116,7 @@ fn cli_demo_poses_are_the_track_of_its_sequence() {
         std::fs::read(dir.join("poses.csv")).unwrap() == std::fs::read(&csv).unwrap(),
         "the demo's poses differ from the track of its sequence"
     );
-    std::fs::remove_dir_all(&dir).unwrap();
+    std::fs::remove_dir_all(&top).unwrap();
 }
 
 /// `demo` checks its arguments before it renders anything: a bad one leaves no folder.

@@ -150,6 +150,9 @@ pub struct StagingDir {
     /// Taken by [`StagingDir::commit`].
     registered: Option<Partial>,
     made: MadeDirs,
+    /// The folder held open and locked while it is in use, so that another run's
+    /// [`StagingDir::sweep_stale`] passes it by however long it has been idle.
+    _lock: Option<std::fs::File>,
 }
 
 impl StagingDir {
@@ -167,10 +170,16 @@ impl StagingDir {
             path,
             registered: None,
             made,
+            _lock: None,
         };
         let (registered, ()) =
             Partial::create(&s.path, PartialKind::Tree, || std::fs::create_dir(&s.path))?;
         s.registered = Some(registered);
+        // Where a folder cannot be opened or locked (not every system or file system), the
+        // sweep's idle time alone protects it.
+        s._lock = std::fs::File::open(&s.path)
+            .ok()
+            .filter(|f| f.try_lock().is_ok());
         Ok(s)
     }
 
@@ -180,13 +189,13 @@ impl StagingDir {
     }
 
     /// Removes the staging folders `.PREFIX-*.partial` in `parent` untouched for `idle` or
-    /// longer (neither the folder nor any file in it modified), and returns how many it
-    /// removed. A run killed outright (SIGKILL, out of memory) cannot remove its own, and each
-    /// run's has a name of its own, so they stayed for good. A running one is spared: it adds
-    /// a file (a frame) or writes to one (a video growing) far more often than any sensible
-    /// `idle`, and each addition renews the folder's modification time, each write the
-    /// file's. Errors (an unreadable folder, a folder removed meanwhile) are passed over: this
-    /// is tidying.
+    /// longer (neither the folder nor any file in it modified) and not in use, and returns how
+    /// many it removed. A run killed outright (SIGKILL, out of memory) cannot remove its own,
+    /// and each run's has a name of its own, so they stayed for good. A running one is spared:
+    /// it holds a lock on its folder ([`std::fs::File::try_lock`]) for as long as it runs,
+    /// however long it waits for a frame, and where locks do not work, it adds a file (a
+    /// frame) or writes to one (a video growing) more often than any sensible `idle`. Errors
+    /// (an unreadable folder, a folder removed meanwhile) are passed over: this is tidying.
     pub fn sweep_stale(parent: &Path, prefix: &str, idle: std::time::Duration) -> usize {
         let Ok(entries) = std::fs::read_dir(parent) else {
             return 0;
@@ -211,7 +220,10 @@ impl StagingDir {
                 .filter_map(|f| f.metadata().ok().and_then(idle_for))
                 .chain(idle_for(folder))
                 .min();
-            let stale = newest.is_some_and(|age| age >= idle);
+            // In use: its run holds the lock (released when the run ends, however it ends).
+            let in_use = std::fs::File::open(entry.path())
+                .is_ok_and(|f| matches!(f.try_lock(), Err(std::fs::TryLockError::WouldBlock)));
+            let stale = !in_use && newest.is_some_and(|age| age >= idle);
             if stale && std::fs::remove_dir_all(entry.path()).is_ok() {
                 removed += 1;
             }
@@ -257,7 +269,8 @@ fn stops() -> MutexGuard<'static, (u64, Stops)> {
 }
 
 impl Stopper {
-    /// Registers `stop`, which must return soon (kill a child, not wait long for it).
+    /// Registers `stop`, which must return soon: kill a child (with a signal it cannot
+    /// ignore) and reap it, not ask it to finish.
     pub fn register(stop: impl Fn() + Send + 'static) -> Self {
         let mut s = stops();
         let id = s.0;
@@ -360,8 +373,13 @@ mod tests {
         let mine = root.join(".pftrack-render-notes");
         std::fs::create_dir(&mine).unwrap();
         age(&mine);
+        // A run waiting for its first frame: its folder empty and old, but locked.
+        let waiting = StagingDir::create(&root, "pftrack-render").unwrap();
+        age(waiting.path());
         let idle = Duration::from_secs(3600);
         assert_eq!(StagingDir::sweep_stale(&root, "pftrack-render", idle), 1);
+        assert!(waiting.path().exists());
+        drop(waiting);
         assert!(!killed.exists());
         assert!(running.exists() && other.exists() && file.exists() && mine.exists());
         assert!(growing.exists());

@@ -13,7 +13,7 @@
 //! process's descriptors (`/dev/stdout`) is refused, and so is a folder that does not exist.
 //! ffmpeg runs in a process group of its own, so that a terminal's Ctrl-C reaches the program
 //! alone, and is registered ([`crate::io::Stopper`]) for the program's interrupt handling to
-//! kill it before it removes the staging folder.
+//! kill it, with whatever it started, before it removes the staging folder.
 //!
 //! ffmpeg starts with the first frame, whose size every later frame must have. The video
 //! containers are written in 4:2:0 (`-pix_fmt yuv420p`), so an odd width or height is padded
@@ -109,6 +109,16 @@ pub struct VideoWriter {
     closed: bool,
 }
 
+/// What the checks of a target give ([`VideoWriter::check`]).
+struct Target {
+    /// The file the video replaces: the target, or the file its links end at.
+    to: PathBuf,
+    /// Its extension, lower case.
+    ext: String,
+    muxer: &'static str,
+    pix_fmt: Option<&'static str>,
+}
+
 #[derive(Debug)]
 struct Running {
     /// Shared with the interrupt's stop ([`Stopper`]), which kills it.
@@ -127,6 +137,52 @@ impl VideoWriter {
     /// nor one of the process's descriptors; the staging folder is made beside it. ffmpeg
     /// itself starts with the first frame ([`VideoWriter::write`]).
     pub fn create(path: &Path, fps: f64, tools: &FfmpegTools) -> Result<Self, VideoError> {
+        let fail = |message: String| VideoError {
+            path: path.display().to_string(),
+            message,
+        };
+        let Target {
+            to,
+            ext,
+            muxer,
+            pix_fmt,
+        } = Self::target(path, fps)?;
+        let folder = match to.parent() {
+            Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
+            _ => PathBuf::from("."),
+        };
+        if !folder.is_dir() {
+            return Err(fail(format!("no folder {}", folder.display())));
+        }
+        StagingDir::sweep_stale(&folder, STAGING_PREFIX, STALE_STAGING);
+        let staging = StagingDir::create(&folder, STAGING_PREFIX)
+            .map_err(|e| fail(format!("cannot write in {}: {e}", folder.display())))?;
+        let partial = staging.path().join(format!("video.{ext}"));
+        Ok(Self {
+            target: path.to_path_buf(),
+            to,
+            muxer,
+            pix_fmt,
+            staging,
+            partial,
+            fps,
+            tools: tools.clone(),
+            running: None,
+            size: None,
+            frames: 0,
+            closed: false,
+        })
+    }
+
+    /// Checks what [`VideoWriter::create`] checks of `path` and `fps` but the folder (which
+    /// a caller may be about to make), making nothing: for a program to refuse a bad target
+    /// before it starts its work.
+    pub fn check(path: &Path, fps: f64) -> Result<(), VideoError> {
+        Self::target(path, fps).map(|_| ())
+    }
+
+    /// The checks of the target and frame rate, and what they give.
+    fn target(path: &Path, fps: f64) -> Result<Target, VideoError> {
         let fail = |message: String| VideoError {
             path: path.display().to_string(),
             message,
@@ -187,30 +243,11 @@ impl VideoWriter {
                  hundredths of a second), not {fps}"
             )));
         }
-        let folder = match to.parent() {
-            Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
-            _ => PathBuf::from("."),
-        };
-        if !folder.is_dir() {
-            return Err(fail(format!("no folder {}", folder.display())));
-        }
-        StagingDir::sweep_stale(&folder, STAGING_PREFIX, STALE_STAGING);
-        let staging = StagingDir::create(&folder, STAGING_PREFIX)
-            .map_err(|e| fail(format!("cannot write in {}: {e}", folder.display())))?;
-        let partial = staging.path().join(format!("video.{ext}"));
-        Ok(Self {
-            target: path.to_path_buf(),
+        Ok(Target {
             to,
+            ext,
             muxer,
             pix_fmt,
-            staging,
-            partial,
-            fps,
-            tools: tools.clone(),
-            running: None,
-            size: None,
-            frames: 0,
-            closed: false,
         })
     }
 
@@ -330,7 +367,7 @@ impl VideoWriter {
         // own, it would otherwise go on encoding after the program has ended.
         let stopper = Stopper::register(move || {
             let mut c = for_stop.lock().unwrap_or_else(|e| e.into_inner());
-            let _ = c.kill();
+            kill_group(&mut c);
             let _ = c.wait();
         });
         self.running = Some(Running {
@@ -455,12 +492,30 @@ impl Drop for VideoWriter {
     fn drop(&mut self) {
         if let Some(r) = self.running.as_mut() {
             drop(r.stdin.take());
-            let _ = r.child.lock().unwrap_or_else(|e| e.into_inner()).kill();
+            kill_group(&mut r.child.lock().unwrap_or_else(|e| e.into_inner()));
         }
         let _ = self.wait();
         // The staging folder goes with the writer (its own drop), the video in it unless
         // committed.
     }
+}
+
+/// Kills ffmpeg and whatever it started: its whole process group, which is its own (an
+/// `ffmpeg` on the path may be a script that runs the real one as its child). Without the
+/// command line's `libc`, or off Unix, ffmpeg alone.
+fn kill_group(child: &mut Child) {
+    #[cfg(all(unix, feature = "cli"))]
+    if let Ok(pgid) = libc::pid_t::try_from(child.id())
+        && child.try_wait().is_ok_and(|done| done.is_none())
+    {
+        // SAFETY: `killpg` only sends a signal; the group is the child's own (made with
+        // `process_group(0)`, so its id is the child's), which has not been reaped yet (just
+        // checked), so the id names no other process group.
+        unsafe {
+            libc::killpg(pgid, libc::SIGKILL);
+        }
+    }
+    let _ = child.kill();
 }
 
 #[cfg(test)]

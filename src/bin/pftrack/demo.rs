@@ -128,8 +128,8 @@ pub fn run(a: DemoArgs) -> anyhow::Result<()> {
         summary.truth.display(),
         poses.display()
     )?;
-    // The same track again (the same poses: the same seed, particles and camera), drawn
-    // for a person to watch.
+    // The same track again (the same seed, particles, engine and camera: on the CPU engine the
+    // same poses byte for byte), drawn for a person to watch.
     let seq = summary.frames_dir.parent().unwrap_or(&summary.frames_dir);
     let particles = if a.particles == 200 {
         String::new()
@@ -143,10 +143,46 @@ pub fn run(a: DemoArgs) -> anyhow::Result<()> {
     };
     outln!(
         "to watch it: pftrack track {} --seed {}{particles}{engine} -o {} --render-video {}",
-        seq.display(),
+        shell_word(seq),
         a.seed,
-        poses.display(),
-        a.out.join("track.mp4").display()
+        shell_word(&poses),
+        shell_word(&a.out.join("track.mp4"))
     )?;
     Ok(())
+}
+
+/// `path` as one word of a POSIX shell command line, to copy and paste: as it is where every
+/// character is plain, else in single quotes (a quote in it written `'\''`); a relative path
+/// that starts with `-` gets `./` first, so that it is not read as an option.
+fn shell_word(path: &std::path::Path) -> String {
+    let text = path.to_string_lossy();
+    let text = if text.starts_with('-') {
+        format!("./{text}")
+    } else {
+        text.into_owned()
+    };
+    let plain = |c: char| c.is_ascii_alphanumeric() || "_./,:=+@%-".contains(c);
+    if !text.is_empty() && text.chars().all(plain) {
+        text
+    } else {
+        format!("'{}'", text.replace('\'', "'\\''"))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::shell_word;
+    use std::path::Path;
+
+    #[test]
+    fn paths_are_written_as_one_shell_word() {
+        assert_eq!(
+            shell_word(Path::new("pftrack-demo/poses.csv")),
+            "pftrack-demo/poses.csv"
+        );
+        assert_eq!(shell_word(Path::new("my dir/x")), "'my dir/x'");
+        assert_eq!(shell_word(Path::new("it's $x")), "'it'\\''s $x'");
+        assert_eq!(shell_word(Path::new("-x/seq")), "./-x/seq");
+        assert_eq!(shell_word(Path::new("")), "''");
+    }
 }

@@ -6,11 +6,27 @@ use std::path::{Path, PathBuf};
 use anyhow::bail;
 
 /// `p` made absolute with its links resolved; for a path that does not exist yet, its
-/// folder's so resolved, with its name. `None` when not even the folder exists.
+/// folder's so resolved, with its name (a link to nothing yet followed to the name it gives,
+/// where a writer through it puts the file). `None` when not even the folder exists.
 fn resolved(p: &Path) -> Option<PathBuf> {
     if let Ok(c) = std::fs::canonicalize(p) {
         return Some(c);
     }
+    let mut p = p.to_path_buf();
+    // The kernel's own bound on a chain of links.
+    for _ in 0..40 {
+        match std::fs::symlink_metadata(&p) {
+            Ok(m) if m.file_type().is_symlink() => {
+                let to = std::fs::read_link(&p).ok()?;
+                p = match p.parent() {
+                    Some(dir) if to.is_relative() => dir.join(to),
+                    _ => to,
+                };
+            }
+            _ => break,
+        }
+    }
+    let p = p.as_path();
     let name = p.file_name()?;
     let dir = match p.parent() {
         Some(d) if !d.as_os_str().is_empty() => d,
@@ -204,6 +220,11 @@ mod tests {
         assert!(track_outputs(&frames, &[&init], Some(&d.join("./init.txt")), None).is_err());
         #[cfg(unix)]
         {
+            // Two names of one file yet to be written: a link to nothing yet, and its target.
+            let dangling = d.join("dangling.csv");
+            std::os::unix::fs::symlink("later.csv", &dangling).unwrap();
+            assert!(same(&dangling, &d.join("later.csv")));
+            assert!(!same(&dangling, &d.join("other.csv")));
             // Through a link to a frame, or to the init file.
             let link = d.join("link.csv");
             std::os::unix::fs::symlink(&first, &link).unwrap();

@@ -950,6 +950,8 @@ pub fn run(mut a: TrackArgs) -> anyhow::Result<()> {
                 v.display()
             );
         }
+        // The container and the frame rate too, before any work.
+        VideoWriter::check(v, a.render_fps)?;
     }
     // A folder written by `synth` (its `frames` read, with or without its init file): its
     // ground truth is not read by the track, but is what the track is scored against.

@@ -62,8 +62,8 @@ pub struct DebugOutput {
     pub line_distances: Vec<i32>,
 }
 
-/// Calls in a row asking a buffer for under a quarter of what it holds after which it is
-/// made smaller ([`GrowBuf::ensure`]).
+/// Calls in a row asking a buffer of the GPU engine for under a quarter of what it holds
+/// after which it is made smaller ([`GpuEngine::buffer_bytes`] says what they hold).
 pub const SHRINK_AFTER_CALLS: u32 = 64;
 
 /// Below this many bytes a buffer is never made smaller: too little memory to be worth a new
