@@ -1018,6 +1018,17 @@ fn names(dir: &Path) -> Vec<String> {
     v
 }
 
+/// Frames `00000.png` up to `n` in `dir` (a sequence's or a render's).
+fn numbered_frames(dir: &Path, n: usize) -> Vec<image::RgbImage> {
+    (0..n)
+        .map(|k| {
+            image::open(dir.join(format!("{k:05}.png")))
+                .unwrap()
+                .to_rgb8()
+        })
+        .collect()
+}
+
 /// Runs `pftrack args` with standard output sent to `stdout`.
 fn pftrack_to(args: &[&str], stdout: Stdio) -> std::process::Output {
     Command::new(env!("CARGO_BIN_EXE_pftrack"))
@@ -1106,13 +1117,7 @@ fn cli_stream_writes_each_row_as_its_frame_is_tracked() {
     // Live: frames fed one at a time through standard input as y4m (4:4:4, the frames'
     // RGB converted as the parser reads it back, near enough for a track). The row of frame
     // 1 must come out before frame 2 is sent.
-    let frames: Vec<image::RgbImage> = (0..6)
-        .map(|k| {
-            image::open(dir.join(format!("frames/{k:05}.png")))
-                .unwrap()
-                .to_rgb8()
-        })
-        .collect();
+    let frames = numbered_frames(&dir.join("frames"), 6);
     let y4m_frame = |img: &image::RgbImage| {
         let (w, h) = img.dimensions();
         let mut planes = vec![0u8; 3 * (w * h) as usize];
@@ -1244,13 +1249,7 @@ fn cli_render_video_writes_the_rendered_frames_or_nothing() {
     ]);
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(err.contains("video in"), "{err}");
-    let drawn: Vec<image::RgbImage> = (0..5)
-        .map(|k| {
-            image::open(render.join(format!("{k:05}.png")))
-                .unwrap()
-                .to_rgb8()
-        })
-        .collect();
+    let drawn = numbered_frames(&render, 5);
     let (w, h) = drawn[0].dimensions();
     let mut read =
         pftrack::frames::open(&video, &pftrack::frames::SourceOptions { resize: None }).unwrap();
@@ -1326,11 +1325,14 @@ fn cli_render_video_writes_the_rendered_frames_or_nothing() {
         std::fs::set_permissions(bin.join("ffmpeg"), std::fs::Permissions::from_mode(0o755))
             .unwrap();
         let path = format!("{}:{}", bin.display(), std::env::var("PATH").unwrap());
-        let out = Command::new(env!("CARGO_BIN_EXE_pftrack"))
-            .args(args)
-            .env("PATH", path)
-            .output()
-            .unwrap();
+        let with_fake = |args: &[&str]| {
+            Command::new(env!("CARGO_BIN_EXE_pftrack"))
+                .args(args)
+                .env("PATH", &path)
+                .output()
+                .unwrap()
+        };
+        let out = with_fake(&args);
         let err = String::from_utf8_lossy(&out.stderr);
         assert_eq!(out.status.code(), Some(1), "{err}");
         assert!(err.contains("No space left on device"), "{err}");
@@ -1341,15 +1343,7 @@ fn cli_render_video_writes_the_rendered_frames_or_nothing() {
             .collect();
         assert!(staged.is_empty(), "{staged:?}");
         // Streamed, the rows went out before the video failed, and the error says which.
-        let out = Command::new(env!("CARGO_BIN_EXE_pftrack"))
-            .args(&args[..6])
-            .arg("--stream")
-            .env(
-                "PATH",
-                format!("{}:{}", bin.display(), std::env::var("PATH").unwrap()),
-            )
-            .output()
-            .unwrap();
+        let out = with_fake(&[&args[..6], &["--stream"]].concat());
         let err = String::from_utf8_lossy(&out.stderr);
         assert_eq!(out.status.code(), Some(1), "{err}");
         assert!(

@@ -103,14 +103,33 @@ pub(crate) fn without_address(line: &str) -> String {
     line.to_string()
 }
 
+/// The last non-empty line of a program's stderr, trimmed.
+pub(crate) fn last_said(text: &str) -> Option<&str> {
+    text.lines().rev().map(str::trim).find(|l| !l.is_empty())
+}
+
 /// The last non-empty line of a program's stderr, or a fallback.
 fn last_line(text: &str) -> String {
-    text.lines()
-        .rev()
-        .map(str::trim)
-        .find(|l| !l.is_empty())
-        .unwrap_or("(no message)")
-        .to_string()
+    last_said(text).unwrap_or("(no message)").to_string()
+}
+
+/// Reads a child's stderr to its end on a thread of its own (a chatty child would otherwise
+/// block on a full pipe), keeping only its tail, [`STDERR_KEEP`] bytes or so.
+pub(crate) fn drain_tail(mut stream: impl Read + Send + 'static) -> JoinHandle<String> {
+    std::thread::spawn(move || {
+        let mut kept: Vec<u8> = Vec::new();
+        let mut buf = [0u8; 4096];
+        while let Ok(n) = stream.read(&mut buf) {
+            if n == 0 {
+                break;
+            }
+            kept.extend_from_slice(&buf[..n]);
+            if kept.len() > 2 * STDERR_KEEP {
+                kept.drain(..kept.len() - STDERR_KEEP);
+            }
+        }
+        String::from_utf8_lossy(&kept).into_owned()
+    })
 }
 
 /// What ffprobe says of a video's first stream.
@@ -272,7 +291,7 @@ fn spawn_decoder(
         .stderr(Stdio::piped())
         .spawn()
         .map_err(|e| spawn_error(ffmpeg, path, e))?;
-    let (Some(stdout), Some(mut stderr)) = (child.stdout.take(), child.stderr.take()) else {
+    let (Some(stdout), Some(stderr)) = (child.stdout.take(), child.stderr.take()) else {
         let _ = child.kill();
         let _ = child.wait();
         return Err(FrameError::io(
@@ -280,23 +299,7 @@ fn spawn_decoder(
             std::io::Error::other("no pipes to the child process"),
         ));
     };
-    // Drain stderr on a thread (a chatty decoder would otherwise block on a full pipe),
-    // keeping only its tail.
-    let stderr = std::thread::spawn(move || {
-        let mut kept: Vec<u8> = Vec::new();
-        let mut buf = [0u8; 4096];
-        while let Ok(n) = stderr.read(&mut buf) {
-            if n == 0 {
-                break;
-            }
-            kept.extend_from_slice(&buf[..n]);
-            if kept.len() > 2 * STDERR_KEEP {
-                kept.drain(..kept.len() - STDERR_KEEP);
-            }
-        }
-        String::from_utf8_lossy(&kept).into_owned()
-    });
-    Ok((child, stdout, stderr))
+    Ok((child, stdout, drain_tail(stderr)))
 }
 
 /// A running ffmpeg decode.

@@ -321,8 +321,9 @@ pub(crate) fn through_descriptor(path: &Path) -> bool {
 }
 
 /// `path` with its symbolic links followed, however many (`path` itself when it is none);
-/// a link to nothing gives the path it names. A loop of links is an error.
-pub(crate) fn resolve_links(path: &Path) -> std::io::Result<PathBuf> {
+/// a link to nothing gives the path it names: where a writer through it puts the file. A
+/// loop of links is an error.
+pub fn resolve_links(path: &Path) -> std::io::Result<PathBuf> {
     let mut p = path.to_path_buf();
     // The kernel's own bound on a chain of links.
     for _ in 0..40 {

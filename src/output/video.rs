@@ -24,7 +24,7 @@
 //! it wrote.
 
 use std::ffi::OsString;
-use std::io::{Read, Write};
+use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::process::{Child, ChildStdin, Command, Stdio};
 use std::sync::{Arc, Mutex};
@@ -72,9 +72,6 @@ const STAGING_PREFIX: &str = "pftrack-video";
 /// How long a staging folder must have been left untouched to be taken for a killed run's.
 const STALE_STAGING: std::time::Duration = std::time::Duration::from_secs(3600);
 
-/// The most of ffmpeg's standard error kept (its tail), bytes.
-const STDERR_KEEP: usize = 16 * 1024;
-
 /// Writing a video failed: its settings, the frames given, or ffmpeg.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 #[error("{path}: {message}")]
@@ -83,6 +80,20 @@ pub struct VideoError {
     pub path: String,
     /// What went wrong.
     pub message: String,
+}
+
+impl VideoError {
+    fn new(path: &Path, message: impl Into<String>) -> Self {
+        Self {
+            path: path.display().to_string(),
+            message: message.into(),
+        }
+    }
+}
+
+/// Whether `fps` is a frame rate a video is written at ([`FPS_RANGE`]).
+pub fn fps_in_range(fps: f64) -> bool {
+    fps.is_finite() && (FPS_RANGE.0..=FPS_RANGE.1).contains(&fps)
 }
 
 /// A video being written; see the module docs.
@@ -137,10 +148,7 @@ impl VideoWriter {
     /// nor one of the process's descriptors; the staging folder is made beside it. ffmpeg
     /// itself starts with the first frame ([`VideoWriter::write`]).
     pub fn create(path: &Path, fps: f64, tools: &FfmpegTools) -> Result<Self, VideoError> {
-        let fail = |message: String| VideoError {
-            path: path.display().to_string(),
-            message,
-        };
+        let fail = |message: String| VideoError::new(path, message);
         let Target {
             to,
             ext,
@@ -183,11 +191,8 @@ impl VideoWriter {
 
     /// The checks of the target and frame rate, and what they give.
     fn target(path: &Path, fps: f64) -> Result<Target, VideoError> {
-        let fail = |message: String| VideoError {
-            path: path.display().to_string(),
-            message,
-        };
-        if !(fps.is_finite() && (FPS_RANGE.0..=FPS_RANGE.1).contains(&fps)) {
+        let fail = |message: String| VideoError::new(path, message);
+        if !fps_in_range(fps) {
             return Err(fail(format!(
                 "a frame rate of {fps} frames a second; it must be from {} to {}",
                 FPS_RANGE.0, FPS_RANGE.1
@@ -262,10 +267,7 @@ impl VideoWriter {
     }
 
     fn error(&self, message: impl Into<String>) -> VideoError {
-        VideoError {
-            path: self.target.display().to_string(),
-            message: message.into(),
-        }
+        VideoError::new(&self.target, message)
     }
 
     /// Appends `frame`; the first frame starts ffmpeg and sets the size every later one must
@@ -345,22 +347,7 @@ impl VideoWriter {
             }
         })?;
         let stdin = child.stdin.take();
-        let stderr = child.stderr.take().map(|mut s| {
-            std::thread::spawn(move || {
-                let mut tail = Vec::new();
-                let mut buf = [0u8; 4096];
-                while let Ok(n) = s.read(&mut buf) {
-                    if n == 0 {
-                        break;
-                    }
-                    tail.extend_from_slice(&buf[..n]);
-                    if tail.len() > 2 * STDERR_KEEP {
-                        tail.drain(..tail.len() - STDERR_KEEP);
-                    }
-                }
-                String::from_utf8_lossy(&tail).into_owned()
-            })
-        });
+        let stderr = child.stderr.take().map(crate::frames::ffmpeg::drain_tail);
         let child = Arc::new(Mutex::new(child));
         let for_stop = Arc::clone(&child);
         // An interrupt kills it before removing the staging folder: in a process group of its
@@ -414,16 +401,10 @@ impl VideoWriter {
     /// line after `ffmpeg: `, with the file in the staging folder named as the target; empty
     /// when it said nothing.
     fn ffmpeg_says(&self, text: &str) -> String {
-        let last = text
-            .lines()
-            .rev()
-            .map(str::trim)
-            .find(|l| !l.is_empty())
-            .map(crate::frames::ffmpeg::without_address)
-            .unwrap_or_default();
-        if last.is_empty() {
-            return last;
-        }
+        let Some(last) = crate::frames::ffmpeg::last_said(text) else {
+            return String::new();
+        };
+        let last = crate::frames::ffmpeg::without_address(last);
         let partial = self.partial.display().to_string();
         let said = last
             .replace(

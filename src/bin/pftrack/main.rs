@@ -67,6 +67,11 @@ fn write_stdout(args: std::fmt::Arguments<'_>) -> anyhow::Result<()> {
         .map_err(|e| StdoutError(e).into())
 }
 
+/// Writes out what standard output holds, its error reported as [`write_stdout`]'s are.
+fn flush_stdout() -> anyhow::Result<()> {
+    std::io::stdout().flush().map_err(|e| StdoutError(e).into())
+}
+
 /// Joint video tracking and 3D pose estimation of a rigid object.
 #[derive(Debug, Parser)]
 #[command(name = "pftrack", version, about)]
@@ -126,7 +131,7 @@ fn main() {
         Command::Settings(a) => settings::run(a),
     };
     // What is still buffered is written now, where its error can be reported.
-    let result = result.and_then(|()| std::io::stdout().flush().map_err(|e| StdoutError(e).into()));
+    let result = result.and_then(|()| flush_stdout());
     if let Err(e) = result {
         let closed = e.chain().any(closed_pipe);
         if closed {

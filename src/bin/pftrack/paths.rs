@@ -12,21 +12,7 @@ fn resolved(p: &Path) -> Option<PathBuf> {
     if let Ok(c) = std::fs::canonicalize(p) {
         return Some(c);
     }
-    let mut p = p.to_path_buf();
-    // The kernel's own bound on a chain of links.
-    for _ in 0..40 {
-        match std::fs::symlink_metadata(&p) {
-            Ok(m) if m.file_type().is_symlink() => {
-                let to = std::fs::read_link(&p).ok()?;
-                p = match p.parent() {
-                    Some(dir) if to.is_relative() => dir.join(to),
-                    _ => to,
-                };
-            }
-            _ => break,
-        }
-    }
-    let p = p.as_path();
+    let p = pftrack::io::atomic::resolve_links(p).ok()?;
     let name = p.file_name()?;
     let dir = match p.parent() {
         Some(d) if !d.as_os_str().is_empty() => d,

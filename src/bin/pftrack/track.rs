@@ -920,10 +920,7 @@ pub fn run(mut a: TrackArgs) -> anyhow::Result<()> {
         );
     }
     crate::paths::track_outputs(&frames_path, &read, a.out.as_deref(), a.render.as_deref())?;
-    if !(a.render_fps.is_finite()
-        && (pftrack::output::video::FPS_RANGE.0..=pftrack::output::video::FPS_RANGE.1)
-            .contains(&a.render_fps))
-    {
+    if !pftrack::output::video::fps_in_range(a.render_fps) {
         bail!(
             "--render-fps {}: a frame rate from {} to {} frames a second",
             a.render_fps,
@@ -1341,25 +1338,22 @@ fn track_all(
     let mut stdout_rows = Vec::new();
     if a.stream {
         outln!("{}", pftrack::io::pose_csv_header(true))?;
-        std::io::Write::flush(&mut std::io::stdout()).map_err(crate::StdoutError)?;
+        crate::flush_stdout()?;
     }
     let mut emit = |e: &Estimate, frame: &image::RgbImage| -> anyhow::Result<()> {
+        // Drawn first: a render that fails is the failure of this frame, whose row then is
+        // not written (with --stream, not sent).
+        drawn.draw(e, frame)?;
         let r = to_input.record(&e.to_record());
         match csv_out.as_mut() {
             Some(w) => w.write(&r)?,
             None if a.stream => {
-                // Drawn first: a render that fails is the failure of this frame, whose row
-                // then was not written.
-                drawn.draw(e, frame)?;
                 outln!("{}", pftrack::io::format_pose_row(&r, true))?;
-                std::io::Write::flush(&mut std::io::stdout()).map_err(crate::StdoutError)?;
+                crate::flush_stdout()?;
                 *streamed += 1;
-                pb.inc(1);
-                return Ok(());
             }
             None => stdout_rows.push(r),
         }
-        drawn.draw(e, frame)?;
         pb.inc(1);
         Ok(())
     };
