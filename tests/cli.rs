@@ -673,7 +673,7 @@ fn cli_usage_errors_exit_2_and_others_1() {
         (
             &["track", f, "--init-truth", o],
             1,
-            "the first box has no size",
+            "the box of frame 0 has no size",
         ),
     ];
     for (args, code, needle) in cases {
@@ -2213,7 +2213,7 @@ fn cli_init_truth_starts_from_the_first_rows_pose() {
             "--out",
             c,
         ],
-        "no row for frame 0 (the first is frame 1)",
+        "no row for frame 0, the frame tracking starts on (its rows are of frames 1 to 1)",
         &csv,
     );
     std::fs::remove_dir_all(&dir).unwrap();
@@ -2782,5 +2782,151 @@ fn pose_draws_the_ellipse_and_the_matches_at_the_renders_scale() {
         (37..=42).contains(&top) && (197..=202).contains(&bottom),
         "{top}..{bottom}"
     );
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// `track --start-frame N` tracks from frame N of the input: the same poses as the input cut
+/// to begin there (the same frames, byte for byte), in rows that keep the input's numbers, on
+/// standard output as with `--out`; its start is frame N's (`--init-truth` reads that row or
+/// box; a synthetic folder's own init, frame 0's, is refused), the render is numbered from
+/// `00000.png`, a start past the end is an error, and `eval --segment` scores the frames
+/// from the track's first on.
+#[test]
+fn cli_start_frame_tracks_from_the_middle_of_the_input() {
+    let dir = synth_dir("start-frame", 12, "64x48");
+    let d = dir.to_str().unwrap();
+    let truth = dir.join("truth.csv");
+    let t = truth.to_str().unwrap();
+    // Frames 5-11 alone, numbered from 0, with their truth.
+    let cut = dir.join("cut");
+    std::fs::create_dir(&cut).unwrap();
+    for k in 5..12 {
+        std::fs::copy(
+            dir.join("frames").join(format!("{k:05}.png")),
+            cut.join(format!("{:05}.png", k - 5)),
+        )
+        .unwrap();
+    }
+    let rows = read_pose_csv(&truth).unwrap();
+    let cut_rows: Vec<_> = rows[5..]
+        .iter()
+        .map(|r| pftrack::io::PoseRecord {
+            frame: r.frame - 5,
+            ..r.clone()
+        })
+        .collect();
+    let cut_truth = dir.join("cut-truth.csv");
+    pftrack::io::write_pose_csv(&cut_truth, &cut_rows, false).unwrap();
+    let (a, b) = (dir.join("a.csv"), dir.join("b.csv"));
+    let render = dir.join("render");
+    pftrack_ok(&[
+        "track",
+        d,
+        "--start-frame",
+        "5",
+        "--init-truth",
+        t,
+        "--backend",
+        "cpu",
+        "--out",
+        a.to_str().unwrap(),
+        "--render",
+        render.to_str().unwrap(),
+    ]);
+    pftrack_ok(&[
+        "track",
+        cut.to_str().unwrap(),
+        "--init-truth",
+        cut_truth.to_str().unwrap(),
+        "--hfov",
+        "50",
+        "--backend",
+        "cpu",
+        "--out",
+        b.to_str().unwrap(),
+    ]);
+    let (from_five, alone) = (read_pose_csv(&a).unwrap(), read_pose_csv(&b).unwrap());
+    assert_eq!(from_five.len(), 7);
+    for (k, (x, y)) in from_five.iter().zip(&alone).enumerate() {
+        assert_eq!(x.frame, k + 5);
+        assert_eq!(
+            pftrack::io::PoseRecord {
+                frame: k,
+                ..x.clone()
+            },
+            *y
+        );
+    }
+    // The start is frame 5's, pose included.
+    assert!((from_five[0].state.rx - rows[5].state.rx).abs() < 1e-9);
+    let mut drawn = names(&render);
+    drawn.retain(|n| !n.starts_with('.'));
+    let expected: Vec<String> = (0..7).map(|k| format!("{k:05}.png")).collect();
+    assert_eq!(drawn, expected);
+    // Standard output, streamed or not, holds the same rows.
+    for extra in [None, Some("--stream")] {
+        let mut args = vec!["track", d, "--start-frame", "5", "--init-truth", t];
+        args.extend(["--backend", "cpu"]);
+        args.extend(extra);
+        let out = pftrack_ok(&args);
+        assert_eq!(
+            String::from_utf8_lossy(&out.stdout),
+            std::fs::read_to_string(&a).unwrap()
+        );
+    }
+    // `eval --segment` scores frames 5-11 alone; without it frames 0-4 are missing.
+    let seg = pftrack_ok(&["eval", "--segment", t, a.to_str().unwrap(), "--json"]);
+    let seg: serde_json::Value = serde_json::from_slice(&seg.stdout).unwrap();
+    assert_eq!(seg["scored_from"], 5);
+    assert_eq!(seg["truth_frames"], 7);
+    assert_eq!(seg["missing"], 0);
+    let whole = pftrack_ok(&["eval", t, a.to_str().unwrap(), "--json"]);
+    let whole: serde_json::Value = serde_json::from_slice(&whole.stdout).unwrap();
+    assert_eq!(whole["missing"], 5);
+    assert_eq!(whole["angle_rmse_deg"], seg["angle_rmse_deg"]);
+
+    // An OTB file's box of the start frame (its fourth line, frame 3), and one of no size.
+    let boxes = dir.join("boxes.txt");
+    let mut lines: Vec<String> = (0..12).map(|k| format!("{},20,12,10", 20 + k)).collect();
+    lines[4] = "0,0,0,0".into();
+    std::fs::write(&boxes, lines.join("\n")).unwrap();
+    let bx = boxes.to_str().unwrap();
+    let out = pftrack_ok(&["track", d, "--start-frame", "3", "--init-truth", bx]);
+    let first = String::from_utf8_lossy(&out.stdout)
+        .lines()
+        .nth(1)
+        .unwrap()
+        .to_string();
+    // OTB's 1-based 23,20 is 21.5,18.5 in the README's pixels: the centre 6 and 5 px on.
+    assert!(
+        first.starts_with("3,27.500000,23.500000,6.000000,5.000000,"),
+        "{first}"
+    );
+    let c = dir.join("c.csv");
+    let cc = c.to_str().unwrap();
+    for (args, needle) in [
+        (
+            vec!["--start-frame", "4", "--init-truth", bx],
+            "the box of frame 4 has no size (0 x 0): the target is not in the frame tracking \
+             starts on",
+        ),
+        (
+            vec!["--start-frame", "5"],
+            "init.txt gives the start of frame 0; give the start of frame 5",
+        ),
+        (
+            vec!["--start-frame", "12", "--init-ellipse", "32,24,8,8"],
+            "--start-frame 12: the input has only 12 frames (frames 0 to 11)",
+        ),
+        (
+            vec!["--start-frame", "12", "--init-truth", t],
+            "no row for frame 12, the frame tracking starts on (its rows are of frames 0 to 11)",
+        ),
+        (vec!["--start-frame", "-1", "--init-truth", t], "-1"),
+    ] {
+        let mut all = vec!["track", d, "--backend", "cpu", "--out", cc];
+        all.extend(args);
+        assert_one_line_error(&all, needle, &c);
+    }
     std::fs::remove_dir_all(&dir).unwrap();
 }

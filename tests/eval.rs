@@ -5,7 +5,7 @@ mod shared_data;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-use pftrack::eval::{Report, Truth, evaluate, load_truth};
+use pftrack::eval::{EvalError, Report, Truth, evaluate, evaluate_from, load_truth};
 use pftrack::geometry::{BoxRect, Ellipse, Euler, PoseState, rad};
 use pftrack::io::boxes::parse_otb_boxes;
 use pftrack::io::pose_csv::write_pose_csv;
@@ -282,6 +282,74 @@ fn from_boxes(boxes: &[BoxRect]) -> Vec<PoseRecord> {
             }
         })
         .collect()
+}
+
+/// A track started at frame 5 (OTB's temporal robustness evaluation): scored from there, the
+/// frames before it are neither missing nor failures, and its scores are those of the same
+/// rows against the truth cut to begin there; rows before the start are ignored.
+#[test]
+fn a_track_started_later_is_scored_from_its_start() {
+    let d = scratch("segment");
+    let p = d.join("groundtruth_rect.txt");
+    let boxes = write_otb(&p, 12);
+    let truth = load_truth(&p).unwrap();
+    let mut est = from_boxes(&boxes);
+    // Every estimate off by 4 px to the right, so the overlaps are not all perfect.
+    for r in &mut est {
+        r.state.cx += 4.0;
+    }
+    let late = &est[5..];
+    let whole = evaluate(&truth, late).unwrap();
+    assert_eq!(
+        (whole.scored_from, whole.truth_frames, whole.missing),
+        (0, 12, 5)
+    );
+    let seg = evaluate_from(&truth, late, 5).unwrap();
+    assert_eq!(
+        (
+            seg.scored_from,
+            seg.truth_frames,
+            seg.evaluated,
+            seg.missing,
+            seg.ignored
+        ),
+        (5, 7, 7, 0, 0)
+    );
+    // The same rows, renumbered from 0, against the truth's boxes from frame 5 on.
+    let cut = Truth::Boxes(boxes[5..].to_vec());
+    let renumbered: Vec<PoseRecord> = late
+        .iter()
+        .map(|r| PoseRecord {
+            frame: r.frame - 5,
+            ..r.clone()
+        })
+        .collect();
+    let alone = evaluate(&cut, &renumbered).unwrap();
+    assert_eq!(seg.success_rates, alone.success_rates);
+    assert_eq!(seg.precision_20px, alone.precision_20px);
+    close(seg.mean_iou, alone.mean_iou, "mean IoU");
+    // Missing frames fail: the whole sequence's AUC is 7/12 of the segment's.
+    close(whole.success_auc, seg.success_auc * 7.0 / 12.0, "AUC");
+    assert!(
+        seg.to_table().contains("7 (boxes, frames 5 on)"),
+        "{}",
+        seg.to_table()
+    );
+    // The whole track scored from 5: its first five rows are ignored.
+    let r = evaluate_from(&truth, &est, 5).unwrap();
+    assert_eq!((r.evaluated, r.ignored), (7, 5));
+    assert_eq!(r.success_rates, seg.success_rates);
+    // Nothing from frame 12 on.
+    let err = evaluate_from(&truth, late, 12).unwrap_err();
+    assert!(
+        matches!(err, EvalError::NoTruthFrom { from: 12, last: 11 }),
+        "{err}"
+    );
+    assert!(
+        err.to_string().contains("no frames from frame 12 on"),
+        "{err}"
+    );
+    std::fs::remove_dir_all(&d).unwrap();
 }
 
 #[test]

@@ -1360,3 +1360,103 @@ fn interlaced_video_and_non_square_pixels_are_said() {
         );
     }
 }
+
+// ---------------------------------------------------------------- starting later
+
+/// `skip_frames(n)` then reading gives the frames from `n` on, exactly those `next` gives
+/// after `n` calls, from an image folder (whose skipped images are not decoded: a broken one
+/// there is no error), a y4m file, a y4m stream cut inside a frame, and a video through
+/// ffmpeg; fewer are skipped where the input ends first, and an empty input is the error the
+/// first read gives.
+#[test]
+fn skipped_frames_leave_the_rest_in_place() {
+    let d = scratch("skip");
+    let opts = SourceOptions::default();
+    // The frames after `n` skipped, with how many were skipped and the place after them.
+    let after_skip = |mut src: FrameSource, n: usize| {
+        let skipped = src.skip_frames(n).unwrap();
+        let place = src.frames_read();
+        let rest = src.by_ref().collect::<Result<Vec<_>, _>>().unwrap();
+        (skipped, place, rest, src.frames_read())
+    };
+
+    // An image folder, its third image broken.
+    let frames = moving_noise(64, 48, 6);
+    let y4m = d.join("clip.y4m");
+    write_y4m(&y4m, 64, 48, "444", &frames);
+    let all = collect(frames::open(&y4m, &opts).unwrap()).unwrap();
+    let dir = d.join("dir");
+    std::fs::create_dir(&dir).unwrap();
+    for (k, f) in all.iter().enumerate() {
+        f.save(dir.join(format!("{k:02}.png"))).unwrap();
+    }
+    std::fs::write(dir.join("02.png"), b"not a png").unwrap();
+    assert!(collect(frames::open(&dir, &opts).unwrap()).is_err());
+    let (skipped, place, rest, end) = after_skip(frames::open(&dir, &opts).unwrap(), 4);
+    assert_eq!((skipped, place, end), (4, 4, 6));
+    assert_eq!(rest, all[4..]);
+    // Past the end: as many as there are, then nothing.
+    let (skipped, _, rest, end) = after_skip(frames::open(&dir, &opts).unwrap(), 9);
+    assert_eq!((skipped, rest.len(), end), (6, 0, 6));
+
+    // A y4m file, resized: a skipped frame is neither converted nor resized, the rest are.
+    let (skipped, place, rest, _) = after_skip(frames::open(&y4m, &opts).unwrap(), 2);
+    assert_eq!((skipped, place), (2, 2));
+    assert_eq!(rest, all[2..]);
+    let small = SourceOptions {
+        resize: Some((32, 24)),
+    };
+    let resized = collect(frames::open(&y4m, &small).unwrap()).unwrap();
+    let (_, _, rest, _) = after_skip(frames::open(&y4m, &small).unwrap(), 3);
+    assert_eq!(rest, resized[3..]);
+
+    // A stream cut inside its last frame, the cut met while skipping: it ends after the
+    // complete frames and says so, as when read.
+    let bytes = std::fs::read(&y4m).unwrap();
+    let cut = bytes[..bytes.len() - 10].to_vec();
+    let mut stream =
+        FrameSource::from_y4m_reader(Box::new(std::io::Cursor::new(cut)), "pipe", &opts).unwrap();
+    assert_eq!(stream.skip_frames(8).unwrap(), 5);
+    assert!(stream.next().is_none());
+    let short = stream.shortfall().expect("a cut stream says so");
+    assert!(short.contains("inside frame 5"), "{short}");
+
+    // A malformed frame header met while skipping is the error reading it gives.
+    let mut bad = bytes.clone();
+    let second = bytes
+        .windows(6)
+        .enumerate()
+        .filter(|(_, w)| w.starts_with(b"FRAME"))
+        .nth(1)
+        .unwrap()
+        .0;
+    bad[second..second + 5].copy_from_slice(b"FRAMX");
+    let mut stream =
+        FrameSource::from_y4m_reader(Box::new(std::io::Cursor::new(bad)), "pipe", &opts).unwrap();
+    let err = stream.skip_frames(3).unwrap_err().to_string();
+    assert!(err.contains("frame 1: expected a FRAME header"), "{err}");
+
+    // An input with no frames is that error, whether skipped or read.
+    let empty = d.join("empty.y4m");
+    std::fs::write(&empty, b"YUV4MPEG2 W8 H8 F25:1 C444\n").unwrap();
+    let mut src = frames::open(&empty, &opts).unwrap();
+    assert!(matches!(
+        src.skip_frames(1),
+        Err(FrameError::NoFrames { .. })
+    ));
+
+    // A video through ffmpeg.
+    if have_ffmpeg() {
+        let mp4 = d.join("clip.mp4");
+        testsrc("64x48", 7, &["-c:v", "mpeg4"], &mp4);
+        let tools = FfmpegTools::default();
+        let video = || FrameSource::from_video(&mp4, &opts, &tools).unwrap();
+        let all = collect(video()).unwrap();
+        assert_eq!(all.len(), 7);
+        let (skipped, place, rest, end) = after_skip(video(), 5);
+        assert_eq!((skipped, place, end), (5, 5, 7));
+        assert_eq!(rest, all[5..]);
+        assert_eq!(after_skip(video(), 10).0, 7);
+    }
+    std::fs::remove_dir_all(&d).unwrap();
+}

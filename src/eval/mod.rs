@@ -81,6 +81,14 @@ pub enum EvalError {
     /// The truth has no frames.
     #[error("the truth has no frames")]
     EmptyTruth,
+    /// The truth has no frames from the one scoring starts on ([`evaluate_from`]).
+    #[error("the truth has no frames from frame {from} on (its last is frame {last})")]
+    NoTruthFrom {
+        /// The first frame to score.
+        from: usize,
+        /// The truth's last frame.
+        last: usize,
+    },
     /// A frame listed twice.
     #[error("the {what} lists frame {frame} twice")]
     DuplicateFrame {
@@ -291,9 +299,12 @@ pub fn gain(pairs: &[(f64, f64)]) -> Option<f64> {
 pub struct Report {
     /// What the truth holds (`poses` or `boxes`).
     pub truth_kind: TruthKind,
-    /// Frames in the truth, those marking the target [`Report::absent`] included (before
-    /// 2026-12-06 no frame was absent: this was the number scored). The shares (precision,
-    /// success) are over `truth_frames − absent`.
+    /// The first truth frame scored: 0, or where [`evaluate_from`] was told to start (the
+    /// counts and shares below are of the truth frames from it on).
+    pub scored_from: usize,
+    /// Frames in the truth (from [`Report::scored_from`] on), those marking the target
+    /// [`Report::absent`] included (before 2026-12-06 no frame was absent: this was the
+    /// number scored). The shares (precision, success) are over `truth_frames − absent`.
     pub truth_frames: usize,
     /// Truth frames with an estimate.
     pub evaluated: usize,
@@ -380,9 +391,21 @@ fn first_last(frames: impl Iterator<Item = usize>) -> Option<(usize, usize)> {
 
 /// Scores `est` against `truth`.
 pub fn evaluate(truth: &Truth, est: &[PoseRecord]) -> Result<Report, EvalError> {
-    let tf = truth.frames();
-    if tf.is_empty() {
-        return Err(EvalError::EmptyTruth);
+    evaluate_from(truth, est, 0)
+}
+
+/// Scores `est` against the truth's frames from `from` on, as OTB's temporal robustness
+/// evaluation (TRE) scores a track started later in the sequence: the truth frames before it
+/// are not scored at all (neither missing nor failures), and the estimate's rows before it
+/// are ignored ([`Report::ignored`]). [`evaluate`] is `from` 0.
+pub fn evaluate_from(truth: &Truth, est: &[PoseRecord], from: usize) -> Result<Report, EvalError> {
+    let all = truth.frames();
+    let last = all.iter().map(|t| t.frame).max();
+    let tf: Vec<TruthFrame> = all.into_iter().filter(|t| t.frame >= from).collect();
+    match last {
+        None => return Err(EvalError::EmptyTruth),
+        Some(last) if tf.is_empty() => return Err(EvalError::NoTruthFrom { from, last }),
+        Some(_) => {}
     }
     let mut seen = std::collections::BTreeSet::new();
     for t in &tf {
@@ -461,12 +484,16 @@ pub fn evaluate(truth: &Truth, est: &[PoseRecord]) -> Result<Report, EvalError> 
             estimate: first_last(by_frame.keys().copied()),
         });
     }
-    let ignored = by_frame.keys().filter(|f| !seen.contains(f)).count();
+    let ignored = by_frame
+        .keys()
+        .filter(|&&f| f < from || !seen.contains(&f))
+        .count();
     let m = evaluated as f64;
     let has_angles = matches!(truth, Truth::Poses(_));
     let rates = success_rates(&ious, n);
     Ok(Report {
         truth_kind: truth.kind(),
+        scored_from: from,
         truth_frames: tf.len(),
         evaluated,
         missing: missing_frames.len(),
@@ -510,10 +537,14 @@ impl Report {
         let row = |s: &mut String, k: &str, v: String| {
             let _ = writeln!(s, "{k:<18}{v}");
         };
+        let from = match self.scored_from {
+            0 => String::new(),
+            f => format!(", frames {f} on"),
+        };
         row(
             &mut s,
             "truth frames",
-            format!("{} ({kind})", self.truth_frames),
+            format!("{} ({kind}{from})", self.truth_frames),
         );
         row(&mut s, "evaluated", self.evaluated.to_string());
         let missing = if self.missing == 0 {

@@ -417,6 +417,13 @@ impl DirSource {
         self.files.len()
     }
 
+    /// Passes over the next frame without decoding it; `false` after the last.
+    pub(crate) fn skip_frame(&mut self) -> bool {
+        let more = self.next < self.files.len();
+        self.next += usize::from(more);
+        more
+    }
+
     /// Decodes the next frame; `None` after the last.
     pub(crate) fn next_frame(&mut self) -> Result<Option<Frame>, FrameError> {
         let Some(p) = self.files.get(self.next) else {

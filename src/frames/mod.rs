@@ -567,7 +567,9 @@ impl FrameSource {
         }
     }
 
-    /// Frames delivered so far.
+    /// Frames read from the input so far: those delivered and those passed over with
+    /// [`FrameSource::skip_frames`], so the next frame delivered is frame `frames_read()` of the
+    /// input (counting from 0).
     pub fn frames_read(&self) -> usize {
         self.produced
     }
@@ -690,6 +692,65 @@ impl FrameSource {
         s
     }
 
+    /// Passes over up to `n` frames without delivering them, for a track that starts later
+    /// in the input; returns how many were passed over, fewer when the input ends first.
+    /// Images in a folder are not decoded, nor are a y4m stream's frames converted or a
+    /// passed-over frame resized (a video's are decoded by ffmpeg all the same). The frames
+    /// delivered after it keep their place in the input ([`FrameSource::frames_read`]). An
+    /// input with no frames at all is [`FrameError::NoFrames`], as for the first
+    /// [`Iterator::next`]; a y4m stream cut inside a frame ends there, as it does when read
+    /// ([`FrameSource::shortfall`]).
+    pub fn skip_frames(&mut self, n: usize) -> Result<usize, FrameError> {
+        let mut skipped = 0;
+        while skipped < n && !self.done {
+            let read = match &mut self.inner {
+                Inner::Dir(d) => Ok(d.skip_frame().then_some(())),
+                Inner::Y4m(r, _) => r.skip_frame().map(|more| more.then_some(())),
+                Inner::Ffmpeg(f) => f.next_frame().map(|f| f.map(drop)),
+            };
+            if self.advance(read)?.is_some() {
+                skipped += 1;
+            }
+        }
+        Ok(skipped)
+    }
+
+    /// Counts a frame read from the input (`Ok(Some(_))`), or ends the source: at the end of
+    /// the input (`Ok(None)`; with no frame read at all, [`FrameError::NoFrames`]), where a
+    /// y4m stream is cut inside a frame after complete ones (`Ok(None)`, kept for
+    /// [`FrameSource::shortfall`]: it ends after its complete frames, as a damaged video does
+    /// through ffmpeg; with none complete it is the error), or on an error.
+    fn advance<T>(&mut self, read: Result<Option<T>, FrameError>) -> Result<Option<T>, FrameError> {
+        match read {
+            Ok(Some(x)) => {
+                self.produced += 1;
+                Ok(Some(x))
+            }
+            Ok(None) => {
+                self.done = true;
+                self.ended = true;
+                if self.produced == 0 {
+                    return Err(FrameError::NoFrames {
+                        path: self.path.clone(),
+                    });
+                }
+                Ok(None)
+            }
+            Err(FrameError::Truncated { frame, msg, .. })
+                if matches!(self.inner, Inner::Y4m(..)) && self.produced > 0 =>
+            {
+                self.done = true;
+                self.ended = true;
+                self.cut = Some((frame, msg));
+                Ok(None)
+            }
+            Err(e) => {
+                self.done = true;
+                Err(e)
+            }
+        }
+    }
+
     fn next_native(&mut self) -> Result<Option<Frame>, FrameError> {
         match &mut self.inner {
             Inner::Dir(d) => d.next_frame(),
@@ -725,41 +786,12 @@ impl Iterator for FrameSource {
         if self.done {
             return None;
         }
-        match self.next_native() {
-            Ok(Some(f)) => {
-                self.produced += 1;
-                let f = if self.out == self.native {
-                    f
-                } else {
-                    resize_bilinear(&f, self.out.0, self.out.1)
-                };
-                Some(Ok(f))
-            }
-            Ok(None) => {
-                self.done = true;
-                self.ended = true;
-                (self.produced == 0).then(|| {
-                    Err(FrameError::NoFrames {
-                        path: self.path.clone(),
-                    })
-                })
-            }
-            // A y4m stream cut inside a frame (a recording stopped, a producer killed, a file
-            // copied in part) ends after its complete frames, as a damaged video does through
-            // ffmpeg, and says so ([`FrameSource::shortfall`]); with none complete it is the
-            // error.
-            Err(FrameError::Truncated { frame, msg, .. })
-                if matches!(self.inner, Inner::Y4m(..)) && self.produced > 0 =>
-            {
-                self.done = true;
-                self.ended = true;
-                self.cut = Some((frame, msg));
-                None
-            }
-            Err(e) => {
-                self.done = true;
-                Some(Err(e))
-            }
+        let read = self.next_native();
+        match self.advance(read) {
+            Ok(Some(f)) if self.out == self.native => Some(Ok(f)),
+            Ok(Some(f)) => Some(Ok(resize_bilinear(&f, self.out.0, self.out.1))),
+            Ok(None) => None,
+            Err(e) => Some(Err(e)),
         }
     }
 

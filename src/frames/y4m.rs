@@ -550,10 +550,30 @@ impl<R: BufRead> Y4mReader<R> {
 
     /// Reads and converts the next frame; `Ok(None)` at the clean end of the stream.
     pub fn read_frame(&mut self) -> Result<Option<Frame>, FrameError> {
+        if !self.read_planes()? {
+            return Ok(None);
+        }
+        let frame = self.convert();
+        self.frames += 1;
+        Ok(Some(frame))
+    }
+
+    /// Reads the next frame without converting it (a track that starts later in the
+    /// stream); `Ok(false)` at the clean end of the stream. Its header and size are checked
+    /// as [`Y4mReader::read_frame`] checks them.
+    pub fn skip_frame(&mut self) -> Result<bool, FrameError> {
+        let read = self.read_planes()?;
+        self.frames += usize::from(read);
+        Ok(read)
+    }
+
+    /// Reads the next frame's header and pixel data into `self.planes`; `Ok(false)` at the
+    /// clean end of the stream.
+    fn read_planes(&mut self) -> Result<bool, FrameError> {
         let mut line = Vec::new();
         let n = read_line(&mut self.r, &mut line).map_err(|e| FrameError::io(&self.name, e))?;
         if n == 0 {
-            return Ok(None);
+            return Ok(false);
         }
         let ok_start = line.starts_with(b"FRAME") && matches!(line.get(5), Some(b' ' | b'\n'));
         // A blank line ending the stream (an editor's or `echo`'s newline) ends it cleanly.
@@ -565,7 +585,7 @@ impl<R: BufRead> Y4mReader<R> {
                 .map_err(|e| FrameError::io(&self.name, e))?
                 .is_empty()
         {
-            return Ok(None);
+            return Ok(false);
         }
         if !ok_start || line.last() != Some(&b'\n') {
             if b"FRAME".starts_with(&line) || (ok_start && (n as u64) < MAX_LINE) {
@@ -589,9 +609,7 @@ impl<R: BufRead> Y4mReader<R> {
             let msg = format!("{got} of {} bytes of pixel data", self.planes.len());
             return Err(self.truncated(msg));
         }
-        let frame = self.convert();
-        self.frames += 1;
-        Ok(Some(frame))
+        Ok(true)
     }
 
     fn truncated(&self, msg: String) -> FrameError {

@@ -59,8 +59,9 @@ pub struct TrackArgs {
     /// An init file `cx,cy,a,b[,angle]` (what `pftrack synth` writes).
     #[arg(long, value_name = "FILE", group = "init")]
     pub init_file: Option<PathBuf>,
-    /// Ground truth to start from: the frame-0 row of a pose CSV (its ellipse and pose) or
-    /// the first box of an OTB box file.
+    /// Ground truth to start from: the row of a pose CSV for the frame tracking starts on
+    /// (frame 0, or --start-frame's; its ellipse and pose) or that frame's box in an OTB box
+    /// file.
     #[arg(long, value_name = "FILE", group = "init")]
     pub init_truth: Option<PathBuf>,
     /// Initial pose `rx,ry,rz` in degrees, each within 360 either way [default: frontal
@@ -313,7 +314,15 @@ pub struct TrackArgs {
     /// written, in the input's own pixels; the rendered frames (--render) are the resized ones.
     #[arg(long, value_name = "WxH", value_parser = values::size, allow_hyphen_values = true)]
     pub resize: Option<String>,
-    /// Stop after this many frames.
+    /// Start tracking at frame N of the input (counting from 0; the frames before it are
+    /// passed over, an image folder's without decoding them). The start (--init-*) describes
+    /// frame N (--init-truth reads its row or box for frame N), the angles are measured from
+    /// --init-pose there, and the poses keep the input's frame numbers (the first row is
+    /// frame N); frames drawn with --render are numbered from 00000.png, each showing its
+    /// frame number in the input.
+    #[arg(long, value_name = "N", default_value_t = 0)]
+    pub start_frame: usize,
+    /// Stop after this many frames (counted from the start, --start-frame).
     #[arg(long)]
     pub max_frames: Option<usize>,
     /// Pose CSV to write (`frame,cx,cy,a,b,rx,ry,rz,score,lost,theta`); standard output if absent
@@ -399,6 +408,17 @@ pub fn initial_ellipse(
             Ok((file, pose))
         }
         (Some(given), _) => Ok(given),
+        // The sequence's init file is its frame 0's.
+        (None, Some(p)) if a.start_frame > 0 => Err(crate::UsageError(format!(
+            "--start-frame {}: {} gives the start of frame 0; give the start of frame {} \
+             (--init-truth {} reads it from the sequence's truth, or one of --init-ellipse, \
+             --init-box, --init-points, --init-file)",
+            a.start_frame,
+            p.display(),
+            a.start_frame,
+            p.with_file_name("truth.csv").display()
+        ))
+        .into()),
         (None, Some(p)) => Ok((pftrack::io::read_init(p)?, None)),
         (None, None) => Err(crate::UsageError(
             "no initial ellipse: give one of --init-ellipse, --init-box, --init-points, \
@@ -410,9 +430,10 @@ pub fn initial_ellipse(
 }
 
 /// The initial ellipse of the option given (`None` for none), with the camera when it is an
-/// init file that gives one, and the pose of `--init-truth`'s frame-0 row when it is a pose
-/// CSV.
+/// init file that gives one, and the pose of `--init-truth`'s row for the frame tracking
+/// starts on (`--start-frame`) when it is a pose CSV.
 fn given_init(a: &TrackArgs) -> anyhow::Result<Option<(InitFile, Option<Euler>)>> {
+    let start = a.start_frame;
     let no_camera = |ellipse| InitFile {
         ellipse,
         hfov_deg: None,
@@ -456,29 +477,39 @@ fn given_init(a: &TrackArgs) -> anyhow::Result<Option<(InitFile, Option<Euler>)>
     }
     if let Some(p) = &a.init_truth {
         return Ok(Some(match pftrack::eval::load_truth(p)? {
-            // The start is the first frame's: a CSV whose rows begin later (a track's tail)
-            // has no start for it.
-            pftrack::eval::Truth::Poses(r) => match r.iter().find(|row| row.frame == 0) {
+            // The start is the row of the frame tracking starts on: a CSV whose rows begin
+            // later (a track's tail) has no start for it.
+            pftrack::eval::Truth::Poses(r) => match r.iter().find(|row| row.frame == start) {
                 Some(row) => (no_camera(row.ellipse()), Some(row.state.euler())),
                 None => bail!(
-                    "--init-truth {}: no row for frame 0 (the first is frame {}), the frame \
-                     tracking starts on",
+                    "--init-truth {}: no row for frame {start}, the frame tracking starts on \
+                     (its rows are of frames {} to {})",
                     p.display(),
-                    r[0].frame
+                    r[0].frame,
+                    r[r.len() - 1].frame
                 ),
             },
             pftrack::eval::Truth::Boxes(b) => {
-                // OTB marks a frame without the target by a box of no size.
-                if !(b[0].w > 0.0 && b[0].h > 0.0) {
+                let Some(first) = b.get(start) else {
                     bail!(
-                        "--init-truth {}: the first box has no size ({} x {}): the target is \
-                         not in the first frame",
+                        "--init-truth {}: no box for frame {start}, the frame tracking starts \
+                         on (it has {} boxes, frames 0 to {})",
                         p.display(),
-                        b[0].w,
-                        b[0].h
+                        b.len(),
+                        b.len() - 1
+                    );
+                };
+                // OTB marks a frame without the target by a box of no size.
+                if !(first.w > 0.0 && first.h > 0.0) {
+                    bail!(
+                        "--init-truth {}: the box of frame {start} has no size ({} x {}): the \
+                         target is not in the frame tracking starts on",
+                        p.display(),
+                        first.w,
+                        first.h
                     );
                 }
-                (no_camera(Ellipse::from_box(&b[0])), None)
+                (no_camera(Ellipse::from_box(first)), None)
             }
         }));
     }
@@ -1031,6 +1062,17 @@ pub fn run(mut a: TrackArgs) -> anyhow::Result<()> {
     for caveat in source.caveats() {
         errln!("pftrack: warning: {caveat}");
     }
+    let start = a.start_frame;
+    let skipped = source.skip_frames(start)?;
+    let first = match source.next() {
+        Some(f) => f.with_context(|| format!("reading frame {start}"))?,
+        None if start > 0 => bail!(
+            "--start-frame {start}: the input has only {skipped} frame{} (frames 0 to {})",
+            if skipped == 1 { "" } else { "s" },
+            skipped.saturating_sub(1)
+        ),
+        None => bail!("the input has no frames"),
+    };
     let (engine, notice) = create_engine(backend)?;
     if let Some(n) = notice {
         errln!("pftrack: {}", crate::in_cli_terms(&n));
@@ -1042,7 +1084,6 @@ pub fn run(mut a: TrackArgs) -> anyhow::Result<()> {
         .as_deref()
         .map(|p| VideoWriter::create(p, a.render_fps, &frames::FfmpegTools::default()))
         .transpose()?;
-    let first = source.next().context("the input has no frames")??;
     let camera = match cfg.camera_hfov_deg {
         Some(h) => format!("camera hfov {h}°"),
         None => "weak perspective".to_string(),
@@ -1086,8 +1127,13 @@ pub fn run(mut a: TrackArgs) -> anyhow::Result<()> {
         }
     }
     errln!(
-        "pftrack: tracked {written} frame{} with {} ({}, {}){}{video_note}",
+        "pftrack: tracked {written} frame{}{} with {} ({}, {}){}{video_note}",
         if written == 1 { "" } else { "s" },
+        match (start, written) {
+            (0, _) => String::new(),
+            (s, 1) => format!(" (frame {s})"),
+            (s, n) => format!(" (frames {s} to {})", s + n - 1),
+        },
         tracker.engine_name(),
         mode.name(),
         camera,
@@ -1310,9 +1356,10 @@ fn run_loop(
             _ if !a.stream => e,
             0 => e.context("before any pose row, after the header (--stream)"),
             k => e.context(format!(
-                "after the pose rows of frames 0 to {} (written to standard output as they came, \
-                 --stream)",
-                k - 1
+                "after the pose rows of frames {} to {} (written to standard output as they \
+                 came, --stream)",
+                a.start_frame,
+                a.start_frame + k - 1
             )),
         }
     })
@@ -1330,7 +1377,13 @@ fn track_all(
 ) -> anyhow::Result<Tracked> {
     let render = drawn.render;
     let limit = a.max_frames.unwrap_or(usize::MAX);
-    let pb = progress(source.len_hint().map(|n| n.min(limit)));
+    // The tracker counts its frames from the start; the input's numbers are `start` on.
+    let start = a.start_frame;
+    let pb = progress(
+        source
+            .len_hint()
+            .map(|n| n.saturating_sub(start).min(limit)),
+    );
     let mut csv_out = match &a.out {
         Some(p) => Some(PoseCsvWriter::create(p, true)?),
         None => None,
@@ -1343,8 +1396,9 @@ fn track_all(
     let mut emit = |e: &Estimate, frame: &image::RgbImage| -> anyhow::Result<()> {
         // Drawn first: a render that fails is the failure of this frame, whose row then is
         // not written (with --stream, not sent).
-        drawn.draw(e, frame)?;
-        let r = to_input.record(&e.to_record());
+        drawn.draw(e, frame, start)?;
+        let mut r = to_input.record(&e.to_record());
+        r.frame += start;
         match csv_out.as_mut() {
             Some(w) => w.write(&r)?,
             None if a.stream => {
@@ -1362,13 +1416,14 @@ fn track_all(
         emit(&tracker.initial_estimate(), first)?;
         while n < limit {
             let Some(frame) = source.next() else { break };
-            let frame = frame.with_context(|| format!("reading frame {n}"))?;
+            let at = start + n;
+            let frame = frame.with_context(|| format!("reading frame {at}"))?;
             let est = tracker
                 .step(&frame)
-                .with_context(|| format!("tracking frame {n}"))?;
+                .with_context(|| format!("tracking frame {at}"))?;
             if let Some(notice) = tracker.take_engine_notice() {
                 let notice = crate::in_cli_terms(&notice);
-                pb.suspend(|| errln!("pftrack: frame {n}: {notice}"));
+                pb.suspend(|| errln!("pftrack: frame {at}: {notice}"));
             }
             emit(&est, &frame)?;
             n += 1;
@@ -1410,13 +1465,14 @@ struct Drawn<'a> {
 }
 
 impl Drawn<'_> {
-    /// Draws frame `e.frame` with its estimate, once, into each.
-    fn draw(&mut self, e: &Estimate, frame: &image::RgbImage) -> anyhow::Result<()> {
+    /// Draws the estimate's frame with it, once, into each: the render's `e.frame`-th
+    /// frame, labelled frame `start + e.frame` of the input.
+    fn draw(&mut self, e: &Estimate, frame: &image::RgbImage, start: usize) -> anyhow::Result<()> {
         if self.render.is_none() && self.video.is_none() {
             return Ok(());
         }
         let o = Overlay {
-            frame_index: e.frame,
+            frame_index: start + e.frame,
             ellipse: e.ellipse,
             angles_deg: e.angles_deg(),
             score: e.confidence,
