@@ -6,15 +6,21 @@
 #
 #   scripts/eval_seeds.sh real  [options] [-- TRACK_ARGS...]   girl and car4, success AUC
 #   scripts/eval_seeds.sh synth [options] [-- TRACK_ARGS...]   synthetic scenarios, angle RMSE
+#   scripts/eval_seeds.sh tre   [options] [-- TRACK_ARGS...]   girl and car4 started at
+#       --segments K frames spread over each (OTB's temporal robustness evaluation: segment i
+#       starts at frame floor(i N / K), or the first frame after it that shows the target,
+#       and runs to the end, scored from its start with `eval --segment`); success AUC over
+#       the segments' frames pooled
 #
 # Options:
 #   --bin PATH         the pftrack binary (default: target/release/pftrack)
 #   --seeds "A B ..."  seeds, or a range A-B (real: filter seeds, default 0-15;
-#                      synth: scenario seeds, default 0-11)
+#                      synth: scenario seeds, default 0-11; tre: filter seeds, default 0-3)
+#   --segments K       tre only: start frames per sequence (default 20, as OTB)
 #   --filter-seed K    synth only: the filter seed of every run (default 0); "same" uses
 #                      each scenario's own seed
 #   --scenarios "..."  synth only (default: nod pan roll combo depth car)
-#   --sequences "..."  real only (default: girl car4)
+#   --sequences "..."  real and tre only (default: girl car4)
 #   --data DIR         real footage (default: ../shared/data beside the repository)
 #   --jobs N           runs side by side (default 2), each on one rayon thread
 #   --out DIR          where tracks, reports and logs go (default: a new temporary folder);
@@ -29,7 +35,7 @@ die() { echo "eval_seeds: $*" >&2; exit 2; }
 
 [ $# -ge 1 ] || die "usage: eval_seeds.sh real|synth [options] [-- TRACK_ARGS...]"
 mode=$1; shift
-case $mode in real|synth) ;; *) die "unknown mode '$mode' (real or synth)";; esac
+case $mode in real|synth|tre) ;; *) die "unknown mode '$mode' (real, synth or tre)";; esac
 
 root=$(cd "$(dirname "$0")/.." && pwd)
 bin=$root/target/release/pftrack
@@ -39,6 +45,7 @@ scenarios="nod pan roll combo depth car"
 sequences="girl car4"
 data=$root/../shared/data
 jobs=2
+segments=20
 out=""
 track_args=()
 while [ $# -gt 0 ]; do
@@ -50,6 +57,7 @@ while [ $# -gt 0 ]; do
         --sequences) sequences=${2:?--sequences needs a list}; shift 2;;
         --data) data=${2:?--data needs a folder}; shift 2;;
         --jobs) jobs=${2:?--jobs needs a number}; shift 2;;
+        --segments) segments=${2:?--segments needs a number}; shift 2;;
         --out) out=${2:?--out needs a folder}; shift 2;;
         --) shift; track_args=("$@"); break;;
         *) die "unknown option '$1'";;
@@ -57,9 +65,10 @@ while [ $# -gt 0 ]; do
 done
 [ -x "$bin" ] || die "no pftrack binary at $bin (cargo build --release, or --bin PATH)"
 [[ $jobs =~ ^[1-9][0-9]*$ ]] || die "--jobs must be a positive whole number, got '$jobs'"
+[[ $segments =~ ^[1-9][0-9]*$ ]] || die "--segments must be a positive whole number, got '$segments'"
 [[ $filter_seed =~ ^([0-9]+|same)$ ]] || die "--filter-seed must be a number or 'same'"
 if [ -z "$seeds" ]; then
-    if [ "$mode" = real ]; then seeds=0-15; else seeds=0-11; fi
+    case $mode in real) seeds=0-15;; synth) seeds=0-11;; tre) seeds=0-3;; esac
 fi
 if [[ $seeds =~ ^([0-9]+)-([0-9]+)$ ]]; then
     seeds=$(seq -s ' ' "${BASH_REMATCH[1]}" "${BASH_REMATCH[2]}")
@@ -72,22 +81,32 @@ repeated=$(tr ' ' '\n' <<<"$seeds" | grep . | sort -n | uniq -d | tr '\n' ' ')
 [ -z "$repeated" ] || die "seeds given more than once: $repeated"
 out=${out:-$(mktemp -d /tmp/pftrack-seeds.XXXXXX)}
 mkdir -p "$out"
-if [ "$mode" = real ]; then
+if [ "$mode" != synth ]; then
     for q in $sequences; do
         [ -f "$data/$q/groundtruth_rect.txt" ] || die "no ground truth at $data/$q (--data DIR)"
     done
 fi
 
-# One line per run, "NAME SEED", run by $jobs workers; each run writes NAME-SEED.json and
-# NAME-SEED.log, or NAME-SEED.failed.
+# One line per run, "NAME SEED SEGMENT" (the segment only with tre), run by $jobs workers;
+# each run writes NAME-SEED[-SEGMENT].json and .log, or .failed.
 run_one() {
-    local name=$1 seed=$2 base=$out/$1-$2 input init fseed
+    local name=$1 seed=$2 seg=${3:-} base=$out/$1-$2${3:+-$3} input init fseed start
+    local scored=(--json)
     rm -f "$base.failed"
-    if [ "$mode" = real ]; then
+    if [ "$mode" != synth ]; then
         input=$data/$name/img
-        init=(--init-truth "$data/$name/groundtruth_rect.txt")
         truth=$data/$name/groundtruth_rect.txt
+        init=(--init-truth "$truth")
         fseed=$seed
+        if [ -n "$seg" ]; then
+            # The segment's start, moved on to the first frame whose box has a size (OTB
+            # marks a frame without the target by a box of no size).
+            start=$(awk -F'[,\t ]+' -v s="$(( seg * $(grep -c . "$truth") / segments ))" \
+                'NR - 1 >= s && $3 > 0 && $4 > 0 { print NR - 1; exit }' "$truth")
+            [ -n "$start" ] || { echo "no frame with the target from segment $seg on" >"$base.log"; touch "$base.failed"; return 0; }
+            init+=(--start-frame "$start")
+            scored+=(--segment)
+        fi
     else
         local sdir=$out/synth/$name-$seed
         if [ ! -f "$sdir/truth.csv" ]; then
@@ -101,24 +120,28 @@ run_one() {
     fi
     if RAYON_NUM_THREADS=1 "$bin" track "$input" "${init[@]}" --backend cpu --seed "$fseed" \
         "${track_args[@]}" --out "$base.csv" >>"$base.log" 2>&1 &&
-        "$bin" eval "$truth" "$base.csv" --json >"$base.json" 2>>"$base.log"; then
+        "$bin" eval "$truth" "$base.csv" "${scored[@]}" >"$base.json" 2>>"$base.log"; then
         :
     else
         touch "$base.failed"
     fi
 }
 export -f run_one
-export mode bin out data filter_seed
+export mode bin out data filter_seed segments
 names=$sequences
 [ "$mode" = synth ] && names=$scenarios
-for n in $names; do for s in $seeds; do echo "$n $s"; done; done |
-    xargs -P "$jobs" -n 2 bash -c "$(declare -p track_args); run_one \"\$0\" \"\$1\""
+# The runs' names: NAME-SEED, or NAME-SEED-SEGMENT with tre.
+parts=("")
+[ "$mode" = tre ] && read -r -a parts <<<"$(seq -s ' ' 0 $((segments - 1)))"
+for n in $names; do for s in $seeds; do for g in "${parts[@]}"; do echo "$n $s${g:+ $g}"; done; done; done |
+    xargs -P "$jobs" -L 1 bash -c "$(declare -p track_args); run_one \"\$0\" \"\$1\" \"\${2:-}\""
+runs() { for g in "${parts[@]}"; do echo "$1-$2${g:+-$g}"; done; }
 
 # Only this invocation's runs: a reused --out may hold marks of other seeds or scenarios.
 failed=""
-for n in $names; do for s in $seeds; do
-    [ ! -e "$out/$n-$s.failed" ] || failed+="$n-$s "
-done; done
+for n in $names; do for s in $seeds; do for r in $(runs "$n" "$s"); do
+    [ ! -e "$out/$r.failed" ] || failed+="$r "
+done; done; done
 if [ -n "$failed" ]; then
     echo "eval_seeds: these runs failed (logs in $out): $failed" >&2
     exit 1
@@ -131,10 +154,10 @@ field() { grep -o "\"$2\":[-0-9.eE+][-0-9.eE+]*" "$1" | head -1 | cut -d: -f2 ||
 # A track shorter than its truth (track arguments such as --max-frames) has its angle and
 # centre errors taken over the frames tracked: said, so that no row passes for a whole one.
 short=""
-for n in $names; do for s in $seeds; do
-    m=$(field "$out/$n-$s.json" missing)
-    [ "${m:-0}" = 0 ] || short+="$n-$s ($m) "
-done; done
+for n in $names; do for s in $seeds; do for r in $(runs "$n" "$s"); do
+    m=$(field "$out/$r.json" missing)
+    [ "${m:-0}" = 0 ] || short+="$r ($m) "
+done; done; done
 if [ -n "$short" ]; then
     echo "eval_seeds: warning: these runs miss truth frames (how many), and their errors are" \
         "over the frames tracked only: $short" >&2
@@ -154,7 +177,22 @@ stats() { awk '{ s += $1; q += $1 * $1; n++ } END {
 
 echo "pftrack: $bin"
 echo "track arguments: ${track_args[*]:-(none)}; runs in $out"
-if [ "$mode" = real ]; then
+if [ "$mode" = tre ]; then
+    echo "success AUC over $segments starts (OTB TRE: the segments' frames pooled; mean ± standard"
+    echo "error over filter seeds $seeds), and from the first frame alone (OPE)"
+    for q in $sequences; do
+        # Pooled: the segments' AUCs weighted by the frames each scored.
+        per=""; for s in $seeds; do
+            per+="$(for r in $(runs "$q" "$s"); do
+                echo "$(field "$out/$r.json" success_auc) $(field "$out/$r.json" evaluated)"
+            done | awk '{ s += $1 * $2; n += $2 } END { printf "%.6f", s / n }') "
+        done
+        m=$(echo "$per" | tr ' ' '\n' | grep . | stats)
+        o=$(for s in $seeds; do field "$out/$q-$s-0.json" success_auc; done | stats)
+        printf '%-6s TRE AUC %s  OPE AUC %s\n' "$q" "$m" "$o"
+        printf '       per seed: %s\n' "$(for v in $per; do printf '%.3f ' "$v"; done)"
+    done
+elif [ "$mode" = real ]; then
     echo "success AUC (mean ± standard error over filter seeds $seeds)"
     for q in $sequences; do
         per=""; for s in $seeds; do per+="$(field "$out/$q-$s.json" success_auc) "; done
