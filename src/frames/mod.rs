@@ -704,12 +704,15 @@ impl FrameSource {
         let mut skipped = 0;
         while skipped < n && !self.done {
             let read = match &mut self.inner {
-                Inner::Dir(d) => Ok(d.skip_frame().then_some(())),
-                Inner::Y4m(r, _) => r.skip_frame().map(|more| more.then_some(())),
-                Inner::Ffmpeg(f) => f.next_frame().map(|f| f.map(drop)),
+                Inner::Dir(d) => Ok(d.skip_frame().then_some(1)),
+                Inner::Y4m(r, _) => r.skip_frame().map(|more| more.then_some(1)),
+                // All at once: a decode not yet read from is started past them.
+                Inner::Ffmpeg(f) => f.skip(n - skipped).map(|k| (k > 0).then_some(k)),
             };
-            if self.advance(read)?.is_some() {
-                skipped += 1;
+            if let Some(k) = self.advance(read)? {
+                // `advance` counted one of the `k`.
+                self.produced += k - 1;
+                skipped += k;
             }
         }
         Ok(skipped)
