@@ -136,14 +136,14 @@ fn natural_sort_and_ignored_files() {
     for k in [1, 2, 4, 5, 9] {
         save_flat(&d.join(format!("{k:04}.png")), 4, 3, k as u8);
     }
-    std::fs::write(d.join("0010.webp"), "an image this source does not read").unwrap();
+    std::fs::write(d.join("0010.gif"), "an image this source does not read").unwrap();
     let c = frames::open(&d, &SourceOptions::default())
         .unwrap()
         .caveats();
     assert_eq!(c.len(), 2, "{c:?}");
     assert!(c[0].contains("skips from 0002.png to 0004.png"), "{}", c[0]);
     assert!(c[0].contains("and at 1 more places"), "{}", c[0]);
-    assert!(c[1].contains("0010.webp left out"), "{}", c[1]);
+    assert!(c[1].contains("0010.gif left out"), "{}", c[1]);
     std::fs::remove_dir_all(&d).unwrap();
     let d = scratch("natural-whole");
     for k in 1..=3 {
@@ -1457,6 +1457,45 @@ fn skipped_frames_leave_the_rest_in_place() {
         assert_eq!((skipped, place, end), (5, 5, 7));
         assert_eq!(rest, all[5..]);
         assert_eq!(after_skip(video(), 10).0, 7);
+    }
+    std::fs::remove_dir_all(&d).unwrap();
+}
+
+/// A folder of TIFF (8-bit RGB, 16-bit grey as machine-vision cameras write, 32-bit float)
+/// and lossless WebP frames reads the pixels written, as a PNG of the same image does; a
+/// 16-bit level is taken to 8 bits by its share of 65535.
+#[test]
+fn tiff_and_webp_frames_are_read() {
+    let d = scratch("tiff-webp");
+    let rgb = RgbImage::from_fn(6, 4, |x, y| Rgb([(40 * x) as u8, (60 * y) as u8, 200]));
+    let grey16 = image::ImageBuffer::<image::Luma<u16>, Vec<u16>>::from_fn(6, 4, |x, y| {
+        image::Luma([(x * 10000 + y * 257) as u16])
+    });
+    let float = image::Rgb32FImage::from_fn(6, 4, |x, _| image::Rgb([x as f32 / 5.0, 0.5, 1.0]));
+    rgb.save(d.join("0.tif")).unwrap();
+    image::DynamicImage::ImageLuma16(grey16.clone())
+        .save(d.join("1.TIFF"))
+        .unwrap();
+    image::DynamicImage::ImageRgb32F(float.clone())
+        .save(d.join("2.tiff"))
+        .unwrap();
+    rgb.save(d.join("3.webp")).unwrap();
+    rgb.save(d.join("4.png")).unwrap();
+    let src = frames::open(&d, &SourceOptions::default()).unwrap();
+    assert!(src.caveats().is_empty(), "{:?}", src.caveats());
+    let got = collect(src).unwrap();
+    assert_eq!(got.len(), 5);
+    assert_eq!(got[0], rgb);
+    assert_eq!(got[3], rgb);
+    assert_eq!(got[4], rgb);
+    for (x, y, p) in got[1].enumerate_pixels() {
+        let v = grey16.get_pixel(x, y)[0];
+        let want = (f64::from(v) * 255.0 / 65535.0).round() as u8;
+        assert_eq!(p.0, [want; 3], "16-bit level {v} at {x},{y}");
+    }
+    for (x, y, p) in got[2].enumerate_pixels() {
+        let want = ((x as f32 / 5.0) * 255.0).round() as u8;
+        assert_eq!(p.0, [want, 128, 255], "float pixel at {x},{y}");
     }
     std::fs::remove_dir_all(&d).unwrap();
 }

@@ -1,7 +1,8 @@
-//! A directory of images as a video: png, jpg/jpeg, bmp, pgm, ppm (extension matched
-//! case-insensitively, every other file ignored), in natural order (`2.png` before `10.png`).
-//! Frames are decoded one at a time as the source is iterated. Grayscale images become RGB
-//! with three equal channels; 16-bit images are scaled to 8 bits.
+//! A directory of images as a video: png, jpg/jpeg, bmp, pgm, ppm, tif/tiff, webp (extension
+//! matched case-insensitively, every other file ignored), in natural order (`2.png` before
+//! `10.png`). Frames are decoded one at a time as the source is iterated. Grayscale images
+//! become RGB with three equal channels; 16-bit images (a machine-vision camera's TIFF) are
+//! scaled to 8 bits, and floating-point ones taken from 0 to 1.
 
 use std::cmp::Ordering;
 use std::path::{Path, PathBuf};
@@ -9,7 +10,9 @@ use std::path::{Path, PathBuf};
 use super::{Frame, FrameError};
 
 /// Extensions (lower case) read as frames.
-pub const IMAGE_EXTENSIONS: [&str; 6] = ["png", "jpg", "jpeg", "bmp", "pgm", "ppm"];
+pub const IMAGE_EXTENSIONS: [&str; 9] = [
+    "png", "jpg", "jpeg", "bmp", "pgm", "ppm", "tif", "tiff", "webp",
+];
 
 /// Whether a path names a file kind this source reads (by its extension, case-insensitive).
 pub fn is_image_file(p: &Path) -> bool {
@@ -21,8 +24,8 @@ pub fn is_image_file(p: &Path) -> bool {
 /// Extensions (lower case) of image formats this source does not read: a folder of frames
 /// holding one is said ([`super::FrameSource::caveats`]), since the file is left out of the
 /// sequence.
-pub const OTHER_IMAGE_EXTENSIONS: [&str; 13] = [
-    "webp", "gif", "tif", "tiff", "heic", "heif", "avif", "jxl", "exr", "tga", "qoi", "dng", "raw",
+pub const OTHER_IMAGE_EXTENSIONS: [&str; 10] = [
+    "gif", "heic", "heif", "avif", "jxl", "exr", "tga", "qoi", "dng", "raw",
 ];
 
 /// `name` split at its last run of ASCII digits: what comes before, the digits and what comes
@@ -224,7 +227,12 @@ pub fn decode_rgb(p: &Path) -> Result<Frame, FrameError> {
     };
     let format = match reader.format() {
         // Neither the content nor the extension names a format.
-        None => return Err(bad("not an image (png, jpg, jpeg, bmp, pgm, ppm)")),
+        None => {
+            return Err(bad(&format!(
+                "not an image ({})",
+                IMAGE_EXTENSIONS.join(", ")
+            )));
+        }
         // The JPEG decoder fills a cut-off scan with grey and reports success.
         Some(image::ImageFormat::Jpeg) if !jpeg_scan_ends(&bytes) => {
             return Err(bad(

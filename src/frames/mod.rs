@@ -70,7 +70,9 @@ pub enum FrameError {
         path: String,
     },
     /// A directory with no image files in it.
-    #[error("{path}: no image files (png, jpg, jpeg, bmp, pgm, ppm) in the directory")]
+    #[error(
+        "{path}: no image files (png, jpg, jpeg, bmp, pgm, ppm, tif, tiff, webp) in the directory"
+    )]
     NoImages {
         /// The directory.
         path: String,
