@@ -181,11 +181,13 @@ if [ "$mode" = tre ]; then
     echo "success AUC over $segments starts (OTB TRE: the segments' frames pooled; mean ± standard"
     echo "error over filter seeds $seeds), and from the first frame alone (OPE)"
     for q in $sequences; do
-        # Pooled: the segments' AUCs weighted by the frames each scored.
+        # Pooled: the segments' AUCs weighted by the frames each scored (those showing the
+        # target, a frame without an estimate a failure).
         per=""; for s in $seeds; do
             per+="$(for r in $(runs "$q" "$s"); do
-                echo "$(field "$out/$r.json" success_auc) $(field "$out/$r.json" evaluated)"
-            done | awk '{ s += $1 * $2; n += $2 } END { printf "%.6f", s / n }') "
+                f=$out/$r.json
+                echo "$(field "$f" success_auc) $(field "$f" truth_frames) $(field "$f" absent)"
+            done | awk '{ s += $1 * ($2 - $3); n += $2 - $3 } END { printf "%.6f", s / n }') "
         done
         m=$(echo "$per" | tr ' ' '\n' | grep . | stats)
         o=$(for s in $seeds; do field "$out/$q-$s-0.json" success_auc; done | stats)

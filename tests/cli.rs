@@ -2213,7 +2213,7 @@ fn cli_init_truth_starts_from_the_first_rows_pose() {
             "--out",
             c,
         ],
-        "no row for frame 0, the frame tracking starts on (its rows are of frames 1 to 1)",
+        "no row for frame 0, the frame tracking starts on (its one row is of frame 1)",
         &csv,
     );
     std::fs::remove_dir_all(&dir).unwrap();
@@ -2904,6 +2904,7 @@ fn cli_start_frame_tracks_from_the_middle_of_the_input() {
     );
     let c = dir.join("c.csv");
     let cc = c.to_str().unwrap();
+    let own_init = dir.join("init.txt").to_str().unwrap().to_string();
     for (args, needle) in [
         (
             vec!["--start-frame", "4", "--init-truth", bx],
@@ -2915,12 +2916,16 @@ fn cli_start_frame_tracks_from_the_middle_of_the_input() {
             "init.txt gives the start of frame 0; give the start of frame 5",
         ),
         (
+            vec!["--start-frame", "5", "--init-file", &own_init],
+            "init.txt gives the start of frame 0; give the start of frame 5",
+        ),
+        (
             vec!["--start-frame", "12", "--init-ellipse", "32,24,8,8"],
             "--start-frame 12: the input has only 12 frames (frames 0 to 11)",
         ),
         (
             vec!["--start-frame", "12", "--init-truth", t],
-            "no row for frame 12, the frame tracking starts on (its rows are of frames 0 to 11)",
+            "no row for frame 12, the frame tracking starts on (its 12 rows run from frame 0 to 11)",
         ),
         (vec!["--start-frame", "-1", "--init-truth", t], "-1"),
     ] {
@@ -2928,5 +2933,75 @@ fn cli_start_frame_tracks_from_the_middle_of_the_input() {
         all.extend(args);
         assert_one_line_error(&all, needle, &c);
     }
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// A video started late is passed over inside ffmpeg, which writes nothing meanwhile: a
+/// signal sent to pftrack alone (`kill PID`) ends that decode too, where the closed pipe
+/// would not have reached it until its first frame.
+#[cfg(unix)]
+#[test]
+fn cli_a_signal_while_a_video_is_passed_over_ends_its_decode() {
+    if !pftrack::frames::FfmpegTools::default().available() {
+        eprintln!("skip: ffmpeg not on PATH");
+        return;
+    }
+    let dir = tmp_dir("skip-signal");
+    std::fs::create_dir_all(&dir).unwrap();
+    let video = dir.join("long.mp4");
+    let made = Command::new("ffmpeg")
+        .args(["-v", "error", "-nostdin", "-y", "-f", "lavfi", "-i"])
+        .arg("testsrc=size=320x240:rate=25")
+        .args(["-frames:v", "4000", "-c:v", "mpeg4", "-q:v", "10"])
+        .arg(&video)
+        .output()
+        .unwrap();
+    assert!(
+        made.status.success(),
+        "{}",
+        String::from_utf8_lossy(&made.stderr)
+    );
+    let mut cmd = Command::new(env!("CARGO_BIN_EXE_pftrack"));
+    cmd.args(["track", video.to_str().unwrap(), "--start-frame", "3999"])
+        .args(["--init-ellipse", "160,120,30,30", "--backend", "cpu"])
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped());
+    let child = spawn_with_default_signals(&mut cmd, false);
+    // The decode passing over the frames: a child of pftrack's with the select filter.
+    let decode = || -> Option<u32> {
+        std::fs::read_dir("/proc").ok()?.flatten().find_map(|e| {
+            let pid: u32 = e.file_name().to_str()?.parse().ok()?;
+            let stat = std::fs::read_to_string(e.path().join("stat")).ok()?;
+            let ppid: u32 = stat
+                .rsplit(')')
+                .next()?
+                .split_whitespace()
+                .nth(1)?
+                .parse()
+                .ok()?;
+            let cmdline = std::fs::read(e.path().join("cmdline")).ok()?;
+            (ppid == child.id() && String::from_utf8_lossy(&cmdline).contains("select=gte"))
+                .then_some(pid)
+        })
+    };
+    let t0 = std::time::Instant::now();
+    let pid = loop {
+        if let Some(pid) = decode() {
+            break pid;
+        }
+        assert!(t0.elapsed().as_secs() < 60, "no decode started");
+        std::thread::sleep(std::time::Duration::from_millis(5));
+    };
+    send(&child, libc::SIGTERM);
+    let out = child.wait_with_output().unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("pftrack: interrupted"), "{err}");
+    // Killed and reaped by pftrack: no such process left, running or a zombie.
+    std::thread::sleep(std::time::Duration::from_millis(100));
+    let left = std::fs::read_to_string(format!("/proc/{pid}/cmdline")).unwrap_or_default();
+    assert!(
+        !left.contains("select=gte"),
+        "the decode {pid} is still running"
+    );
     std::fs::remove_dir_all(&dir).unwrap();
 }

@@ -339,6 +339,18 @@ fn a_track_started_later_is_scored_from_its_start() {
     let r = evaluate_from(&truth, &est, 5).unwrap();
     assert_eq!((r.evaluated, r.ignored), (7, 5));
     assert_eq!(r.success_rates, seg.success_rates);
+    // The target absent from frame 5 on: nothing to score from there.
+    let mut gone = boxes.clone();
+    for b in &mut gone[5..] {
+        *b = BoxRect::new(0.0, 0.0, 0.0, 0.0);
+    }
+    let err = evaluate_from(&Truth::Boxes(gone), late, 5).unwrap_err();
+    assert!(matches!(err, EvalError::AllAbsent { from: 5 }), "{err}");
+    assert!(
+        err.to_string()
+            .contains("every truth frame from frame 5 on"),
+        "{err}"
+    );
     // Nothing from frame 12 on.
     let err = evaluate_from(&truth, late, 12).unwrap_err();
     assert!(

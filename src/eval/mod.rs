@@ -97,10 +97,16 @@ pub enum EvalError {
         /// The frame.
         frame: usize,
     },
-    /// Every frame of the truth marks the target absent (OTB boxes of no size): nothing to
-    /// score.
-    #[error("every truth frame marks the target absent (a box of no size): nothing to score")]
-    AllAbsent,
+    /// Every frame of the truth scored (all, or those from the frame scoring starts on,
+    /// [`evaluate_from`]) marks the target absent (OTB boxes of no size): nothing to score.
+    #[error(
+        "every truth frame{} marks the target absent (a box of no size): nothing to score",
+        match from { 0 => String::new(), f => format!(" from frame {f} on") }
+    )]
+    AllAbsent {
+        /// The first frame scored.
+        from: usize,
+    },
     /// Truth and estimate share no frame.
     #[error(
         "no frames in common: the truth has the target in frames {}, the estimate frames {}",
@@ -475,7 +481,7 @@ pub fn evaluate_from(truth: &Truth, est: &[PoseRecord], from: usize) -> Result<R
     }
     let evaluated = centre_errs.len();
     if n == 0 {
-        return Err(EvalError::AllAbsent);
+        return Err(EvalError::AllAbsent { from });
     }
     if evaluated == 0 {
         // The truth's frames with the target present, which are the ones scored.

@@ -30,6 +30,7 @@ use std::ffi::OsString;
 use std::io::Read;
 use std::path::{Path, PathBuf};
 use std::process::{Child, ChildStdout, Command, Stdio};
+use std::sync::{Arc, Mutex, MutexGuard};
 use std::thread::JoinHandle;
 
 use super::{FieldOrder, Frame, FrameError, Layout};
@@ -268,7 +269,50 @@ fn rejects_fps_mode(stderr: &str) -> bool {
 }
 
 /// A running decode: the child, its stdout, and a thread draining its stderr.
-type Decoder = (Child, ChildStdout, JoinHandle<String>);
+type Decoder = (Process, ChildStdout, JoinHandle<String>);
+
+/// The decode's ffmpeg, which the program's interrupt clean-up kills too
+/// ([`crate::io::Stopper`]): passing over the frames before a start (`select`), it writes
+/// nothing for seconds, so a signal sent to the program alone (`kill PID`) would leave it
+/// decoding after the program has ended, where one that writes dies of the closed pipe.
+#[derive(Debug)]
+struct Process {
+    child: Arc<Mutex<Child>>,
+    _stopper: crate::io::Stopper,
+}
+
+impl Process {
+    fn new(child: Child) -> Self {
+        let child = Arc::new(Mutex::new(child));
+        let for_stop = Arc::clone(&child);
+        let stopper = crate::io::Stopper::register(move || {
+            let mut c = for_stop.lock().unwrap_or_else(|e| e.into_inner());
+            // Nothing is signalled once it has been waited for (its number may be another's).
+            let _ = c.kill();
+            let _ = c.wait();
+        });
+        Self {
+            child,
+            _stopper: stopper,
+        }
+    }
+
+    fn lock(&self) -> MutexGuard<'_, Child> {
+        self.child.lock().unwrap_or_else(|e| e.into_inner())
+    }
+
+    /// Kills it and waits for it.
+    fn kill(&self) {
+        let mut c = self.lock();
+        let _ = c.kill();
+        let _ = c.wait();
+    }
+
+    /// Waits for it to end.
+    fn wait(&self) -> std::io::Result<std::process::ExitStatus> {
+        self.lock().wait()
+    }
+}
 
 /// Starts `ffmpeg` decoding `path`'s first video stream to raw RGB24 on its stdout, turned
 /// as its display rotation says where `rotate`, else as stored.
@@ -305,7 +349,7 @@ fn spawn_decoder(
             std::io::Error::other("no pipes to the child process"),
         ));
     };
-    Ok((child, stdout, drain_tail(stderr)))
+    Ok((Process::new(child), stdout, drain_tail(stderr)))
 }
 
 /// A running ffmpeg decode.
@@ -318,7 +362,7 @@ pub(crate) struct FfmpegSource {
     rotate: bool,
     /// The decode runs with `-vsync passthrough` (ffmpeg before 5.1).
     legacy_sync: bool,
-    child: Child,
+    child: Process,
     stdout: ChildStdout,
     stderr: Option<JoinHandle<String>>,
     size: (u32, u32),
@@ -420,12 +464,13 @@ impl FfmpegSource {
     /// Passes over the next `n` frames; returns how many, fewer when the video ends first.
     /// Before any frame is read the decode is started again dropping the first `n` frames
     /// before they are converted and sent (ffmpeg still decodes them: about five times faster
-    /// than reading them at 720p); where that leaves no frame, the video is shorter, and it is
-    /// decoded again from its start to count them.
+    /// than reading them at 720p); where that gives no frame (the video is shorter, or the
+    /// decode failed before its first), the video is decoded again from its start and read
+    /// through, which counts its frames or meets its error where a plain read would.
     pub(crate) fn skip(&mut self, n: usize) -> Result<usize, FrameError> {
         if n > 0 && self.frames == 0 && self.pending.is_none() && !self.reaped {
             self.restart(n)?;
-            if let Some(f) = self.next_frame()? {
+            if let Ok(Some(f)) = self.next_frame() {
                 self.pending = Some(f);
                 return Ok(n);
             }
@@ -441,8 +486,7 @@ impl FfmpegSource {
     /// Ends the running decode and starts it again at frame `start`.
     fn restart(&mut self, start: usize) -> Result<(), FrameError> {
         if !self.reaped {
-            let _ = self.child.kill();
-            let _ = self.child.wait();
+            self.child.kill();
         }
         drop(self.stderr.take());
         let (child, stdout, stderr) = spawn_decoder(
@@ -545,8 +589,7 @@ enum Pipe {
 impl Drop for FfmpegSource {
     fn drop(&mut self) {
         if !self.reaped {
-            let _ = self.child.kill();
-            let _ = self.child.wait();
+            self.child.kill();
         }
         // The stderr thread ends when the pipe closes; it is detached rather than joined, so a
         // grandchild holding the pipe open cannot hang the drop.

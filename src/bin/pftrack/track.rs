@@ -315,7 +315,8 @@ pub struct TrackArgs {
     #[arg(long, value_name = "WxH", value_parser = values::size, allow_hyphen_values = true)]
     pub resize: Option<String>,
     /// Start tracking at frame N of the input (counting from 0; the frames before it are
-    /// passed over, an image folder's without decoding them). The start (--init-*) describes
+    /// passed over, an image folder's without decoding them but for the first, whose size
+    /// every frame must have). The start (--init-*) describes
     /// frame N (--init-truth reads its row or box for frame N), the angles are measured from
     /// --init-pose there, and the poses keep the input's frame numbers (the first row is
     /// frame N); frames drawn with --render are numbered from 00000.png, each showing its
@@ -395,6 +396,13 @@ pub fn initial_ellipse(
     a: &TrackArgs,
     synth_init: Option<&Path>,
 ) -> anyhow::Result<(InitFile, Option<Euler>)> {
+    // The sequence's own init file named as the start of a later frame.
+    if let (Some(p), Some(f)) = (synth_init, a.init_file.as_deref())
+        && a.start_frame > 0
+        && crate::paths::same(f, p)
+    {
+        return Err(frame_zero_init(a.start_frame, p));
+    }
     match (given_init(a)?, synth_init) {
         (Some((given, pose)), Some(p))
             if given.hfov_deg.is_none() && a.hfov.is_none() && !a.weak_perspective =>
@@ -409,16 +417,7 @@ pub fn initial_ellipse(
         }
         (Some(given), _) => Ok(given),
         // The sequence's init file is its frame 0's.
-        (None, Some(p)) if a.start_frame > 0 => Err(crate::UsageError(format!(
-            "--start-frame {}: {} gives the start of frame 0; give the start of frame {} \
-             (--init-truth {} reads it from the sequence's truth, or one of --init-ellipse, \
-             --init-box, --init-points, --init-file)",
-            a.start_frame,
-            p.display(),
-            a.start_frame,
-            p.with_file_name("truth.csv").display()
-        ))
-        .into()),
+        (None, Some(p)) if a.start_frame > 0 => Err(frame_zero_init(a.start_frame, p)),
         (None, Some(p)) => Ok((pftrack::io::read_init(p)?, None)),
         (None, None) => Err(crate::UsageError(
             "no initial ellipse: give one of --init-ellipse, --init-box, --init-points, \
@@ -427,6 +426,19 @@ pub fn initial_ellipse(
         )
         .into()),
     }
+}
+
+/// The refusal of a synthetic sequence's init file `init` (its frame 0's start) as the start of
+/// frame `start`.
+fn frame_zero_init(start: usize, init: &Path) -> anyhow::Error {
+    crate::UsageError(format!(
+        "--start-frame {start}: {} gives the start of frame 0; give the start of frame {start} \
+         (--init-truth {} reads it from the sequence's truth, or one of --init-ellipse, \
+         --init-box, --init-points)",
+        init.display(),
+        init.with_file_name("truth.csv").display()
+    ))
+    .into()
 }
 
 /// The initial ellipse of the option given (`None` for none), with the camera when it is an
@@ -483,19 +495,26 @@ fn given_init(a: &TrackArgs) -> anyhow::Result<Option<(InitFile, Option<Euler>)>
                 Some(row) => (no_camera(row.ellipse()), Some(row.state.euler())),
                 None => bail!(
                     "--init-truth {}: no row for frame {start}, the frame tracking starts on \
-                     (its rows are of frames {} to {})",
+                     ({})",
                     p.display(),
-                    r[0].frame,
-                    r[r.len() - 1].frame
+                    match r.len() {
+                        1 => format!("its one row is of frame {}", r[0].frame),
+                        n => format!(
+                            "its {n} rows run from frame {} to {}",
+                            r[0].frame,
+                            r[n - 1].frame
+                        ),
+                    }
                 ),
             },
             pftrack::eval::Truth::Boxes(b) => {
                 let Some(first) = b.get(start) else {
                     bail!(
                         "--init-truth {}: no box for frame {start}, the frame tracking starts \
-                         on (it has {} boxes, frames 0 to {})",
+                         on (it has {} box{}, for frames 0 to {})",
                         p.display(),
                         b.len(),
+                        if b.len() == 1 { "" } else { "es" },
                         b.len() - 1
                     );
                 };
@@ -1067,9 +1086,13 @@ pub fn run(mut a: TrackArgs) -> anyhow::Result<()> {
     let first = match source.next() {
         Some(f) => f.with_context(|| format!("reading frame {start}"))?,
         None if start > 0 => bail!(
-            "--start-frame {start}: the input has only {skipped} frame{} (frames 0 to {})",
+            "--start-frame {start}: the input has only {skipped} frame{} (frames 0 to {}){}",
             if skipped == 1 { "" } else { "s" },
-            skipped.saturating_sub(1)
+            skipped.saturating_sub(1),
+            source
+                .shortfall()
+                .map(|s| format!("; {s}"))
+                .unwrap_or_default()
         ),
         None => bail!("the input has no frames"),
     };
