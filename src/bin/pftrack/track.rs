@@ -935,6 +935,16 @@ pub fn progress(len: Option<usize>) -> indicatif::ProgressBar {
     pb
 }
 
+/// A spinner saying `what` on standard error while it turns, where that is a terminal.
+fn spinner(what: &str) -> indicatif::ProgressBar {
+    if !std::io::stderr().is_terminal() {
+        return indicatif::ProgressBar::hidden();
+    }
+    let pb = indicatif::ProgressBar::new_spinner().with_message(what.to_string());
+    pb.enable_steady_tick(std::time::Duration::from_millis(100));
+    pb
+}
+
 /// Runs the command.
 pub fn run(mut a: TrackArgs) -> anyhow::Result<()> {
     // `-` is standard output, as it is standard input for the input.
@@ -1082,7 +1092,15 @@ pub fn run(mut a: TrackArgs) -> anyhow::Result<()> {
         errln!("pftrack: warning: {caveat}");
     }
     let start = a.start_frame;
-    let skipped = source.skip_frames(start)?;
+    // A long video's frames take a while to pass over (about a millisecond each at 720p):
+    // said on a terminal, so that the wait does not read as a hang.
+    let passing = match start {
+        0 => indicatif::ProgressBar::hidden(),
+        s => spinner(&format!("passing over frames 0 to {}", s - 1)),
+    };
+    let skipped = source.skip_frames(start);
+    passing.finish_and_clear();
+    let skipped = skipped?;
     let first = match source.next() {
         Some(f) => f.with_context(|| format!("reading frame {start}"))?,
         None if start > 0 => bail!(
