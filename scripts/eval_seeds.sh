@@ -33,7 +33,7 @@ set -euo pipefail
 
 die() { echo "eval_seeds: $*" >&2; exit 2; }
 
-[ $# -ge 1 ] || die "usage: eval_seeds.sh real|synth [options] [-- TRACK_ARGS...]"
+[ $# -ge 1 ] || die "usage: eval_seeds.sh real|synth|tre [options] [-- TRACK_ARGS...]"
 mode=$1; shift
 case $mode in real|synth|tre) ;; *) die "unknown mode '$mode' (real, synth or tre)";; esac
 

@@ -21,7 +21,8 @@
 //! - IoU between the estimate's box `state.ellipse(0).to_box() = (cx − a, cy − b, 2a, 2b)` and
 //!   the truth box (the same construction for a pose truth).
 //!
-//! Over all truth frames (OTB protocol), where a frame with no estimate is a failure (centre
+//! Over all truth frames (OTB protocol; those from a first frame on with [`evaluate_from`],
+//! OTB's temporal robustness evaluation), where a frame with no estimate is a failure (centre
 //! error infinite, IoU 0), not skipped:
 //! - precision: share of frames with centre error `≤ 20` px;
 //! - success rate at threshold `t`: share of frames with IoU `> t`, for the 21 thresholds
@@ -318,7 +319,7 @@ pub struct Report {
     pub missing: usize,
     /// The missing frames.
     pub missing_frames: Vec<usize>,
-    /// Estimate frames with no truth frame (not scored).
+    /// Estimate frames with no truth frame, or before [`Report::scored_from`] (not scored).
     pub ignored: usize,
     /// Truth frames marking the target absent (an OTB box of no size): not scored.
     pub absent: usize,

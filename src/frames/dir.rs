@@ -2,7 +2,8 @@
 //! matched case-insensitively, every other file ignored), in natural order (`2.png` before
 //! `10.png`). Frames are decoded one at a time as the source is iterated. Grayscale images
 //! become RGB with three equal channels; 16-bit images (a machine-vision camera's TIFF) are
-//! scaled to 8 bits, and floating-point ones taken from 0 to 1.
+//! scaled to 8 bits, and floating-point RGB taken from 0 to 1 (a one-channel floating-point
+//! TIFF is not decoded by the `image` crate: its frame is an error).
 
 use std::cmp::Ordering;
 use std::path::{Path, PathBuf};

@@ -14,7 +14,7 @@ use pftrack::geometry::BoxRect;
 #[derive(Debug, Args)]
 #[command(allow_negative_numbers = true)]
 pub struct SiftArgs {
-    /// The image (PNG, JPEG, BMP, PNM).
+    /// The image (PNG, JPEG, BMP, PNM, TIFF, WebP).
     pub image: PathBuf,
     /// Detect only in this box `x,y,w,h` (pixels, origin at the top-left pixel's centre).
     #[arg(long, value_parser = parse_region, allow_hyphen_values = true)]

@@ -65,7 +65,7 @@ pub struct TrackArgs {
     #[arg(long, value_name = "FILE", group = "init")]
     pub init_truth: Option<PathBuf>,
     /// Initial pose `rx,ry,rz` in degrees, each within 360 either way [default: frontal
-    /// 0,0,0, or the frame-0 row's with `--init-truth` on a pose CSV].
+    /// 0,0,0, or that of the start frame's row with `--init-truth` on a pose CSV].
     #[arg(
         long,
         value_name = "RX,RY,RZ",
@@ -233,8 +233,8 @@ pub struct TrackArgs {
     pub no_reanchor: bool,
     /// Refine the initial ellipse on the first frame onto the nearest edges and colour
     /// boundary before anything is learnt from it: for a start drawn by hand, a few pixels
-    /// off the object (see `TrackerConfig::init_refine`). Row 0 of the poses gives the
-    /// ellipse used.
+    /// off the object (see `TrackerConfig::init_refine`). The first row of the poses gives
+    /// the ellipse used.
     #[arg(long)]
     pub refine_init: bool,
     /// Search targets at least this large (equal-area diameter `2·sqrt(a b)`, pixels) for SIFT
@@ -315,8 +315,8 @@ pub struct TrackArgs {
     #[arg(long, value_name = "WxH", value_parser = values::size, allow_hyphen_values = true)]
     pub resize: Option<String>,
     /// Start tracking at frame N of the input (counting from 0; the frames before it are
-    /// passed over, an image folder's without decoding them but for the first, whose size
-    /// every frame must have). The start (--init-*) describes
+    /// passed over, an image folder's without decoding them: only the first image's header
+    /// is read, for the size every frame must have). The start (--init-*) describes
     /// frame N (--init-truth reads its row or box for frame N), the angles are measured from
     /// --init-pose there, and the poses keep the input's frame numbers (the first row is
     /// frame N); frames drawn with --render are numbered from 00000.png, each showing its
