@@ -1461,8 +1461,8 @@ fn skipped_frames_leave_the_rest_in_place() {
     std::fs::remove_dir_all(&d).unwrap();
 }
 
-/// A folder of TIFF (8-bit RGB, 16-bit grey as machine-vision cameras write, 32-bit float)
-/// and lossless WebP frames reads the pixels written, as a PNG of the same image does; a
+/// A folder of TIFF (8-bit RGB, 16-bit grey as machine-vision cameras write, 32-bit float
+/// RGB, one-channel float) and lossless WebP frames reads the pixels written, as a PNG of the same image does; a
 /// 16-bit level is taken to 8 bits by its share of 65535.
 #[test]
 fn tiff_and_webp_frames_are_read() {
@@ -1496,6 +1496,49 @@ fn tiff_and_webp_frames_are_read() {
     for (x, y, p) in got[2].enumerate_pixels() {
         let want = ((x as f32 / 5.0) * 255.0).round() as u8;
         assert_eq!(p.0, [want, 128, 255], "float pixel at {x},{y}");
+    }
+    std::fs::remove_dir_all(&d).unwrap();
+
+    // One channel of floating point (32 and 64 bits), which the image crate does not decode:
+    // taken from 0 to 1 as RGB floats are, clamped, NaN as 0; the folder's size is read from
+    // such a first frame too.
+    let d = scratch("tiff-grey-float");
+    let values: Vec<f32> = (0..24)
+        .map(|i| match i {
+            0 => f32::NAN,
+            1 => -0.5,
+            2 => 7.0,
+            i => i as f32 / 23.0,
+        })
+        .collect();
+    let write = |name: &str, f64s: bool| {
+        let file = std::fs::File::create(d.join(name)).unwrap();
+        let mut enc = tiff::encoder::TiffEncoder::new(file).unwrap();
+        if f64s {
+            let v: Vec<f64> = values.iter().map(|&v| f64::from(v)).collect();
+            enc.write_image::<tiff::encoder::colortype::Gray64Float>(6, 4, &v)
+                .unwrap();
+        } else {
+            enc.write_image::<tiff::encoder::colortype::Gray32Float>(6, 4, &values)
+                .unwrap();
+        }
+    };
+    write("0.tif", false);
+    write("1.tif", true);
+    let src = frames::open(&d, &SourceOptions::default()).unwrap();
+    assert_eq!(src.size(), (6, 4));
+    let got = collect(src).unwrap();
+    assert_eq!(got.len(), 2);
+    for frame in &got {
+        for (x, y, p) in frame.enumerate_pixels() {
+            let v = values[(y * 6 + x) as usize];
+            let want = if v.is_nan() {
+                0
+            } else {
+                (v.clamp(0.0, 1.0) * 255.0).round() as u8
+            };
+            assert_eq!(p.0, [want; 3], "value {v} at {x},{y}");
+        }
     }
     std::fs::remove_dir_all(&d).unwrap();
 }

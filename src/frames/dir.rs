@@ -2,8 +2,8 @@
 //! matched case-insensitively, every other file ignored), in natural order (`2.png` before
 //! `10.png`). Frames are decoded one at a time as the source is iterated. Grayscale images
 //! become RGB with three equal channels; 16-bit images (a machine-vision camera's TIFF) are
-//! scaled to 8 bits, and floating-point RGB taken from 0 to 1 (a one-channel floating-point
-//! TIFF is not decoded by the `image` crate: its frame is an error).
+//! scaled to 8 bits, and floating-point ones (RGB, or one channel as microscopes write it)
+//! taken from 0 to 1.
 
 use std::cmp::Ordering;
 use std::path::{Path, PathBuf};
@@ -227,6 +227,10 @@ pub fn decode_rgb(p: &Path) -> Result<Frame, FrameError> {
         msg: msg.into(),
     };
     let format = match reader.format() {
+        // One channel of floating point, which the image crate does not decode.
+        Some(image::ImageFormat::Tiff) if let Some(frame) = grey_float_tiff(&bytes, p)? => {
+            return Ok(frame);
+        }
         // Neither the content nor the extension names a format.
         None => {
             return Err(bad(&format!(
@@ -271,6 +275,55 @@ pub fn decode_rgb(p: &Path) -> Result<Frame, FrameError> {
         });
     }
     Ok(img)
+}
+
+/// A TIFF decoder on `r` when it holds one channel of 32- or 64-bit samples (the `image` crate
+/// decodes neither), else `None`.
+fn grey_float_tiff_decoder<R: std::io::Read + std::io::Seek>(
+    r: R,
+) -> Option<tiff::decoder::Decoder<R>> {
+    let mut d = tiff::decoder::Decoder::new(r).ok()?;
+    matches!(d.colortype().ok()?, tiff::ColorType::Gray(32 | 64)).then_some(d)
+}
+
+/// A one-channel floating-point TIFF (as microscopes and scientific cameras write it), which
+/// the `image` crate does not decode, as RGB with three equal channels: each value taken from
+/// 0 to 1 to a level of 255, as `image` takes floating-point RGB (clamped; NaN is 0).
+/// `Ok(None)` for any other file, left to `image`.
+fn grey_float_tiff(bytes: &[u8], p: &Path) -> Result<Option<Frame>, FrameError> {
+    let Some(mut d) = grey_float_tiff_decoder(std::io::Cursor::new(bytes)) else {
+        return Ok(None);
+    };
+    let bad = |msg: String| FrameError::Decode {
+        path: p.display().to_string(),
+        msg,
+    };
+    let (w, h) = d.dimensions().map_err(|e| bad(e.to_string()))?;
+    if u64::from(w) * u64::from(h) > super::y4m::MAX_DECODE_PIXELS {
+        return Err(bad(format!(
+            "{w}x{h} is more than the {} pixels an image may have",
+            super::y4m::MAX_DECODE_PIXELS
+        )));
+    }
+    if w == 0 || h == 0 {
+        return Err(bad(format!("an empty image ({w}x{h})")));
+    }
+    // Within the size checked above, the decoder's own cap is lifted, as for `image`'s.
+    let mut d = d.with_limits(tiff::decoder::Limits::unlimited());
+    let values: Vec<f64> = match d.read_image().map_err(|e| bad(e.to_string()))? {
+        tiff::decoder::DecodingResult::F32(v) => v.into_iter().map(f64::from).collect(),
+        tiff::decoder::DecodingResult::F64(v) => v,
+        // Integer samples of 32 or 64 bits: not floating point, and not read.
+        _ => return Ok(None),
+    };
+    let n = w as usize * h as usize;
+    if values.len() < n {
+        return Err(bad(format!("{} samples for {w}x{h} pixels", values.len())));
+    }
+    let level = |v: f64| (v.clamp(0.0, 1.0) * 255.0).round() as u8;
+    Ok(Some(Frame::from_fn(w, h, |x, y| {
+        image::Rgb([level(values[y as usize * w as usize + x as usize]); 3])
+    })))
 }
 
 /// Whether a JPEG's image data ends: walking its markers from the start, past each
@@ -352,12 +405,23 @@ fn image_size(p: &Path) -> Result<(u32, u32), FrameError> {
         path: p.display().to_string(),
         msg: e.to_string(),
     };
-    let mut decoder = image::ImageReader::open(p)
+    let reader = image::ImageReader::open(p)
         .map_err(|e| FrameError::io(p, e))?
         .with_guessed_format()
-        .map_err(|e| FrameError::io(p, e))?
-        .into_decoder()
-        .map_err(dec)?;
+        .map_err(|e| FrameError::io(p, e))?;
+    let tiff = reader.format() == Some(image::ImageFormat::Tiff);
+    let mut decoder = match reader.into_decoder() {
+        Ok(d) => d,
+        // One channel of floating point, which the image crate does not decode.
+        Err(e) if tiff => {
+            let file = std::fs::File::open(p).map_err(|e| FrameError::io(p, e))?;
+            return grey_float_tiff_decoder(std::io::BufReader::new(file))
+                .and_then(|mut d| d.dimensions().ok())
+                .filter(|&(w, h)| w > 0 && h > 0)
+                .ok_or_else(|| dec(e));
+        }
+        Err(e) => return Err(dec(e)),
+    };
     let (w, h) = decoder.dimensions();
     // As decoding it would say ([`decode_rgb`]): a frame of no size is not a frame, and the
     // size read here is what a start is checked against.
