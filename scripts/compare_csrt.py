@@ -31,16 +31,7 @@ import tempfile
 HERE = os.path.dirname(os.path.abspath(__file__))
 ROOT = os.path.dirname(HERE)
 
-
-def ensure_venv(venv):
-    py = os.path.join(venv, "bin", "python")
-    if not os.path.exists(py):
-        subprocess.run([sys.executable, "-m", "venv", venv], check=True)
-        subprocess.run(
-            [py, "-m", "pip", "install", "-q", "opencv-contrib-python-headless", "numpy"],
-            check=True,
-        )
-    return py
+from opencv_venv import default_data, ensure_venv
 
 
 # Runs inside the venv: one CSRT track from `start` to the end, written as a pose CSV.
@@ -91,15 +82,14 @@ def main():
     ap.add_argument("--segments", type=int, default=20)
     ap.add_argument("--sequences", default="girl car4")
     ap.add_argument("--venv", default="/tmp/pftrack-csrt-venv")
-    data = os.path.join(ROOT, "..", "shared", "data")
-    ap.add_argument("--data", default=data if os.path.isdir(data) else "/work/shared/data")
+    ap.add_argument("--data", default=default_data())
     ap.add_argument("--out", default=None)
     args = ap.parse_args()
     if args.segments < 1:
         sys.exit("compare_csrt: --segments must be at least 1")
     if not os.access(args.pftrack, os.X_OK):
         sys.exit(f"compare_csrt: no pftrack binary at {args.pftrack} (cargo build --release, or --pftrack PATH)")
-    py = ensure_venv(args.venv)
+    py = ensure_venv(args.venv, ["opencv-contrib-python-headless", "numpy"])
     out = args.out or tempfile.mkdtemp(prefix="pftrack-csrt.")
     os.makedirs(out, exist_ok=True)
     print(f"OpenCV CSRT (one thread) scored by {args.pftrack} eval --segment; tracks in {out}")

@@ -29,15 +29,8 @@ import tempfile
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 ROOT = os.path.dirname(HERE)
-DATA = os.path.join(ROOT, "..", "shared", "data")
 
-
-def ensure_venv(venv):
-    py = os.path.join(venv, "bin", "python")
-    if not os.path.exists(py):
-        subprocess.run([sys.executable, "-m", "venv", venv], check=True)
-        subprocess.run([py, "-m", "pip", "install", "-q", "opencv-python-headless", "numpy"], check=True)
-    return py
+from opencv_venv import default_data, ensure_venv
 
 
 # Runs inside the venv: prepares images, times OpenCV, compares with our CSVs.
@@ -164,12 +157,12 @@ def main():
     ap.add_argument("--repeat", type=int, default=20)
     ap.add_argument("--venv", default="/tmp/pftrack-sift-venv")
     ap.add_argument("--cpu", type=int, default=0, help="pin both sides to this CPU (-1: no pinning)")
-    ap.add_argument("--data", default=DATA if os.path.isdir(DATA) else "/work/shared/data",
+    ap.add_argument("--data", default=default_data(),
                     help="the shared data folder (default ../shared/data beside the repository)")
     a = ap.parse_args()
     if not os.path.exists(a.pftrack):
         sys.exit("no pftrack binary at %s (cargo build --release first)" % a.pftrack)
-    py = ensure_venv(a.venv)
+    py = ensure_venv(a.venv, ["opencv-python-headless", "numpy"])
     with tempfile.TemporaryDirectory() as tmp:
         import json
         load = " ".join("%.2f" % v for v in os.getloadavg())

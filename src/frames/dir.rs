@@ -251,11 +251,8 @@ pub fn decode_rgb(p: &Path) -> Result<Frame, FrameError> {
     let (w, h) = image::ImageReader::with_format(std::io::Cursor::new(&bytes), format)
         .into_dimensions()
         .map_err(dec)?;
-    if u64::from(w) * u64::from(h) > super::y4m::MAX_DECODE_PIXELS {
-        return Err(bad(&format!(
-            "{w}x{h} is more than the {} pixels an image may have",
-            super::y4m::MAX_DECODE_PIXELS
-        )));
+    if let Some(msg) = too_many_pixels(w, h) {
+        return Err(bad(&msg));
     }
     // Within the size checked above, the decoder's own default cap (512 MiB) is lifted: a
     // 16-bit RGB image of 10000x9000 needs 540 MB and was refused as "Memory limit exceeded".
@@ -275,6 +272,17 @@ pub fn decode_rgb(p: &Path) -> Result<Frame, FrameError> {
         });
     }
     Ok(img)
+}
+
+/// Why an image of `w` x `h` is not decoded, where it has more pixels than any frame may
+/// ([`super::y4m::MAX_DECODE_PIXELS`]): read from its header, before its pixels are.
+fn too_many_pixels(w: u32, h: u32) -> Option<String> {
+    (u64::from(w) * u64::from(h) > super::y4m::MAX_DECODE_PIXELS).then(|| {
+        format!(
+            "{w}x{h} is more than the {} pixels an image may have",
+            super::y4m::MAX_DECODE_PIXELS
+        )
+    })
 }
 
 /// A TIFF decoder on `r` when it holds one channel of 32- or 64-bit samples (the `image` crate
@@ -299,11 +307,8 @@ fn grey_float_tiff(bytes: &[u8], p: &Path) -> Result<Option<Frame>, FrameError> 
         msg,
     };
     let (w, h) = d.dimensions().map_err(|e| bad(e.to_string()))?;
-    if u64::from(w) * u64::from(h) > super::y4m::MAX_DECODE_PIXELS {
-        return Err(bad(format!(
-            "{w}x{h} is more than the {} pixels an image may have",
-            super::y4m::MAX_DECODE_PIXELS
-        )));
+    if let Some(msg) = too_many_pixels(w, h) {
+        return Err(bad(msg));
     }
     if w == 0 || h == 0 {
         return Err(bad(format!("an empty image ({w}x{h})")));

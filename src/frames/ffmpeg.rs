@@ -286,10 +286,7 @@ impl Process {
         let child = Arc::new(Mutex::new(child));
         let for_stop = Arc::clone(&child);
         let stopper = crate::io::Stopper::register(move || {
-            let mut c = for_stop.lock().unwrap_or_else(|e| e.into_inner());
-            // Nothing is signalled once it has been waited for (its number may be another's).
-            let _ = c.kill();
-            let _ = c.wait();
+            end(&mut for_stop.lock().unwrap_or_else(|e| e.into_inner()));
         });
         Self {
             child,
@@ -303,15 +300,20 @@ impl Process {
 
     /// Kills it and waits for it.
     fn kill(&self) {
-        let mut c = self.lock();
-        let _ = c.kill();
-        let _ = c.wait();
+        end(&mut self.lock());
     }
 
     /// Waits for it to end.
     fn wait(&self) -> std::io::Result<std::process::ExitStatus> {
         self.lock().wait()
     }
+}
+
+/// Kills `child` and waits for it. Nothing is signalled once it has been waited for (its
+/// number may be another process's by then).
+fn end(child: &mut Child) {
+    let _ = child.kill();
+    let _ = child.wait();
 }
 
 /// Starts `ffmpeg` decoding `path`'s first video stream to raw RGB24 on its stdout, turned
@@ -342,8 +344,7 @@ fn spawn_decoder(
         .spawn()
         .map_err(|e| spawn_error(ffmpeg, path, e))?;
     let (Some(stdout), Some(stderr)) = (child.stdout.take(), child.stderr.take()) else {
-        let _ = child.kill();
-        let _ = child.wait();
+        end(&mut child);
         return Err(FrameError::io(
             ffmpeg,
             std::io::Error::other("no pipes to the child process"),
@@ -468,7 +469,8 @@ impl FfmpegSource {
     /// decode failed before its first), the video is decoded again from its start and read
     /// through, which counts its frames or meets its error where a plain read would.
     pub(crate) fn skip(&mut self, n: usize) -> Result<usize, FrameError> {
-        if n > 0 && self.frames == 0 && self.pending.is_none() && !self.reaped {
+        // Nothing read yet (a frame read ahead follows a restart past frame 0).
+        if n > 0 && self.frames == 0 && !self.reaped {
             self.restart(n)?;
             if let Ok(Some(f)) = self.next_frame() {
                 self.pending = Some(f);

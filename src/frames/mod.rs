@@ -70,9 +70,7 @@ pub enum FrameError {
         path: String,
     },
     /// A directory with no image files in it.
-    #[error(
-        "{path}: no image files (png, jpg, jpeg, bmp, pgm, ppm, tif, tiff, webp) in the directory"
-    )]
+    #[error("{path}: no image files ({}) in the directory", dir::IMAGE_EXTENSIONS.join(", "))]
     NoImages {
         /// The directory.
         path: String,
