@@ -16,6 +16,7 @@ fn the_default_configuration_round_trips() {
         "\"bundle\"",
         "\"template\"",
         "\"camera_hfov_deg\": null",
+        "\"relief_sigma\": null",
         "\"mode\": \"sea\"",
     ] {
         assert!(text.contains(key), "{key} missing from {text}");
@@ -42,6 +43,21 @@ fn a_partial_configuration_takes_the_defaults_for_the_rest() {
     want.filter.particles = 500;
     assert_eq!(cfg, want);
     assert!(cfg.check().is_ok());
+    // The relief factor of the keyframes' adjustment, off by default, read from a file; the
+    // rest of a part given in part takes serde's defaults for that part (`BundleParams`'s own
+    // rotation σ here: the CLI's --config lays a file over the tracker's defaults field by
+    // field instead).
+    let relief: TrackerConfig =
+        serde_json::from_str(r#"{"bundle": {"params": {"relief_sigma": 1.0}}}"#).unwrap();
+    let mut want = TrackerConfig::default();
+    if let Some(b) = want.bundle.as_mut() {
+        b.params = pftrack::pose::bundle::BundleParams {
+            relief_sigma: Some(1.0),
+            ..Default::default()
+        };
+    }
+    assert_eq!(relief, want);
+    assert!(relief.check().is_ok());
     // Read values are still checked before a tracker is built from them, the object model's
     // depth and the edge threshold whatever terms are on (1e30 made every confidence 0).
     for (text, named) in [
@@ -56,6 +72,7 @@ fn a_partial_configuration_takes_the_defaults_for_the_rest() {
             "edge_threshold",
         ),
         (r#"{"likelihood": {"edge_threshold": 2}}"#, "edge_threshold"),
+        (r#"{"bundle": {"params": {"relief_sigma": 0}}}"#, "relief 0"),
     ] {
         let bad: TrackerConfig = serde_json::from_str(text).unwrap();
         let err = bad.check().unwrap_err().to_string();

@@ -54,6 +54,21 @@ pub struct Adjusted {
     pub cost: f64,
     /// Feature observations in the views.
     pub observations: usize,
+    /// The refined relief of the lifted depths, with [`BundleParams::relief_sigma`]; `None`
+    /// without it, or where the system leaves it undetermined.
+    pub relief: Option<Relief>,
+}
+
+/// How [`refine`] found the relief of the lifted depths: the depths are held near the lift's
+/// relief scaled by `k = e^log` (about their mean), and `log` comes with its variance.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Relief {
+    /// `ln k`: 0 where the lift's relief is kept, below 0 where the object is flatter than
+    /// its model, above 0 where it is deeper.
+    pub log: f64,
+    /// The variance of `log`, the views' poses and the depths marginalised out (Gauss-Newton,
+    /// at the end): large where the views say little about the relief.
+    pub variance: f64,
 }
 
 /// Settings of [`refine`].
@@ -75,6 +90,13 @@ pub struct BundleParams {
     pub huber: f64,
     /// Gauss-Newton iterations.
     pub iterations: usize,
+    /// σ of a prior on the log of one relief factor `k` for all the depths, which then are
+    /// held near the lift's relief scaled by `k` (about the lifted depths' mean) rather than
+    /// near the lift itself: the direction of the bas-relief ambiguity that several views
+    /// can settle where the object is flatter or deeper than its model. `None` (the
+    /// default): `k` is 1. The tracker pools what its keyframes' adjustments find and lifts
+    /// every keyframe fit with it ([`crate::tracker::BundleAdjust`]).
+    pub relief_sigma: Option<f64>,
 }
 
 impl Default for BundleParams {
@@ -84,6 +106,7 @@ impl Default for BundleParams {
             rotation_sigma: [0.05; 3],
             huber: 1.0,
             iterations: 8,
+            relief_sigma: None,
         }
     }
 }
@@ -101,9 +124,12 @@ impl BundleParams {
     /// [`MAX_ITERATIONS`] iterations.
     pub fn check(&self) -> Result<(), PoseError> {
         let positive = |v: f64| v.is_finite() && v > 0.0;
-        if !positive(self.depth_sigma) || !self.rotation_sigma.iter().all(|&v| positive(v)) {
+        if !positive(self.depth_sigma)
+            || !self.rotation_sigma.iter().all(|&v| positive(v))
+            || !self.relief_sigma.is_none_or(positive)
+        {
             return Err(PoseError::InvalidParameter(
-                "bundle sigmas (depth, rotation) must be positive and finite",
+                "bundle sigmas (depth, rotation, relief) must be positive and finite",
             ));
         }
         if !positive(self.huber) {
@@ -141,6 +167,20 @@ fn on_ray(
     }
 }
 
+/// The points `x` (lifted, in a keyframe's model frame whose centre projects to
+/// `key_centre`) with their relief about the model's centre scaled by `k`: each moved along
+/// its keyframe ray to `k` times its depth, so the keyframe still sees it where it did.
+pub(crate) fn relieved(
+    x: &[Vector3<f64>],
+    k: f64,
+    camera: Option<&Pinhole>,
+    key_centre: &Vector2<f64>,
+) -> Vec<Vector3<f64>> {
+    x.iter()
+        .map(|x| on_ray(x, k * x.z, camera, key_centre))
+        .collect()
+}
+
 /// Each view's rotation step from the view before it (from the keyframe's own pose, the
 /// identity, for the first) and the frames the step spans (at least 1): what the rotation
 /// prior weighs.
@@ -161,7 +201,8 @@ fn rotation_steps(
 /// Refines the depths of the keyframe points `x0` (lifted, in the keyframe's model frame,
 /// whose centre projects to `key_centre`) and the poses of `views` (sorted by frame, the
 /// keyframe taken at `key_frame`). Returns the refined points and the objective before and
-/// after; `views` get the refined poses.
+/// after; `views` get the refined poses. With [`BundleParams::relief_sigma`], the relief of
+/// the lifted depths is refined too, and [`Adjusted::relief`] says by how much.
 ///
 /// Errors: settings [`BundleParams::check`] refuses, more than [`MAX_VIEWS`] views,
 /// non-finite input, or a feature index out of range. A system that stays singular however
@@ -191,10 +232,15 @@ pub fn refine(
             "bundle view sees an unknown feature",
         ));
     }
+    if x0.iter().any(|x| !x.iter().all(|v| v.is_finite())) {
+        return Err(PoseError::NonFinite);
+    }
     let mut z: Vec<f64> = x0.iter().map(|x| x.z).collect();
-    let z0 = z.clone();
-    let wz = 1.0 / (params.depth_sigma * params.depth_sigma);
-    let cost = |views: &[BundleView], z: &[f64]| -> f64 {
+    let prior = DepthPrior::new(&z, params);
+    // The unknowns the depths are eliminated onto: 6 per view, then the log-relief.
+    let nr = 6 * nv + usize::from(prior.relief.is_some());
+    let mut u = 0.0;
+    let cost = |views: &[BundleView], z: &[f64], u: f64| -> f64 {
         let mut c = 0.0;
         for v in views {
             for (j, q) in &v.seen {
@@ -208,9 +254,7 @@ pub fn refine(
                 };
             }
         }
-        for j in 0..z.len() {
-            c += wz * (z[j] - z0[j]).powi(2);
-        }
+        prior.add_cost(&mut c, z, u);
         for (e, df) in rotation_steps(views, key_frame) {
             for k in 0..3 {
                 c += (e[k] / params.rotation_sigma[k]).powi(2) / df;
@@ -218,16 +262,17 @@ pub fn refine(
         }
         c
     };
-    let mut current = cost(views, &z);
-    let start_cost = current;
-    let mut lambda = 1e-3;
-    for _ in 0..params.iterations {
-        // Normal equations: pose block (6 per view), depth diagonal, and their coupling.
-        let mut hpp = DMatrix::<f64>::zeros(6 * nv, 6 * nv);
-        let mut bp = DVector::<f64>::zeros(6 * nv);
-        let mut hzz = vec![wz; np];
-        let mut bz: Vec<f64> = (0..np).map(|j| -wz * (z[j] - z0[j])).collect();
-        let mut hpz = DMatrix::<f64>::zeros(6 * nv, np);
+    // Normal equations at (views, z, u): the reduced block (6 per view and the log-relief),
+    // the depth diagonal, and their coupling.
+    let normal = |views: &[BundleView], z: &[f64], u: f64| -> Normal {
+        let mut n = Normal {
+            hpp: DMatrix::<f64>::zeros(nr, nr),
+            bp: DVector::<f64>::zeros(nr),
+            hzz: vec![0.0; np],
+            bz: vec![0.0; np],
+            hpz: DMatrix::<f64>::zeros(nr, np),
+        };
+        prior.add_to(&mut n, z, u, 6 * nv);
         for (i, v) in views.iter().enumerate() {
             for (j, q) in &v.seen {
                 let x = on_ray(&x0[*j], z[*j], camera, key_centre);
@@ -247,14 +292,14 @@ pub fn refine(
                 let jtr = jp.transpose() * r * w;
                 let o = 6 * i;
                 for a in 0..6 {
-                    bp[o + a] += jtr[a];
+                    n.bp[o + a] += jtr[a];
                     for b in 0..6 {
-                        hpp[(o + a, o + b)] += jtj[(a, b)];
+                        n.hpp[(o + a, o + b)] += jtj[(a, b)];
                     }
-                    hpz[(o + a, *j)] += w * (jp[(0, a)] * jz.x + jp[(1, a)] * jz.y);
+                    n.hpz[(o + a, *j)] += w * (jp[(0, a)] * jz.x + jp[(1, a)] * jz.y);
                 }
-                hzz[*j] += w * jz.norm_squared();
-                bz[*j] += w * jz.dot(&r);
+                n.hzz[*j] += w * jz.norm_squared();
+                n.bz[*j] += w * jz.dot(&r);
             }
         }
         // The rotation prior between successive views (first order in the updates).
@@ -262,41 +307,29 @@ pub fn refine(
             for k in 0..3 {
                 let w = 1.0 / (params.rotation_sigma[k].powi(2) * df);
                 let (a, b) = (6 * i + k, i.checked_sub(1).map(|p| 6 * p + k));
-                hpp[(a, a)] += w;
-                bp[a] -= w * e[k];
+                n.hpp[(a, a)] += w;
+                n.bp[a] -= w * e[k];
                 if let Some(b) = b {
-                    hpp[(b, b)] += w;
-                    hpp[(a, b)] -= w;
-                    hpp[(b, a)] -= w;
-                    bp[b] += w * e[k];
+                    n.hpp[(b, b)] += w;
+                    n.hpp[(a, b)] -= w;
+                    n.hpp[(b, a)] -= w;
+                    n.bp[b] += w * e[k];
                 }
             }
         }
+        n
+    };
+    let mut current = cost(views, &z, u);
+    let start_cost = current;
+    let mut lambda = 1e-3;
+    for _ in 0..params.iterations {
+        let n = normal(views, &z, u);
         let mut improved = false;
         for _ in 0..6 {
-            // Schur complement of the (damped) depth diagonal.
-            let hzd: Vec<f64> = hzz.iter().map(|h| h * (1.0 + lambda)).collect();
-            let mut s = hpp.clone();
-            for k in 0..6 * nv {
-                s[(k, k)] += lambda * hpp[(k, k)] + 1e-9;
-            }
-            let mut rhs = bp.clone();
-            for j in 0..np {
-                let col = hpz.column(j);
-                if col.iter().all(|v| *v == 0.0) {
-                    continue;
-                }
-                s -= col * col.transpose() / hzd[j];
-                rhs -= col * (bz[j] / hzd[j]);
-            }
-            let Some(chol) = s.cholesky() else {
+            let Some((dp, dz)) = n.solve(lambda) else {
                 lambda *= 10.0;
                 continue;
             };
-            let dp = chol.solve(&rhs);
-            let dz: Vec<f64> = (0..np)
-                .map(|j| (bz[j] - hpz.column(j).dot(&dp)) / hzd[j])
-                .collect();
             let mut trial = views.to_vec();
             for (i, v) in trial.iter_mut().enumerate() {
                 let o = 6 * i;
@@ -305,10 +338,16 @@ pub fn refine(
                 v.centre += Vector2::new(dp[o + 4], dp[o + 5]);
             }
             let tz: Vec<f64> = z.iter().zip(&dz).map(|(a, b)| a + b).collect();
-            let c = cost(&trial, &tz);
+            let tu = if nr > 6 * nv {
+                u + dp[6 * nv].clamp(-0.5, 0.5)
+            } else {
+                u
+            };
+            let c = cost(&trial, &tz, tu);
             if c.is_finite() && c < current {
                 views.clone_from_slice(&trial);
                 z = tz;
+                u = tu;
                 current = c;
                 lambda = (lambda * 0.3).max(1e-6);
                 improved = true;
@@ -323,6 +362,16 @@ pub fn refine(
     if !current.is_finite() {
         return Err(PoseError::NonFinite);
     }
+    // The log-relief's variance: its entry in the inverse of the undamped reduced system at
+    // the end (the depths and the views' poses marginalised out).
+    let relief = prior.relief.and_then(|_| {
+        let n = normal(views, &z, u);
+        let s = n.reduced(0.0)?.0.cholesky()?;
+        let mut e = DVector::<f64>::zeros(nr);
+        e[6 * nv] = 1.0;
+        let variance = s.solve(&e)[6 * nv];
+        (variance.is_finite() && variance > 0.0).then_some(Relief { log: u, variance })
+    });
     Ok(Adjusted {
         points: (0..np)
             .map(|j| on_ray(&x0[j], z[j], camera, key_centre))
@@ -330,7 +379,128 @@ pub fn refine(
         start_cost,
         cost: current,
         observations: views.iter().map(|v| v.seen.len()).sum(),
+        relief,
     })
+}
+
+/// The depth prior of [`refine`]: each depth about its lift, `((z_j − t_j(u)) / σ_z)²`, with
+/// `t_j(u) = m0 + e^u (z0_j − m0)` the lift's relief scaled by `k = e^u` about the lifted
+/// depths' mean `m0` (scaling about the model's centre would mostly move the mean depth,
+/// which the views' centres take up as the gauge), and `(u / σ_k)²` on the log-relief when
+/// it is free (`u` stays 0 otherwise).
+struct DepthPrior {
+    /// The lifted depths.
+    z0: Vec<f64>,
+    /// Their mean.
+    m0: f64,
+    /// `1 / σ_z²`.
+    wz: f64,
+    /// `1 / σ_k²` when the relief is free.
+    relief: Option<f64>,
+}
+
+impl DepthPrior {
+    fn new(z0: &[f64], params: &BundleParams) -> Self {
+        let m0 = if z0.is_empty() {
+            0.0
+        } else {
+            z0.iter().sum::<f64>() / z0.len() as f64
+        };
+        Self {
+            z0: z0.to_vec(),
+            m0,
+            wz: 1.0 / (params.depth_sigma * params.depth_sigma),
+            relief: params.relief_sigma.map(|s| 1.0 / (s * s)),
+        }
+    }
+
+    /// The depth `z_j` is held near, and its derivative in `u` (the lift itself, exactly,
+    /// when the relief is not free).
+    fn target(&self, j: usize, u: f64) -> (f64, f64) {
+        if self.relief.is_none() {
+            return (self.z0[j], 0.0);
+        }
+        let d = u.exp() * (self.z0[j] - self.m0);
+        (self.m0 + d, d)
+    }
+
+    /// Adds the prior's terms at `(z, u)` to the objective `c`.
+    fn add_cost(&self, c: &mut f64, z: &[f64], u: f64) {
+        for (j, zj) in z.iter().enumerate() {
+            *c += self.wz * (zj - self.target(j, u).0).powi(2);
+        }
+        if let Some(w) = self.relief {
+            *c += w * u * u;
+        }
+    }
+
+    /// Adds the prior's Gauss-Newton terms at `(z, u)`, the log-relief at index `iu` of the
+    /// reduced unknowns.
+    fn add_to(&self, n: &mut Normal, z: &[f64], u: f64, iu: usize) {
+        for (j, zj) in z.iter().enumerate() {
+            let (t, dt) = self.target(j, u);
+            let rho = zj - t;
+            n.hzz[j] += self.wz;
+            n.bz[j] -= self.wz * rho;
+            if self.relief.is_some() {
+                // d rho / d u = -dt.
+                n.hpp[(iu, iu)] += self.wz * dt * dt;
+                n.bp[iu] += self.wz * rho * dt;
+                n.hpz[(iu, j)] -= self.wz * dt;
+            }
+        }
+        if let Some(w) = self.relief {
+            n.hpp[(iu, iu)] += w;
+            n.bp[iu] -= w * u;
+        }
+    }
+}
+
+/// Gauss-Newton normal equations of [`refine`], the depths apart.
+struct Normal {
+    /// The reduced unknowns' block (6 per view, then the log-relief when free).
+    hpp: DMatrix<f64>,
+    bp: DVector<f64>,
+    /// The depths' diagonal.
+    hzz: Vec<f64>,
+    bz: Vec<f64>,
+    /// Reduced unknowns × depths.
+    hpz: DMatrix<f64>,
+}
+
+impl Normal {
+    /// The Schur complement of the depth diagonal, damped by `lambda` (Levenberg-Marquardt),
+    /// its right-hand side and the damped diagonal; `None` where a depth has no information.
+    fn reduced(&self, lambda: f64) -> Option<(DMatrix<f64>, DVector<f64>, Vec<f64>)> {
+        let hzd: Vec<f64> = self.hzz.iter().map(|h| h * (1.0 + lambda)).collect();
+        if !hzd.iter().all(|h| *h > 0.0) {
+            return None;
+        }
+        let mut s = self.hpp.clone();
+        for k in 0..s.nrows() {
+            s[(k, k)] += lambda * self.hpp[(k, k)] + 1e-9;
+        }
+        let mut rhs = self.bp.clone();
+        for (j, h) in hzd.iter().enumerate() {
+            let col = self.hpz.column(j);
+            if col.iter().all(|v| *v == 0.0) {
+                continue;
+            }
+            s -= col * col.transpose() / *h;
+            rhs -= col * (self.bz[j] / *h);
+        }
+        Some((s, rhs, hzd))
+    }
+
+    /// The damped step: the reduced unknowns' and the depths'.
+    fn solve(&self, lambda: f64) -> Option<(DVector<f64>, Vec<f64>)> {
+        let (s, rhs, hzd) = self.reduced(lambda)?;
+        let dp = s.cholesky()?.solve(&rhs);
+        let dz = (0..hzd.len())
+            .map(|j| (self.bz[j] - self.hpz.column(j).dot(&dp)) / hzd[j])
+            .collect();
+        Some((dp, dz))
+    }
 }
 
 #[cfg(test)]
@@ -444,6 +614,90 @@ mod tests {
         assert!(start > 5.0, "{start}");
     }
 
+    /// Depths lifted with half the box's relief and held to it firmly: with the relief fixed
+    /// the views keep a good part of the bas-relief error, with it free the adjustment finds
+    /// the factor of 2 and the turn.
+    #[test]
+    fn a_free_relief_recovers_the_depths_lifted_too_flat() {
+        let (x, _, truth) = corner(10);
+        let (cam, centre) = (camera(), Vector2::new(80.0, 60.0));
+        let m = x.iter().map(|xj| xj.z).sum::<f64>() / x.len() as f64;
+        let x0: Vec<Vector3<f64>> = x
+            .iter()
+            .map(|xj| on_ray(xj, m + 0.5 * (xj.z - m), Some(&cam), &centre))
+            .collect();
+        let half_turned = || -> Vec<BundleView> {
+            truth
+                .iter()
+                .map(|v| BundleView {
+                    rot: exp_so3(&(0.5 * log_so3(&v.rot))),
+                    ..v.clone()
+                })
+                .collect()
+        };
+        let fixed = BundleParams {
+            depth_sigma: 0.5,
+            rotation_sigma: [1.0; 3],
+            iterations: 50,
+            ..BundleParams::default()
+        };
+        let worst = |views: &[BundleView]| {
+            views
+                .iter()
+                .zip(&truth)
+                .map(|(v, t)| angle_between(&v.rot, &t.rot).to_degrees())
+                .fold(0.0, f64::max)
+        };
+        let mut views = half_turned();
+        let held = refine(&x0, &centre, 0, Some(&cam), &mut views, &fixed).unwrap();
+        assert!(held.relief.is_none());
+        let held_error = worst(&views);
+        assert!(held_error > 2.0, "{held_error}");
+        let free = BundleParams {
+            relief_sigma: Some(10.0),
+            ..fixed
+        };
+        let mut views = half_turned();
+        let adjusted = refine(&x0, &centre, 0, Some(&cam), &mut views, &free).unwrap();
+        let relief = adjusted.relief.expect("a relief");
+        let k = relief.log.exp();
+        assert!((k - 2.0).abs() < 0.02, "k {k}");
+        assert!(
+            relief.variance > 0.0 && relief.variance < 0.01,
+            "{relief:?}"
+        );
+        let free_error = worst(&views);
+        assert!(free_error < 0.05, "{free_error}° off (held: {held_error}°)");
+        for (a, b) in adjusted.points.iter().zip(&x) {
+            assert!((a.z - b.z).abs() < 0.1, "{} against {}", a.z, b.z);
+        }
+    }
+
+    /// Views that do not turn say nothing of the relief: its variance stays the prior's.
+    #[test]
+    fn views_without_a_turn_leave_the_relief_to_its_prior() {
+        let (x, _, mut views) = corner(6);
+        let centre = Vector2::new(80.0, 60.0);
+        for v in &mut views {
+            v.rot = Matrix3::identity();
+            v.seen = x
+                .iter()
+                .enumerate()
+                .map(|(j, xj)| (j, [xj.x + centre.x, xj.y + centre.y]))
+                .collect();
+        }
+        let params = BundleParams {
+            relief_sigma: Some(0.5),
+            ..BundleParams::default()
+        };
+        let r = refine(&x, &centre, 0, None, &mut views, &params)
+            .unwrap()
+            .relief
+            .expect("a relief");
+        assert!(r.log.abs() < 1e-6, "{r:?}");
+        assert!((r.variance / 0.25 - 1.0).abs() < 0.05, "{r:?}");
+    }
+
     #[test]
     fn the_points_stay_on_their_keyframe_rays() {
         let (x, p, mut views) = corner(4);
@@ -506,6 +760,10 @@ mod tests {
             },
             BundleParams { huber: -1.0, ..d },
             BundleParams { iterations: 0, ..d },
+            BundleParams {
+                relief_sigma: Some(0.0),
+                ..d
+            },
             BundleParams {
                 iterations: MAX_ITERATIONS + 1,
                 ..d

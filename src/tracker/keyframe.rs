@@ -15,7 +15,7 @@ use crate::features::{Features, MatchParams, match_features};
 use crate::filter::Hypothesis;
 use crate::geometry::{Ellipse, angle_between};
 use crate::likelihood::FeaturePair;
-use crate::pose::bundle::{BundleView, refine};
+use crate::pose::bundle::{BundleView, refine, relieved};
 use crate::pose::prior::{
     Ellipsoid, FitStart, MotionPrior, Pinhole, PriorFit, fit_points, fit_with_depth_prior, lift,
 };
@@ -40,6 +40,36 @@ struct Keyframe {
     points: Option<Vec<Vector3<f64>>>,
     /// Views added since the last adjustment.
     since_adjusted: usize,
+    /// What its last adjustment said of the object's relief ([`KeyframePool::relief`]).
+    relief: Evidence,
+}
+
+/// Evidence on the object's log-relief `ln k` (its depths against its model's), as a
+/// Gaussian in information form: `(1 / σ², ln k / σ²)`, so that pieces add.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+struct Evidence {
+    /// `1 / σ²`.
+    information: f64,
+    /// `ln k / σ²`.
+    weighted: f64,
+}
+
+impl Evidence {
+    fn add(self, o: Self) -> Self {
+        Self {
+            information: self.information + o.information,
+            weighted: self.weighted + o.weighted,
+        }
+    }
+
+    /// The mean `ln k`, 0 without information.
+    fn log(&self) -> f64 {
+        if self.information > 0.0 {
+            self.weighted / self.information
+        } else {
+            0.0
+        }
+    }
 }
 
 /// What a fit against a keyframe needs from the tracker.
@@ -64,6 +94,9 @@ pub(crate) struct FitContext<'a> {
     pub prior: Option<MotionPrior>,
     /// The free fit against the anchor that may replace the best one; `None` for none.
     pub anchor_refit: Option<AnchorRefit>,
+    /// The factor the lifted depths' relief is scaled by ([`KeyframePool::relief`]; 1: the
+    /// model's own).
+    pub relief: f64,
 }
 
 /// An accepted fit against one keyframe.
@@ -132,6 +165,15 @@ fn accepted_fit_on(
     let prior = ctx.prior.map(|pr| MotionPrior { mean: *rot0, ..pr });
     let fit = match points {
         Some(x) => fit_points(x, &q, ctx.camera, &start, prior.as_ref()),
+        None if ctx.relief != 1.0 && model.is_valid() => {
+            let x = relieved(
+                &lift(&p, model, ctx.camera),
+                ctx.relief,
+                ctx.camera,
+                &model.centre,
+            );
+            fit_points(&x, &q, ctx.camera, &start, prior.as_ref())
+        }
         None => fit_with_depth_prior(&p, &q, model, ctx.camera, &start, prior.as_ref()),
     }
     .ok()?;
@@ -151,6 +193,8 @@ pub(crate) struct KeyframePool {
     capacity: usize,
     /// The frame being tracked (for the keyframes taken and the views recorded).
     now: usize,
+    /// The relief evidence of keyframes that gave way to others.
+    retired: Evidence,
 }
 
 impl KeyframePool {
@@ -163,7 +207,37 @@ impl KeyframePool {
             // keyframe replaced the anchor, which is never to be dropped.
             capacity: capacity.max(2),
             now: 0,
+            retired: Evidence::default(),
         }
+    }
+
+    /// The factor by which the object's relief differs from its model's, as the keyframes'
+    /// adjustments found it ([`crate::pose::bundle::BundleParams::relief_sigma`]): each
+    /// keyframe's last adjustment and those of keyframes that gave way, pooled with the prior
+    /// `ln k ~ N(0, σ²)`. 1 without the setting or before any adjustment. The keyframe fits
+    /// scale their lifted depths by it ([`FitContext::relief`]).
+    pub fn relief(&self, cfg: &BundleAdjust) -> f64 {
+        self.relief_log(cfg, None).0.exp()
+    }
+
+    /// The pooled `ln k` and its information, leaving out keyframe `except`'s evidence (the
+    /// prior of that keyframe's next adjustment, which gives its evidence anew); `(0, 0)`
+    /// without the setting.
+    fn relief_log(&self, cfg: &BundleAdjust, except: Option<usize>) -> (f64, f64) {
+        let Some(sigma) = cfg.params.relief_sigma else {
+            return (0.0, 0.0);
+        };
+        let prior = Evidence {
+            information: 1.0 / (sigma * sigma),
+            weighted: 0.0,
+        };
+        let e = self
+            .frames
+            .iter()
+            .enumerate()
+            .filter(|(i, _)| Some(*i) != except)
+            .fold(prior.add(self.retired), |e, (_, k)| e.add(k.relief));
+        (e.log(), e.information)
     }
 
     /// Sets the frame being tracked.
@@ -228,7 +302,15 @@ impl KeyframePool {
             .iter()
             .map(|k| [f64::from(k.x), f64::from(k.y)])
             .collect();
-        let x0 = lift(&p, &key.model, camera);
+        // The relief the other keyframes found is this adjustment's start and prior.
+        let (log0, information0) = self.relief_log(cfg, Some(fit.index));
+        let key = &mut self.frames[fit.index];
+        let mut params = cfg.params;
+        let mut x0 = lift(&p, &key.model, camera);
+        if params.relief_sigma.is_some() {
+            x0 = relieved(&x0, log0.exp(), camera, &key.model.centre);
+            params.relief_sigma = Some(information0.sqrt().recip());
+        }
         let mut views = key.views.clone();
         let adjusted = refine(
             &x0,
@@ -236,11 +318,22 @@ impl KeyframePool {
             key.frame,
             camera,
             &mut views,
-            &cfg.params,
+            &params,
         )
         .ok()?;
         key.points = Some(adjusted.points);
         key.views = views;
+        // Its own evidence: the posterior less the prior it started from.
+        key.relief = adjusted.relief.map_or(Evidence::default(), |r| {
+            let information = (1.0 / r.variance - information0).max(0.0);
+            Evidence {
+                information,
+                weighted: (log0 + r.log) / r.variance - information0 * log0,
+            }
+        });
+        if key.relief.information == 0.0 {
+            key.relief = Evidence::default();
+        }
         key.views.last().cloned()
     }
 
@@ -248,6 +341,7 @@ impl KeyframePool {
     /// anchor view.
     pub fn reset(&mut self, features: &Features, e: &Ellipse, hyp: Hypothesis, model: Ellipsoid) {
         self.frames.clear();
+        self.retired = Evidence::default();
         self.frames.push(make(features, e, hyp, model, self.now));
     }
 
@@ -444,6 +538,7 @@ impl KeyframePool {
                 })
                 .map(|(i, _)| i);
             if let Some(i) = victim {
+                self.retired = self.retired.add(self.frames[i].relief);
                 self.frames[i] = k;
             }
         } else {
@@ -481,6 +576,7 @@ fn make(
         views: Vec::new(),
         points: None,
         since_adjusted: 0,
+        relief: Evidence::default(),
     }
 }
 
@@ -615,7 +711,9 @@ mod tests {
 
     /// The anchor's features on a 6 x 5 grid inside its ellipse, and the same features seen
     /// after the object (the anchor's ellipsoid) turned by `turn`, in place.
-    fn anchor_and_turned(turn: &Matrix3<f64>) -> (Features, Features) {
+    /// The anchor's features and theirs on an object of `relief` times its model's relief
+    /// turned by `turn` (weak perspective).
+    fn anchor_and_turned(turn: &Matrix3<f64>, relief: f64) -> (Features, Features) {
         let m = model();
         let p: Vec<[f64; 2]> = (0..30)
             .map(|i| {
@@ -626,7 +724,7 @@ mod tests {
         let q: Vec<[f64; 2]> = crate::pose::prior::lift(&p, &m, None)
             .iter()
             .map(|x| {
-                let y = turn * x;
+                let y = turn * Vector3::new(x.x, x.y, relief * x.z);
                 [m.centre.x + y.x, m.centre.y + y.y]
             })
             .collect();
@@ -649,12 +747,45 @@ mod tests {
     }
 
     #[test]
+    fn the_fits_lift_with_the_relief_they_are_given() {
+        // An object half as deep as its model, turned 20 degrees: fitted freely on the model's
+        // relief the turn reads short, on half of it exactly.
+        let turn = Euler::from_degrees(4.0, 20.0, -3.0).matrix();
+        let (anchor, now) = anchor_and_turned(&turn, 0.5);
+        let e = Ellipse::new(50.0, 40.0, 10.0, 12.0);
+        let mut pool = KeyframePool::new(4);
+        pool.reset(&anchor, &e, hyp(Euler::default()), model());
+        let prev = hyp(Euler::default());
+        let matching = MatchParams::default();
+        let error = |relief| {
+            let ctx = FitContext {
+                prev: &prev,
+                shift: Vector2::zeros(),
+                camera: None,
+                matching: &matching,
+                min_inliers: 10,
+                max_residual: 3.0,
+                max_step: std::f64::consts::PI,
+                prior: None,
+                anchor_refit: None,
+                relief,
+            };
+            pool.best_fit(&now, &ctx, 3, 1.0).map_or(180.0, |f| {
+                angle_between(&f.placed().rot, &turn).to_degrees()
+            })
+        };
+        let (model_relief, half) = (error(1.0), error(0.5));
+        assert!(model_relief > 3.0, "{model_relief}");
+        assert!(half < 0.01, "{half} (model's relief: {model_relief})");
+    }
+
+    #[test]
     fn a_tight_free_fit_to_the_anchor_overrides_the_prior_and_the_step_bound() {
         // The object turned 25 degrees from the anchor's frontal view while the previous
         // estimate stayed frontal: the prior (centred on that estimate) and the 20-degree
         // step bound keep the truth out of reach; the free anchor fit finds it.
         let turn = Euler::from_degrees(5.0, 25.0, -3.0).matrix();
-        let (anchor, now) = anchor_and_turned(&turn);
+        let (anchor, now) = anchor_and_turned(&turn, 1.0);
         let e = Ellipse::new(50.0, 40.0, 10.0, 12.0);
         let mut pool = KeyframePool::new(4);
         pool.reset(&anchor, &e, hyp(Euler::default()), model());
@@ -675,6 +806,7 @@ mod tests {
                 centre_sigma: None,
             }),
             anchor_refit,
+            relief: 1.0,
         };
         // Held by the prior, the fit stays near the previous estimate, the turn taken up by
         // translation and scale within a pixel of residual.
@@ -702,6 +834,54 @@ mod tests {
 
     #[test]
     fn a_keyframe_is_adjusted_once_it_has_enough_turned_views_and_the_anchor_never() {
+        let cfg = BundleAdjust::default();
+        let pool = adjust_half_deep(&cfg);
+        assert!(pool.frames[0].views.is_empty() && pool.frames[0].points.is_none());
+        assert_eq!(pool.frames[1].views.len(), cfg.min_views);
+        assert!(pool.frames[1].points.is_some());
+        // Without the relief setting the lift's relief stands.
+        assert_eq!(pool.relief(&cfg), 1.0);
+    }
+
+    /// With the relief free, the adjustment of the object half as deep as its model finds it
+    /// flatter, the pool keeps that when the keyframe gives way, and a reset forgets it.
+    #[test]
+    fn the_relief_an_adjustment_finds_is_pooled_kept_and_reset() {
+        let mut cfg = BundleAdjust::default();
+        cfg.params.relief_sigma = Some(1.0);
+        let mut pool = adjust_half_deep(&cfg);
+        let k = pool.relief(&cfg);
+        assert!(k > 0.4 && k < 0.75, "relief {k}");
+        let evidence = pool.frames[1].relief;
+        assert!(evidence.information > 0.0, "{evidence:?}");
+        // Two keyframes turned away fill the pool, and a third in its pose pushes it out
+        // (the anchor stays).
+        let (feats, e) = (
+            pool.frames[1].features.clone(),
+            Ellipse::new(80.0, 60.0, 30.0, 24.0),
+        );
+        for deg in [40.0, 80.0, 0.0] {
+            let hyp = Hypothesis {
+                rot: Euler::from_degrees(0.0, deg, 0.0).matrix(),
+                ..pool.frames[1].hyp
+            };
+            assert!(pool.add(&feats, &e, hyp, pool.frames[1].model, 3));
+        }
+        assert!(
+            pool.frames
+                .iter()
+                .skip(1)
+                .all(|f| f.relief == Evidence::default())
+        );
+        assert_eq!(pool.relief(&cfg), k);
+        let (hyp, model) = (pool.frames[0].hyp, pool.frames[0].model);
+        pool.reset(&feats, &e, hyp, model);
+        assert_eq!(pool.relief(&cfg), 1.0);
+    }
+
+    /// A pool whose second keyframe, of an object half as deep as its model, was adjusted
+    /// (see the test above).
+    fn adjust_half_deep(cfg: &BundleAdjust) -> KeyframePool {
         // A keyframe of an object half as deep as its ellipsoid, seen through a camera while
         // it turns 4 degrees a frame about the vertical; each fit reads half the turn (the
         // shallower object's parallax on the deeper model), as the tracker's fits of the box
@@ -739,7 +919,6 @@ mod tests {
         let mut pool = KeyframePool::new(4);
         pool.reset(&feats, &e, key, m);
         pool.add(&feats, &e, key, m, 3);
-        let cfg = BundleAdjust::default();
         let view = |k: usize, index: usize| {
             let turn = Euler::from_degrees(0.0, 4.0 * k as f64, 0.0).matrix();
             let pairs: Vec<FeaturePair> = truth
@@ -773,9 +952,9 @@ mod tests {
         for k in 1..=cfg.min_views {
             pool.tick(k);
             let (anchor_fit, _) = view(k, 0);
-            assert!(pool.observe(&anchor_fit, Some(&cam), &cfg).is_none());
+            assert!(pool.observe(&anchor_fit, Some(&cam), cfg).is_none());
             let (fit, turn) = view(k, 1);
-            let adjusted = pool.observe(&fit, Some(&cam), &cfg);
+            let adjusted = pool.observe(&fit, Some(&cam), cfg);
             if k < cfg.min_views {
                 assert!(adjusted.is_none(), "adjusted after {k} views");
                 continue;
@@ -785,8 +964,6 @@ mod tests {
             let after = angle_between(&adjusted.rot, &turn).to_degrees();
             assert!(after < 0.5 * before, "{before} -> {after}");
         }
-        assert!(pool.frames[0].views.is_empty() && pool.frames[0].points.is_none());
-        assert_eq!(pool.frames[1].views.len(), cfg.min_views);
-        assert!(pool.frames[1].points.is_some());
+        pool
     }
 }

@@ -1507,6 +1507,11 @@ impl Tracker {
             max_step: self.cfg.max_rotation_step,
             prior: self.cfg.fit_prior(),
             anchor_refit: self.cfg.anchor_refit,
+            relief: self
+                .cfg
+                .bundle
+                .as_ref()
+                .map_or(1.0, |b| self.keyframes.relief(b)),
         }
     }
 
