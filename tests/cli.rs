@@ -2414,6 +2414,46 @@ fn cli_out_dash_is_standard_output() {
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
+/// `track --relief-sigma S` learns the object's relief over the keyframes' adjustments: on a
+/// turning box the track differs from the default's, and is the one the settings file that
+/// says the same gives; a σ that is not positive is refused, and so is the flag beside
+/// `--no-bundle`.
+#[test]
+fn cli_track_learns_the_relief_on_request() {
+    let dir = tmp_dir("relief");
+    let seq = dir.join("seq");
+    let s = seq.to_str().unwrap();
+    // The car turns from 45 % of the frames on: enough views for adjustments by the end.
+    pftrack_ok(&["synth", s, "--scenario", "car", "--frames", "80"]);
+    let csv = |name: &str| dir.join(name).to_str().unwrap().to_string();
+    let run = |extra: &[&str], out: &str| {
+        let mut args = vec!["track", s, "--backend", "cpu", "-o", out];
+        args.extend_from_slice(extra);
+        pftrack_ok(&args);
+        std::fs::read(out).unwrap()
+    };
+    let plain = run(&[], &csv("plain.csv"));
+    let learnt = run(&["--relief-sigma", "1"], &csv("learnt.csv"));
+    assert_ne!(plain, learnt);
+    let file = dir.join("relief.json");
+    std::fs::write(&file, r#"{"bundle": {"params": {"relief_sigma": 1.0}}}"#).unwrap();
+    let from_file = run(&["--config", file.to_str().unwrap()], &csv("file.csv"));
+    assert_eq!(learnt, from_file);
+    let unwritten = dir.join("none.csv");
+    let u = unwritten.to_str().unwrap();
+    for bad in ["0", "-1", "inf", "NaN"] {
+        assert_one_line_error(
+            &["track", s, "--relief-sigma", bad, "-o", u],
+            "--relief-sigma must be positive and finite",
+            &unwritten,
+        );
+    }
+    let out = pftrack(&["track", s, "--relief-sigma", "1", "--no-bundle", "-o", u]);
+    assert_eq!(out.status.code(), Some(2));
+    assert!(!unwritten.exists());
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
 /// `track --config FILE` takes the tracker's settings from JSON: the same track as the flags
 /// that say the same, a misspelt or out-of-range setting refused naming the file, and no
 /// tuning flag beside it.

@@ -142,6 +142,12 @@ pub struct TrackArgs {
     /// with the views that matched it (see `TrackerConfig::bundle`).
     #[arg(long)]
     pub no_bundle: bool,
+    /// Learn over the keyframes' adjustments how much flatter or deeper than its ellipsoid
+    /// the object is, with this σ on the factor's log, and lift every fit's features with
+    /// it: for objects that are not head-shaped (1 for a vehicle or a box; it costs heads'
+    /// pans). Off by default; see `TrackerConfig::bundle`.
+    #[arg(long, value_name = "SIGMA", conflicts_with = "no_bundle")]
+    pub relief_sigma: Option<f64>,
     /// Hold the rotation still on frames where nothing measured it, as the paper's random
     /// walk does, instead of carrying on the estimate's recent turn (see
     /// `TrackerConfig::coast_rate`).
@@ -299,7 +305,7 @@ pub struct TrackArgs {
         value_name = "FILE",
         conflicts_with_all = [
             "particles", "seed", "mode", "depth_ratio", "edge_threshold", "no_fit_prior",
-            "fit_centre_sigma", "no_fit_centre_prior", "no_anchor_refit", "no_bundle",
+            "fit_centre_sigma", "no_fit_centre_prior", "no_anchor_refit", "no_bundle", "relief_sigma",
             "no_coast", "colour_rate", "colour_max_ring", "aspect_slack", "no_aspect_bound",
             "exposure_jump", "no_exposure",
             "size_hold", "no_size_hold", "found_above", "reacquire_ncc",
@@ -552,6 +558,7 @@ fn flag_config(a: &TrackArgs, hfov: Option<f64>) -> anyhow::Result<TrackerConfig
     if a.no_bundle {
         cfg.bundle = None;
     }
+    apply_relief_sigma(&mut cfg, a.relief_sigma)?;
     if a.no_coast {
         cfg.coast_rate = None;
     }
@@ -768,6 +775,20 @@ pub fn apply_depth_ratio(cfg: &mut TrackerConfig, r: f64) -> anyhow::Result<()> 
         bail!("--depth-ratio must lie between 0 and {max}, got {r}");
     }
     cfg.likelihood.depth_ratio = r as f32;
+    Ok(())
+}
+
+/// Checks and applies `--relief-sigma` (`None`: the default's, no relief learnt).
+pub fn apply_relief_sigma(cfg: &mut TrackerConfig, sigma: Option<f64>) -> anyhow::Result<()> {
+    let Some(sigma) = sigma else {
+        return Ok(());
+    };
+    if !(sigma.is_finite() && sigma > 0.0) {
+        bail!("--relief-sigma must be positive and finite, got {sigma}");
+    }
+    if let Some(b) = cfg.bundle.as_mut() {
+        b.params.relief_sigma = Some(sigma);
+    }
     Ok(())
 }
 
