@@ -1541,4 +1541,32 @@ fn tiff_and_webp_frames_are_read() {
         }
     }
     std::fs::remove_dir_all(&d).unwrap();
+
+    // Stored with an orientation tag: turned as `image` turns the TIFFs it decodes (a 6 x 4
+    // image stored with tag 6, "turn 90 degrees clockwise to show", shows 4 x 6), the folder's
+    // size from its first frame as shown.
+    let d = scratch("tiff-grey-float-turned");
+    let levels: Vec<f32> = (0..24).map(|i| i as f32 / 23.0).collect();
+    for name in ["0.tif", "1.tif"] {
+        let file = std::fs::File::create(d.join(name)).unwrap();
+        let mut enc = tiff::encoder::TiffEncoder::new(file).unwrap();
+        let mut img = enc
+            .new_image::<tiff::encoder::colortype::Gray32Float>(6, 4)
+            .unwrap();
+        img.encoder()
+            .write_tag(tiff::tags::Tag::Orientation, 6u16)
+            .unwrap();
+        img.write_data(&levels).unwrap();
+    }
+    let src = frames::open(&d, &SourceOptions::default()).unwrap();
+    assert_eq!(src.size(), (4, 6));
+    let got = collect(src).unwrap();
+    assert_eq!(got.len(), 2);
+    let stored = RgbImage::from_fn(6, 4, |x, y| {
+        Rgb([(levels[(y * 6 + x) as usize] * 255.0).round() as u8; 3])
+    });
+    let shown = image::imageops::rotate90(&stored);
+    assert_eq!(got[0], shown);
+    assert_eq!(got[1], shown);
+    std::fs::remove_dir_all(&d).unwrap();
 }

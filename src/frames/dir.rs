@@ -294,9 +294,34 @@ fn grey_float_tiff_decoder<R: std::io::Read + std::io::Seek>(
     matches!(d.colortype().ok()?, tiff::ColorType::Gray(32 | 64)).then_some(d)
 }
 
+/// The orientation a TIFF's tag gives (as the `image` crate reads it for the TIFFs it
+/// decodes); none, or a value outside 1-8, is no turn.
+fn tiff_orientation<R: std::io::Read + std::io::Seek>(
+    d: &mut tiff::decoder::Decoder<R>,
+) -> image::metadata::Orientation {
+    d.find_tag_unsigned::<u16>(tiff::tags::Tag::Orientation)
+        .ok()
+        .flatten()
+        .and_then(|v| image::metadata::Orientation::from_exif(v.min(255) as u8))
+        .unwrap_or(image::metadata::Orientation::NoTransforms)
+}
+
+/// The size `(w, h)` of an image stored `w` x `h`, as shown turned by `o`.
+fn shown_size(w: u32, h: u32, o: image::metadata::Orientation) -> (u32, u32) {
+    use image::metadata::Orientation;
+    match o {
+        Orientation::Rotate90
+        | Orientation::Rotate270
+        | Orientation::Rotate90FlipH
+        | Orientation::Rotate270FlipH => (h, w),
+        _ => (w, h),
+    }
+}
+
 /// A one-channel floating-point TIFF (as microscopes and scientific cameras write it), which
 /// the `image` crate does not decode, as RGB with three equal channels: each value taken from
-/// 0 to 1 to a level of 255, as `image` takes floating-point RGB (clamped; NaN is 0).
+/// 0 to 1 to a level of 255, as `image` takes floating-point RGB (clamped; NaN is 0), and
+/// turned as its orientation tag says, as `image` turns the TIFFs it decodes.
 /// `Ok(None)` for any other file, left to `image`.
 fn grey_float_tiff(bytes: &[u8], p: &Path) -> Result<Option<Frame>, FrameError> {
     let Some(mut d) = grey_float_tiff_decoder(std::io::Cursor::new(bytes)) else {
@@ -313,6 +338,7 @@ fn grey_float_tiff(bytes: &[u8], p: &Path) -> Result<Option<Frame>, FrameError> 
     if w == 0 || h == 0 {
         return Err(bad(format!("an empty image ({w}x{h})")));
     }
+    let orientation = tiff_orientation(&mut d);
     // Within the size checked above, the decoder's own cap is lifted, as for `image`'s.
     let mut d = d.with_limits(tiff::decoder::Limits::unlimited());
     let values: Vec<f64> = match d.read_image().map_err(|e| bad(e.to_string()))? {
@@ -326,9 +352,11 @@ fn grey_float_tiff(bytes: &[u8], p: &Path) -> Result<Option<Frame>, FrameError> 
         return Err(bad(format!("{} samples for {w}x{h} pixels", values.len())));
     }
     let level = |v: f64| (v.clamp(0.0, 1.0) * 255.0).round() as u8;
-    Ok(Some(Frame::from_fn(w, h, |x, y| {
+    let mut img = image::DynamicImage::ImageRgb8(Frame::from_fn(w, h, |x, y| {
         image::Rgb([level(values[y as usize * w as usize + x as usize]); 3])
-    })))
+    }));
+    img.apply_orientation(orientation);
+    Ok(Some(img.into_rgb8()))
 }
 
 /// Whether a JPEG's image data ends: walking its markers from the start, past each
@@ -405,7 +433,6 @@ fn jpeg_scan_ends(bytes: &[u8]) -> bool {
 /// does), from its header, without decoding the pixels.
 fn image_size(p: &Path) -> Result<(u32, u32), FrameError> {
     use image::ImageDecoder;
-    use image::metadata::Orientation;
     let dec = |e: image::ImageError| FrameError::Decode {
         path: p.display().to_string(),
         msg: e.to_string(),
@@ -421,7 +448,10 @@ fn image_size(p: &Path) -> Result<(u32, u32), FrameError> {
         Err(e) if tiff => {
             let file = std::fs::File::open(p).map_err(|e| FrameError::io(p, e))?;
             return grey_float_tiff_decoder(std::io::BufReader::new(file))
-                .and_then(|mut d| d.dimensions().ok())
+                .and_then(|mut d| {
+                    let (w, h) = d.dimensions().ok()?;
+                    Some(shown_size(w, h, tiff_orientation(&mut d)))
+                })
                 .filter(|&(w, h)| w > 0 && h > 0)
                 .ok_or_else(|| dec(e));
         }
@@ -436,13 +466,7 @@ fn image_size(p: &Path) -> Result<(u32, u32), FrameError> {
             msg: format!("an empty image ({w}x{h})"),
         });
     }
-    Ok(match decoder.orientation().map_err(dec)? {
-        Orientation::Rotate90
-        | Orientation::Rotate270
-        | Orientation::Rotate90FlipH
-        | Orientation::Rotate270FlipH => (h, w),
-        _ => (w, h),
-    })
+    Ok(shown_size(w, h, decoder.orientation().map_err(dec)?))
 }
 
 /// The frames of an image directory, decoded lazily.
