@@ -73,6 +73,10 @@ fn a_partial_configuration_takes_the_defaults_for_the_rest() {
         ),
         (r#"{"likelihood": {"edge_threshold": 2}}"#, "edge_threshold"),
         (r#"{"bundle": {"params": {"relief_sigma": 0}}}"#, "relief 0"),
+        (
+            r#"{"bundle": {"params": {"relief_sigma": 1e200}}}"#,
+            "from 0.001 to 1000",
+        ),
     ] {
         let bad: TrackerConfig = serde_json::from_str(text).unwrap();
         let err = bad.check().unwrap_err().to_string();

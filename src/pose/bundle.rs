@@ -14,7 +14,10 @@
 //!
 //! with `ρ` a Huber loss (1 px), `z0` the lifted depths and `σ_z` their prior, and the last
 //! term the tracker's own random-walk prior on the rotation between successive views
-//! (`R_{−1} = I`, the keyframe's pose, at the keyframe's frame). The keyframe's own
+//! (`R_{−1} = I`, the keyframe's pose, at the keyframe's frame). With
+//! [`BundleParams::relief_sigma`] the depths are held near the lift's relief scaled by a free
+//! factor `k` instead, `z0_j` becoming `m0 + k (z0_j − m0)` (`m0` the lifted depths' mean),
+//! and `(ln k / σ_k)²` is added. The keyframe's own
 //! observations hold exactly by construction (each point stays on its ray), which fixes the
 //! gauge but for a common shift of the depths (with each view's centre moved to match,
 //! exactly so under weak perspective), which the depth prior holds. Gauss-Newton with the
@@ -119,17 +122,27 @@ pub const MAX_VIEWS: usize = 256;
 /// Most Gauss-Newton iterations [`refine`] runs (the tracker runs 8).
 pub const MAX_ITERATIONS: usize = 1000;
 
+/// The range of [`BundleParams::relief_sigma`]: a σ of 0.001 on `ln k` holds the factor to
+/// its start as firmly as any smaller one, and one of 1000 leaves it as free as any larger;
+/// far beyond them `1 / σ²` leaves what `f64` holds (1e200 gave no adjustment at all).
+pub const RELIEF_SIGMA_RANGE: std::ops::RangeInclusive<f64> = 1e-3..=1e3;
+
 impl BundleParams {
-    /// Checks the settings: positive, finite sigmas and Huber threshold, and 1 to
-    /// [`MAX_ITERATIONS`] iterations.
+    /// Checks the settings: positive, finite sigmas and Huber threshold, a relief σ (where
+    /// there is one) in [`RELIEF_SIGMA_RANGE`], and 1 to [`MAX_ITERATIONS`] iterations.
     pub fn check(&self) -> Result<(), PoseError> {
         let positive = |v: f64| v.is_finite() && v > 0.0;
-        if !positive(self.depth_sigma)
-            || !self.rotation_sigma.iter().all(|&v| positive(v))
-            || !self.relief_sigma.is_none_or(positive)
+        if !positive(self.depth_sigma) || !self.rotation_sigma.iter().all(|&v| positive(v)) {
+            return Err(PoseError::InvalidParameter(
+                "bundle sigmas (depth, rotation) must be positive and finite",
+            ));
+        }
+        if !self
+            .relief_sigma
+            .is_none_or(|v| RELIEF_SIGMA_RANGE.contains(&v))
         {
             return Err(PoseError::InvalidParameter(
-                "bundle sigmas (depth, rotation, relief) must be positive and finite",
+                "bundle relief sigma must lie from 0.001 to 1000",
             ));
         }
         if !positive(self.huber) {
@@ -169,7 +182,10 @@ fn on_ray(
 
 /// The points `x` (lifted, in a keyframe's model frame whose centre projects to
 /// `key_centre`) with their relief about the model's centre scaled by `k`: each moved along
-/// its keyframe ray to `k` times its depth, so the keyframe still sees it where it did.
+/// its keyframe ray to `k` times its depth, so the keyframe still sees it where it did. About
+/// the centre, not the points' mean as [`refine`] scales, so that a feature's depth does not
+/// depend on which others matched; the mean depth that moves is a common shift, which a fit's
+/// centre takes up (exactly under weak perspective).
 pub(crate) fn relieved(
     x: &[Vector3<f64>],
     k: f64,
@@ -363,10 +379,12 @@ pub fn refine(
         return Err(PoseError::NonFinite);
     }
     // The log-relief's variance: its entry in the inverse of the undamped reduced system at
-    // the end (the depths and the views' poses marginalised out).
+    // the end (the depths and the views' poses marginalised out), without the solve's
+    // jitter, which would count as evidence. Where that system is singular the relief is
+    // left unmeasured (`None`), though the points took it.
     let relief = prior.relief.and_then(|_| {
         let n = normal(views, &z, u);
-        let s = n.reduced(0.0)?.0.cholesky()?;
+        let s = n.reduced(0.0, 0.0)?.0.cholesky()?;
         let mut e = DVector::<f64>::zeros(nr);
         e[6 * nv] = 1.0;
         let variance = s.solve(&e)[6 * nv];
@@ -469,16 +487,17 @@ struct Normal {
 }
 
 impl Normal {
-    /// The Schur complement of the depth diagonal, damped by `lambda` (Levenberg-Marquardt),
-    /// its right-hand side and the damped diagonal; `None` where a depth has no information.
-    fn reduced(&self, lambda: f64) -> Option<(DMatrix<f64>, DVector<f64>, Vec<f64>)> {
+    /// The Schur complement of the depth diagonal, damped by `lambda` (Levenberg-Marquardt)
+    /// and `jitter` added to its diagonal, its right-hand side and the damped diagonal; `None`
+    /// where a depth has no information.
+    fn reduced(&self, lambda: f64, jitter: f64) -> Option<(DMatrix<f64>, DVector<f64>, Vec<f64>)> {
         let hzd: Vec<f64> = self.hzz.iter().map(|h| h * (1.0 + lambda)).collect();
         if !hzd.iter().all(|h| *h > 0.0) {
             return None;
         }
         let mut s = self.hpp.clone();
         for k in 0..s.nrows() {
-            s[(k, k)] += lambda * self.hpp[(k, k)] + 1e-9;
+            s[(k, k)] += lambda * self.hpp[(k, k)] + jitter;
         }
         let mut rhs = self.bp.clone();
         for (j, h) in hzd.iter().enumerate() {
@@ -494,7 +513,7 @@ impl Normal {
 
     /// The damped step: the reduced unknowns' and the depths'.
     fn solve(&self, lambda: f64) -> Option<(DVector<f64>, Vec<f64>)> {
-        let (s, rhs, hzd) = self.reduced(lambda)?;
+        let (s, rhs, hzd) = self.reduced(lambda, 1e-9)?;
         let dp = s.cholesky()?.solve(&rhs);
         let dz = (0..hzd.len())
             .map(|j| (self.bz[j] - self.hpz.column(j).dot(&dp)) / hzd[j])
@@ -762,6 +781,18 @@ mod tests {
             BundleParams { iterations: 0, ..d },
             BundleParams {
                 relief_sigma: Some(0.0),
+                ..d
+            },
+            BundleParams {
+                relief_sigma: Some(1e-200),
+                ..d
+            },
+            BundleParams {
+                relief_sigma: Some(1e200),
+                ..d
+            },
+            BundleParams {
+                relief_sigma: Some(f64::NAN),
                 ..d
             },
             BundleParams {

@@ -186,6 +186,20 @@ fn accepted_fit_on(
     Some((fit, inliers, which))
 }
 
+/// The evidence an adjustment gave on the log-relief of its own: its posterior `r` (relative
+/// to its start `log0`) less the prior it was held to, `N(log0, 1 / information0)`; none
+/// where the posterior knows no more than that prior.
+fn own_evidence(log0: f64, information0: f64, r: crate::pose::bundle::Relief) -> Evidence {
+    let information = 1.0 / r.variance - information0;
+    if !(information > 0.0 && information.is_finite()) {
+        return Evidence::default();
+    }
+    Evidence {
+        information,
+        weighted: (log0 + r.log) / r.variance - information0 * log0,
+    }
+}
+
 /// The pool of keyframes.
 #[derive(Debug, Clone, Default)]
 pub(crate) struct KeyframePool {
@@ -323,17 +337,11 @@ impl KeyframePool {
         .ok()?;
         key.points = Some(adjusted.points);
         key.views = views;
-        // Its own evidence: the posterior less the prior it started from.
-        key.relief = adjusted.relief.map_or(Evidence::default(), |r| {
-            let information = (1.0 / r.variance - information0).max(0.0);
-            Evidence {
-                information,
-                weighted: (log0 + r.log) / r.variance - information0 * log0,
-            }
-        });
-        if key.relief.information == 0.0 {
-            key.relief = Evidence::default();
-        }
+        // Its own evidence: the posterior less the prior it started from. Where the
+        // adjustment could not measure the relief, the keyframe's earlier evidence goes too.
+        key.relief = adjusted
+            .relief
+            .map_or(Evidence::default(), |r| own_evidence(log0, information0, r));
         key.views.last().cloned()
     }
 
@@ -877,6 +885,58 @@ mod tests {
         let (hyp, model) = (pool.frames[0].hyp, pool.frames[0].model);
         pool.reset(&feats, &e, hyp, model);
         assert_eq!(pool.relief(&cfg), 1.0);
+    }
+
+    /// An adjustment's own evidence and the prior it was held to make up its posterior, and a
+    /// posterior that knows no more than its prior gives none.
+    #[test]
+    fn an_adjustment_s_own_evidence_is_its_posterior_less_its_prior() {
+        use crate::pose::bundle::Relief;
+        let (log0, information0) = (0.3, 4.0);
+        let post = Relief {
+            log: -0.1,
+            variance: 0.1,
+        };
+        let own = own_evidence(log0, information0, post);
+        let prior = Evidence {
+            information: information0,
+            weighted: information0 * log0,
+        };
+        let both = prior.add(own);
+        assert!((both.information - 10.0).abs() < 1e-12, "{both:?}");
+        assert!((both.log() - 0.2).abs() < 1e-12, "{both:?}");
+        // Its own mean lies beyond the posterior's, away from the prior's.
+        assert!((own.log() - 0.8 / 6.0).abs() < 1e-12, "{own:?}");
+        for variance in [0.25, 0.3, f64::INFINITY] {
+            let none = own_evidence(log0, information0, Relief { log: 0.0, variance });
+            assert_eq!(none, Evidence::default(), "variance {variance}");
+        }
+    }
+
+    /// The pool's factor: the prior, the retired evidence and every keyframe's, less the one
+    /// left out for its own adjustment; 1 without the setting.
+    #[test]
+    fn the_pool_adds_the_evidence_of_its_keyframes_and_the_retired() {
+        let mut pool = KeyframePool::new(4);
+        let feats = features(12);
+        let e = Ellipse::new(50.0, 40.0, 10.0, 12.0);
+        pool.reset(&feats, &e, hyp(Euler::default()), model());
+        assert!(pool.add(&feats, &e, hyp(Euler::default()), model(), 3));
+        let ev = |information: f64, log: f64| Evidence {
+            information,
+            weighted: information * log,
+        };
+        pool.frames[1].relief = ev(2.0, -0.5);
+        pool.retired = ev(1.0, -0.2);
+        let mut cfg = BundleAdjust::default();
+        assert_eq!(pool.relief(&cfg), 1.0);
+        cfg.params.relief_sigma = Some(1.0);
+        // Prior (1, 0) + retired (1, -0.2) + keyframe (2, -1.0): 4, mean -0.3.
+        let (log, information) = pool.relief_log(&cfg, None);
+        assert!((information - 4.0).abs() < 1e-12 && (log + 0.3).abs() < 1e-12);
+        assert!((pool.relief(&cfg) - (-0.3f64).exp()).abs() < 1e-12);
+        let (log, information) = pool.relief_log(&cfg, Some(1));
+        assert!((information - 2.0).abs() < 1e-12 && (log + 0.1).abs() < 1e-12);
     }
 
     /// A pool whose second keyframe, of an object half as deep as its model, was adjusted

@@ -145,7 +145,7 @@ pub struct TrackArgs {
     /// Learn over the keyframes' adjustments how much flatter or deeper than its ellipsoid
     /// the object is, with this σ on the factor's log, and lift every fit's features with
     /// it: for objects that are not head-shaped (1 for a vehicle or a box; it costs heads'
-    /// pans). Off by default; see `TrackerConfig::bundle`.
+    /// pans; from 0.001 to 1000). Off by default; see `TrackerConfig::bundle`.
     #[arg(long, value_name = "SIGMA", conflicts_with = "no_bundle")]
     pub relief_sigma: Option<f64>,
     /// Hold the rotation still on frames where nothing measured it, as the paper's random
@@ -783,8 +783,13 @@ pub fn apply_relief_sigma(cfg: &mut TrackerConfig, sigma: Option<f64>) -> anyhow
     let Some(sigma) = sigma else {
         return Ok(());
     };
-    if !(sigma.is_finite() && sigma > 0.0) {
-        bail!("--relief-sigma must be positive and finite, got {sigma}");
+    let range = pftrack::pose::bundle::RELIEF_SIGMA_RANGE;
+    if !range.contains(&sigma) {
+        bail!(
+            "--relief-sigma must lie from {} to {}, got {sigma}",
+            range.start(),
+            range.end()
+        );
     }
     if let Some(b) = cfg.bundle.as_mut() {
         b.params.relief_sigma = Some(sigma);
