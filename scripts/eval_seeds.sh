@@ -25,7 +25,10 @@
 #   --jobs N           runs side by side (default 2), each on one rayon thread
 #   --out DIR          where tracks, reports and logs go (default: a new temporary folder);
 #                      synthetic scenarios are rendered once into DIR/synth and reused
-# Everything after `--` goes to `pftrack track` (e.g. `-- --no-fit-prior`).
+# Everything after `--` goes to `pftrack track` (e.g. `-- --no-fit-prior`). With a settings
+# file (`-- --config FILE.json`), which `track` takes in place of `--seed`, each run gets a
+# copy of the file with its filter seed written in (python3 merges it; the file's own "seed"
+# is replaced).
 #
 # Exits non-zero, naming the runs, when any track or evaluation failed: a summary over the
 # runs that worked would look complete and is not printed.
@@ -118,8 +121,32 @@ run_one() {
         truth=$sdir/truth.csv
         if [ "$filter_seed" = same ]; then fseed=$seed; else fseed=$filter_seed; fi
     fi
-    if RAYON_NUM_THREADS=1 "$bin" track "$input" "${init[@]}" --backend cpu --seed "$fseed" \
-        "${track_args[@]}" --out "$base.csv" >>"$base.log" 2>&1 &&
+    # The seed as a flag, or written into a copy of the settings file given.
+    local args=() seeded=(--seed "$fseed") i a
+    for ((i = 0; i < ${#track_args[@]}; i++)); do
+        a=${track_args[i]}
+        if [ "$a" = --config ] || [[ $a == --config=* ]]; then
+            local file=${a#--config=}
+            if [ "$a" = --config ]; then i=$((i + 1)); file=${track_args[i]:-}; fi
+            python3 - "$file" "$fseed" "$base.config.json" <<'PY' >>"$base.log" 2>&1 ||
+import json, sys
+with open(sys.argv[1]) as f:
+    settings = json.load(f)
+if not isinstance(settings, dict):
+    sys.exit(f"{sys.argv[1]}: the settings are not a JSON object")
+settings["seed"] = int(sys.argv[2])
+with open(sys.argv[3], "w") as f:
+    json.dump(settings, f)
+PY
+                { touch "$base.failed"; return 0; }
+            args+=(--config "$base.config.json")
+            seeded=()
+        else
+            args+=("$a")
+        fi
+    done
+    if RAYON_NUM_THREADS=1 "$bin" track "$input" "${init[@]}" --backend cpu "${seeded[@]}" \
+        "${args[@]}" --out "$base.csv" >>"$base.log" 2>&1 &&
         "$bin" eval "$truth" "$base.csv" "${scored[@]}" >"$base.json" 2>>"$base.log"; then
         :
     else
