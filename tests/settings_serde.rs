@@ -84,12 +84,34 @@ fn a_partial_configuration_takes_the_defaults_for_the_rest() {
     }
 }
 
+/// A mode's name is read in any case, as the command line reads it, and written lowercase.
+#[test]
+fn a_mode_is_read_in_any_case() {
+    for (text, mode) in [
+        (r#"{"mode": "TPE"}"#, Mode::Tpe),
+        (r#"{"mode": "Optimal"}"#, Mode::Optimal),
+        (r#"{"mode": "rls"}"#, Mode::Rls),
+        (r#"{"mode": "SeA"}"#, Mode::Sea),
+    ] {
+        let cfg: TrackerConfig = serde_json::from_str(text).unwrap();
+        assert_eq!(cfg.mode, mode, "{text}");
+    }
+    let written = serde_json::to_string(&Mode::Tpe).unwrap();
+    assert_eq!(written, "\"tpe\"");
+    // A name in an escaped string (not borrowed from the input) is read too.
+    let cfg: TrackerConfig = serde_json::from_str(r#"{"mode": "\u0074pe"}"#).unwrap();
+    assert_eq!(cfg.mode, Mode::Tpe);
+}
+
 #[test]
 fn a_misspelt_or_mistyped_setting_is_refused_by_name() {
     for (text, named) in [
         (r#"{"sead": 7}"#, "sead"),
         (r#"{"filter": {"particle": 500}}"#, "particle"),
-        (r#"{"mode": "fast"}"#, "fast"),
+        (
+            r#"{"mode": "fast"}"#,
+            "unknown variant `fast`, expected one of `sea`",
+        ),
         (r#"{"seed": "seven"}"#, "seven"),
     ] {
         let err = serde_json::from_str::<TrackerConfig>(text).unwrap_err();

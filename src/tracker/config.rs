@@ -9,8 +9,9 @@ use crate::motion::AbmParams;
 use crate::pose::Consensus;
 use crate::pose::bundle::BundleParams;
 
-/// Which of the paper's systems to run.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
+/// Which of the paper's systems to run. Written lowercase in a settings file, and read in
+/// any case, as on the command line (`"TPE"` is `tpe`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize)]
 #[serde(rename_all = "lowercase")]
 pub enum Mode {
     /// The full system: Sylvester (SEA) rotation in the proposal, rotation in the filtered
@@ -26,8 +27,17 @@ pub enum Mode {
     Rls,
 }
 
+impl<'de> serde::Deserialize<'de> for Mode {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        let name = std::borrow::Cow::<str>::deserialize(d)?;
+        Self::from_name(&name).ok_or_else(|| {
+            serde::de::Error::unknown_variant(&name, &["sea", "optimal", "tpe", "rls"])
+        })
+    }
+}
+
 impl Mode {
-    /// Parses `sea`, `optimal`, `tpe` or `rls`.
+    /// Parses `sea`, `optimal`, `tpe` or `rls`, in any case.
     pub fn from_name(s: &str) -> Option<Self> {
         match s.to_ascii_lowercase().as_str() {
             "sea" => Some(Self::Sea),
