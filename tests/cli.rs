@@ -2435,6 +2435,27 @@ fn cli_track_learns_the_relief_on_request() {
     let plain = run(&[], &csv("plain.csv"));
     let learnt = run(&["--relief-sigma", "1"], &csv("learnt.csv"));
     assert_ne!(plain, learnt);
+    // The factor learnt is said: the box is flatter than the ellipsoid it is lifted on.
+    let said = pftrack_ok(&[
+        "track",
+        s,
+        "--backend",
+        "cpu",
+        "--relief-sigma",
+        "1",
+        "-o",
+        &csv("said.csv"),
+    ]);
+    let said = String::from_utf8_lossy(&said.stderr);
+    let k: f64 = said
+        .lines()
+        .find_map(|l| l.strip_prefix("pftrack: relief learnt: "))
+        .and_then(|l| l.split_whitespace().next())
+        .and_then(|v| v.parse().ok())
+        .unwrap_or_else(|| panic!("no relief said: {said}"));
+    assert!(k > 0.2 && k < 0.9, "relief {k}: {said}");
+    let plain_said = pftrack_ok(&["track", s, "--backend", "cpu", "-o", &csv("p2.csv")]);
+    assert!(!String::from_utf8_lossy(&plain_said.stderr).contains("relief learnt"));
     let file = dir.join("relief.json");
     std::fs::write(&file, r#"{"bundle": {"params": {"relief_sigma": 1.0}}}"#).unwrap();
     let from_file = run(&["--config", file.to_str().unwrap()], &csv("file.csv"));

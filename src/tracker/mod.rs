@@ -730,6 +730,18 @@ impl Tracker {
         &self.cfg
     }
 
+    /// The factor by which the object's relief differs from its ellipsoid's, as the keyframes'
+    /// adjustments found it so far and the fits now lift with it: below 1 for an object
+    /// flatter than its model (the synthetic box reads about 0.5), above 1 for a deeper one.
+    /// 1 unless the relief is learnt ([`BundleAdjust::params`]'s `relief_sigma`), and until a
+    /// keyframe has been adjusted; a start forgets it.
+    pub fn relief(&self) -> f64 {
+        self.cfg
+            .bundle
+            .as_ref()
+            .map_or(1.0, |b| self.keyframes.relief(b))
+    }
+
     /// The gain per channel (R, G, B) undone on the last frame: the light it was taken in
     /// over the light of the last start, as far as the changes of light taken and the light
     /// measured since tell ([`TrackerConfig::exposure_jump`]). 1 in every channel after a
@@ -1507,11 +1519,7 @@ impl Tracker {
             max_step: self.cfg.max_rotation_step,
             prior: self.cfg.fit_prior(),
             anchor_refit: self.cfg.anchor_refit,
-            relief: self
-                .cfg
-                .bundle
-                .as_ref()
-                .map_or(1.0, |b| self.keyframes.relief(b)),
+            relief: self.relief(),
         }
     }
 

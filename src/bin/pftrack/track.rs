@@ -1209,6 +1209,16 @@ pub fn run(mut a: TrackArgs) -> anyhow::Result<()> {
             .map(|p| format!(", poses in {}", p.display()))
             .unwrap_or_default()
     );
+    if tracker
+        .config()
+        .bundle
+        .is_some_and(|b| b.params.relief_sigma.is_some())
+    {
+        errln!(
+            "pftrack: relief learnt: {:.2} times the ellipsoid's",
+            tracker.relief()
+        );
+    }
     // ffmpeg ends a truncated or damaged video with success: the track is of what it decoded.
     if let Some(short) = source.shortfall() {
         errln!("pftrack: warning: {short}");
