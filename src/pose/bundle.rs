@@ -253,8 +253,9 @@ pub fn refine(
     }
     let mut z: Vec<f64> = x0.iter().map(|x| x.z).collect();
     let prior = DepthPrior::new(&z, params);
-    // The unknowns the depths are eliminated onto: 6 per view, then the log-relief.
-    let nr = 6 * nv + usize::from(prior.relief.is_some());
+    // The unknowns the depths are eliminated onto: 6 per view, then the log-relief at `iu`.
+    let iu = 6 * nv;
+    let nr = iu + usize::from(prior.relief.is_some());
     let mut u = 0.0;
     let cost = |views: &[BundleView], z: &[f64], u: f64| -> f64 {
         let mut c = 0.0;
@@ -288,7 +289,7 @@ pub fn refine(
             bz: vec![0.0; np],
             hpz: DMatrix::<f64>::zeros(nr, np),
         };
-        prior.add_to(&mut n, z, u, 6 * nv);
+        prior.add_to(&mut n, z, u, iu);
         for (i, v) in views.iter().enumerate() {
             for (j, q) in &v.seen {
                 let x = on_ray(&x0[*j], z[*j], camera, key_centre);
@@ -354,8 +355,8 @@ pub fn refine(
                 v.centre += Vector2::new(dp[o + 4], dp[o + 5]);
             }
             let tz: Vec<f64> = z.iter().zip(&dz).map(|(a, b)| a + b).collect();
-            let tu = if nr > 6 * nv {
-                u + dp[6 * nv].clamp(-0.5, 0.5)
+            let tu = if prior.relief.is_some() {
+                u + dp[iu].clamp(-0.5, 0.5)
             } else {
                 u
             };
@@ -386,8 +387,8 @@ pub fn refine(
         let n = normal(views, &z, u);
         let s = n.reduced(0.0, 0.0)?.0.cholesky()?;
         let mut e = DVector::<f64>::zeros(nr);
-        e[6 * nv] = 1.0;
-        let variance = s.solve(&e)[6 * nv];
+        e[iu] = 1.0;
+        let variance = s.solve(&e)[iu];
         (variance.is_finite() && variance > 0.0).then_some(Relief { log: u, variance })
     });
     Ok(Adjusted {

@@ -718,9 +718,8 @@ mod tests {
     }
 
     /// The anchor's features on a 6 x 5 grid inside its ellipse, and the same features seen
-    /// after the object (the anchor's ellipsoid) turned by `turn`, in place.
-    /// The anchor's features and theirs on an object of `relief` times its model's relief
-    /// turned by `turn` (weak perspective).
+    /// after the object (the anchor's ellipsoid, its relief scaled by `relief`) turned by
+    /// `turn`, in place (weak perspective).
     fn anchor_and_turned(turn: &Matrix3<f64>, relief: f64) -> (Features, Features) {
         let m = model();
         let p: Vec<[f64; 2]> = (0..30)
@@ -737,6 +736,28 @@ mod tests {
             })
             .collect();
         (features_at(&p, 8), features_at(&q, 8))
+    }
+
+    /// A fit from `prev` under weak perspective, held by a motion prior and a 20-degree step
+    /// bound, at least 10 inliers within 3 px, no anchor refit, on the model's relief.
+    fn context<'a>(prev: &'a Hypothesis, matching: &'a MatchParams) -> FitContext<'a> {
+        FitContext {
+            prev,
+            shift: Vector2::zeros(),
+            camera: None,
+            matching,
+            min_inliers: 10,
+            max_residual: 3.0,
+            max_step: 20f64.to_radians(),
+            prior: Some(MotionPrior {
+                mean: Matrix3::identity(),
+                sigma: [0.05; 3],
+                pixel_sigma: 1.0,
+                centre_sigma: None,
+            }),
+            anchor_refit: None,
+            relief: 1.0,
+        }
     }
 
     /// Keypoints at `pts`, the `i`-th with every descriptor entry `step · i`.
@@ -766,17 +787,12 @@ mod tests {
         let prev = hyp(Euler::default());
         let matching = MatchParams::default();
         let error = |relief| {
+            // Free: no prior, any step.
             let ctx = FitContext {
-                prev: &prev,
-                shift: Vector2::zeros(),
-                camera: None,
-                matching: &matching,
-                min_inliers: 10,
-                max_residual: 3.0,
                 max_step: std::f64::consts::PI,
                 prior: None,
-                anchor_refit: None,
                 relief,
+                ..context(&prev, &matching)
             };
             pool.best_fit(&now, &ctx, 3, 1.0).map_or(180.0, |f| {
                 angle_between(&f.placed().rot, &turn).to_degrees()
@@ -800,21 +816,8 @@ mod tests {
         let prev = hyp(Euler::default());
         let matching = MatchParams::default();
         let ctx = |anchor_refit| FitContext {
-            prev: &prev,
-            shift: Vector2::zeros(),
-            camera: None,
-            matching: &matching,
-            min_inliers: 10,
-            max_residual: 3.0,
-            max_step: 20f64.to_radians(),
-            prior: Some(MotionPrior {
-                mean: Matrix3::identity(),
-                sigma: [0.05; 3],
-                pixel_sigma: 1.0,
-                centre_sigma: None,
-            }),
             anchor_refit,
-            relief: 1.0,
+            ..context(&prev, &matching)
         };
         // Held by the prior, the fit stays near the previous estimate, the turn taken up by
         // translation and scale within a pixel of residual.
