@@ -861,8 +861,9 @@ pub struct BundleAdjust {
     /// not head-shaped: on the box `car` (scenario seeds 0-11, filter seed 0, 2026-12-07) the
     /// whole rotation's RMSE went from 9.9 to 7.8 degrees and the pan's from 9.0 to 5.5 (its
     /// gain 0.74 to 0.92), but the tilt's from 4.3 to 6.3; on the heads the factors found
-    /// scatter by ±20 % between adjustments, and `pan`'s pan went from 2.3 to 3.7 degrees. So
-    /// it is off by default. Figures: `docs/measurements.md`, under "A relief learnt over the
+    /// sit 0-40 % above the truth (the rotation's random walk between views makes a deeper
+    /// relief, and so smaller turns, cheaper), and `pan`'s pan went from 2.3 to 3.7 degrees.
+    /// So it is off by default. Figures: `docs/measurements.md`, under "A relief learnt over the
     /// keyframes".
     pub params: BundleParams,
     /// Fewest views of a keyframe before it is adjusted; 7. Fewer views do not pin the
