@@ -20,6 +20,8 @@
 #   --filter-seed K    synth only: the filter seed of every run (default 0); "same" uses
 #                      each scenario's own seed
 #   --scenarios "..."  synth only (default: nod pan roll combo depth car)
+#   --size WxH         synth only: the frame size the scenarios are rendered at (default:
+#                      synth's, 160x120); their renders go to DIR/synth/NAME-SEED-WxH
 #   --sequences "..."  real and tre only (default: girl car4)
 #   --data DIR         real footage (default: ../shared/data beside the repository)
 #   --jobs N           runs side by side (default 2), each on one rayon thread
@@ -48,6 +50,7 @@ scenarios="nod pan roll combo depth car"
 sequences="girl car4"
 data=$root/../shared/data
 jobs=2
+size=""
 segments=20
 out=""
 track_args=()
@@ -58,6 +61,7 @@ while [ $# -gt 0 ]; do
         --filter-seed) filter_seed=${2:?--filter-seed needs a value}; shift 2;;
         --scenarios) scenarios=${2:?--scenarios needs a list}; shift 2;;
         --sequences) sequences=${2:?--sequences needs a list}; shift 2;;
+        --size) size=${2:?--size needs WxH}; shift 2;;
         --data) data=${2:?--data needs a folder}; shift 2;;
         --jobs) jobs=${2:?--jobs needs a number}; shift 2;;
         --segments) segments=${2:?--segments needs a number}; shift 2;;
@@ -70,6 +74,10 @@ done
 [[ $jobs =~ ^[1-9][0-9]*$ ]] || die "--jobs must be a positive whole number, got '$jobs'"
 [[ $segments =~ ^[1-9][0-9]*$ ]] || die "--segments must be a positive whole number, got '$segments'"
 [[ $filter_seed =~ ^([0-9]+|same)$ ]] || die "--filter-seed must be a number or 'same'"
+if [ -n "$size" ]; then
+    [ "$mode" = synth ] || die "--size is for synth (the real footage has its own size)"
+    [[ $size =~ ^[0-9]+x[0-9]+$ ]] || die "--size must be WIDTHxHEIGHT, got '$size'"
+fi
 if [ -z "$seeds" ]; then
     case $mode in real) seeds=0-15;; synth) seeds=0-11;; tre) seeds=0-3;; esac
 fi
@@ -111,9 +119,10 @@ run_one() {
             scored+=(--segment)
         fi
     else
-        local sdir=$out/synth/$name-$seed
+        local sdir=$out/synth/$name-$seed${size:+-$size}
         if [ ! -f "$sdir/truth.csv" ]; then
-            "$bin" synth "$sdir" --scenario "$name" --seed "$seed" >"$base.log" 2>&1 ||
+            "$bin" synth "$sdir" --scenario "$name" --seed "$seed" ${size:+--size "$size"} \
+                >"$base.log" 2>&1 ||
                 { touch "$base.failed"; return 0; }
         fi
         input=$sdir/frames
@@ -154,7 +163,7 @@ PY
     fi
 }
 export -f run_one
-export mode bin out data filter_seed segments
+export mode bin out data filter_seed segments size
 names=$sequences
 [ "$mode" = synth ] && names=$scenarios
 # The runs' names: NAME-SEED, or NAME-SEED-SEGMENT with tre.
@@ -231,7 +240,7 @@ elif [ "$mode" = real ]; then
         printf '       per seed: %s\n' "$(for v in $per; do printf '%.3f ' "$v"; done)"
     done
 else
-    echo "angle RMSE in degrees, mean over scenario seeds $seeds (filter seed $filter_seed);"
+    echo "angle RMSE in degrees, mean over scenario seeds $seeds (filter seed $filter_seed${size:+, rendered at $size});"
     echo "gain: slope of the estimate against the truth per axis, mean over the seeds where the truth turns"
     echo "turn: RMSE of the whole rotation's error (the angle of R_est R_truth^T), mean over the seeds"
     printf '%-6s %7s %7s %7s %7s %10s %5s %8s %7s %7s %7s\n' scenario rx ry rz turn centre_px lost \
