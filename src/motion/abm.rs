@@ -621,142 +621,223 @@ pub fn block_match(
     if !region.is_valid() {
         return Err(MotionError::InvalidRegion);
     }
-    let (fw, fh) = (prev.width as i64, prev.height as i64);
-    let bb = region.bounding_box();
-    // Pixel indices whose centres may lie inside the ellipse; far-away regions are cut off
-    // before any allocation (the bounds are clamped into a range around the frame).
-    let lim = |v: f64, hi: i64| -> i64 { v.clamp(-1.0, hi as f64 + 1.0) as i64 };
-    let ix0 = lim(bb.x.ceil(), fw);
-    let iy0 = lim(bb.y.ceil(), fh);
-    let ix1 = lim((bb.x + bb.w).floor() + 1.0, fw);
-    let iy1 = lim((bb.y + bb.h).floor() + 1.0, fh);
-    if ix1 <= 0 || iy1 <= 0 || ix0 >= fw || iy0 >= fh {
-        return Err(MotionError::RegionOutside);
-    }
-    // The grid is anchored at the (unclipped) bounding box so clipping does not shift it.
-    let bs = params.block_size as i64;
-    let gx0 = bb.x.ceil().max(-1e12) as i64;
-    let gy0 = bb.y.ceil().max(-1e12) as i64;
-    let first = |g0: i64, lo: i64| -> i64 {
-        if g0 >= lo {
-            g0
-        } else {
-            g0 + ((lo - g0) / bs) * bs
+    let grid = Grid::new(region, params, prev.width, prev.height)?;
+    let mut blocks = grid.match_blocks(prev, cur, region, params);
+    let median = reject_outliers(&mut blocks, region, params);
+    mark_boundary(&mut blocks, &grid);
+    Ok(fit_motion(blocks, median, region, params))
+}
+
+/// The region's first blocks: a grid of `block_size` cells anchored at the region's
+/// (unclipped) bounding box, those whose centre lies inside the ellipse, clipped to the frame;
+/// and the extent of the pixels the region may cover.
+struct Grid {
+    /// The first blocks, last to be matched first (a stack).
+    cells: Vec<Cell>,
+    /// Pixel indices whose centres may lie inside the ellipse: `ix0..ix1`, `iy0..iy1`.
+    ix0: i64,
+    iy0: i64,
+    ix1: i64,
+    iy1: i64,
+    /// The grid's anchor.
+    gx0: i64,
+    gy0: i64,
+    /// The cells' side.
+    bs: i64,
+}
+
+impl Grid {
+    /// The grid of `region` in a frame `width` x `height`: [`MotionError::RegionOutside`]
+    /// where no block lies in the frame, [`MotionError::RegionTooSmall`] where none fits a
+    /// region inside it.
+    fn new(
+        region: &Ellipse,
+        params: &AbmParams,
+        width: u32,
+        height: u32,
+    ) -> Result<Self, MotionError> {
+        let (fw, fh) = (i64::from(width), i64::from(height));
+        let bb = region.bounding_box();
+        // Pixel indices whose centres may lie inside the ellipse; far-away regions are cut
+        // off before any allocation (the bounds are clamped into a range around the frame).
+        let lim = |v: f64, hi: i64| -> i64 { v.clamp(-1.0, hi as f64 + 1.0) as i64 };
+        let ix0 = lim(bb.x.ceil(), fw);
+        let iy0 = lim(bb.y.ceil(), fh);
+        let ix1 = lim((bb.x + bb.w).floor() + 1.0, fw);
+        let iy1 = lim((bb.y + bb.h).floor() + 1.0, fh);
+        if ix1 <= 0 || iy1 <= 0 || ix0 >= fw || iy0 >= fh {
+            return Err(MotionError::RegionOutside);
         }
-    };
-    let min_b = params.min_block as i64;
-    let inside = |c: &Cell| {
-        region.contains(
-            c.x as f64 + (c.w as f64 - 1.0) / 2.0,
-            c.y as f64 + (c.h as f64 - 1.0) / 2.0,
-        )
-    };
-    let mut stack: Vec<Cell> = Vec::new();
-    let mut gy = first(gy0, 0);
-    while gy < iy1.min(fh) {
-        let mut gx = first(gx0, 0);
-        while gx < ix1.min(fw) {
-            let full = Cell {
-                x: gx,
-                y: gy,
-                w: bs,
-                h: bs,
-            };
-            // Keep when the full cell's centre is inside the ellipse, then clip to frame.
-            if inside(&full) {
-                let x0 = gx.max(0);
-                let y0 = gy.max(0);
-                let x1 = (gx + bs).min(fw);
-                let y1 = (gy + bs).min(fh);
-                if x1 - x0 >= min_b && y1 - y0 >= min_b {
-                    stack.push(Cell {
-                        x: x0,
-                        y: y0,
-                        w: x1 - x0,
-                        h: y1 - y0,
-                    });
+        // The grid is anchored at the (unclipped) bounding box so clipping does not shift it.
+        let bs = params.block_size as i64;
+        let gx0 = bb.x.ceil().max(-1e12) as i64;
+        let gy0 = bb.y.ceil().max(-1e12) as i64;
+        let first = |g0: i64, lo: i64| -> i64 {
+            if g0 >= lo {
+                g0
+            } else {
+                g0 + ((lo - g0) / bs) * bs
+            }
+        };
+        let min_b = params.min_block as i64;
+        let mut cells: Vec<Cell> = Vec::new();
+        let mut gy = first(gy0, 0);
+        while gy < iy1.min(fh) {
+            let mut gx = first(gx0, 0);
+            while gx < ix1.min(fw) {
+                let full = Cell {
+                    x: gx,
+                    y: gy,
+                    w: bs,
+                    h: bs,
+                };
+                // Keep when the full cell's centre is inside the ellipse, then clip to frame.
+                if full.inside(region) {
+                    let x0 = gx.max(0);
+                    let y0 = gy.max(0);
+                    let x1 = (gx + bs).min(fw);
+                    let y1 = (gy + bs).min(fh);
+                    if x1 - x0 >= min_b && y1 - y0 >= min_b {
+                        cells.push(Cell {
+                            x: x0,
+                            y: y0,
+                            w: x1 - x0,
+                            h: y1 - y0,
+                        });
+                    }
                 }
+                gx += bs;
             }
-            gx += bs;
+            gy += bs;
         }
-        gy += bs;
-    }
-    if stack.is_empty() {
-        return Err(if region.centre_inside(prev.width, prev.height) {
-            MotionError::RegionTooSmall
-        } else {
-            MotionError::RegionOutside
-        });
-    }
-    stack.reverse(); // process in raster order (stack pops from the end)
-    let r = params.search_radius as i64;
-    let (wx0, wy0) = (ix0.min(gx0.max(0)), iy0.min(gy0.max(0)));
-    let prev_win = Window::new(prev, wx0, wy0, ix1 + bs, iy1 + bs);
-    let cur_win = Window::new(cur, wx0 - r, wy0 - r, ix1 + bs + r, iy1 + bs + r);
-
-    let mut blocks: Vec<BlockMatch> = Vec::new();
-    let mut scratch = Scratch::default();
-    let mut hint = (0i64, 0i64);
-    while let Some(c) = stack.pop() {
-        let (dx, dy, s, status) = match_cell(&c, &prev_win, &cur_win, params, &mut scratch, hint);
-        if status == BlockStatus::Matched {
-            hint = (dx as i64, dy as i64);
+        if cells.is_empty() {
+            return Err(if region.centre_inside(width, height) {
+                MotionError::RegionTooSmall
+            } else {
+                MotionError::RegionOutside
+            });
         }
-        let can_split = c.w / 2 >= min_b && c.h / 2 >= min_b;
-        if status != BlockStatus::Matched && status != BlockStatus::NoRoom && can_split {
-            let (w1, h1) = (c.w / 2, c.h / 2);
-            let kids = [
-                Cell {
-                    x: c.x,
-                    y: c.y,
-                    w: w1,
-                    h: h1,
-                },
-                Cell {
-                    x: c.x + w1,
-                    y: c.y,
-                    w: c.w - w1,
-                    h: h1,
-                },
-                Cell {
-                    x: c.x,
-                    y: c.y + h1,
-                    w: w1,
-                    h: c.h - h1,
-                },
-                Cell {
-                    x: c.x + w1,
-                    y: c.y + h1,
-                    w: c.w - w1,
-                    h: c.h - h1,
-                },
-            ];
-            // Push in reverse so they pop in raster order.
-            for k in kids.iter().rev().filter(|k| inside(k)) {
-                stack.push(*k);
-            }
-            continue;
-        }
-        blocks.push(BlockMatch {
-            x: c.x as i32,
-            y: c.y as i32,
-            w: c.w as u32,
-            h: c.h as u32,
-            dx,
-            dy,
-            sad: s,
-            status,
-            boundary: false,
-        });
+        cells.reverse(); // process in raster order (a stack pops from the end)
+        Ok(Self {
+            cells,
+            ix0,
+            iy0,
+            ix1,
+            iy1,
+            gx0,
+            gy0,
+            bs,
+        })
     }
 
-    // Outliers: displacement too far from the median for a similarity within the limits.
-    let matched: Vec<[f64; 2]> = blocks
-        .iter()
-        .filter(|b| b.status == BlockStatus::Matched)
-        .map(|b| [b.dx as f64, b.dy as f64])
-        .collect();
-    let med0 = median2(&matched);
+    /// The top-left corner of the window of `prev` the blocks are cut from.
+    fn window_origin(&self) -> (i64, i64) {
+        (self.ix0.min(self.gx0.max(0)), self.iy0.min(self.gy0.max(0)))
+    }
+
+    /// Matches the grid's blocks into `cur`, in raster order, splitting a block whose match is
+    /// poor or ambiguous into four (those of them centred in the region) while they stay at
+    /// least `min_block` wide.
+    fn match_blocks(
+        &self,
+        prev: &GrayF32,
+        cur: &GrayF32,
+        region: &Ellipse,
+        params: &AbmParams,
+    ) -> Vec<BlockMatch> {
+        let (bs, r) = (self.bs, params.search_radius as i64);
+        let (wx0, wy0) = self.window_origin();
+        let prev_win = Window::new(prev, wx0, wy0, self.ix1 + bs, self.iy1 + bs);
+        let cur_win = Window::new(cur, wx0 - r, wy0 - r, self.ix1 + bs + r, self.iy1 + bs + r);
+        let min_b = params.min_block as i64;
+        let mut stack = self.cells.clone();
+        let mut blocks: Vec<BlockMatch> = Vec::new();
+        let mut scratch = Scratch::default();
+        let mut hint = (0i64, 0i64);
+        while let Some(c) = stack.pop() {
+            let (dx, dy, s, status) =
+                match_cell(&c, &prev_win, &cur_win, params, &mut scratch, hint);
+            if status == BlockStatus::Matched {
+                hint = (dx as i64, dy as i64);
+            }
+            let can_split = c.w / 2 >= min_b && c.h / 2 >= min_b;
+            if status != BlockStatus::Matched && status != BlockStatus::NoRoom && can_split {
+                // Pushed in reverse so they pop in raster order.
+                for k in c.quarters().iter().rev().filter(|k| k.inside(region)) {
+                    stack.push(*k);
+                }
+                continue;
+            }
+            blocks.push(BlockMatch {
+                x: c.x as i32,
+                y: c.y as i32,
+                w: c.w as u32,
+                h: c.h as u32,
+                dx,
+                dy,
+                sad: s,
+                status,
+                boundary: false,
+            });
+        }
+        blocks
+    }
+}
+
+impl Cell {
+    /// Whether the cell's centre lies inside `region`.
+    fn inside(&self, region: &Ellipse) -> bool {
+        region.contains(
+            self.x as f64 + (self.w as f64 - 1.0) / 2.0,
+            self.y as f64 + (self.h as f64 - 1.0) / 2.0,
+        )
+    }
+
+    /// The cell's four quarters, in raster order (the right and bottom ones take an odd
+    /// pixel).
+    fn quarters(&self) -> [Cell; 4] {
+        let (w1, h1) = (self.w / 2, self.h / 2);
+        [
+            Cell {
+                x: self.x,
+                y: self.y,
+                w: w1,
+                h: h1,
+            },
+            Cell {
+                x: self.x + w1,
+                y: self.y,
+                w: self.w - w1,
+                h: h1,
+            },
+            Cell {
+                x: self.x,
+                y: self.y + h1,
+                w: w1,
+                h: self.h - h1,
+            },
+            Cell {
+                x: self.x + w1,
+                y: self.y + h1,
+                w: self.w - w1,
+                h: self.h - h1,
+            },
+        ]
+    }
+}
+
+/// Marks as outliers the matched blocks whose displacement is too far from the median for a
+/// similarity within [`AbmParams::max_scale_change`] (1.5 px plus the change's share of the
+/// block's distance from the centre), and returns the median displacement of those left.
+fn reject_outliers(blocks: &mut [BlockMatch], region: &Ellipse, params: &AbmParams) -> [f64; 2] {
+    let matched = |blocks: &[BlockMatch]| -> Vec<[f64; 2]> {
+        blocks
+            .iter()
+            .filter(|b| b.status == BlockStatus::Matched)
+            .map(|b| [b.dx as f64, b.dy as f64])
+            .collect()
+    };
+    let med0 = median2(&matched(blocks));
     let ds = params.max_scale_change - 1.0;
     for b in blocks
         .iter_mut()
@@ -769,19 +850,17 @@ pub fn block_match(
             b.status = BlockStatus::Outlier;
         }
     }
-    let inliers: Vec<[f64; 2]> = blocks
-        .iter()
-        .filter(|b| b.status == BlockStatus::Matched)
-        .map(|b| [b.dx as f64, b.dy as f64])
-        .collect();
-    let median = median2(&inliers);
+    median2(&matched(blocks))
+}
 
-    // Boundary blocks: a pixel of the 1-px ring around the block is not covered by any
-    // block of the region (or lies outside the frame).
+/// Flags the boundary blocks: those with a pixel of the 1-px ring around them that no block
+/// of the region covers (or that lies outside the frame).
+fn mark_boundary(blocks: &mut [BlockMatch], grid: &Grid) {
+    let (wx0, wy0) = grid.window_origin();
     let (cx0, cy0) = (wx0 - 1, wy0 - 1);
-    let (cw, ch) = (ix1 + bs + 2 - cx0, iy1 + bs + 2 - cy0);
+    let (cw, ch) = (grid.ix1 + grid.bs + 2 - cx0, grid.iy1 + grid.bs + 2 - cy0);
     let mut cover = vec![false; (cw * ch) as usize];
-    for b in &blocks {
+    for b in blocks.iter() {
         for y in b.y as i64..b.y as i64 + b.h as i64 {
             for x in b.x as i64..b.x as i64 + b.w as i64 {
                 cover[((y - cy0) * cw + (x - cx0)) as usize] = true;
@@ -806,7 +885,18 @@ pub fn block_match(
             || (y0..=y1).any(|y| !covered(x0, y) || !covered(x1, y));
         b.boundary = ring_open;
     }
+}
 
+/// The region's motion from its blocks: ellipses fitted to the matched boundary blocks'
+/// centres before and after give the translation and the scale, checked for plausibility
+/// against `median` (the inliers' median displacement); where that fails, the median
+/// translates the region at its size, with the reason ([`Fallback`]).
+fn fit_motion(
+    blocks: Vec<BlockMatch>,
+    median: [f64; 2],
+    region: &Ellipse,
+    params: &AbmParams,
+) -> AbmResult {
     let total_area: f64 = blocks.iter().map(|b| (b.w * b.h) as f64).sum();
     let matched_area: f64 = blocks
         .iter()
@@ -832,8 +922,8 @@ pub fn block_match(
         median_displacement: median,
         fallback: Some(why),
     };
-    if inliers.is_empty() {
-        return Ok(fallback_result(Fallback::NoMatchedBlocks, blocks));
+    if !blocks.iter().any(|b| b.status == BlockStatus::Matched) {
+        return fallback_result(Fallback::NoMatchedBlocks, blocks);
     }
     let (old_pts, new_pts): (Vec<[f64; 2]>, Vec<[f64; 2]>) = blocks
         .iter()
@@ -844,25 +934,25 @@ pub fn block_match(
         })
         .unzip();
     if old_pts.len() < params.min_fit_blocks {
-        return Ok(fallback_result(Fallback::TooFewBoundaryBlocks, blocks));
+        return fallback_result(Fallback::TooFewBoundaryBlocks, blocks);
     }
     let (fo, fnew) = match (fit_ellipse(&old_pts), fit_ellipse(&new_pts)) {
         (Ok(a), Ok(b)) => (a, b),
-        _ => return Ok(fallback_result(Fallback::DegenerateFit, blocks)),
+        _ => return fallback_result(Fallback::DegenerateFit, blocks),
     };
     let scale = ((fnew.a * fnew.b) / (fo.a * fo.b)).sqrt();
     if !(scale.is_finite()
         && scale <= params.max_scale_change
         && scale >= 1.0 / params.max_scale_change)
     {
-        return Ok(fallback_result(Fallback::ImplausibleScale, blocks));
+        return fallback_result(Fallback::ImplausibleScale, blocks);
     }
     let t = [fnew.cx - fo.cx, fnew.cy - fo.cy];
     let tol = params.max_centre_disagreement + 0.25 * 0.5 * (region.a + region.b);
     if (t[0] - median[0]).hypot(t[1] - median[1]) > tol {
-        return Ok(fallback_result(Fallback::CentreFarOff, blocks));
+        return fallback_result(Fallback::CentreFarOff, blocks);
     }
-    Ok(AbmResult {
+    AbmResult {
         ellipse: Ellipse {
             cx: region.cx + t[0],
             cy: region.cy + t[1],
@@ -876,7 +966,7 @@ pub fn block_match(
         matched_fraction,
         median_displacement: median,
         fallback: None,
-    })
+    }
 }
 
 #[cfg(test)]
