@@ -990,157 +990,16 @@ pub fn run(mut a: TrackArgs) -> anyhow::Result<()> {
         bail!("--max-frames must be at least 1 (the first frame is the initial estimate)");
     }
     let (frames_path, synth_init) = resolve_input(&a.input);
-    let read: Vec<&Path> = [
-        a.config.as_deref(),
-        a.init_file.as_deref(),
-        a.init_truth.as_deref(),
-        synth_init.as_deref(),
-    ]
-    .into_iter()
-    .flatten()
-    .collect();
-    // `-` names standard output elsewhere (`--out -`); frames cannot go there.
-    if a.render.as_deref() == Some(Path::new("-")) {
-        bail!(
-            "--render -: frames go to a folder, not to standard output (./- names a folder called -)"
-        );
-    }
-    crate::paths::track_outputs(&frames_path, &read, a.out.as_deref(), a.render.as_deref())?;
-    if !pftrack::output::video::fps_in_range(a.render_fps) {
-        bail!(
-            "--render-fps {}: a frame rate from {} to {} frames a second",
-            a.render_fps,
-            pftrack::output::video::FPS_RANGE.0,
-            pftrack::output::video::FPS_RANGE.1
-        );
-    }
-    if let Some(v) = a.render_video.as_deref() {
-        if a.out.as_deref().is_some_and(|o| crate::paths::same(v, o)) {
-            bail!(
-                "--out and --render-video both name {}: the poses and the video need places of their own",
-                v.display()
-            );
-        }
-        let mut inputs = vec![frames_path.as_path(), a.input.as_path()];
-        inputs.extend(&read);
-        crate::paths::not_an_input("--render-video", v, &inputs)?;
-        if a.render
-            .as_deref()
-            .is_some_and(|r| crate::paths::same(v, r))
-        {
-            bail!(
-                "--render and --render-video both name {}: the frames and the video need places of their own",
-                v.display()
-            );
-        }
-        // The container and the frame rate too, before any work.
-        VideoWriter::check(v, a.render_fps)?;
-    }
-    // A folder written by `synth` (its `frames` read, with or without its init file): its
-    // ground truth is not read by the track, but is what the track is scored against.
-    let truth = match synth_init.as_deref() {
-        Some(init) => Some(init.with_file_name("truth.csv")),
-        None => (frames_path != a.input).then(|| a.input.join("truth.csv")),
-    };
-    if let (Some(o), Some(truth)) = (a.out.as_deref(), truth)
-        && crate::paths::same(o, &truth)
-    {
-        bail!(
-            "--out {} is the sequence's ground truth: it would be overwritten",
-            o.display()
-        );
-    }
-    let (init_file, truth_pose) = initial_ellipse(&a, synth_init.as_deref())?;
-    let pose = match &a.init_pose {
-        Some(p) => {
-            let v = parse_floats(p, &[3], "--init-pose")?;
-            Euler::from_degrees(v[0], v[1], v[2])
-        }
-        None => truth_pose.unwrap_or_default(),
-    };
-    let init = Init {
-        ellipse: init_file.ellipse,
-        pose,
-    };
-    let camera = if a.weak_perspective {
-        None
-    } else {
-        a.hfov.or(init_file.hfov_deg)
-    };
-    let cfg = match &a.config {
-        Some(path) => {
-            let mut cfg = read_config(path)?;
-            if a.weak_perspective || a.hfov.is_some() || cfg.camera_hfov_deg.is_none() {
-                apply_hfov(&mut cfg, camera)?;
-            }
-            cfg
-        }
-        None => flag_config(&a, camera)?,
-    };
-    // A setting's error names its flag, or the file it came from.
-    match &a.config {
-        // In the file's own terms: JSON's `null` where the library says `None`.
-        Some(p) => cfg.check().map_err(|e| {
-            anyhow::anyhow!(
-                "--config {}: {}",
-                p.display(),
-                e.to_string().replace(" None", " null")
-            )
-        })?,
-        None => cfg
-            .check()
-            .map_err(|e| anyhow::anyhow!(flag_error(&e.to_string())))?,
-    }
-    let backend = a.backend;
-    let resize = a.resize.as_deref().map(frames::parse_size).transpose()?;
-    // Its errors name the input themselves.
-    let mut source = frames::open(&frames_path, &SourceOptions { resize })?;
-    // The start and the poses are in the input's own pixels; the tracker sees the resized
-    // frames (`--resize`). The start is checked before the engine is opened, so a bad one is
-    // the only line printed: first in the input's pixels, as given, then as the tracker will
-    // see it.
-    let ((nw, nh), (w, h)) = (source.native_size(), source.size());
-    let to_frames = Rescale::new((nw, nh), (w, h));
-    init.check(nw, nh)?;
-    let init = Init {
-        ellipse: to_frames.ellipse(&init.ellipse),
-        ..init
-    };
-    let checked = init.check_for(&cfg, w, h);
-    if to_frames.is_identity() {
-        checked?;
-    } else {
-        checked.with_context(|| format!("the start resized to {w}x{h} (--resize)"))?;
-    }
-    // What the frames' layout misleads (interlaced fields, pixels not square), once the
-    // start is known to be good.
-    for caveat in source.caveats() {
-        errln!("pftrack: warning: {caveat}");
-    }
-    let start = a.start_frame;
-    // A long video's frames take a while to pass over (about a millisecond each at 720p):
-    // said on a terminal, so that the wait does not read as a hang.
-    let passing = match start {
-        0 => indicatif::ProgressBar::hidden(),
-        s => spinner(&format!("passing over frames 0 to {}", s - 1)),
-    };
-    let skipped = source.skip_frames(start);
-    passing.finish_and_clear();
-    let skipped = skipped?;
-    let first = match source.next() {
-        Some(f) => f.with_context(|| format!("reading frame {start}"))?,
-        None if start > 0 => bail!(
-            "--start-frame {start}: the input has only {skipped} frame{} (frames 0 to {}){}",
-            if skipped == 1 { "" } else { "s" },
-            skipped.saturating_sub(1),
-            source
-                .shortfall()
-                .map(|s| format!("; {s}"))
-                .unwrap_or_default()
-        ),
-        None => bail!("the input has no frames"),
-    };
-    let (engine, notice) = create_engine(backend)?;
+    check_outputs(&a, &frames_path, synth_init.as_deref())?;
+    let (init, cfg) = configure(&a, synth_init.as_deref())?;
+    let Opened {
+        mut source,
+        first,
+        init,
+        to_frames,
+        start,
+    } = open_at_start(&a, &frames_path, init, &cfg)?;
+    let (engine, notice) = create_engine(a.backend)?;
     if let Some(n) = notice {
         errln!("pftrack: {}", crate::in_cli_terms(&n));
     }
@@ -1151,11 +1010,6 @@ pub fn run(mut a: TrackArgs) -> anyhow::Result<()> {
         .as_deref()
         .map(|p| VideoWriter::create(p, a.render_fps, &frames::FfmpegTools::default()))
         .transpose()?;
-    let camera = match cfg.camera_hfov_deg {
-        Some(h) => format!("camera hfov {h}°"),
-        None => "weak perspective".to_string(),
-    };
-    let mode = cfg.mode;
     let mut tracker = Tracker::with_engine(cfg, engine, &first, init)?;
     // On an error the staging folder is dropped with the frames drawn so far, which would
     // read as a whole track's, as the pose CSV is never moved into place.
@@ -1193,6 +1047,225 @@ pub fn run(mut a: TrackArgs) -> anyhow::Result<()> {
             );
         }
     }
+    report(&a, &tracker, &source, start, written, &video_note);
+    Ok(())
+}
+
+/// Checks, before any work, that the outputs (`--out`, `--render`, `--render-video`) have
+/// places of their own: none an input (the frames, a settings or init file, a synthetic
+/// sequence's truth), none another, the video's container and frame rate usable.
+fn check_outputs(
+    a: &TrackArgs,
+    frames_path: &Path,
+    synth_init: Option<&Path>,
+) -> anyhow::Result<()> {
+    let read: Vec<&Path> = [
+        a.config.as_deref(),
+        a.init_file.as_deref(),
+        a.init_truth.as_deref(),
+        synth_init,
+    ]
+    .into_iter()
+    .flatten()
+    .collect();
+    // `-` names standard output elsewhere (`--out -`); frames cannot go there.
+    if a.render.as_deref() == Some(Path::new("-")) {
+        bail!(
+            "--render -: frames go to a folder, not to standard output (./- names a folder called -)"
+        );
+    }
+    crate::paths::track_outputs(frames_path, &read, a.out.as_deref(), a.render.as_deref())?;
+    if !pftrack::output::video::fps_in_range(a.render_fps) {
+        bail!(
+            "--render-fps {}: a frame rate from {} to {} frames a second",
+            a.render_fps,
+            pftrack::output::video::FPS_RANGE.0,
+            pftrack::output::video::FPS_RANGE.1
+        );
+    }
+    if let Some(v) = a.render_video.as_deref() {
+        if a.out.as_deref().is_some_and(|o| crate::paths::same(v, o)) {
+            bail!(
+                "--out and --render-video both name {}: the poses and the video need places of their own",
+                v.display()
+            );
+        }
+        let mut inputs = vec![frames_path, a.input.as_path()];
+        inputs.extend(&read);
+        crate::paths::not_an_input("--render-video", v, &inputs)?;
+        if a.render
+            .as_deref()
+            .is_some_and(|r| crate::paths::same(v, r))
+        {
+            bail!(
+                "--render and --render-video both name {}: the frames and the video need places of their own",
+                v.display()
+            );
+        }
+        // The container and the frame rate too, before any work.
+        VideoWriter::check(v, a.render_fps)?;
+    }
+    // A folder written by `synth` (its `frames` read, with or without its init file): its
+    // ground truth is not read by the track, but is what the track is scored against.
+    let truth = match synth_init {
+        Some(init) => Some(init.with_file_name("truth.csv")),
+        None => (frames_path != a.input).then(|| a.input.join("truth.csv")),
+    };
+    if let (Some(o), Some(truth)) = (a.out.as_deref(), truth)
+        && crate::paths::same(o, &truth)
+    {
+        bail!(
+            "--out {} is the sequence's ground truth: it would be overwritten",
+            o.display()
+        );
+    }
+    Ok(())
+}
+
+/// The start (`--init-*`, `--init-pose`) and the tracker's settings (`--config`, or the
+/// flags), checked, each error naming the flag or the file it came from.
+fn configure(a: &TrackArgs, synth_init: Option<&Path>) -> anyhow::Result<(Init, TrackerConfig)> {
+    let (init_file, truth_pose) = initial_ellipse(a, synth_init)?;
+    let pose = match &a.init_pose {
+        Some(p) => {
+            let v = parse_floats(p, &[3], "--init-pose")?;
+            Euler::from_degrees(v[0], v[1], v[2])
+        }
+        None => truth_pose.unwrap_or_default(),
+    };
+    let init = Init {
+        ellipse: init_file.ellipse,
+        pose,
+    };
+    let camera = if a.weak_perspective {
+        None
+    } else {
+        a.hfov.or(init_file.hfov_deg)
+    };
+    let cfg = match &a.config {
+        Some(path) => {
+            let mut cfg = read_config(path)?;
+            if a.weak_perspective || a.hfov.is_some() || cfg.camera_hfov_deg.is_none() {
+                apply_hfov(&mut cfg, camera)?;
+            }
+            cfg
+        }
+        None => flag_config(a, camera)?,
+    };
+    // A setting's error names its flag, or the file it came from.
+    match &a.config {
+        // In the file's own terms: JSON's `null` where the library says `None`.
+        Some(p) => cfg.check().map_err(|e| {
+            anyhow::anyhow!(
+                "--config {}: {}",
+                p.display(),
+                e.to_string().replace(" None", " null")
+            )
+        })?,
+        None => cfg
+            .check()
+            .map_err(|e| anyhow::anyhow!(flag_error(&e.to_string())))?,
+    }
+    Ok((init, cfg))
+}
+
+/// The input opened and passed over to its start frame, and the start checked against it.
+struct Opened {
+    /// The frames after the first.
+    source: frames::FrameSource,
+    /// The frame to start on.
+    first: image::RgbImage,
+    /// The start, in the tracked frames' pixels.
+    init: Init,
+    /// The input's pixels to the tracked frames' (`--resize`).
+    to_frames: Rescale,
+    /// The first frame's index in the input (`--start-frame`).
+    start: usize,
+}
+
+/// Opens the input, checks the start against it (first in the input's pixels, as given, then
+/// as the tracker will see the resized frames), says what its layout misleads, and passes
+/// over the frames before `--start-frame`. The start is checked before the engine is opened,
+/// so a bad one is the only line printed.
+fn open_at_start(
+    a: &TrackArgs,
+    frames_path: &Path,
+    init: Init,
+    cfg: &TrackerConfig,
+) -> anyhow::Result<Opened> {
+    let resize = a.resize.as_deref().map(frames::parse_size).transpose()?;
+    // Its errors name the input themselves.
+    let mut source = frames::open(frames_path, &SourceOptions { resize })?;
+    // The start and the poses are in the input's own pixels; the tracker sees the resized
+    // frames (`--resize`). The start is checked before the engine is opened, so a bad one is
+    // the only line printed: first in the input's pixels, as given, then as the tracker will
+    // see it.
+    let ((nw, nh), (w, h)) = (source.native_size(), source.size());
+    let to_frames = Rescale::new((nw, nh), (w, h));
+    init.check(nw, nh)?;
+    let init = Init {
+        ellipse: to_frames.ellipse(&init.ellipse),
+        ..init
+    };
+    let checked = init.check_for(cfg, w, h);
+    if to_frames.is_identity() {
+        checked?;
+    } else {
+        checked.with_context(|| format!("the start resized to {w}x{h} (--resize)"))?;
+    }
+    // What the frames' layout misleads (interlaced fields, pixels not square), once the
+    // start is known to be good.
+    for caveat in source.caveats() {
+        errln!("pftrack: warning: {caveat}");
+    }
+    let start = a.start_frame;
+    // A long video's frames take a while to pass over (about a millisecond each at 720p):
+    // said on a terminal, so that the wait does not read as a hang.
+    let passing = match start {
+        0 => indicatif::ProgressBar::hidden(),
+        s => spinner(&format!("passing over frames 0 to {}", s - 1)),
+    };
+    let skipped = source.skip_frames(start);
+    passing.finish_and_clear();
+    let skipped = skipped?;
+    let first = match source.next() {
+        Some(f) => f.with_context(|| format!("reading frame {start}"))?,
+        None if start > 0 => bail!(
+            "--start-frame {start}: the input has only {skipped} frame{} (frames 0 to {}){}",
+            if skipped == 1 { "" } else { "s" },
+            skipped.saturating_sub(1),
+            source
+                .shortfall()
+                .map(|s| format!("; {s}"))
+                .unwrap_or_default()
+        ),
+        None => bail!("the input has no frames"),
+    };
+    Ok(Opened {
+        source,
+        first,
+        init,
+        to_frames,
+        start,
+    })
+}
+
+/// What `track` says at its end: what was tracked and where it went, the relief learnt, and
+/// the warnings of the whole track (a short video, frames relit, frames without SIFT).
+fn report(
+    a: &TrackArgs,
+    tracker: &Tracker,
+    source: &frames::FrameSource,
+    start: usize,
+    written: usize,
+    video_note: &str,
+) {
+    let cfg = tracker.config();
+    let camera = match cfg.camera_hfov_deg {
+        Some(h) => format!("camera hfov {h}°"),
+        None => "weak perspective".to_string(),
+    };
+    let mode = cfg.mode;
     errln!(
         "pftrack: tracked {written} frame{}{} with {} ({}, {}){}{video_note}",
         if written == 1 { "" } else { "s" },
@@ -1246,7 +1319,6 @@ pub fn run(mut a: TrackArgs) -> anyhow::Result<()> {
             tracker.config().sift.max_scale_space_bytes
         );
     }
-    Ok(())
 }
 
 /// Where `--render` draws its frames until the track is done: a hidden folder inside the
