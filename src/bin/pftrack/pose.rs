@@ -254,55 +254,12 @@ pub fn run(a: PoseArgs) -> anyhow::Result<()> {
     // that octave (saying so); too large even without it, the error says what to do.
     let (ga, gb) = (GrayF32::from_rgb(&ia), GrayF32::from_rgb(&ib));
     let (w, h) = (ga.width as usize, ga.height as usize);
-    let mut params = SiftParams::default();
-    if let Err(FeatureError::TooLarge { bytes: with, .. }) = params.check_window(w, h) {
-        params.upsample = false;
-        let without = params.scale_space_bytes(w, h);
-        if let Err(FeatureError::TooLarge { limit, .. }) = params.check_window(w, h) {
-            bail!(
-                "SIFT on {w}x{h} images needs about {:.1} GB for its scale space even without \
-                 the upsampled first octave, more than the {:.1} GB allowed: scale them down",
-                without as f64 / 1e9,
-                limit as f64 / 1e9
-            );
-        }
-        errln!(
-            "pftrack: note: SIFT's upsampled first octave on {w}x{h} images would need about \
-             {:.1} GB; detecting without it (about {:.1} GB)",
-            with as f64 / 1e9,
-            without as f64 / 1e9
-        );
-    }
-    let sift = Sift::new(params);
+    let sift = Sift::new(sift_params(w, h)?);
     let fa = sift.detect(&ga, None)?;
     let fb = sift.detect(&gb, None)?;
-    let mut p = Vec::new();
-    let mut q = Vec::new();
-    for m in match_features(&fa, &fb, &MatchParams::default()) {
-        let (ka, kb) = (&fa.keypoints[m.query], &fb.keypoints[m.train]);
-        if e.contains(ka.x as f64, ka.y as f64) {
-            p.push([ka.x as f64, ka.y as f64]);
-            q.push([kb.x as f64, kb.y as f64]);
-        }
-    }
+    let (p, q) = matches_inside(&fa, &fb, &e);
     let inside = p.len();
-    let (p, q) = match a.reject {
-        Reject::Paper => keep_slope_length(
-            &p,
-            &q,
-            pftrack::features::PAPER_ANGLE_TOL,
-            pftrack::features::PAPER_LENGTH_TOL,
-        ),
-        // Fewer than 3 matches, or points no map fits, are left to the solver's error.
-        Reject::Ransac => {
-            let r = Rls::default();
-            match affine_consensus(&p, &q, r.threshold, r.confidence, r.max_iter, r.seed) {
-                Ok(mask) => select(&p, &q, &mask),
-                Err(_) => (p, q),
-            }
-        }
-        Reject::None => (p, q),
-    };
+    let (p, q) = reject(a.reject, p, q);
     // The paper's rule keeps the matches that move alike: a turn in the image plane about
     // the object's centre moves them in every direction, and where it left too few to solve
     // from (none, or three collinear survivors of the synthetic `roll`), the solver's error
@@ -368,116 +325,214 @@ pub fn run(a: PoseArgs) -> anyhow::Result<()> {
         outln!("{name}: tilt {x:.2} pan {y:.2} roll {z:.2} (degrees)")
     };
     match solved {
-        Solved::Block(kind, i) => {
-            let fit = BlockFit::of(&i, kind, Vector2::new(e.cx, e.cy), &p, &q);
-            match fit.completed_residual {
-                Some(r) => outln!(
-                    "residual {r:.3} px (of the rotation's block; {:.3} px of the unconstrained \
-                     block, which no rotation has)",
-                    i.block.residual
-                )?,
-                None => outln!("residual {:.3} px", i.block.residual)?,
-            }
-            if let Some(r) = fit.sea_unconverged {
-                outln!(
-                    "SEA stopped short of convergence (Newton residual {r:.1e}): its block is \
-                     the best iterate, moved onto a rotation's; `--solver optimal` gives the \
-                     certified minimiser"
-                )?;
-            }
-            if let Some(r) = fit.optimal_better {
-                outln!(
-                    "SEA's block is a stationary point, not the least-squares minimum: \
-                     `--solver optimal` fits the same matches to {r:.3} px"
-                )?;
-            }
-            if let Some(s) = fit.scale {
-                // Within half a permille the line says no more than its three decimals.
-                let effect = if s < 1.0 - 5e-4 {
-                    format!(
-                        ", so a shrink ({:.1} % here) reads as a turn",
-                        100.0 * (1.0 - s)
-                    )
-                } else if s > 1.0 + 5e-4 {
-                    format!(
-                        ", so a growth ({:.1} % here) hides part of a turn",
-                        100.0 * (s - 1.0)
-                    )
-                } else {
-                    ", as the matches show it".to_string()
-                };
-                outln!(
-                    "scale: x{s:.3} by the unconstrained fit (1 for a turn at a constant \
-                     distance); the solvers hold the size constant{effect}"
-                )?;
-            }
-            // Weak perspective cannot tell a tilt and pan from their mirror (the Necker pair):
-            // the branch is the one whose parallax the features show against the object's centre,
-            // as the tracker's TPE mode picks it, with the centre's motion from block matching.
-            match block_match(&ga, &gb, &e, &AbmParams::for_target(&e)) {
-                Ok(m) if m.is_fitted() => {
-                    let offset = fit.motion - Vector2::new(m.translation[0], m.translation[1]);
-                    let chosen = resolve_by_parallax(&i.pair, offset);
-                    let mirror = if chosen == i.pair.a {
-                        i.pair.b
-                    } else {
-                        i.pair.a
-                    };
-                    show("rotation", &chosen)?;
-                    show("its Necker mirror", &mirror)?;
-                    let verdict = branch_verdict(&chosen, offset, fit.translation_noise);
-                    outln!(
-                        "branch: the features move {:.2},{:.2} px against the object's \
-                         block-matched centre (parallax: the nearer surface leads a turn); {verdict}",
-                        offset[0],
-                        offset[1]
-                    )?;
-                }
-                _ => {
-                    show("rotation", &i.pair.a)?;
-                    show("its Necker mirror", &i.pair.b)?;
-                    outln!(
-                        "branch: undecided (block matching found no motion of the object to tell \
-                     it by); the two differ in the signs of tilt and pan"
-                    )?;
-                }
-            }
-        }
+        Solved::Block(kind, i) => print_block(&i, kind, &e, &p, &q, &ga, &gb)?,
         Solved::Essential(r) => show("essential (focal = image width assumed)", &r.rotation)?,
     }
-    if let Some(mut file) = draw {
-        // Scaled up as `track --render` scales small frames (160x120 twice), so that arrows of
-        // a pixel or two can be seen; the ellipse given is drawn in green beneath them.
-        use pftrack::output::{
-            capped_scale, default_scale,
-            draw::{Rect, draw_ellipse, upscale_nearest, upscaled, upscaled_ellipse},
-        };
-        let k = capped_scale(ib.width(), ib.height(), default_scale(ib.width()));
-        let mut img = upscale_nearest(&ib, k);
-        let clip = Rect {
-            x0: 0,
-            y0: 0,
-            x1: i64::from(img.width()),
-            y1: i64::from(img.height()),
-        };
-        let shown = upscaled_ellipse(&e, k);
-        draw_ellipse(
-            &mut img,
-            &shown,
-            f64::from(k),
-            Rgb([40, 220, 40]),
-            None,
-            clip,
-        );
-        let at = |v: [f64; 2]| [upscaled(v[0], k), upscaled(v[1], k)];
-        for (p, q) in p.iter().zip(&q) {
-            arrow(&mut img, at(*p), at(*q), Rgb([255, 40, 40]), 3 * k as usize);
-        }
-        pftrack::output::encode_png(&mut file, &img)?;
-        let path = file.path().to_path_buf();
-        file.commit()?;
-        outln!("matches drawn in {}", path.display())?;
+    if let Some(file) = draw {
+        draw_matches(file, &ib, &e, &p, &q)?;
     }
+    Ok(())
+}
+
+/// SIFT's settings for images `w` x `h`: the defaults, or without the upsampled first octave
+/// (said in a note) where its scale space would pass the budget; an error that says to scale
+/// them down where even that would.
+fn sift_params(w: usize, h: usize) -> anyhow::Result<SiftParams> {
+    let mut params = SiftParams::default();
+    if let Err(FeatureError::TooLarge { bytes: with, .. }) = params.check_window(w, h) {
+        params.upsample = false;
+        let without = params.scale_space_bytes(w, h);
+        if let Err(FeatureError::TooLarge { limit, .. }) = params.check_window(w, h) {
+            bail!(
+                "SIFT on {w}x{h} images needs about {:.1} GB for its scale space even without \
+                 the upsampled first octave, more than the {:.1} GB allowed: scale them down",
+                without as f64 / 1e9,
+                limit as f64 / 1e9
+            );
+        }
+        errln!(
+            "pftrack: note: SIFT's upsampled first octave on {w}x{h} images would need about \
+             {:.1} GB; detecting without it (about {:.1} GB)",
+            with as f64 / 1e9,
+            without as f64 / 1e9
+        );
+    }
+    Ok(params)
+}
+
+/// The matches (Lowe's ratio test and the mutual check) whose first point lies inside the
+/// ellipse `e`: their positions in the first image and in the second.
+fn matches_inside(
+    fa: &pftrack::features::Features,
+    fb: &pftrack::features::Features,
+    e: &Ellipse,
+) -> (Vec<[f64; 2]>, Vec<[f64; 2]>) {
+    let mut p = Vec::new();
+    let mut q = Vec::new();
+    for m in match_features(fa, fb, &MatchParams::default()) {
+        let (ka, kb) = (&fa.keypoints[m.query], &fb.keypoints[m.train]);
+        if e.contains(ka.x as f64, ka.y as f64) {
+            p.push([ka.x as f64, ka.y as f64]);
+            q.push([kb.x as f64, kb.y as f64]);
+        }
+    }
+    (p, q)
+}
+
+/// The matches `rule` keeps: the paper's slope and length rule, an affine RANSAC (all of
+/// them where it finds no consensus), or all.
+fn reject(rule: Reject, p: Vec<[f64; 2]>, q: Vec<[f64; 2]>) -> (Vec<[f64; 2]>, Vec<[f64; 2]>) {
+    match rule {
+        Reject::Paper => keep_slope_length(
+            &p,
+            &q,
+            pftrack::features::PAPER_ANGLE_TOL,
+            pftrack::features::PAPER_LENGTH_TOL,
+        ),
+        // Fewer than 3 matches, or points no map fits, are left to the solver's error.
+        Reject::Ransac => {
+            let r = Rls::default();
+            match affine_consensus(&p, &q, r.threshold, r.confidence, r.max_iter, r.seed) {
+                Ok(mask) => select(&p, &q, &mask),
+                Err(_) => (p, q),
+            }
+        }
+        Reject::None => (p, q),
+    }
+}
+
+/// Prints a block solver's result: its residual, what SEA's iteration left, the scale the
+/// matches show, and the rotation with its Necker mirror, the branch picked by the features'
+/// parallax against the object's block-matched centre (`ga` to `gb`).
+fn print_block(
+    i: &pftrack::pose::InterFrame,
+    kind: SolverKind,
+    e: &Ellipse,
+    p: &[[f64; 2]],
+    q: &[[f64; 2]],
+    ga: &GrayF32,
+    gb: &GrayF32,
+) -> anyhow::Result<()> {
+    let show = |name: &str, r: &nalgebra::Matrix3<f64>| {
+        let [x, y, z] = Euler::from_matrix(r).to_degrees();
+        outln!("{name}: tilt {x:.2} pan {y:.2} roll {z:.2} (degrees)")
+    };
+    let fit = BlockFit::of(i, kind, Vector2::new(e.cx, e.cy), p, q);
+    match fit.completed_residual {
+        Some(r) => outln!(
+            "residual {r:.3} px (of the rotation's block; {:.3} px of the unconstrained \
+             block, which no rotation has)",
+            i.block.residual
+        )?,
+        None => outln!("residual {:.3} px", i.block.residual)?,
+    }
+    if let Some(r) = fit.sea_unconverged {
+        outln!(
+            "SEA stopped short of convergence (Newton residual {r:.1e}): its block is \
+             the best iterate, moved onto a rotation's; `--solver optimal` gives the \
+             certified minimiser"
+        )?;
+    }
+    if let Some(r) = fit.optimal_better {
+        outln!(
+            "SEA's block is a stationary point, not the least-squares minimum: \
+             `--solver optimal` fits the same matches to {r:.3} px"
+        )?;
+    }
+    if let Some(s) = fit.scale {
+        // Within half a permille the line says no more than its three decimals.
+        let effect = if s < 1.0 - 5e-4 {
+            format!(
+                ", so a shrink ({:.1} % here) reads as a turn",
+                100.0 * (1.0 - s)
+            )
+        } else if s > 1.0 + 5e-4 {
+            format!(
+                ", so a growth ({:.1} % here) hides part of a turn",
+                100.0 * (s - 1.0)
+            )
+        } else {
+            ", as the matches show it".to_string()
+        };
+        outln!(
+            "scale: x{s:.3} by the unconstrained fit (1 for a turn at a constant \
+             distance); the solvers hold the size constant{effect}"
+        )?;
+    }
+    // Weak perspective cannot tell a tilt and pan from their mirror (the Necker pair):
+    // the branch is the one whose parallax the features show against the object's centre,
+    // as the tracker's TPE mode picks it, with the centre's motion from block matching.
+    match block_match(ga, gb, e, &AbmParams::for_target(e)) {
+        Ok(m) if m.is_fitted() => {
+            let offset = fit.motion - Vector2::new(m.translation[0], m.translation[1]);
+            let chosen = resolve_by_parallax(&i.pair, offset);
+            let mirror = if chosen == i.pair.a {
+                i.pair.b
+            } else {
+                i.pair.a
+            };
+            show("rotation", &chosen)?;
+            show("its Necker mirror", &mirror)?;
+            let verdict = branch_verdict(&chosen, offset, fit.translation_noise);
+            outln!(
+                "branch: the features move {:.2},{:.2} px against the object's \
+                 block-matched centre (parallax: the nearer surface leads a turn); {verdict}",
+                offset[0],
+                offset[1]
+            )?;
+        }
+        _ => {
+            show("rotation", &i.pair.a)?;
+            show("its Necker mirror", &i.pair.b)?;
+            outln!(
+                "branch: undecided (block matching found no motion of the object to tell \
+             it by); the two differ in the signs of tilt and pan"
+            )?;
+        }
+    }
+    Ok(())
+}
+
+/// Draws the matches as arrows from their first to their second position on the second
+/// image `ib`, over the ellipse `e` given, into `file` (a PNG, committed when whole).
+fn draw_matches(
+    mut file: pftrack::io::AtomicFile,
+    ib: &image::RgbImage,
+    e: &Ellipse,
+    p: &[[f64; 2]],
+    q: &[[f64; 2]],
+) -> anyhow::Result<()> {
+    // Scaled up as `track --render` scales small frames (160x120 twice), so that arrows of
+    // a pixel or two can be seen; the ellipse given is drawn in green beneath them.
+    use pftrack::output::{
+        capped_scale, default_scale,
+        draw::{Rect, draw_ellipse, upscale_nearest, upscaled, upscaled_ellipse},
+    };
+    let k = capped_scale(ib.width(), ib.height(), default_scale(ib.width()));
+    let mut img = upscale_nearest(ib, k);
+    let clip = Rect {
+        x0: 0,
+        y0: 0,
+        x1: i64::from(img.width()),
+        y1: i64::from(img.height()),
+    };
+    let shown = upscaled_ellipse(e, k);
+    draw_ellipse(
+        &mut img,
+        &shown,
+        f64::from(k),
+        Rgb([40, 220, 40]),
+        None,
+        clip,
+    );
+    let at = |v: [f64; 2]| [upscaled(v[0], k), upscaled(v[1], k)];
+    for (p, q) in p.iter().zip(q) {
+        arrow(&mut img, at(*p), at(*q), Rgb([255, 40, 40]), 3 * k as usize);
+    }
+    pftrack::output::encode_png(&mut file, &img)?;
+    let path = file.path().to_path_buf();
+    file.commit()?;
+    outln!("matches drawn in {}", path.display())?;
     Ok(())
 }
 
