@@ -621,6 +621,9 @@ impl GpuEngine {
         Ok(())
     }
 
+    /// One evaluation, inside the error scopes [`Self::run`] opened: the buffers made ready,
+    /// the inputs uploaded, the kernels dispatched, the terms read back, and on request each
+    /// particle's histogram and line distances and the stages' times.
     fn run_scoped(
         &mut self,
         frame: &FrameInput<'_>,
@@ -631,55 +634,70 @@ impl GpuEngine {
         timing: Option<&mut StageTimes>,
     ) -> Result<(), LikelihoodError> {
         let t_start = Instant::now();
-        let colour_on = params.terms & TERM_COLOUR != 0;
-        let num_lines = gradient_lines(params);
-        let grad_on = num_lines > 0;
-        let feat_on = params.terms & TERM_FEATURE != 0 && !frame.features.is_empty();
-        let contrast_on = params.terms & TERM_CONTRAST != 0;
-        // The colour kernel builds the histogram both terms read.
-        let hist_on = colour_on || contrast_on;
-        let logs = size_of::<TermLogs>() as u64;
-        let (w, h) = frame.image.dimensions();
-        let n = particles.len();
         out.clear();
-        if n == 0 {
+        if particles.is_empty() {
             return Ok(());
         }
-        let device = &self.gpu.device;
-        let queue = &self.gpu.queue;
+        let pass = Pass::new(frame, params, particles.len(), debug.is_some());
+        self.prepare_buffers(frame, &pass);
+        self.upload(frame, params, particles, &pass);
+        let t_uploaded = Instant::now();
+        let dispatches = self.dispatches(&pass)?;
+        let timed = timing.is_some();
+        let kernel_wall = self.dispatch(&pass, &dispatches, timed)?;
+        let t_gpu_done = Instant::now();
+        let terms_bytes = pass.n as u64 * pass.logs;
+        read_into(
+            &self.gpu.device,
+            &self.bufs.staging.buf,
+            terms_bytes,
+            |bytes| {
+                out.extend_from_slice(bytemuck::cast_slice::<u8, TermLogs>(bytes));
+            },
+        )?;
+        let t_read = Instant::now();
+        if let Some(dbg) = debug {
+            self.read_debug(&pass, dbg)?;
+        }
+        if let Some(times) = timing {
+            times.upload = t_uploaded - t_start;
+            times.readback = t_read - t_gpu_done;
+            self.read_times(&dispatches, kernel_wall, times)?;
+            times.total = t_start.elapsed();
+        }
+        Ok(())
+    }
 
-        // Buffers (grown when needed; the bind group follows them).
+    /// Grows the buffers `pass` needs (a term that is off leaves its own as they are) and
+    /// makes the bind group afresh where one was replaced.
+    fn prepare_buffers(&mut self, frame: &FrameInput<'_>, pass: &Pass) {
+        let device = &self.gpu.device;
         let b = &mut self.bufs;
-        let px = w as u64 * h as u64;
-        let n64 = n as u64;
+        let (px, n64, lines) = (
+            u64::from(pass.w) * u64::from(pass.h),
+            pass.n as u64,
+            u64::from(pass.num_lines),
+        );
         let mut changed = false;
         changed |= b.pixels.ensure(device, px * 4);
         changed |= b.grad.ensure(device, px * 8);
         changed |= b.particles.ensure(device, n64 * 32);
-        changed |= b.trig.ensure(device, (n64 + num_lines as u64) * 8);
+        changed |= b.trig.ensure(device, (n64 + lines) * 8);
         // Only a term that reads them grows the features' buffer (unchecked size otherwise);
         // it is still ensured, so a buffer forgotten after a refusal is made afresh.
-        let feature_bytes = if feat_on {
+        let feature_bytes = if pass.feat_on {
             frame.features.len() as u64 * size_of::<LiftedFeature>() as u64
         } else {
             0
         };
         changed |= b.features.ensure(device, feature_bytes);
-        changed |= b.terms.ensure(device, n64 * logs);
-        changed |= b.line_d.ensure(device, n64 * num_lines as u64 * 4);
-        let hist_bytes = if debug.is_some() && hist_on {
-            n64 * HIST_BINS as u64 * 4
-        } else {
-            0
-        };
-        changed |= b.hist.ensure(device, hist_bytes);
-        let line_bytes = if debug.is_some() {
-            n64 * num_lines as u64 * 4
-        } else {
-            0
-        };
-        b.staging
-            .ensure(device, (n64 * logs).max(hist_bytes).max(line_bytes));
+        changed |= b.terms.ensure(device, n64 * pass.logs);
+        changed |= b.line_d.ensure(device, n64 * lines * 4);
+        changed |= b.hist.ensure(device, pass.hist_bytes);
+        b.staging.ensure(
+            device,
+            (n64 * pass.logs).max(pass.hist_bytes).max(pass.line_bytes),
+        );
         if changed || self.bind_group.is_none() {
             fn entry(binding: u32, buf: &wgpu::Buffer) -> wgpu::BindGroupEntry<'_> {
                 wgpu::BindGroupEntry {
@@ -705,22 +723,33 @@ impl GpuEngine {
                 ],
             }));
         }
+    }
 
-        // Upload: uniforms, frame, particles, features.
+    /// Uploads the uniforms, the frame's pixels (for the colour and contour terms), the
+    /// particles with their orientations' and the normal lines' `(sin, cos)`, and the
+    /// features lifted onto the previous estimate's model.
+    fn upload(
+        &mut self,
+        frame: &FrameInput<'_>,
+        params: &LikelihoodParams,
+        particles: &[Particle],
+        pass: &Pass,
+    ) {
+        let (queue, b) = (&self.gpu.queue, &self.bufs);
         let fu = FrameUniform {
             prev: frame.prev,
-            width: w,
-            height: h,
-            n: n as u32,
+            width: pass.w,
+            height: pass.h,
+            n: pass.n as u32,
             num_features: frame.features.len() as u32,
             theta0: frame.theta0,
             line_h: cpu::gradient::half_samples(params),
-            flags: if debug.is_some() { FLAG_DEBUG_HIST } else { 0 },
+            flags: if pass.debug { FLAG_DEBUG_HIST } else { 0 },
             q_sum: self.q_sum,
         };
         queue.write_buffer(&b.params, 0, bytemuck::bytes_of(params));
         queue.write_buffer(&b.frame, 0, bytemuck::bytes_of(&fu));
-        if hist_on || grad_on {
+        if pass.hist_on || pass.grad_on {
             pack_pixels(
                 crate::frames::rgb_bytes(frame.image),
                 &mut self.pixel_scratch,
@@ -728,17 +757,17 @@ impl GpuEngine {
             queue.write_buffer(&b.pixels.buf, 0, bytemuck::cast_slice(&self.pixel_scratch));
         }
         queue.write_buffer(&b.particles.buf, 0, bytemuck::cast_slice(particles));
-        if hist_on || grad_on {
+        if pass.hist_on || pass.grad_on {
             particle_sin_cos(particles, frame.theta0, &mut self.trig_scratch);
             // The normal lines' angles, the CPU's own (see common.wgsl).
             self.trig_scratch.extend(
-                cpu::gradient::line_angles(num_lines)
+                cpu::gradient::line_angles(pass.num_lines)
                     .into_iter()
                     .map(|(c, s)| [s, c]),
             );
             queue.write_buffer(&b.trig.buf, 0, bytemuck::cast_slice(&self.trig_scratch));
         }
-        if feat_on {
+        if pass.feat_on {
             // The lift does not depend on the particle: done once here, as the CPU twin does.
             let lifted = cpu::feature::FeatureFrame::new(
                 frame.features,
@@ -750,9 +779,11 @@ impl GpuEngine {
             .lifted;
             queue.write_buffer(&b.features.buf, 0, bytemuck::cast_slice(&lifted));
         }
-        let t_uploaded = Instant::now();
+    }
 
-        // Dispatches.
+    /// Each kernel of [`KERNELS`] with whether it runs and its workgroup grid.
+    fn dispatches(&self, pass: &Pass) -> Result<Dispatches, LikelihoodError> {
+        let n = pass.n;
         let max_dim = self.gpu.limits.max_compute_workgroups_per_dimension;
         let too_many = || LikelihoodError::TooManyParticles {
             n,
@@ -760,22 +791,35 @@ impl GpuEngine {
             limit: 0,
         };
         let per_particle = grid((n as u32).div_ceil(WG), max_dim).ok_or_else(too_many)?;
-        let dispatches: [(bool, (u32, u32)); 5] = [
-            (grad_on, (w.div_ceil(TILE), h.div_ceil(TILE))),
-            (hist_on, grid(n as u32, max_dim).ok_or_else(too_many)?),
+        Ok([
+            (pass.grad_on, (pass.w.div_ceil(TILE), pass.h.div_ceil(TILE))),
+            (pass.hist_on, grid(n as u32, max_dim).ok_or_else(too_many)?),
             (
-                grad_on,
-                grid((n as u32 * num_lines).div_ceil(WG), max_dim).ok_or_else(too_many)?,
+                pass.grad_on,
+                grid((n as u32 * pass.num_lines).div_ceil(WG), max_dim).ok_or_else(too_many)?,
             ),
-            (feat_on, per_particle),
+            (pass.feat_on, per_particle),
             (true, per_particle),
-        ];
+        ])
+    }
+
+    /// Runs the kernels that are on, copies the terms to the staging buffer (and resolves the
+    /// timestamps, when `timed` and the device has them), and waits for the GPU. Timed on a
+    /// device without timestamps, each kernel is submitted and waited for on its own, and
+    /// their wall-clock times are returned.
+    fn dispatch(
+        &mut self,
+        pass: &Pass,
+        dispatches: &Dispatches,
+        timed: bool,
+    ) -> Result<Vec<(&'static str, Duration)>, LikelihoodError> {
+        let (device, queue, b) = (&self.gpu.device, &self.gpu.queue, &self.bufs);
         let bind_group = self
             .bind_group
             .as_ref()
             .ok_or_else(|| LikelihoodError::Gpu("no bind group".into()))?;
-        let wall_mode = timing.is_some() && self.timestamps.is_none();
-        let ts = if timing.is_some() {
+        let wall_mode = timed && self.timestamps.is_none();
+        let ts = if timed {
             self.timestamps.as_ref()
         } else {
             None
@@ -810,7 +854,7 @@ impl GpuEngine {
                 kernel_wall.push((KERNELS[k], t0.elapsed()));
             }
         }
-        let terms_bytes = n64 * logs;
+        let terms_bytes = pass.n as u64 * pass.logs;
         encoder.copy_buffer_to_buffer(&b.terms.buf, 0, &b.staging.buf, 0, terms_bytes);
         if let Some(t) = ts {
             let count = 2 * KERNELS.len() as u32;
@@ -819,63 +863,130 @@ impl GpuEngine {
         }
         queue.submit([encoder.finish()]);
         wait(device)?;
-        let t_gpu_done = Instant::now();
-        read_into(device, &b.staging.buf, terms_bytes, |bytes| {
-            out.extend_from_slice(bytemuck::cast_slice::<u8, TermLogs>(bytes));
-        })?;
-        let t_read = Instant::now();
+        Ok(kernel_wall)
+    }
 
-        if let Some(dbg) = debug {
-            dbg.histograms.clear();
-            dbg.line_distances.clear();
-            for (on, src, bytes) in [(hist_on, 0, hist_bytes), (grad_on, 1, line_bytes)] {
-                if !on || bytes == 0 {
-                    continue;
-                }
-                let from = if src == 0 { &b.hist.buf } else { &b.line_d.buf };
-                let mut enc = device.create_command_encoder(&Default::default());
-                enc.copy_buffer_to_buffer(from, 0, &b.staging.buf, 0, bytes);
-                queue.submit([enc.finish()]);
-                wait(device)?;
-                read_into(device, &b.staging.buf, bytes, |raw| {
-                    if src == 0 {
-                        dbg.histograms
-                            .extend_from_slice(bytemuck::cast_slice::<u8, u32>(raw));
-                    } else {
-                        dbg.line_distances
-                            .extend_from_slice(bytemuck::cast_slice::<u8, i32>(raw));
-                    }
-                })?;
+    /// Reads back each particle's histogram counts and line distances into `dbg`.
+    fn read_debug(&self, pass: &Pass, dbg: &mut DebugOutput) -> Result<(), LikelihoodError> {
+        let (device, queue, b) = (&self.gpu.device, &self.gpu.queue, &self.bufs);
+        dbg.histograms.clear();
+        dbg.line_distances.clear();
+        for (on, src, bytes) in [
+            (pass.hist_on, 0, pass.hist_bytes),
+            (pass.grad_on, 1, pass.line_bytes),
+        ] {
+            if !on || bytes == 0 {
+                continue;
             }
-        }
-
-        if let Some(times) = timing {
-            times.upload = t_uploaded - t_start;
-            times.readback = t_read - t_gpu_done;
-            times.kernels.clear();
-            if let Some(t) = ts {
-                let count = 2 * KERNELS.len() as u64;
-                let period = self.gpu.queue.get_timestamp_period() as f64;
-                let mut stamps = Vec::new();
-                read_into(device, &t.read, 8 * count, |raw| {
-                    stamps.extend_from_slice(bytemuck::cast_slice::<u8, u64>(raw));
-                })?;
-                for (k, (on, (gx, gy))) in dispatches.iter().enumerate() {
-                    if *on && *gx > 0 && *gy > 0 {
-                        let ns = stamps[2 * k + 1].saturating_sub(stamps[2 * k]) as f64 * period;
-                        times
-                            .kernels
-                            .push((KERNELS[k], Duration::from_nanos(ns as u64)));
-                    }
+            let from = if src == 0 { &b.hist.buf } else { &b.line_d.buf };
+            let mut enc = device.create_command_encoder(&Default::default());
+            enc.copy_buffer_to_buffer(from, 0, &b.staging.buf, 0, bytes);
+            queue.submit([enc.finish()]);
+            wait(device)?;
+            read_into(device, &b.staging.buf, bytes, |raw| {
+                if src == 0 {
+                    dbg.histograms
+                        .extend_from_slice(bytemuck::cast_slice::<u8, u32>(raw));
+                } else {
+                    dbg.line_distances
+                        .extend_from_slice(bytemuck::cast_slice::<u8, i32>(raw));
                 }
-                times.source = Some(TimingSource::Timestamps);
-            } else {
-                times.kernels = kernel_wall;
-                times.source = Some(TimingSource::WallClock);
-            }
-            times.total = t_start.elapsed();
+            })?;
         }
         Ok(())
+    }
+
+    /// Each kernel's time into `times`: from the device's timestamps where it has them, else
+    /// the wall-clock times [`Self::dispatch`] took.
+    fn read_times(
+        &self,
+        dispatches: &Dispatches,
+        kernel_wall: Vec<(&'static str, Duration)>,
+        times: &mut StageTimes,
+    ) -> Result<(), LikelihoodError> {
+        times.kernels.clear();
+        if let Some(t) = &self.timestamps {
+            let count = 2 * KERNELS.len() as u64;
+            let period = self.gpu.queue.get_timestamp_period() as f64;
+            let mut stamps = Vec::new();
+            read_into(&self.gpu.device, &t.read, 8 * count, |raw| {
+                stamps.extend_from_slice(bytemuck::cast_slice::<u8, u64>(raw));
+            })?;
+            for (k, (on, (gx, gy))) in dispatches.iter().enumerate() {
+                if *on && *gx > 0 && *gy > 0 {
+                    let ns = stamps[2 * k + 1].saturating_sub(stamps[2 * k]) as f64 * period;
+                    times
+                        .kernels
+                        .push((KERNELS[k], Duration::from_nanos(ns as u64)));
+                }
+            }
+            times.source = Some(TimingSource::Timestamps);
+        } else {
+            times.kernels = kernel_wall;
+            times.source = Some(TimingSource::WallClock);
+        }
+        Ok(())
+    }
+}
+
+/// Each kernel of [`KERNELS`], in order: whether it runs, and its workgroup grid.
+type Dispatches = [(bool, (u32, u32)); 5];
+
+/// What one evaluation runs: the terms that are on, and the sizes that follow from them.
+struct Pass {
+    /// Particles.
+    n: usize,
+    /// The frame's size.
+    w: u32,
+    /// See `w`.
+    h: u32,
+    /// Normal lines per particle (0: the contour term is off).
+    num_lines: u32,
+    /// The contour term.
+    grad_on: bool,
+    /// The feature term, on with features to project.
+    feat_on: bool,
+    /// The colour kernel, which builds the histogram both the colour and contrast terms read.
+    hist_on: bool,
+    /// Each particle's histogram and line distances are read back.
+    debug: bool,
+    /// Bytes of the histograms read back (0 without `debug` or the histogram).
+    hist_bytes: u64,
+    /// Bytes of the line distances read back (0 without `debug`).
+    line_bytes: u64,
+    /// Bytes of one particle's terms.
+    logs: u64,
+}
+
+impl Pass {
+    fn new(frame: &FrameInput<'_>, params: &LikelihoodParams, n: usize, debug: bool) -> Self {
+        let colour_on = params.terms & TERM_COLOUR != 0;
+        let num_lines = gradient_lines(params);
+        let contrast_on = params.terms & TERM_CONTRAST != 0;
+        let hist_on = colour_on || contrast_on;
+        let n64 = n as u64;
+        let (w, h) = frame.image.dimensions();
+        Self {
+            n,
+            w,
+            h,
+            num_lines,
+            grad_on: num_lines > 0,
+            feat_on: params.terms & TERM_FEATURE != 0 && !frame.features.is_empty(),
+            hist_on,
+            debug,
+            hist_bytes: if debug && hist_on {
+                n64 * HIST_BINS as u64 * 4
+            } else {
+                0
+            },
+            line_bytes: if debug {
+                n64 * u64::from(num_lines) * 4
+            } else {
+                0
+            },
+            logs: size_of::<TermLogs>() as u64,
+        }
     }
 }
 
