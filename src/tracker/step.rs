@@ -51,9 +51,10 @@ struct Measured {
 }
 
 impl Measured {
-    /// Whether a fit, to a keyframe or to the previous frame, measured the rotation.
-    fn fitted(&self) -> bool {
-        self.key_fit.is_some() || self.prior_prev.is_some()
+    /// Whether anything measured the rotation: Sylvester's equation between the frames, or a
+    /// fit to a keyframe or to the previous frame.
+    fn rotation_measured(&self) -> bool {
+        self.inter.is_some() || self.key_fit.is_some() || self.prior_prev.is_some()
     }
 
     /// The matches the feature term projects and the pose they were seen in: the keyframe
@@ -374,8 +375,7 @@ impl Tracker {
         let weights = crate::filter::resample::normalise_log_weights(
             &self.totals.iter().map(|&t| t as f64).collect::<Vec<_>>(),
         );
-        let rotation_measured = m.inter.is_some() || m.fitted();
-        let mut confidence = confidence(&self.terms, &lp, &weights, rotation_measured);
+        let mut confidence = confidence(&self.terms, &lp, &weights, m.rotation_measured());
         // A fit to a keyframe recognises the target; one to the previous frame only follows
         // whatever the estimate rests on.
         let keyframe_fitted = m.key_fit.is_some();
@@ -469,7 +469,7 @@ impl Tracker {
             confidence,
             jumped,
         } = settled;
-        let rotation_measured = m.inter.is_some() || m.fitted();
+        let rotation_measured = m.rotation_measured();
         let Measured {
             gray,
             region,
