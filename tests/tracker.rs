@@ -7,8 +7,8 @@ use pftrack::motion::AbmParams;
 use pftrack::pose::bundle::BundleParams;
 use pftrack::synth::{HFOV_DEG, Renderer, Scenario, SynthConfig};
 use pftrack::tracker::{
-    AnchorRefit, BundleAdjust, ColourUpdate, Contrast, Init, TemplateTerm, TrackError, Tracker,
-    TrackerConfig,
+    AnchorRefit, BundleAdjust, ColourUpdate, Contrast, Init, InitFault, TemplateTerm, TrackError,
+    Tracker, TrackerConfig,
 };
 
 type Track = (
@@ -280,21 +280,38 @@ fn bad_input_is_an_error() {
     // embedder can run before building a tracker (`Init::check`, `TrackerConfig::check`).
     assert!(Init::frontal(r.init_ellipse()).check(w, h).is_ok());
     assert!(TrackerConfig::default().check().is_ok());
-    for e in [
-        Ellipse::new(500.0, 50.0, 10.0, 10.0),
-        Ellipse::new(50.0, 50.0, 0.0, 10.0),
-        Ellipse::new(50.0, 50.0, 1.5, 10.0),
-        Ellipse::new(f64::NAN, 5.0, 5.0, 5.0),
+    for (e, want) in [
+        (
+            Ellipse::new(500.0, 50.0, 10.0, 10.0),
+            InitFault::CentreOutside,
+        ),
+        (Ellipse::new(50.0, 50.0, 0.0, 10.0), InitFault::NotAnEllipse),
+        (Ellipse::new(50.0, 50.0, 1.5, 10.0), InitFault::AxesTooSmall),
+        (
+            Ellipse::new(f64::NAN, 5.0, 5.0, 5.0),
+            InitFault::NotAnEllipse,
+        ),
         // Wider than twice the frame.
-        Ellipse::new(50.0, 50.0, f64::from(w.max(h)) + 1.0, 10.0),
+        (
+            Ellipse::new(50.0, 50.0, f64::from(w.max(h)) + 1.0, 10.0),
+            InitFault::AxesTooLarge,
+        ),
         // An angle of more than a turn (-1e30 degrees was taken, and changed the track).
-        Ellipse {
-            theta: -1e30f64.to_radians(),
-            ..r.init_ellipse()
-        },
+        (
+            Ellipse {
+                theta: -1e30f64.to_radians(),
+                ..r.init_ellipse()
+            },
+            InitFault::AngleOutOfRange,
+        ),
     ] {
         let init = Init::frontal(e);
-        assert!(matches!(init.check(w, h), Err(TrackError::BadInit(_))));
+        // A program can tell what is wrong without reading the message.
+        let got = init.check(w, h);
+        assert!(
+            matches!(got, Err(TrackError::BadInit { fault, .. }) if fault == want),
+            "{e:?}: {got:?}"
+        );
         assert!(Tracker::new(TrackerConfig::default(), &img, init).is_err());
     }
     // A frame without pixels, to start or start over on, is named as such (it was refused
@@ -334,7 +351,13 @@ fn bad_input_is_an_error() {
             ellipse: r.init_ellipse(),
             pose: Euler::from_degrees(0.0, bad, 0.0),
         };
-        assert!(matches!(init.check(w, h), Err(TrackError::BadInit(_))));
+        assert!(matches!(
+            init.check(w, h),
+            Err(TrackError::BadInit {
+                fault: InitFault::PoseOutOfRange,
+                ..
+            })
+        ));
     }
     // The filter clamps every particle's semi-axes to its bounds: a start outside them is
     // refused, not clamped away.
@@ -345,13 +368,17 @@ fn bad_input_is_an_error() {
         cfg.filter.max_axis = max_axis;
         assert!(cfg.check().is_ok());
         assert!(init.check(w, h).is_ok());
-        let Err(TrackError::BadInit(why)) = init.check_for(&cfg, w, h) else {
+        let Err(TrackError::BadInit {
+            fault: InitFault::OutsideFilterBounds,
+            why,
+        }) = init.check_for(&cfg, w, h)
+        else {
             panic!("a start outside the filter's axes {min_axis}..{max_axis} passed");
         };
         assert!(why.contains("filter.min_axis"), "{why}");
         let err = Tracker::new(cfg, &img, init).unwrap_err();
         assert!(
-            matches!(err, pftrack::Error::Track(TrackError::BadInit(_))),
+            matches!(err, pftrack::Error::Track(TrackError::BadInit { .. })),
             "{err}"
         );
     }
@@ -361,7 +388,13 @@ fn bad_input_is_an_error() {
         ..TrackerConfig::default()
     };
     cfg.likelihood.terms |= pftrack::likelihood::TERM_CONTRAST;
-    assert!(matches!(cfg.check(), Err(TrackError::BadConfig(_))));
+    assert!(matches!(
+        cfg.check(),
+        Err(TrackError::BadConfig {
+            setting: "contrast",
+            ..
+        })
+    ));
     assert!(Tracker::new(cfg, &img, init).is_err());
     // The tracker's own errors convert with `?` into the crate's error.
     let checked = |cfg: &TrackerConfig| -> pftrack::Result<()> {
@@ -376,7 +409,11 @@ fn bad_input_is_an_error() {
             fit_pixel_sigma: Some(px),
             ..TrackerConfig::default()
         };
-        let Err(TrackError::BadConfig(why)) = cfg.check() else {
+        let Err(TrackError::BadConfig {
+            setting: "fit_pixel_sigma",
+            why,
+        }) = cfg.check()
+        else {
             panic!("fit_pixel_sigma {px} passed the check");
         };
         assert!(why.contains("fit_pixel_sigma"), "{why}");

@@ -3,10 +3,22 @@
 
 use nalgebra::Matrix3;
 
-use super::{Init, MAX_DEPTH_RATIO, TrackError, TrackerConfig};
+use super::{Init, InitFault, MAX_DEPTH_RATIO, TrackError, TrackerConfig};
 
 /// The least semi-axis of a start (px), and so of the filter's floor.
 pub const MIN_START_AXIS: f64 = 2.0;
+
+impl TrackError {
+    /// A [`TrackError::BadInit`].
+    pub(crate) fn bad_init(fault: InitFault, why: String) -> Self {
+        Self::BadInit { fault, why }
+    }
+
+    /// A [`TrackError::BadConfig`] of `setting`.
+    pub(crate) fn bad_config(setting: &'static str, why: String) -> Self {
+        Self::BadConfig { setting, why }
+    }
+}
 
 impl Init {
     /// Checks the start against a `w x h` frame, as [`super::Tracker::new`] and
@@ -18,49 +30,67 @@ impl Init {
         let e = &self.ellipse;
         check_ellipse(e)?;
         if e.a < MIN_START_AXIS || e.b < MIN_START_AXIS {
-            return Err(TrackError::BadInit(format!(
-                "semi-axes {} x {} px: at least {MIN_START_AXIS} px each",
-                short(e.a),
-                short(e.b)
-            )));
+            return Err(TrackError::bad_init(
+                InitFault::AxesTooSmall,
+                format!(
+                    "semi-axes {} x {} px: at least {MIN_START_AXIS} px each",
+                    short(e.a),
+                    short(e.b)
+                ),
+            ));
         }
         let side = f64::from(w.max(h));
         if side < MIN_START_AXIS {
-            return Err(TrackError::BadInit(format!(
-                "a {w}x{h} frame holds no start: semi-axes must be at least {MIN_START_AXIS} px \
-                 and at most the frame's longer side"
-            )));
+            return Err(TrackError::bad_init(
+                InitFault::FrameTooSmall,
+                format!(
+                    "a {w}x{h} frame holds no start: semi-axes must be at least \
+                     {MIN_START_AXIS} px and at most the frame's longer side"
+                ),
+            ));
         }
         if e.a > side || e.b > side {
-            return Err(TrackError::BadInit(format!(
-                "semi-axes {} x {} px: at most {side} px each, the {w}x{h} frame's longer side",
-                short(e.a),
-                short(e.b)
-            )));
+            return Err(TrackError::bad_init(
+                InitFault::AxesTooLarge,
+                format!(
+                    "semi-axes {} x {} px: at most {side} px each, the {w}x{h} frame's longer side",
+                    short(e.a),
+                    short(e.b)
+                ),
+            ));
         }
         // A turn either way, with room for rounding from degrees.
         let turn = std::f64::consts::TAU * (1.0 + 1e-12);
         if e.theta.abs() > turn {
-            return Err(TrackError::BadInit(format!(
-                "ellipse angle {} degrees: at most 360 either way",
-                short(e.theta.to_degrees())
-            )));
+            return Err(TrackError::bad_init(
+                InitFault::AngleOutOfRange,
+                format!(
+                    "ellipse angle {} degrees: at most 360 either way",
+                    short(e.theta.to_degrees())
+                ),
+            ));
         }
         if !e.centre_inside(w, h) {
-            return Err(TrackError::BadInit(format!(
-                "centre ({}, {}) lies outside the {w}x{h} frame",
-                short(e.cx),
-                short(e.cy)
-            )));
+            return Err(TrackError::bad_init(
+                InitFault::CentreOutside,
+                format!(
+                    "centre ({}, {}) lies outside the {w}x{h} frame",
+                    short(e.cx),
+                    short(e.cy)
+                ),
+            ));
         }
         let p = &self.pose;
         if ![p.rx, p.ry, p.rz].iter().all(|v| v.abs() <= turn) {
-            return Err(TrackError::BadInit(format!(
-                "initial pose {}, {}, {} degrees: each angle finite and at most 360 either way",
-                short(p.rx.to_degrees()),
-                short(p.ry.to_degrees()),
-                short(p.rz.to_degrees())
-            )));
+            return Err(TrackError::bad_init(
+                InitFault::PoseOutOfRange,
+                format!(
+                    "initial pose {}, {}, {} degrees: each angle finite and at most 360 either way",
+                    short(p.rx.to_degrees()),
+                    short(p.ry.to_degrees()),
+                    short(p.rz.to_degrees())
+                ),
+            ));
         }
         Ok(())
     }
@@ -80,12 +110,15 @@ impl Init {
             } else {
                 format!("{} to {} px", short(f.min_axis), short(f.max_axis))
             };
-            return Err(TrackError::BadInit(format!(
-                "semi-axes {} x {} px: outside the filter's bounds, {bounds} \
-                 (filter.min_axis, filter.max_axis)",
-                short(e.a),
-                short(e.b),
-            )));
+            return Err(TrackError::bad_init(
+                InitFault::OutsideFilterBounds,
+                format!(
+                    "semi-axes {} x {} px: outside the filter's bounds, {bounds} \
+                     (filter.min_axis, filter.max_axis)",
+                    short(e.a),
+                    short(e.b),
+                ),
+            ));
         }
         Ok(())
     }
@@ -107,20 +140,26 @@ impl TrackerConfig {
     /// which it scores with whether or not the term is on) and widening factors (size hold,
     /// aspect slack).
     pub fn check(&self) -> Result<(), TrackError> {
-        let bad = |e: String| TrackError::BadConfig(e);
-        self.filter.check().map_err(|e| bad(e.to_string()))?;
+        let bad = TrackError::bad_config;
+        self.filter
+            .check()
+            .map_err(|e| bad("filter", e.to_string()))?;
         // The filter holds every estimate to its semi-axes' floor, and an estimate is a start
         // (`Estimate::to_init`), which needs 2 px at least ([`Init::check`]).
         if self.filter.min_axis < MIN_START_AXIS {
-            return Err(bad(format!(
-                "filter.min_axis {} px: at least {MIN_START_AXIS} px, the least semi-axis a \
-                 start may have, since every estimate must be one",
-                short(self.filter.min_axis)
-            )));
+            return Err(bad(
+                "filter.min_axis",
+                format!(
+                    "filter.min_axis {} px: at least {MIN_START_AXIS} px, the least semi-axis a \
+                     start may have, since every estimate must be one",
+                    short(self.filter.min_axis)
+                ),
+            ));
         }
         if self.likelihood.terms & crate::likelihood::TERM_CONTRAST != 0 && self.contrast.is_none()
         {
             return Err(bad(
+                "contrast",
                 "likelihood.terms has the contrast term but contrast is None: the term needs its \
                  settings (set contrast, and the tracker adds the flag itself)"
                     .into(),
@@ -133,79 +172,105 @@ impl TrackerConfig {
             contrast_scale: 0.0,
             ..self.likelihood
         };
-        likelihood.check().map_err(|e| bad(e.to_string()))?;
+        likelihood
+            .check()
+            .map_err(|e| bad("likelihood", e.to_string()))?;
         // The object model's depth shapes the aspect bound, the keyframe fits and the turned
         // first view whatever the terms; the edge threshold is on gradients scaled to [0, 1].
         let depth = f64::from(self.likelihood.depth_ratio);
         if !(0.0..=MAX_DEPTH_RATIO).contains(&depth) {
-            return Err(bad(format!(
-                "likelihood.depth_ratio {depth} is not in [0, {MAX_DEPTH_RATIO}]"
-            )));
+            return Err(bad(
+                "likelihood.depth_ratio",
+                format!("likelihood.depth_ratio {depth} is not in [0, {MAX_DEPTH_RATIO}]"),
+            ));
         }
         let edge = f64::from(self.likelihood.edge_threshold);
         if !(0.0..=1.0).contains(&edge) {
-            return Err(bad(format!(
-                "likelihood.edge_threshold {edge} is not in [0, 1]"
-            )));
+            return Err(bad(
+                "likelihood.edge_threshold",
+                format!("likelihood.edge_threshold {edge} is not in [0, 1]"),
+            ));
         }
-        self.sift.check().map_err(|e| bad(e.to_string()))?;
-        self.matching.check().map_err(|e| bad(e.to_string()))?;
-        self.abm.check().map_err(|e| bad(e.to_string()))?;
+        self.sift.check().map_err(|e| bad("sift", e.to_string()))?;
+        self.matching
+            .check()
+            .map_err(|e| bad("matching", e.to_string()))?;
+        self.abm.check().map_err(|e| bad("abm", e.to_string()))?;
         if self.lost_after == 0 {
             return Err(bad(
+                "lost_after",
                 "lost_after 0: at least 1 low frame must come before the target is declared lost"
                     .into(),
             ));
         }
         if !(0.0..=1.0).contains(&self.reacquire_rho) {
-            return Err(bad(format!(
-                "reacquire_rho {} is not a colour similarity in [0, 1]",
-                self.reacquire_rho
-            )));
+            return Err(bad(
+                "reacquire_rho",
+                format!(
+                    "reacquire_rho {} is not a colour similarity in [0, 1]",
+                    self.reacquire_rho
+                ),
+            ));
         }
         let step = self.max_rotation_step;
         if !(step.is_finite() && step > 0.0) {
-            return Err(bad(format!(
-                "max_rotation_step {step} rad ({:.4}°) must be finite and positive",
-                step.to_degrees()
-            )));
+            return Err(bad(
+                "max_rotation_step",
+                format!(
+                    "max_rotation_step {step} rad ({:.4}°) must be finite and positive",
+                    step.to_degrees()
+                ),
+            ));
         }
         let residual = self.max_fit_residual;
         if !(residual.is_finite() && residual > 0.0) {
-            return Err(bad(format!(
-                "max_fit_residual {residual} must be finite and positive"
-            )));
+            return Err(bad(
+                "max_fit_residual",
+                format!("max_fit_residual {residual} must be finite and positive"),
+            ));
         }
         if self.min_fit_inliers < 3 {
-            return Err(bad(format!(
-                "min_fit_inliers {}: a fit of 6 parameters needs at least 3 matches",
-                self.min_fit_inliers
-            )));
+            return Err(bad(
+                "min_fit_inliers",
+                format!(
+                    "min_fit_inliers {}: a fit of 6 parameters needs at least 3 matches",
+                    self.min_fit_inliers
+                ),
+            ));
         }
         if self.keyframe_refresh_percent > 100 {
-            return Err(bad(format!(
-                "keyframe_refresh_percent {} is a share of at most 100",
-                self.keyframe_refresh_percent
-            )));
+            return Err(bad(
+                "keyframe_refresh_percent",
+                format!(
+                    "keyframe_refresh_percent {} is a share of at most 100",
+                    self.keyframe_refresh_percent
+                ),
+            ));
         }
         let hfov = &super::config::HFOV_RANGE_DEG;
         if let Some(h) = self.camera_hfov_deg
             && !hfov.contains(&h)
         {
-            return Err(bad(format!(
-                "camera_hfov_deg {h} must lie between {} and {} degrees; set it to None for \
-                 weak perspective",
-                hfov.start(),
-                hfov.end()
-            )));
+            return Err(bad(
+                "camera_hfov_deg",
+                format!(
+                    "camera_hfov_deg {h} must lie between {} and {} degrees; set it to None for \
+                     weak perspective",
+                    hfov.start(),
+                    hfov.end()
+                ),
+            ));
         }
         if !super::config::weight_ok(self.feature_weight) {
-            return Err(TrackError::BadConfig(format!(
-                "feature_weight {} must lie in [0, {:e}] (0 leaves the rotation to the motion \
-                 alone)",
-                self.feature_weight,
-                super::config::MAX_WEIGHT
-            )));
+            return Err(TrackError::bad_config(
+                "feature_weight",
+                format!(
+                    "feature_weight {} must lie in [0, {:e}] (0 leaves the rotation to the motion \
+                     alone)",
+                    self.feature_weight,
+                    super::config::MAX_WEIGHT
+                ),
+            ));
         }
         if let Some(prior) = self.fit_prior() {
             prior.check().map_err(|e| {
@@ -213,23 +278,29 @@ impl TrackerConfig {
                     .fit_centre_sigma
                     .map_or_else(|| "None".to_string(), |c| c.to_string());
                 let walk = self.filter.dynamics.rotation;
-                TrackError::BadConfig(format!(
-                    "the keyframe fits' motion prior (fit_pixel_sigma {}, fit_centre_sigma \
-                     {centre}, the filter's rotation walk {walk:?} rad, {:?}°): {e}; set \
-                     fit_pixel_sigma to None to fit without the prior, fit_centre_sigma to None \
-                     to leave the centre free",
-                    prior.pixel_sigma,
-                    walk.map(|r| (r.to_degrees() * 1e4).round() / 1e4)
-                ))
+                TrackError::bad_config(
+                    "fit_pixel_sigma",
+                    format!(
+                        "the keyframe fits' motion prior (fit_pixel_sigma {}, fit_centre_sigma \
+                         {centre}, the filter's rotation walk {walk:?} rad, {:?}°): {e}; set \
+                         fit_pixel_sigma to None to fit without the prior, fit_centre_sigma to \
+                         None to leave the centre free",
+                        prior.pixel_sigma,
+                        walk.map(|r| (r.to_degrees() * 1e4).round() / 1e4)
+                    ),
+                )
             })?;
         }
         if let Some(rate) = self.coast_rate
             && !(rate > 0.0 && rate <= 1.0)
         {
-            return Err(TrackError::BadConfig(format!(
-                "coast_rate {rate} must lie in (0, 1]; set it to None to hold the rotation still \
-                 where nothing measured it"
-            )));
+            return Err(TrackError::bad_config(
+                "coast_rate",
+                format!(
+                    "coast_rate {rate} must lie in (0, 1]; set it to None to hold the rotation \
+                     still where nothing measured it"
+                ),
+            ));
         }
         check_part(
             "init_refine",
@@ -240,19 +311,25 @@ impl TrackerConfig {
         if self.init_refine.is_some() {
             let scoring = super::init_refine::scoring_params(&self.likelihood);
             scoring.check().map_err(|e| {
-                TrackError::BadConfig(format!(
-                    "init_refine scores outlines with the gradient settings: {e}; set \
-                     init_refine to None to keep the given ellipse"
-                ))
+                TrackError::bad_config(
+                    "init_refine",
+                    format!(
+                        "init_refine scores outlines with the gradient settings: {e}; set \
+                         init_refine to None to keep the given ellipse"
+                    ),
+                )
             })?;
         }
         if let Some(d) = self.sift_upsample_below
             && !(d.is_finite() && d > 0.0)
         {
-            return Err(TrackError::BadConfig(format!(
-                "sift_upsample_below {d} must be a positive size in pixels; set it to None to \
-                 keep the SIFT settings for every target size"
-            )));
+            return Err(TrackError::bad_config(
+                "sift_upsample_below",
+                format!(
+                    "sift_upsample_below {d} must be a positive size in pixels; set it to None to \
+                     keep the SIFT settings for every target size"
+                ),
+            ));
         }
         check_part(
             "bundle",
@@ -269,11 +346,14 @@ impl TrackerConfig {
         if let Some(r) = &self.anchor_refit
             && r.min_inliers < self.min_fit_inliers
         {
-            return Err(TrackError::BadConfig(format!(
-                "anchor_refit.min_inliers {} is fewer than min_fit_inliers {}: the anchor's fit \
-                 needs at least the matches any fit does",
-                r.min_inliers, self.min_fit_inliers
-            )));
+            return Err(TrackError::bad_config(
+                "anchor_refit.min_inliers",
+                format!(
+                    "anchor_refit.min_inliers {} is fewer than min_fit_inliers {}: the anchor's \
+                     fit needs at least the matches any fit does",
+                    r.min_inliers, self.min_fit_inliers
+                ),
+            ));
         }
         check_part(
             "colour_update",
@@ -301,25 +381,31 @@ impl TrackerConfig {
             "to weigh the particles without a template",
         )?;
         if !(0.0..=1.0).contains(&self.lost_below) {
-            return Err(TrackError::BadConfig(format!(
-                "lost_below {} must lie in [0, 1]",
-                self.lost_below
-            )));
+            return Err(TrackError::bad_config(
+                "lost_below",
+                format!("lost_below {} must lie in [0, 1]", self.lost_below),
+            ));
         }
         if !(self.lost_below..=1.0).contains(&self.found_above) {
-            return Err(TrackError::BadConfig(format!(
-                "found_above {} must lie between lost_below ({}, the confidence under which \
-                 the target is lost) and 1",
-                self.found_above, self.lost_below
-            )));
+            return Err(TrackError::bad_config(
+                "found_above",
+                format!(
+                    "found_above {} must lie between lost_below ({}, the confidence under which \
+                     the target is lost) and 1",
+                    self.found_above, self.lost_below
+                ),
+            ));
         }
         if let Some(n) = self.reacquire_ncc
             && !(-1.0..=1.0).contains(&n)
         {
-            return Err(TrackError::BadConfig(format!(
-                "reacquire_ncc {n} is not in [-1, 1]; set it to None to recognise a re-acquired \
-                 target by its features alone"
-            )));
+            return Err(TrackError::bad_config(
+                "reacquire_ncc",
+                format!(
+                    "reacquire_ncc {n} is not in [-1, 1]; set it to None to recognise a \
+                     re-acquired target by its features alone"
+                ),
+            ));
         }
         check_factor(
             "size_hold",
@@ -334,10 +420,13 @@ impl TrackerConfig {
         if let Some(j) = self.exposure_jump
             && !(j.is_finite() && j > 0.0)
         {
-            return Err(TrackError::BadConfig(format!(
-                "exposure_jump {j} is not a finite share above 0; set it to None to take every \
-                 frame's light as it comes"
-            )));
+            return Err(TrackError::bad_config(
+                "exposure_jump",
+                format!(
+                    "exposure_jump {j} is not a finite share above 0; set it to None to take every \
+                     frame's light as it comes"
+                ),
+            ));
         }
         Ok(())
     }
@@ -362,10 +451,13 @@ pub(crate) fn check_ellipse(e: &crate::geometry::Ellipse) -> Result<(), TrackErr
     if e.is_valid() {
         return Ok(());
     }
-    Err(TrackError::BadInit(format!(
-        "cx {}, cy {}, a {}, b {}, theta {}: values must be finite and the semi-axes positive",
-        e.cx, e.cy, e.a, e.b, e.theta
-    )))
+    Err(TrackError::bad_init(
+        InitFault::NotAnEllipse,
+        format!(
+            "cx {}, cy {}, a {}, b {}, theta {}: values must be finite and the semi-axes positive",
+            e.cx, e.cy, e.a, e.b, e.theta
+        ),
+    ))
 }
 
 /// `x` for a message: two decimals, trailing zeros dropped, or in exponent form when large.
@@ -391,25 +483,29 @@ fn short(x: f64) -> String {
 /// An optional part of the configuration, `name`, passes its own `check` (`None` when the
 /// part is off); the error says what setting it to `None` does instead (`instead`).
 fn check_part(
-    name: &str,
+    name: &'static str,
     check: Option<Result<(), String>>,
     instead: &str,
 ) -> Result<(), TrackError> {
     match check {
-        Some(Err(e)) => Err(TrackError::BadConfig(format!(
-            "{e}; set {name} to None {instead}"
-        ))),
+        Some(Err(e)) => Err(TrackError::bad_config(
+            name,
+            format!("{e}; set {name} to None {instead}"),
+        )),
         _ => Ok(()),
     }
 }
 
 /// A widening factor of the configuration, `name`, must be finite and at least 1; the
 /// error says what setting it to `None` does instead (`none_does`).
-fn check_factor(name: &str, k: Option<f64>, none_does: &str) -> Result<(), TrackError> {
+fn check_factor(name: &'static str, k: Option<f64>, none_does: &str) -> Result<(), TrackError> {
     match k {
-        Some(k) if !(k.is_finite() && k >= 1.0) => Err(TrackError::BadConfig(format!(
-            "{name} {k} is not a finite factor of at least 1; set {name} to None to {none_does}"
-        ))),
+        Some(k) if !(k.is_finite() && k >= 1.0) => Err(TrackError::bad_config(
+            name,
+            format!(
+                "{name} {k} is not a finite factor of at least 1; set {name} to None to {none_does}"
+            ),
+        )),
         _ => Ok(()),
     }
 }
@@ -497,7 +593,7 @@ mod tests {
         ];
         for cfg in bad {
             assert!(
-                matches!(cfg.check(), Err(TrackError::BadConfig(_))),
+                matches!(cfg.check(), Err(TrackError::BadConfig { .. })),
                 "{cfg:?}"
             );
         }
@@ -582,7 +678,7 @@ mod tests {
         }
         cases.push((c, "contrast weight 1000"));
         for (cfg, name) in cases {
-            let Err(TrackError::BadConfig(why)) = cfg.check() else {
+            let Err(TrackError::BadConfig { why, .. }) = cfg.check() else {
                 panic!("{name}: accepted");
             };
             assert!(why.contains(name), "{why} does not name {name}");
@@ -601,7 +697,13 @@ mod tests {
                 ..TrackerConfig::default()
             };
             assert!(
-                matches!(cfg.check(), Err(TrackError::BadConfig(_))),
+                matches!(
+                    cfg.check(),
+                    Err(TrackError::BadConfig {
+                        setting: "coast_rate",
+                        ..
+                    })
+                ),
                 "{rate}"
             );
         }
@@ -621,7 +723,16 @@ mod tests {
                 exposure_jump: Some(j),
                 ..TrackerConfig::default()
             };
-            assert!(matches!(cfg.check(), Err(TrackError::BadConfig(_))), "{j}");
+            assert!(
+                matches!(
+                    cfg.check(),
+                    Err(TrackError::BadConfig {
+                        setting: "exposure_jump",
+                        ..
+                    })
+                ),
+                "{j}"
+            );
         }
         for j in [Some(0.01), Some(2.0), None] {
             let cfg = TrackerConfig {
@@ -658,7 +769,13 @@ mod tests {
                 ..TrackerConfig::default()
             };
             assert!(
-                matches!(cfg.check(), Err(TrackError::BadConfig(_))),
+                matches!(
+                    cfg.check(),
+                    Err(TrackError::BadConfig {
+                        setting: "reanchor",
+                        ..
+                    })
+                ),
                 "{r:?}"
             );
         }
@@ -668,16 +785,24 @@ mod tests {
     fn init_checks() {
         let ok = Init::frontal(Ellipse::new(50.0, 40.0, 10.0, 12.0));
         assert!(ok.check(100, 80).is_ok());
-        let outside = Init::frontal(Ellipse::new(150.0, 40.0, 10.0, 12.0));
-        assert!(outside.check(100, 80).is_err());
-        let zero = Init::frontal(Ellipse::new(50.0, 40.0, 0.0, 12.0));
-        assert!(zero.check(100, 80).is_err());
-        let nan = Init::frontal(Ellipse::new(f64::NAN, 40.0, 10.0, 12.0));
-        assert!(nan.check(100, 80).is_err());
+        let fault = |e: Ellipse| match Init::frontal(e).check(100, 80) {
+            Err(TrackError::BadInit { fault, .. }) => Some(fault),
+            _ => None,
+        };
+        let outside = Ellipse::new(150.0, 40.0, 10.0, 12.0);
+        assert_eq!(fault(outside), Some(InitFault::CentreOutside));
+        let zero = Ellipse::new(50.0, 40.0, 0.0, 12.0);
+        assert_eq!(fault(zero), Some(InitFault::NotAnEllipse));
+        let nan = Ellipse::new(f64::NAN, 40.0, 10.0, 12.0);
+        assert_eq!(fault(nan), Some(InitFault::NotAnEllipse));
         // A frame smaller than the least start: said so, not "at most 1 px" against "at least 2".
         let least = Init::frontal(Ellipse::new(0.0, 0.0, 2.0, 2.0));
         assert!(least.check(2, 1).is_ok());
-        let Err(TrackError::BadInit(why)) = least.check(1, 1) else {
+        let Err(TrackError::BadInit {
+            fault: InitFault::FrameTooSmall,
+            why,
+        }) = least.check(1, 1)
+        else {
             panic!("a start in a 1x1 frame passed");
         };
         assert!(why.contains("a 1x1 frame holds no start"), "{why}");

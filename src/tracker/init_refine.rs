@@ -143,8 +143,9 @@ pub fn refine_ellipse(
 ) -> Result<Ellipse, TrackError> {
     scoring_params(params)
         .check()
-        .map_err(|e| TrackError::BadConfig(e.to_string()))?;
-    cfg.check().map_err(TrackError::BadConfig)?;
+        .map_err(|e| TrackError::bad_config("likelihood", e.to_string()))?;
+    cfg.check()
+        .map_err(|e| TrackError::bad_config("init_refine", e))?;
     super::checks::check_ellipse(init)?;
     let scorer = Scorer {
         frame,

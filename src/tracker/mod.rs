@@ -78,17 +78,52 @@ use keyframe::{FitContext, KeyframePool};
 use recovery::lost_state;
 use spin::{Moved, smoothed_spin};
 
+/// What is wrong with a start ([`TrackError::BadInit`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[non_exhaustive]
+pub enum InitFault {
+    /// A value of the ellipse is not finite, or a semi-axis is not positive.
+    NotAnEllipse,
+    /// A semi-axis is under [`MIN_START_AXIS`].
+    AxesTooSmall,
+    /// A semi-axis is over the frame's longer side.
+    AxesTooLarge,
+    /// The frame is too small to hold any start.
+    FrameTooSmall,
+    /// The ellipse's angle is more than a turn either way.
+    AngleOutOfRange,
+    /// The centre lies outside the frame.
+    CentreOutside,
+    /// An angle of the initial pose is not finite, or more than a turn either way.
+    PoseOutOfRange,
+    /// A semi-axis lies outside the particle filter's bounds (`filter.min_axis`,
+    /// `filter.max_axis`), to which every particle is held.
+    OutsideFilterBounds,
+}
+
 /// Errors of the tracker's own: its start, configuration and frames. (A likelihood engine's
 /// failure comes as [`crate::Error::Likelihood`], SIFT's as [`crate::Error::Features`].)
 #[derive(Debug, thiserror::Error)]
 #[non_exhaustive]
 pub enum TrackError {
     /// The start (its ellipse or pose) is unusable.
-    #[error("invalid start: {0}")]
-    BadInit(String),
+    #[error("invalid start: {why}")]
+    BadInit {
+        /// What is wrong with it, for a program to act on.
+        fault: InitFault,
+        /// The same for a person: the values and the bounds they broke.
+        why: String,
+    },
     /// A setting of the configuration is out of range.
-    #[error("invalid tracker configuration: {0}")]
-    BadConfig(String),
+    #[error("invalid tracker configuration: {why}")]
+    BadConfig {
+        /// The setting: a field of [`TrackerConfig`], or a field of one of its parts after a
+        /// dot (`filter.min_axis`); a part's name alone where the part's own check refused
+        /// it (`sift`, `bundle`).
+        setting: &'static str,
+        /// What is wrong with it and what to do instead.
+        why: String,
+    },
     /// A frame without pixels (0 wide or high), given to start on.
     #[error("the frame to start on is {width}x{height}: it has no pixels")]
     EmptyFrame {
@@ -441,7 +476,7 @@ impl Tracker {
             cfg.seed,
             &Hypothesis::from_state(&PoseState::default()),
         )
-        .map_err(|e| track_err(TrackError::BadConfig(e.to_string())))?;
+        .map_err(|e| track_err(TrackError::bad_config("filter", e.to_string())))?;
         let mut t = Self {
             cfg,
             likelihood,
@@ -1193,7 +1228,13 @@ mod tests {
             }),
             ..TrackerConfig::default()
         };
-        assert!(matches!(bad.check(), Err(TrackError::BadConfig(_))));
+        assert!(matches!(
+            bad.check(),
+            Err(TrackError::BadConfig {
+                setting: "init_refine",
+                ..
+            })
+        ));
         let (first, truth) = nod_first();
         let high = Ellipse {
             cy: truth.cy - 3.0,
@@ -1232,7 +1273,13 @@ mod tests {
                 sift_upsample_below: Some(bad),
                 ..TrackerConfig::default()
             };
-            assert!(matches!(cfg.check(), Err(TrackError::BadConfig(_))));
+            assert!(matches!(
+                cfg.check(),
+                Err(TrackError::BadConfig {
+                    setting: "sift_upsample_below",
+                    ..
+                })
+            ));
         }
         let (t, gray, init) = nod_tracker(TrackerConfig::default());
         // The nod's head at 160x120 is about 43 px across: the doubled octave.

@@ -247,7 +247,9 @@ pub fn run(a: PoseArgs) -> anyhow::Result<()> {
     pftrack::tracker::Init::frontal(e)
         .check(ia.width(), ia.height())
         .map_err(|err| match err {
-            pftrack::tracker::TrackError::BadInit(why) => anyhow::anyhow!("--ellipse: {why}"),
+            pftrack::tracker::TrackError::BadInit { why, .. } => {
+                anyhow::anyhow!("--ellipse: {why}")
+            }
             other => other.into(),
         })?;
     // On images too large for the upsampled first octave's scale space, SIFT goes on without
