@@ -371,6 +371,7 @@ fn bad_input_is_an_error() {
         let Err(TrackError::BadInit {
             fault: InitFault::OutsideFilterBounds,
             why,
+            ..
         }) = init.check_for(&cfg, w, h)
         else {
             panic!("a start outside the filter's axes {min_axis}..{max_axis} passed");
@@ -412,6 +413,7 @@ fn bad_input_is_an_error() {
         let Err(TrackError::BadConfig {
             setting: "fit_pixel_sigma",
             why,
+            ..
         }) = cfg.check()
         else {
             panic!("fit_pixel_sigma {px} passed the check");

@@ -273,13 +273,23 @@ impl TrackerConfig {
             ));
         }
         if let Some(prior) = self.fit_prior() {
+            // The prior's check refuses any of three settings; the error names the bad one,
+            // in the order the check tries them.
+            let positive = |v: f64| v.is_finite() && v > 0.0;
+            let setting = if !positive(prior.pixel_sigma) {
+                "fit_pixel_sigma"
+            } else if !prior.sigma.iter().all(|&s| positive(s)) {
+                "filter.dynamics.rotation"
+            } else {
+                "fit_centre_sigma"
+            };
             prior.check().map_err(|e| {
                 let centre = self
                     .fit_centre_sigma
                     .map_or_else(|| "None".to_string(), |c| c.to_string());
                 let walk = self.filter.dynamics.rotation;
                 TrackError::bad_config(
-                    "fit_pixel_sigma",
+                    setting,
                     format!(
                         "the keyframe fits' motion prior (fit_pixel_sigma {}, fit_centre_sigma \
                          {centre}, the filter's rotation walk {walk:?} rad, {:?}°): {e}; set \
@@ -311,8 +321,9 @@ impl TrackerConfig {
         if self.init_refine.is_some() {
             let scoring = super::init_refine::scoring_params(&self.likelihood);
             scoring.check().map_err(|e| {
+                // The refused value is the likelihood's, as `refine_ellipse` names it.
                 TrackError::bad_config(
-                    "init_refine",
+                    "likelihood",
                     format!(
                         "init_refine scores outlines with the gradient settings: {e}; set \
                          init_refine to None to keep the given ellipse"
@@ -574,26 +585,38 @@ mod tests {
     #[test]
     fn found_above_and_reacquire_ncc_are_checked() {
         let bad = [
-            TrackerConfig {
-                found_above: 0.2,
-                ..TrackerConfig::default()
-            },
-            TrackerConfig {
-                found_above: 1.5,
-                ..TrackerConfig::default()
-            },
-            TrackerConfig {
-                reacquire_ncc: Some(f64::NAN),
-                ..TrackerConfig::default()
-            },
-            TrackerConfig {
-                reacquire_ncc: Some(1.1),
-                ..TrackerConfig::default()
-            },
+            (
+                TrackerConfig {
+                    found_above: 0.2,
+                    ..TrackerConfig::default()
+                },
+                "found_above",
+            ),
+            (
+                TrackerConfig {
+                    found_above: 1.5,
+                    ..TrackerConfig::default()
+                },
+                "found_above",
+            ),
+            (
+                TrackerConfig {
+                    reacquire_ncc: Some(f64::NAN),
+                    ..TrackerConfig::default()
+                },
+                "reacquire_ncc",
+            ),
+            (
+                TrackerConfig {
+                    reacquire_ncc: Some(1.1),
+                    ..TrackerConfig::default()
+                },
+                "reacquire_ncc",
+            ),
         ];
-        for cfg in bad {
+        for (cfg, want) in bad {
             assert!(
-                matches!(cfg.check(), Err(TrackError::BadConfig { .. })),
+                matches!(cfg.check(), Err(TrackError::BadConfig { setting, .. }) if setting == want),
                 "{cfg:?}"
             );
         }
@@ -603,85 +626,99 @@ mod tests {
     #[test]
     fn every_part_of_the_settings_is_checked_by_name() {
         let d = TrackerConfig::default;
-        let mut cases: Vec<(TrackerConfig, &str)> = Vec::new();
+        // Each case: the settings, what the message must say, and the setting it names.
+        let mut cases: Vec<(TrackerConfig, &str, &str)> = Vec::new();
         let mut c = d();
         c.filter.particles = 0;
-        cases.push((c, "particles 0"));
+        cases.push((c, "particles 0", "filter"));
         let mut c = d();
         c.filter.min_axis = f64::NAN;
-        cases.push((c, "min_axis NaN"));
+        cases.push((c, "min_axis NaN", "filter"));
         let mut c = d();
         if let Some(r) = c.anchor_refit.as_mut() {
             r.min_inliers = 8;
         }
-        cases.push((c, "anchor_refit.min_inliers 8"));
+        cases.push((c, "anchor_refit.min_inliers 8", "anchor_refit.min_inliers"));
         // An estimate under 2 px would be a start `reinit` refuses.
         let mut c = d();
         c.filter.min_axis = 0.5;
-        cases.push((c, "filter.min_axis 0.5"));
+        cases.push((c, "filter.min_axis 0.5", "filter.min_axis"));
         // The start's refinement scores outlines with the gradient settings, term on or off.
         let mut c = d();
         c.likelihood.terms = crate::likelihood::TERM_COLOUR;
         c.likelihood.sigma_z = 0.0;
         c.init_refine = Some(Default::default());
-        cases.push((c, "init_refine"));
+        cases.push((c, "init_refine", "likelihood"));
         // Re-acquisition weighs by colour even when the filter's weights do not.
         let mut c = d();
         c.likelihood.terms = crate::likelihood::TERM_GRADIENT;
         c.likelihood.sigma_colour = f32::NAN;
-        cases.push((c, "sigma_colour"));
+        cases.push((c, "sigma_colour", "likelihood"));
         let mut c = d();
         c.sift.sigma = -1.0;
-        cases.push((c, "sigma -1"));
+        cases.push((c, "sigma -1", "sift"));
         let mut c = d();
         c.matching.ratio = f32::NAN;
-        cases.push((c, "ratio NaN"));
+        cases.push((c, "ratio NaN", "matching"));
         let mut c = d();
         c.abm.min_block = 0;
-        cases.push((c, "min_block"));
+        cases.push((c, "min_block", "abm"));
         let mut c = d();
         c.lost_after = 0;
-        cases.push((c, "lost_after 0"));
+        cases.push((c, "lost_after 0", "lost_after"));
         let mut c = d();
         c.reacquire_rho = 1.5;
-        cases.push((c, "reacquire_rho 1.5"));
+        cases.push((c, "reacquire_rho 1.5", "reacquire_rho"));
         let mut c = d();
         c.max_rotation_step = f64::INFINITY;
-        cases.push((c, "max_rotation_step inf"));
+        cases.push((c, "max_rotation_step inf", "max_rotation_step"));
         let mut c = d();
         c.max_fit_residual = 0.0;
-        cases.push((c, "max_fit_residual 0"));
+        cases.push((c, "max_fit_residual 0", "max_fit_residual"));
         let mut c = d();
         c.min_fit_inliers = 2;
-        cases.push((c, "min_fit_inliers 2"));
+        cases.push((c, "min_fit_inliers 2", "min_fit_inliers"));
         let mut c = d();
         c.keyframe_refresh_percent = 101;
-        cases.push((c, "keyframe_refresh_percent 101"));
+        cases.push((
+            c,
+            "keyframe_refresh_percent 101",
+            "keyframe_refresh_percent",
+        ));
         let mut c = d();
         c.camera_hfov_deg = Some(180.0);
-        cases.push((c, "camera_hfov_deg 180"));
+        cases.push((c, "camera_hfov_deg 180", "camera_hfov_deg"));
         let mut c = d();
         c.camera_hfov_deg = Some(1e-300);
-        cases.push((c, "camera_hfov_deg 0.000"));
+        cases.push((c, "camera_hfov_deg 0.000", "camera_hfov_deg"));
         // Weights beyond MAX_WEIGHT: 1e300 overflowed mid-run, 1e39 split GPU from CPU.
         let mut c = d();
         c.feature_weight = 2e6;
-        cases.push((c, "feature_weight 2000000"));
+        cases.push((c, "feature_weight 2000000", "feature_weight"));
         let mut c = d();
         if let Some(t) = c.template.as_mut() {
             t.weight = 1e300;
         }
-        cases.push((c, "template weight 1000"));
+        cases.push((c, "template weight 1000", "template"));
         let mut c = d();
         if let Some(k) = c.contrast.as_mut() {
             k.weight = 1e39;
         }
-        cases.push((c, "contrast weight 1000"));
-        for (cfg, name) in cases {
-            let Err(TrackError::BadConfig { why, .. }) = cfg.check() else {
+        cases.push((c, "contrast weight 1000", "contrast"));
+        // The keyframe fits' motion prior is refused for any of three settings.
+        let mut c = d();
+        c.fit_centre_sigma = Some(0.0);
+        cases.push((c, "fit_centre_sigma 0", "fit_centre_sigma"));
+        let mut c = d();
+        c.filter.dynamics.rotation[1] = 0.0;
+        c.filter.proposal.rotation[1] = 0.0;
+        cases.push((c, "motion prior", "filter.dynamics.rotation"));
+        for (cfg, name, want) in cases {
+            let Err(TrackError::BadConfig { why, setting }) = cfg.check() else {
                 panic!("{name}: accepted");
             };
             assert!(why.contains(name), "{why} does not name {name}");
+            assert_eq!(setting, want, "{why}");
         }
         // The contrast term's scale is the tracker's to set each frame, not a setting.
         let mut c = d();

@@ -310,9 +310,27 @@ mod tests {
             ..cfg
         };
         let nan = Ellipse::new(f64::NAN, 45.0, 16.0, 22.0);
-        assert!(refine_ellipse(&flat, &start, &lines, &cfg).is_err());
-        assert!(refine_ellipse(&flat, &start, &params, &shift).is_err());
-        assert!(refine_ellipse(&flat, &nan, &params, &cfg).is_err());
+        assert!(matches!(
+            refine_ellipse(&flat, &start, &lines, &cfg),
+            Err(TrackError::BadConfig {
+                setting: "likelihood",
+                ..
+            })
+        ));
+        assert!(matches!(
+            refine_ellipse(&flat, &start, &params, &shift),
+            Err(TrackError::BadConfig {
+                setting: "init_refine",
+                ..
+            })
+        ));
+        assert!(matches!(
+            refine_ellipse(&flat, &nan, &params, &cfg),
+            Err(TrackError::BadInit {
+                fault: crate::tracker::InitFault::NotAnEllipse,
+                ..
+            })
+        ));
         // The object well beyond the reach: the result stays within the bounds.
         let far = Ellipse {
             cx: 90.0,

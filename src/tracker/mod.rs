@@ -108,6 +108,7 @@ pub enum InitFault {
 pub enum TrackError {
     /// The start (its ellipse or pose) is unusable.
     #[error("invalid start: {why}")]
+    #[non_exhaustive]
     BadInit {
         /// What is wrong with it, for a program to act on.
         fault: InitFault,
@@ -116,10 +117,13 @@ pub enum TrackError {
     },
     /// A setting of the configuration is out of range.
     #[error("invalid tracker configuration: {why}")]
+    #[non_exhaustive]
     BadConfig {
-        /// The setting: a field of [`TrackerConfig`], or a field of one of its parts after a
-        /// dot (`filter.min_axis`); a part's name alone where the part's own check refused
-        /// it (`sift`, `bundle`).
+        /// The setting that holds the refused value: a field of [`TrackerConfig`], or a field
+        /// of one of its parts after a dot (`filter.min_axis`, `filter.dynamics.rotation`);
+        /// a part's name alone where the part's own check refused it (`sift`, `likelihood`,
+        /// `bundle`). Where two settings conflict, the one the message says to set
+        /// (`contrast`, for the contrast term's flag without its settings).
         setting: &'static str,
         /// What is wrong with it and what to do instead.
         why: String,
