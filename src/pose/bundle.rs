@@ -238,7 +238,7 @@ pub fn refine(
             "bundle adjustment of more than 256 views",
         ));
     }
-    let (nv, np) = (views.len(), x0.len());
+    let np = x0.len();
     if views.iter().any(|v| {
         v.seen
             .iter()
@@ -251,13 +251,73 @@ pub fn refine(
     if x0.iter().any(|x| !x.iter().all(|v| v.is_finite())) {
         return Err(PoseError::NonFinite);
     }
+    let problem = Problem::new(x0, key_centre, key_frame, camera, params, views.len());
     let mut z: Vec<f64> = x0.iter().map(|x| x.z).collect();
-    let prior = DepthPrior::new(&z, params);
-    // The unknowns the depths are eliminated onto: 6 per view, then the log-relief at `iu`.
-    let iu = 6 * nv;
-    let nr = iu + usize::from(prior.relief.is_some());
     let mut u = 0.0;
-    let cost = |views: &[BundleView], z: &[f64], u: f64| -> f64 {
+    let start_cost = problem.cost(views, &z, u);
+    let current = problem.minimise(views, &mut z, &mut u, start_cost);
+    if !current.is_finite() {
+        return Err(PoseError::NonFinite);
+    }
+    Ok(Adjusted {
+        points: (0..x0.len())
+            .map(|j| on_ray(&x0[j], z[j], camera, key_centre))
+            .collect(),
+        start_cost,
+        cost: current,
+        observations: views.iter().map(|v| v.seen.len()).sum(),
+        relief: problem.relief(views, &z, u),
+    })
+}
+
+/// The objective [`refine`] minimises, for one keyframe's points and views: what it needs
+/// besides the unknowns (the views' poses, the depths `z` and the log-relief `u`).
+struct Problem<'a> {
+    /// The lifted points.
+    x0: &'a [Vector3<f64>],
+    /// Where the keyframe's model centre projects.
+    key_centre: &'a Vector2<f64>,
+    /// The keyframe's frame (the rotation prior's first step starts there).
+    key_frame: usize,
+    camera: Option<&'a Pinhole>,
+    params: &'a BundleParams,
+    /// The prior on the depths and the relief.
+    prior: DepthPrior,
+    /// Index of the log-relief among the reduced unknowns (after 6 per view).
+    iu: usize,
+    /// Number of reduced unknowns: 6 per view, and the log-relief when it is free.
+    nr: usize,
+}
+
+impl<'a> Problem<'a> {
+    fn new(
+        x0: &'a [Vector3<f64>],
+        key_centre: &'a Vector2<f64>,
+        key_frame: usize,
+        camera: Option<&'a Pinhole>,
+        params: &'a BundleParams,
+        views: usize,
+    ) -> Self {
+        let z0: Vec<f64> = x0.iter().map(|x| x.z).collect();
+        let prior = DepthPrior::new(&z0, params);
+        // The unknowns the depths are eliminated onto: 6 per view, then the log-relief at `iu`.
+        let iu = 6 * views;
+        let nr = iu + usize::from(prior.relief.is_some());
+        Self {
+            x0,
+            key_centre,
+            key_frame,
+            camera,
+            params,
+            prior,
+            iu,
+            nr,
+        }
+    }
+
+    /// The objective at `(views, z, u)`.
+    fn cost(&self, views: &[BundleView], z: &[f64], u: f64) -> f64 {
+        let (x0, camera, key_centre, params) = (self.x0, self.camera, self.key_centre, self.params);
         let mut c = 0.0;
         for v in views {
             for (j, q) in &v.seen {
@@ -271,17 +331,19 @@ pub fn refine(
                 };
             }
         }
-        prior.add_cost(&mut c, z, u);
-        for (e, df) in rotation_steps(views, key_frame) {
+        self.prior.add_cost(&mut c, z, u);
+        for (e, df) in rotation_steps(views, self.key_frame) {
             for k in 0..3 {
                 c += (e[k] / params.rotation_sigma[k]).powi(2) / df;
             }
         }
         c
-    };
-    // Normal equations at (views, z, u): the reduced block (6 per view and the log-relief),
-    // the depth diagonal, and their coupling.
-    let normal = |views: &[BundleView], z: &[f64], u: f64| -> Normal {
+    }
+
+    /// Normal equations at `(views, z, u)`: the reduced block (6 per view and the
+    /// log-relief), the depth diagonal, and their coupling.
+    fn normal(&self, views: &[BundleView], z: &[f64], u: f64) -> Normal {
+        let (np, nr) = (self.x0.len(), self.nr);
         let mut n = Normal {
             hpp: DMatrix::<f64>::zeros(nr, nr),
             bp: DVector::<f64>::zeros(nr),
@@ -289,7 +351,15 @@ pub fn refine(
             bz: vec![0.0; np],
             hpz: DMatrix::<f64>::zeros(nr, np),
         };
-        prior.add_to(&mut n, z, u, iu);
+        self.prior.add_to(&mut n, z, u, self.iu);
+        self.add_observations(&mut n, views, z);
+        self.add_rotation_prior(&mut n, views);
+        n
+    }
+
+    /// The features' reprojections' Gauss-Newton terms (Huber-weighted).
+    fn add_observations(&self, n: &mut Normal, views: &[BundleView], z: &[f64]) {
+        let (x0, camera, key_centre, params) = (self.x0, self.camera, self.key_centre, self.params);
         for (i, v) in views.iter().enumerate() {
             for (j, q) in &v.seen {
                 let x = on_ray(&x0[*j], z[*j], camera, key_centre);
@@ -319,10 +389,13 @@ pub fn refine(
                 n.bz[*j] += w * jz.dot(&r);
             }
         }
-        // The rotation prior between successive views (first order in the updates).
-        for (i, (e, df)) in rotation_steps(views, key_frame).enumerate() {
+    }
+
+    /// The rotation prior between successive views (first order in the updates).
+    fn add_rotation_prior(&self, n: &mut Normal, views: &[BundleView]) {
+        for (i, (e, df)) in rotation_steps(views, self.key_frame).enumerate() {
             for k in 0..3 {
-                let w = 1.0 / (params.rotation_sigma[k].powi(2) * df);
+                let w = 1.0 / (self.params.rotation_sigma[k].powi(2) * df);
                 let (a, b) = (6 * i + k, i.checked_sub(1).map(|p| 6 * p + k));
                 n.hpp[(a, a)] += w;
                 n.bp[a] -= w * e[k];
@@ -334,72 +407,73 @@ pub fn refine(
                 }
             }
         }
-        n
-    };
-    let mut current = cost(views, &z, u);
-    let start_cost = current;
-    let mut lambda = 1e-3;
-    for _ in 0..params.iterations {
-        let n = normal(views, &z, u);
-        let mut improved = false;
-        for _ in 0..6 {
-            let Some((dp, dz)) = n.solve(lambda) else {
+    }
+
+    /// Levenberg-Marquardt from `(views, z, u)`, whose objective is `current`, for at most
+    /// the settings' iterations: each step that lowers the objective is taken (and the
+    /// damping eased), one that does not is tried again more damped, up to 6 times. Returns
+    /// the objective at the end; the unknowns are left there.
+    fn minimise(
+        &self,
+        views: &mut [BundleView],
+        z: &mut Vec<f64>,
+        u: &mut f64,
+        mut current: f64,
+    ) -> f64 {
+        let mut lambda = 1e-3;
+        for _ in 0..self.params.iterations {
+            let n = self.normal(views, z, *u);
+            let mut improved = false;
+            for _ in 0..6 {
+                let Some((dp, dz)) = n.solve(lambda) else {
+                    lambda *= 10.0;
+                    continue;
+                };
+                let mut trial = views.to_vec();
+                for (i, v) in trial.iter_mut().enumerate() {
+                    let o = 6 * i;
+                    v.rot = exp_so3(&Vector3::new(dp[o], dp[o + 1], dp[o + 2])) * v.rot;
+                    v.scale *= dp[o + 3].clamp(-0.5, 0.5).exp();
+                    v.centre += Vector2::new(dp[o + 4], dp[o + 5]);
+                }
+                let tz: Vec<f64> = z.iter().zip(&dz).map(|(a, b)| a + b).collect();
+                let tu = if self.prior.relief.is_some() {
+                    *u + dp[self.iu].clamp(-0.5, 0.5)
+                } else {
+                    *u
+                };
+                let c = self.cost(&trial, &tz, tu);
+                if c.is_finite() && c < current {
+                    views.clone_from_slice(&trial);
+                    *z = tz;
+                    *u = tu;
+                    current = c;
+                    lambda = (lambda * 0.3).max(1e-6);
+                    improved = true;
+                    break;
+                }
                 lambda *= 10.0;
-                continue;
-            };
-            let mut trial = views.to_vec();
-            for (i, v) in trial.iter_mut().enumerate() {
-                let o = 6 * i;
-                v.rot = exp_so3(&Vector3::new(dp[o], dp[o + 1], dp[o + 2])) * v.rot;
-                v.scale *= dp[o + 3].clamp(-0.5, 0.5).exp();
-                v.centre += Vector2::new(dp[o + 4], dp[o + 5]);
             }
-            let tz: Vec<f64> = z.iter().zip(&dz).map(|(a, b)| a + b).collect();
-            let tu = if prior.relief.is_some() {
-                u + dp[iu].clamp(-0.5, 0.5)
-            } else {
-                u
-            };
-            let c = cost(&trial, &tz, tu);
-            if c.is_finite() && c < current {
-                views.clone_from_slice(&trial);
-                z = tz;
-                u = tu;
-                current = c;
-                lambda = (lambda * 0.3).max(1e-6);
-                improved = true;
+            if !improved {
                 break;
             }
-            lambda *= 10.0;
         }
-        if !improved {
-            break;
-        }
+        current
     }
-    if !current.is_finite() {
-        return Err(PoseError::NonFinite);
-    }
-    // The log-relief's variance: its entry in the inverse of the undamped reduced system at
-    // the end (the depths and the views' poses marginalised out), without the solve's
-    // jitter, which would count as evidence. Where that system is singular the relief is
-    // left unmeasured (`None`), though the points took it.
-    let relief = prior.relief.and_then(|_| {
-        let n = normal(views, &z, u);
+
+    /// The log-relief and its variance at `(views, z, u)`: its entry in the inverse of the
+    /// undamped reduced system (the depths and the views' poses marginalised out), without
+    /// the solve's jitter, which would count as evidence. `None` without a free relief, or
+    /// where that system is singular (the relief left unmeasured, though the points took it).
+    fn relief(&self, views: &[BundleView], z: &[f64], u: f64) -> Option<Relief> {
+        self.prior.relief?;
+        let n = self.normal(views, z, u);
         let s = n.reduced(0.0, 0.0)?.0.cholesky()?;
-        let mut e = DVector::<f64>::zeros(nr);
-        e[iu] = 1.0;
-        let variance = s.solve(&e)[iu];
+        let mut e = DVector::<f64>::zeros(self.nr);
+        e[self.iu] = 1.0;
+        let variance = s.solve(&e)[self.iu];
         (variance.is_finite() && variance > 0.0).then_some(Relief { log: u, variance })
-    });
-    Ok(Adjusted {
-        points: (0..np)
-            .map(|j| on_ray(&x0[j], z[j], camera, key_centre))
-            .collect(),
-        start_cost,
-        cost: current,
-        observations: views.iter().map(|v| v.seen.len()).sum(),
-        relief,
-    })
+    }
 }
 
 /// The depth prior of [`refine`]: each depth about its lift, `((z_j − t_j(u)) / σ_z)²`, with
