@@ -397,6 +397,8 @@ fn cli_track_rejects_bad_lost_and_reacquisition_settings() {
     for (flag, value, needle) in [
         ("--found-above", "0.1", "found_above"),
         ("--found-above", "2", "found_above"),
+        ("--trust-above", "1.5", "trust_above"),
+        ("--trust-above", "NaN", "trust_above"),
         ("--reacquire-ncc", "1.5", "reacquire_ncc"),
         ("--reacquire-ncc", "NaN", "reacquire_ncc"),
         ("--reanchor-ncc", "1.5", "reanchor min_ncc"),
@@ -2030,6 +2032,7 @@ fn cli_track_settings_errors_name_the_flag() {
         ("--contrast-weight=-1", "--contrast-weight 0"),
         ("--fit-centre-sigma=-1", "--no-fit-centre-prior"),
         ("--found-above=2", "found_above 2"),
+        ("--trust-above=2", "trust_above 2"),
         ("--exposure-jump=0", "--no-exposure"),
     ] {
         let name = flag.split('=').next().unwrap();

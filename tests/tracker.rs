@@ -882,7 +882,7 @@ fn the_tracker_keeps_its_particles_to_the_models_aspect_range() {
     );
 }
 
-/// While the tracker is unsure of its target (after a frame below `found_above`, or lost), its
+/// While the tracker is unsure of its target (after a frame below `trust_above`, or lost), its
 /// particles keep the size of the last trusted estimate (within `size_hold`); without the
 /// hold nothing keeps them there. The head of `nod` is followed for a few frames, then leaves
 /// nothing but a flat grey frame: no likelihood can rank sizes there, and the random walk
@@ -898,7 +898,7 @@ fn an_uncertain_tracker_holds_the_last_confident_size() {
             size_hold: hold,
             ..TrackerConfig::default()
         };
-        let (lost_below, found_above) = (cfg.lost_below, cfg.found_above);
+        let (lost_below, trust_above) = (cfg.lost_below, cfg.trust_above);
         let mut t = Tracker::new(cfg, &first, Init::frontal(r.init_ellipse())).unwrap();
         let mut held = (r.init_ellipse().a, r.init_ellipse().b);
         // The largest factor between a particle's semi-axis and the held one, over the frames
@@ -924,7 +924,7 @@ fn an_uncertain_tracker_holds_the_last_confident_size() {
                     }
                 }
             }
-            trusted = !e.lost && e.confidence >= found_above;
+            trusted = !e.lost && e.confidence >= trust_above;
             if trusted {
                 held = (e.state.a, e.state.b);
             }

@@ -418,6 +418,12 @@ impl TrackerConfig {
                 ),
             ));
         }
+        if !(0.0..=1.0).contains(&self.trust_above) {
+            return Err(TrackError::bad_config(
+                "trust_above",
+                format!("trust_above {} must lie in [0, 1]", self.trust_above),
+            ));
+        }
         check_factor(
             "size_hold",
             self.size_hold,
@@ -666,6 +672,9 @@ mod tests {
         let mut c = d();
         c.lost_after = 0;
         cases.push((c, "lost_after 0", "lost_after"));
+        let mut c = d();
+        c.trust_above = 1.5;
+        cases.push((c, "trust_above 1.5", "trust_above"));
         let mut c = d();
         c.reacquire_rho = 1.5;
         cases.push((c, "reacquire_rho 1.5", "reacquire_rho"));

@@ -329,7 +329,7 @@ pub struct Tracker {
     /// Frames stepped with a change of light undone ([`TrackerConfig::exposure_jump`]).
     frames_relit: usize,
     /// The last trusted estimate (the start, or a frame of confidence at least
-    /// [`TrackerConfig::found_above`] that left the target found). The filter's proposals
+    /// [`TrackerConfig::trust_above`] that left the target found). The filter's proposals
     /// are held near its semi-axes while the tracker is unsure ([`TrackerConfig::size_hold`]),
     /// and a lost target is looked for and recognised in its rotation, not in the estimate's,
     /// which the filter's widened proposals walk about while nothing measures the turn.
@@ -1054,12 +1054,12 @@ impl Tracker {
 
 /// Whether the ellipse's size is held ([`TrackerConfig::size_hold`]) on the frame after one
 /// of confidence `c` that left the tracker `lost` or not: while the target is lost, or after
-/// a frame the tracker did not trust (below [`TrackerConfig::found_above`]). The size a
-/// frame that is not held ends with becomes the one later frames are held near. Why
-/// `found_above` and not [`TrackerConfig::lost_below`]: see `docs/measurements.md`, under
-/// "TrackerConfig::size_hold".
+/// a frame the tracker did not trust (below [`TrackerConfig::trust_above`]). The size a
+/// frame that is not held ends with becomes the one later frames are held near. Why a bar
+/// above [`TrackerConfig::lost_below`]: see `docs/measurements.md`, under
+/// "TrackerConfig::size_hold" and "TrackerConfig::trust_above".
 fn holds_size(cfg: &TrackerConfig, lost: bool, c: f64) -> bool {
-    lost || c < cfg.found_above
+    lost || c < cfg.trust_above
 }
 
 fn track_err(e: TrackError) -> crate::Error {
@@ -1205,18 +1205,21 @@ mod tests {
     #[test]
     fn the_size_is_held_after_an_untrusted_frame_or_while_lost() {
         let cfg = TrackerConfig::default();
-        let band = 0.5 * (cfg.lost_below + cfg.found_above);
-        assert!(band >= cfg.lost_below && band < cfg.found_above);
+        let band = 0.5 * (cfg.lost_below + cfg.trust_above);
+        assert!(band >= cfg.lost_below && band < cfg.trust_above);
         // Below the lost bar and in the band between the two bars: held.
         assert!(holds_size(&cfg, false, 0.5 * cfg.lost_below));
         assert!(holds_size(&cfg, false, band));
+        // Found but not trusted: a frame between `found_above` and `trust_above` holds it.
+        assert!(cfg.found_above < cfg.trust_above);
+        assert!(holds_size(&cfg, false, cfg.found_above));
         // A trusted frame frees it, unless the target is still lost.
-        assert!(!holds_size(&cfg, false, cfg.found_above));
+        assert!(!holds_size(&cfg, false, cfg.trust_above));
         assert!(!holds_size(&cfg, false, 1.0));
         assert!(holds_size(&cfg, true, 1.0));
-        // With `found_above` at `lost_below`, the hold starts below the lost bar.
+        // With `trust_above` at `lost_below`, the hold starts below the lost bar.
         let low = TrackerConfig {
-            found_above: cfg.lost_below,
+            trust_above: cfg.lost_below,
             ..cfg.clone()
         };
         assert!(!holds_size(&low, false, band));

@@ -191,7 +191,7 @@ pub struct TrackArgs {
     /// Take every frame's light as it comes, as the paper does.
     #[arg(long)]
     pub no_exposure: bool,
-    /// While the target is uncertain (lost, or after a frame below --found-above), keep the
+    /// While the target is uncertain (lost, or after a frame below --trust-above), keep the
     /// ellipse's semi-axes within this factor of the last trusted estimate's, so a
     /// likelihood that has lost the target cannot shrink it to a few pixels (see
     /// `TrackerConfig::size_hold`).
@@ -205,6 +205,10 @@ pub struct TrackArgs {
     /// Leave the ellipse's size free while the target is uncertain, as the paper does.
     #[arg(long)]
     pub no_size_hold: bool,
+    /// Trust a frame's estimate from this confidence on: its size is the one --size-hold
+    /// holds later frames near; below it the size is held (see `TrackerConfig::trust_above`).
+    #[arg(long, value_name = "C", default_value_t = 0.7)]
+    pub trust_above: f64,
     /// Once lost, count the target as found again only on a frame with at least this
     /// confidence (or when a search finds it with at least this confidence), so that a
     /// confidence hovering about the lost threshold does not flip the flag (see
@@ -308,7 +312,7 @@ pub struct TrackArgs {
             "fit_centre_sigma", "no_fit_centre_prior", "no_anchor_refit", "no_bundle", "relief_sigma",
             "no_coast", "colour_rate", "colour_max_ring", "aspect_slack", "no_aspect_bound",
             "exposure_jump", "no_exposure",
-            "size_hold", "no_size_hold", "found_above", "reacquire_ncc",
+            "size_hold", "no_size_hold", "trust_above", "found_above", "reacquire_ncc",
             "no_template_reacquire", "reanchor_ncc", "no_reanchor", "refine_init",
             "sift_upsample_below", "sift_always_upsample", "no_interframe_consensus",
             "motion_scale", "contrast_weight", "feature_weight", "template_weight",
@@ -565,6 +569,7 @@ fn flag_config(a: &TrackArgs, hfov: Option<f64>) -> anyhow::Result<TrackerConfig
     cfg.aspect_slack = (!a.no_aspect_bound).then_some(a.aspect_slack);
     cfg.exposure_jump = (!a.no_exposure).then_some(a.exposure_jump);
     cfg.size_hold = (!a.no_size_hold).then_some(a.size_hold);
+    cfg.trust_above = a.trust_above;
     cfg.found_above = a.found_above;
     cfg.reacquire_ncc = (!a.no_template_reacquire).then_some(a.reacquire_ncc);
     cfg.reanchor = (!a.no_reanchor).then_some(pftrack::tracker::Reanchor {
@@ -863,7 +868,7 @@ pub fn apply_edge_threshold(cfg: &mut TrackerConfig, t: Option<f64>) -> anyhow::
 /// The library settings the command line's flags set, each with its flag and what the
 /// command line offers where the library would take `None`; the first whose name a
 /// configuration error mentions is the one it is about.
-const FLAG_OF_SETTING: [(&str, &str, &str); 11] = [
+const FLAG_OF_SETTING: [(&str, &str, &str); 12] = [
     (
         "fit_centre_sigma",
         "--fit-centre-sigma",
@@ -915,6 +920,7 @@ const FLAG_OF_SETTING: [(&str, &str, &str); 11] = [
         "--no-exposure takes every frame's light as it comes",
     ),
     ("found_above", "--found-above", ""),
+    ("trust_above", "--trust-above", ""),
 ];
 
 /// A configuration error in the command line's terms: the flag behind the setting first,
