@@ -2134,8 +2134,8 @@ fn dimmed_from(r: &Renderer, k: usize, from: usize) -> (image::RgbImage, PoseSta
 
 /// Half the light from one frame to the next (a camera's exposure stepping) is undone: the
 /// head is followed through it, never flagged lost, with the confidence it had before.
-/// Without the compensation the same change drops the confidence under `found_above`, a
-/// target the tracker no longer trusts.
+/// Without the compensation the same change drops the confidence under `found_above`, the
+/// bar a found target must reach.
 #[test]
 fn a_sudden_change_of_light_is_not_a_lost_target() {
     let r = Renderer::new(&SynthConfig::new(Scenario::Nod)).unwrap();
@@ -2188,7 +2188,7 @@ fn a_sudden_change_of_light_is_not_a_lost_target() {
     let found_above = cfg.found_above;
     let (off, gain) = track(cfg);
     assert_eq!(gain, [1.0; 3]);
-    // The same frames up to the change; after it, a target the tracker does not trust.
+    // The same frames up to the change; after it, a confidence under `found_above`.
     assert!((mean(&off[..from - 1]) - before).abs() < 1e-12);
     for (k, (e, _)) in off
         .iter()
@@ -2224,8 +2224,8 @@ fn grey_within(
 /// from the second colour frame after it the RGB model it had, so the head is followed
 /// throughout with the confidence it had, but for the one frame of each change. A single
 /// black frame (grey too) changes nothing. With the binning fixed at the start's
-/// (`grey_luma` off), the grey frames share no bin with the colour model: a target the
-/// tracker no longer trusts.
+/// (`grey_luma` off), the grey frames share no bin with the colour model: a confidence under
+/// `found_above`.
 #[test]
 fn footage_that_turns_grey_and_back_is_followed() {
     use pftrack::likelihood::{COLOUR_LUMA, COLOUR_RGB};

@@ -418,10 +418,15 @@ impl TrackerConfig {
                 ),
             ));
         }
-        if !(0.0..=1.0).contains(&self.trust_above) {
+        // Below the lost bar, frames counting towards a loss would be trusted.
+        if !(self.lost_below..=1.0).contains(&self.trust_above) {
             return Err(TrackError::bad_config(
                 "trust_above",
-                format!("trust_above {} must lie in [0, 1]", self.trust_above),
+                format!(
+                    "trust_above {} must lie between lost_below ({}, the confidence under \
+                     which the target is lost) and 1",
+                    self.trust_above, self.lost_below
+                ),
             ));
         }
         check_factor(
@@ -675,6 +680,10 @@ mod tests {
         let mut c = d();
         c.trust_above = 1.5;
         cases.push((c, "trust_above 1.5", "trust_above"));
+        // Below the lost bar, frames counting towards a loss would be trusted.
+        let mut c = d();
+        c.trust_above = 0.1;
+        cases.push((c, "trust_above 0.1", "trust_above"));
         let mut c = d();
         c.reacquire_rho = 1.5;
         cases.push((c, "reacquire_rho 1.5", "reacquire_rho"));

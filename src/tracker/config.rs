@@ -174,7 +174,8 @@ pub struct TrackerConfig {
     /// re-acquisition finds it with at least this confidence; until then the tracker stays
     /// lost and searches on every frame. 0.5 by default, the confidence the
     /// colour model and the template need to learn ([`ColourUpdate::min_confidence`]), so
-    /// a track that counts as found is also one the models trust. At `lost_below` the flag
+    /// a track that counts as found is also one the models learn from (its size and rotation
+    /// are trusted from [`TrackerConfig::trust_above`]). At `lost_below` the flag
     /// is cleared by the first frame above it, as it was before this setting.
     ///
     /// Why: a lost estimate that rests on something of about the target's colours hovers
@@ -502,10 +503,13 @@ pub struct TrackerConfig {
     /// The measurements behind it, and what was tried and not kept:
     /// `docs/measurements.md`, under "TrackerConfig::size_hold".
     pub size_hold: Option<f64>,
-    /// The confidence (in `[0, 1]`) from which a frame's estimate is trusted: its size is the
-    /// one later frames are held near ([`TrackerConfig::size_hold`]) and its rotation the one
-    /// a lost target is looked for in. Below it, and while the target is lost, the size is
-    /// held. 0.7 by default.
+    /// The confidence (in `[lost_below, 1]`) from which a frame's estimate is trusted: its
+    /// size is the one later frames are held near ([`TrackerConfig::size_hold`]) and its
+    /// rotation the one a lost target is looked for in. Below it, and while the target is
+    /// lost, the size is held. A target found again (at [`TrackerConfig::found_above`]) below
+    /// it is not yet trusted: the size and rotation it was last trusted in stay. 0.7 by
+    /// default; 0.5, `found_above`'s default, is the rule before 2026-12-07, which a
+    /// settings file must now give to track as it did then.
     ///
     /// Why: a likelihood that has slid off the target onto something of its colours keeps
     /// a middling confidence, and the colour term ranks a small ellipse on a few matching

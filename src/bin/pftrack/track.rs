@@ -206,7 +206,9 @@ pub struct TrackArgs {
     #[arg(long)]
     pub no_size_hold: bool,
     /// Trust a frame's estimate from this confidence on: its size is the one --size-hold
-    /// holds later frames near; below it the size is held (see `TrackerConfig::trust_above`).
+    /// holds later frames near (below it the size is held), and its rotation the one a lost
+    /// target is looked for in; 0.5 tracks as before 2026-12-07 (see
+    /// `TrackerConfig::trust_above`).
     #[arg(long, value_name = "C", default_value_t = 0.7)]
     pub trust_above: f64,
     /// Once lost, count the target as found again only on a frame with at least this
