@@ -453,25 +453,49 @@ pub struct MotionPrior {
     pub centre_sigma: Option<f64>,
 }
 
+/// A sigma of a [`MotionPrior`] ([`MotionPrior::bad_sigma`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum PriorSigma {
+    /// [`MotionPrior::pixel_sigma`].
+    Pixel,
+    /// [`MotionPrior::sigma`].
+    Rotation,
+    /// [`MotionPrior::centre_sigma`].
+    Centre,
+}
+
 impl MotionPrior {
     /// Checks the prior: a finite mean ([`PoseError::NonFinite`]) and positive, finite sigmas
     /// ([`PoseError::InvalidParameter`]).
     pub fn check(&self) -> Result<(), PoseError> {
-        let ok = |v: f64| v.is_finite() && v > 0.0;
         if !self.mean.iter().all(|v| v.is_finite()) {
             return Err(PoseError::NonFinite);
         }
-        if !ok(self.pixel_sigma) || !self.sigma.iter().all(|&s| ok(s)) {
-            return Err(PoseError::InvalidParameter(
-                "a motion prior's rotation and pixel sigmas must be positive and finite",
-            ));
-        }
-        if self.centre_sigma.is_some_and(|s| !ok(s)) {
-            return Err(PoseError::InvalidParameter(
+        match self.bad_sigma() {
+            Some(PriorSigma::Centre) => Err(PoseError::InvalidParameter(
                 "a motion prior's centre sigma must be positive and finite",
-            ));
+            )),
+            Some(_) => Err(PoseError::InvalidParameter(
+                "a motion prior's rotation and pixel sigmas must be positive and finite",
+            )),
+            None => Ok(()),
         }
-        Ok(())
+    }
+
+    /// The first sigma that is not positive and finite, in the order [`MotionPrior::check`]
+    /// tries them (pixel, rotation, centre), so a caller holding them under other names can
+    /// say which one [`MotionPrior::check`] refused.
+    pub fn bad_sigma(&self) -> Option<PriorSigma> {
+        let ok = |v: f64| v.is_finite() && v > 0.0;
+        if !ok(self.pixel_sigma) {
+            Some(PriorSigma::Pixel)
+        } else if !self.sigma.iter().all(|&s| ok(s)) {
+            Some(PriorSigma::Rotation)
+        } else if self.centre_sigma.is_some_and(|s| !ok(s)) {
+            Some(PriorSigma::Centre)
+        } else {
+            None
+        }
     }
 
     /// The prior's weights, the matches' being 1, once [`MotionPrior::check`] passes: on each

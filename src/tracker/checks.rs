@@ -273,17 +273,14 @@ impl TrackerConfig {
             ));
         }
         if let Some(prior) = self.fit_prior() {
-            // The prior's check refuses any of three settings; the error names the bad one,
-            // in the order the check tries them.
-            let positive = |v: f64| v.is_finite() && v > 0.0;
-            let setting = if !positive(prior.pixel_sigma) {
-                "fit_pixel_sigma"
-            } else if !prior.sigma.iter().all(|&s| positive(s)) {
-                "filter.dynamics.rotation"
-            } else {
-                "fit_centre_sigma"
-            };
             prior.check().map_err(|e| {
+                // The prior's sigmas are three settings: the error names the one refused.
+                use crate::pose::prior::PriorSigma;
+                let setting = match prior.bad_sigma() {
+                    Some(PriorSigma::Rotation) => "filter.dynamics.rotation",
+                    Some(PriorSigma::Centre) => "fit_centre_sigma",
+                    Some(PriorSigma::Pixel) | None => "fit_pixel_sigma",
+                };
                 let centre = self
                     .fit_centre_sigma
                     .map_or_else(|| "None".to_string(), |c| c.to_string());
