@@ -252,7 +252,8 @@ pub fn refine(
         return Err(PoseError::NonFinite);
     }
     let problem = Problem::new(x0, key_centre, key_frame, camera, params, views.len());
-    let mut z: Vec<f64> = x0.iter().map(|x| x.z).collect();
+    // The depths start at the lift's, which the prior holds.
+    let mut z = problem.prior.z0.clone();
     let mut u = 0.0;
     let start_cost = problem.cost(views, &z, u);
     let current = problem.minimise(views, &mut z, &mut u, start_cost);
