@@ -5,6 +5,8 @@
 # variants by their means over 16 seeds or more, and only by more than two standard errors.
 #
 #   scripts/eval_seeds.sh real  [options] [-- TRACK_ARGS...]   girl and car4, success AUC
+#       and lost frames; on a copy whose truth marks the target absent (a box of no size:
+#       examples/perturb.rs vanish), the share of those frames the track flags lost
 #   scripts/eval_seeds.sh synth [options] [-- TRACK_ARGS...]   synthetic scenarios, angle RMSE
 #   scripts/eval_seeds.sh tre   [options] [-- TRACK_ARGS...]   girl and car4 started at
 #       --segments K frames spread over each (OTB's temporal robustness evaluation: segment i
@@ -238,6 +240,20 @@ elif [ "$mode" = real ]; then
         c=$(for s in $seeds; do field "$out/$q-$s.json" mean_centre_error_px; done | stats)
         printf '%-6s AUC %s  centre error %s px\n' "$q" "$m" "$c"
         printf '       per seed: %s\n' "$(for v in $per; do printf '%.3f ' "$v"; done)"
+        l=$(for s in $seeds; do field "$out/$q-$s.json" lost; done | mean_or_dash)
+        printf '       lost frames a seed (the target shown): %s\n' "$l"
+        # Where the truth marks the target absent: how often the track said so.
+        a=$(field "$out/$q-$(set -- $seeds; echo "$1").json" absent)
+        if [ "${a:-0}" != 0 ]; then
+            per=""; for s in $seeds; do
+                f=$out/$q-$s.json
+                per+="$(echo "$(field "$f" absent_lost) $(field "$f" absent_estimated)" |
+                    awk '{ if ($2 > 0) printf "%.3f", $1 / $2 }') "
+            done
+            m=$(echo "$per" | tr ' ' '\n' | grep . | stats)
+            printf '       target absent on %s frames: share flagged lost %s\n' "$a" "$m"
+            printf '       per seed: %s\n' "$per"
+        fi
     done
 else
     echo "angle RMSE in degrees, mean over scenario seeds $seeds (filter seed $filter_seed${size:+, rendered at $size});"

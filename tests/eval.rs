@@ -527,3 +527,58 @@ fn cli_bad_input_is_one_line_and_non_zero() {
     }
     std::fs::remove_dir_all(&d).unwrap();
 }
+
+#[test]
+fn the_lost_flag_is_counted_where_the_target_is_absent() {
+    // Frames 2-4 without the target; the estimate has no row for frame 4, flags frame 1
+    // (the target there) and frame 3 (not there) lost.
+    let boxes = "10,10,20,30\n12,10,20,30\n0,0,0,0\n0,0,0,0\n0,0,0,0\n14,10,20,30\n";
+    let truth = Truth::Boxes(parse_otb_boxes(boxes, Path::new("t.txt")).unwrap());
+    let est: Vec<PoseRecord> = [0usize, 1, 2, 3, 5]
+        .iter()
+        .map(|&k| {
+            let mut r = truth_records()[0].clone();
+            r.frame = k;
+            (r.state.cx, r.state.cy, r.state.a, r.state.b) = (20.0 + k as f64, 23.5, 10.0, 15.0);
+            r.lost = Some(k == 1 || k == 3);
+            r
+        })
+        .collect();
+    let r = evaluate(&truth, &est).unwrap();
+    assert_eq!(
+        (r.absent, r.absent_estimated, r.absent_lost, r.lost),
+        (3, 2, Some(1), Some(1))
+    );
+    let table = r.to_table();
+    assert!(
+        table.contains("3 truth frames without the target (not scored); flagged lost on 1 of the 2 with an estimate"),
+        "{table}"
+    );
+    // The flag's frames where the target is absent change no score.
+    let unflagged: Vec<PoseRecord> = est
+        .iter()
+        .map(|r| PoseRecord {
+            lost: Some(false),
+            ..r.clone()
+        })
+        .collect();
+    let u = evaluate(&truth, &unflagged).unwrap();
+    assert_eq!((u.absent_lost, u.lost), (Some(0), Some(0)));
+    close(u.success_auc, r.success_auc, "auc");
+    close(
+        u.mean_centre_error_px,
+        r.mean_centre_error_px,
+        "centre error",
+    );
+    // Without a lost column there is nothing to count.
+    let plain: Vec<PoseRecord> = est
+        .iter()
+        .map(|r| PoseRecord {
+            lost: None,
+            ..r.clone()
+        })
+        .collect();
+    let p = evaluate(&truth, &plain).unwrap();
+    assert_eq!((p.absent_estimated, p.absent_lost, p.lost), (2, None, None));
+    assert!(!p.to_table().contains("flagged lost"), "{}", p.to_table());
+}

@@ -40,7 +40,10 @@
 //! present; [`Report::missing`] says how many truth frames had no estimate. Estimate frames
 //! with no truth frame are ignored and counted ([`Report::ignored`]). The tracker's `lost`
 //! flag does not change the scores: a lost frame is scored by its estimate like any other,
-//! and the number of lost frames is reported.
+//! and the number of lost frames is reported. Where the target is absent, the flag is what
+//! a tracker should raise: [`Report::absent_lost`] counts the absent frames it was raised on
+//! (a target that vanished or left the frame, and a track that says so or goes on as if it
+//! were there).
 
 use std::collections::BTreeMap;
 use std::fmt::Write as _;
@@ -323,6 +326,12 @@ pub struct Report {
     pub ignored: usize,
     /// Truth frames marking the target absent (an OTB box of no size): not scored.
     pub absent: usize,
+    /// Of the [`Report::absent`] frames, those with an estimate.
+    pub absent_estimated: usize,
+    /// Of the [`Report::absent_estimated`] frames, those the estimate flags as lost, when it
+    /// has a `lost` column: the frames without the target where the tracker said so. The rest
+    /// are estimates of a target that is not there.
+    pub absent_lost: Option<usize>,
     /// Angle RMSE per axis (degrees, over evaluated frames); `None` for box truth.
     pub angle_rmse_deg: Option<Axes>,
     /// Angle MAE per axis (degrees, over evaluated frames); `None` for box truth.
@@ -480,6 +489,19 @@ pub fn evaluate_from(truth: &Truth, est: &[PoseRecord], from: usize) -> Result<R
             score_n += 1;
         }
     }
+    // Where the target is absent, only whether the tracker says so.
+    let (mut absent_estimated, mut absent_lost) = (0usize, 0usize);
+    for r in tf
+        .iter()
+        .filter(|t| t.absent)
+        .filter_map(|t| by_frame.get(&t.frame))
+    {
+        absent_estimated += 1;
+        if let Some(l) = r.lost {
+            any_lost_col = true;
+            absent_lost += usize::from(l);
+        }
+    }
     let evaluated = centre_errs.len();
     if n == 0 {
         return Err(EvalError::AllAbsent { from });
@@ -507,6 +529,8 @@ pub fn evaluate_from(truth: &Truth, est: &[PoseRecord], from: usize) -> Result<R
         missing_frames,
         ignored,
         absent,
+        absent_estimated,
+        absent_lost: any_lost_col.then_some(absent_lost),
         angle_rmse_deg: has_angles.then(|| Axes::from_array(sq.map(|v| (v / m).sqrt()))),
         angle_mae_deg: has_angles.then(|| Axes::from_array(abs.map(|v| v / m))),
         angle_gain: has_angles.then(|| Gains {
@@ -587,9 +611,16 @@ impl Report {
                 &mut s,
                 "absent",
                 format!(
-                    "{} truth frame{} without the target (not scored)",
+                    "{} truth frame{} without the target (not scored){}",
                     self.absent,
-                    if self.absent == 1 { "" } else { "s" }
+                    if self.absent == 1 { "" } else { "s" },
+                    match self.absent_lost {
+                        Some(l) => format!(
+                            "; flagged lost on {l} of the {} with an estimate",
+                            self.absent_estimated
+                        ),
+                        None => String::new(),
+                    }
                 ),
             );
         }
