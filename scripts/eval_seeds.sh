@@ -209,6 +209,7 @@ gain() {
 mean_or_dash() { awk '{ s += $1; n++ } END { if (n) printf "%.3f", s / n; else printf "-" }'; }
 # Mean and standard error of the numbers on stdin ("-" for the error of a single number).
 stats() { awk '{ s += $1; q += $1 * $1; n++ } END {
+    if (n == 0) { printf "- ± -"; exit }
     m = s / n; if (n < 2) { printf "%.3f ± -", m; exit }
     v = (q - n * m * m) / (n - 1); if (v < 0) v = 0;
     printf "%.3f ± %.3f", m, sqrt(v / n) }'; }
@@ -245,12 +246,18 @@ elif [ "$mode" = real ]; then
         # Where the truth marks the target absent: how often the track said so.
         a=$(field "$out/$q-$(set -- $seeds; echo "$1").json" absent)
         if [ "${a:-0}" != 0 ]; then
+            # A seed whose track has no lost column, or no estimate on those frames, has no
+            # share: "-" in its place, left out of the mean.
             per=""; for s in $seeds; do
                 f=$out/$q-$s.json
-                per+="$(echo "$(field "$f" absent_lost) $(field "$f" absent_estimated)" |
-                    awk '{ if ($2 > 0) printf "%.3f", $1 / $2 }') "
+                al=$(field "$f" absent_lost); ae=$(field "$f" absent_estimated)
+                if [ -n "$al" ] && [ "${ae:-0}" != 0 ]; then
+                    per+="$(awk -v l="$al" -v e="$ae" 'BEGIN { printf "%.3f", l / e }') "
+                else
+                    per+="- "
+                fi
             done
-            m=$(echo "$per" | tr ' ' '\n' | grep . | stats)
+            m=$(echo "$per" | tr ' ' '\n' | { grep -v -e '^-$' -e '^$' || true; } | stats)
             printf '       target absent on %s frames: share flagged lost %s\n' "$a" "$m"
             printf '       per seed: %s\n' "$per"
         fi

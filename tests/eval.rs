@@ -581,4 +581,29 @@ fn the_lost_flag_is_counted_where_the_target_is_absent() {
     let p = evaluate(&truth, &plain).unwrap();
     assert_eq!((p.absent_estimated, p.absent_lost, p.lost), (2, None, None));
     assert!(!p.to_table().contains("flagged lost"), "{}", p.to_table());
+    // Scored from frame 3 (a segment): the absent frame before it does not count.
+    let seg = evaluate_from(&truth, &est, 3).unwrap();
+    assert_eq!(
+        (seg.absent, seg.absent_estimated, seg.absent_lost, seg.lost),
+        (2, 1, Some(1), Some(0))
+    );
+    // The JSON report names both counts.
+    let json = serde_json::to_string(&r).unwrap();
+    assert!(
+        json.contains("\"absent_estimated\":2") && json.contains("\"absent_lost\":1"),
+        "{json}"
+    );
+    // No estimate where the target is absent: said so, not "0 of the 0".
+    let kept: Vec<PoseRecord> = est
+        .iter()
+        .filter(|r| r.frame < 2 || r.frame > 4)
+        .cloned()
+        .collect();
+    let k = evaluate(&truth, &kept).unwrap();
+    assert_eq!((k.absent_estimated, k.absent_lost), (0, Some(0)));
+    assert!(
+        k.to_table().contains("; none with an estimate"),
+        "{}",
+        k.to_table()
+    );
 }

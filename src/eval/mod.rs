@@ -615,6 +615,9 @@ impl Report {
                     self.absent,
                     if self.absent == 1 { "" } else { "s" },
                     match self.absent_lost {
+                        Some(_) if self.absent_estimated == 0 => {
+                            "; none with an estimate".to_string()
+                        }
                         Some(l) => format!(
                             "; flagged lost on {l} of the {} with an estimate",
                             self.absent_estimated
