@@ -485,6 +485,48 @@ fn cli_track_refine_init() {
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
+/// A start given by hand that takes in much around the target is said to (once, before the
+/// track, naming `--refine-init`); one close to the outline, one from a file and one refined
+/// already are not.
+#[test]
+fn cli_track_says_when_a_start_by_hand_is_loose() {
+    let dir = synth_dir("track-loose", 2, "160x120");
+    let d = dir.to_str().unwrap();
+    let e = read_init(&dir.join("init.txt")).unwrap().ellipse;
+    let csv = dir.join("poses.csv");
+    let c = csv.to_str().unwrap();
+    let stderr = |extra: &[&str]| -> String {
+        let mut args = vec!["track", d, "--backend", "cpu", "--out", c];
+        args.extend_from_slice(extra);
+        String::from_utf8_lossy(&pftrack_ok(&args).stderr).into_owned()
+    };
+    let note = "pftrack: note: the start takes in much around the target";
+    // 1.35 times the head's size: refined, the box and the given one's overlap by about 0.6.
+    let loose = format!("{},{},{},{}", e.cx, e.cy, 1.35 * e.a, 1.35 * e.b);
+    let said = stderr(&["--init-ellipse", &loose]);
+    assert_eq!(said.matches(note).count(), 1, "{said}");
+    assert!(said.contains("--refine-init tracks from there"), "{said}");
+    let as_box = format!(
+        "{},{},{},{}",
+        e.cx - 1.35 * e.a,
+        e.cy - 1.35 * e.b,
+        2.7 * e.a,
+        2.7 * e.b
+    );
+    assert!(stderr(&["--init-box", &as_box]).contains(note));
+    for quiet in [
+        stderr(&[
+            "--init-ellipse",
+            &format!("{},{},{},{}", e.cx, e.cy, e.a, e.b),
+        ]),
+        stderr(&["--init-ellipse", &loose, "--refine-init"]),
+        stderr(&[]),
+    ] {
+        assert!(!quiet.contains(note), "{quiet}");
+    }
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
 /// `track` takes the camera from the init file `synth` writes, `--hfov` overrides it and
 /// `--weak-perspective` sets it aside; a bad camera line is one clear error and no poses.
 #[test]

@@ -560,30 +560,9 @@ impl Tracker {
         init.check_for(&self.cfg, w, h).map_err(track_err)?;
         self.engine
             .check_capacity(self.cfg.filter.particles, w, h, &self.cfg.likelihood)?;
-        // Grey footage gets luma bins, decided on each start's own frame. The contrast term
-        // is the tracker's to turn on, on the frames where it has a background
-        // (`enable_contrast`): a start whose ring holds no pixel (a target filling the frame)
-        // has none, and the flag left on would have every step ask for a table never made.
-        let mut likelihood = self.cfg.likelihood;
-        likelihood.terms &= !TERM_CONTRAST;
-        if self.cfg.grey_luma && is_grey(frame) {
-            likelihood.colour_bins = COLOUR_LUMA;
-        }
+        let likelihood = start_likelihood(&self.cfg, frame);
         let init = match &self.cfg.init_refine {
-            Some(r) => {
-                let refined = Init {
-                    ellipse: init_refine::refine_ellipse(frame, &init.ellipse, &likelihood, r)
-                        .map_err(track_err)?,
-                    ..init
-                };
-                // A refinement that leaves the start's bounds (a semi-axis under 2 px, the
-                // centre off the frame) is no refinement: the start as given.
-                if refined.check_for(&self.cfg, w, h).is_ok() {
-                    refined
-                } else {
-                    init
-                }
-            }
+            Some(r) => refine_checked(&self.cfg, r, frame, &likelihood, init)?,
             None => init,
         };
         let started = self.start_checked(frame, init, likelihood, index);
@@ -1050,6 +1029,60 @@ impl Tracker {
             })
             .collect()
     }
+}
+
+/// The likelihood settings a start on `frame` takes: grey footage gets luma bins, decided on
+/// each start's own frame. The contrast term is the tracker's to turn on, on the frames where
+/// it has a background (`enable_contrast`): a start whose ring holds no pixel (a target
+/// filling the frame) has none, and the flag left on would have every step ask for a table
+/// never made.
+fn start_likelihood(cfg: &TrackerConfig, frame: &image::RgbImage) -> LikelihoodParams {
+    let mut likelihood = cfg.likelihood;
+    likelihood.terms &= !TERM_CONTRAST;
+    if cfg.grey_luma && is_grey(frame) {
+        likelihood.colour_bins = COLOUR_LUMA;
+    }
+    likelihood
+}
+
+/// `init`, checked, refined on `frame` with `refine` under `likelihood`; `init` itself where the
+/// refinement leaves the start's bounds (a semi-axis under 2 px, the centre off the frame),
+/// which is no refinement.
+fn refine_checked(
+    cfg: &TrackerConfig,
+    refine: &InitRefine,
+    frame: &image::RgbImage,
+    likelihood: &LikelihoodParams,
+    init: Init,
+) -> crate::Result<Init> {
+    let (w, h) = frame.dimensions();
+    init.check_for(cfg, w, h).map_err(track_err)?;
+    let refined = Init {
+        ellipse: init_refine::refine_ellipse(frame, &init.ellipse, likelihood, refine)
+            .map_err(track_err)?,
+        ..init
+    };
+    Ok(if refined.check_for(cfg, w, h).is_ok() {
+        refined
+    } else {
+        init
+    })
+}
+
+/// The start a tracker would take on `frame` from `init` with [`TrackerConfig::init_refine`]
+/// set to `refine` (the rest of `cfg` as given): `init` refined onto the edges and colour
+/// boundary nearest it ([`refine_ellipse`], under the likelihood settings the tracker takes
+/// on that frame), or `init` itself where the refinement would leave the start's bounds. For
+/// a program that shows where a start drawn by hand would move before tracking from it
+/// (`pftrack track` says so where the refined box would keep under 80 % of the given one's).
+/// Errors: a start or settings the tracker would refuse.
+pub fn refined_start(
+    cfg: &TrackerConfig,
+    refine: &InitRefine,
+    frame: &image::RgbImage,
+    init: Init,
+) -> crate::Result<Init> {
+    refine_checked(cfg, refine, frame, &start_likelihood(cfg, frame), init)
 }
 
 /// Whether the ellipse's size is held ([`TrackerConfig::size_hold`]) on the frame after one
