@@ -501,7 +501,7 @@ fn cli_track_says_when_a_start_by_hand_is_loose() {
         String::from_utf8_lossy(&pftrack_ok(&args).stderr).into_owned()
     };
     let note = "pftrack: note: the start takes in much around the target";
-    // 1.35 times the head's size: refined, the box and the given one's overlap by about 0.6.
+    // 1.35 times the head's size: refined, the box and the given one's overlap by about 0.55.
     let loose = format!("{},{},{},{}", e.cx, e.cy, 1.35 * e.a, 1.35 * e.b);
     let said = stderr(&["--init-ellipse", &loose]);
     assert_eq!(said.matches(note).count(), 1, "{said}");
@@ -514,7 +514,26 @@ fn cli_track_says_when_a_start_by_hand_is_loose() {
         2.7 * e.b
     );
     assert!(stderr(&["--init-box", &as_box]).contains(note));
+    // One too small is off the outline, not around the target.
+    let small = format!("{},{},{},{}", e.cx, e.cy, 0.75 * e.a, 0.75 * e.b);
+    let off = stderr(&["--init-ellipse", &small]);
+    assert!(
+        off.contains("pftrack: note: the start lies off the target's outline"),
+        "{off}"
+    );
+    // Under a settings file, which refuses --refine-init, the note names its setting.
+    let settings = dir.join("settings.json");
+    std::fs::write(&settings, "{}").unwrap();
+    let s = settings.to_str().unwrap();
+    let filed = stderr(&["--init-ellipse", &loose, "--config", s]);
+    assert!(filed.contains(note), "{filed}");
+    assert!(
+        filed.contains(&format!("\"init_refine\": {{}} in {s} tracks from there")),
+        "{filed}"
+    );
+    std::fs::write(&settings, r#"{"init_refine": {}}"#).unwrap();
     for quiet in [
+        stderr(&["--init-ellipse", &loose, "--config", s]),
         stderr(&[
             "--init-ellipse",
             &format!("{},{},{},{}", e.cx, e.cy, e.a, e.b),

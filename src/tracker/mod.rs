@@ -1074,8 +1074,11 @@ fn refine_checked(
 /// boundary nearest it ([`refine_ellipse`], under the likelihood settings the tracker takes
 /// on that frame), or `init` itself where the refinement would leave the start's bounds. For
 /// a program that shows where a start drawn by hand would move before tracking from it
-/// (`pftrack track` says so where the refined box would keep under 80 % of the given one's).
-/// Errors: a start or settings the tracker would refuse.
+/// (`pftrack track` says so where the given and the refined ellipses' boxes have an
+/// intersection over union under 0.8). Errors: a start [`Init::check_for`] refuses, `refine`
+/// settings [`InitRefine::check`] refuses, or likelihood settings the refinement's scoring
+/// refuses ([`refine_ellipse`]); the rest of `cfg` is not checked here
+/// ([`TrackerConfig::check`] does).
 pub fn refined_start(
     cfg: &TrackerConfig,
     refine: &InitRefine,
