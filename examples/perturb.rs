@@ -105,7 +105,7 @@ fn run() -> Result<(), String> {
     };
     if !wanted.contains(&args.len()) {
         return Err(format!(
-            "'{}' takes {} argument(s) after DST, not {}; {usage}",
+            "'{}' takes {} argument(s) after its name, not {}; {usage}",
             args[2],
             if wanted.start() == wanted.end() {
                 format!("{}", wanted.start() - 3)

@@ -562,7 +562,7 @@ impl Tracker {
             .check_capacity(self.cfg.filter.particles, w, h, &self.cfg.likelihood)?;
         let likelihood = start_likelihood(&self.cfg, frame);
         let init = match &self.cfg.init_refine {
-            Some(r) => refine_checked(&self.cfg, r, frame, &likelihood, init)?,
+            Some(r) => refine_within_bounds(&self.cfg, r, frame, &likelihood, init)?,
             None => init,
         };
         let started = self.start_checked(frame, init, likelihood, index);
@@ -1045,10 +1045,10 @@ fn start_likelihood(cfg: &TrackerConfig, frame: &image::RgbImage) -> LikelihoodP
     likelihood
 }
 
-/// `init`, checked, refined on `frame` with `refine` under `likelihood`; `init` itself where the
-/// refinement leaves the start's bounds (a semi-axis under 2 px, the centre off the frame),
-/// which is no refinement.
-fn refine_checked(
+/// `init`, a start already checked against `frame` ([`Init::check_for`]), refined on it with
+/// `refine` under `likelihood`; `init` itself where the refinement leaves the start's bounds
+/// (a semi-axis under 2 px, the centre off the frame), which is no refinement.
+fn refine_within_bounds(
     cfg: &TrackerConfig,
     refine: &InitRefine,
     frame: &image::RgbImage,
@@ -1056,7 +1056,6 @@ fn refine_checked(
     init: Init,
 ) -> crate::Result<Init> {
     let (w, h) = frame.dimensions();
-    init.check_for(cfg, w, h).map_err(track_err)?;
     let refined = Init {
         ellipse: init_refine::refine_ellipse(frame, &init.ellipse, likelihood, refine)
             .map_err(track_err)?,
@@ -1085,7 +1084,9 @@ pub fn refined_start(
     frame: &image::RgbImage,
     init: Init,
 ) -> crate::Result<Init> {
-    refine_checked(cfg, refine, frame, &start_likelihood(cfg, frame), init)
+    let (w, h) = frame.dimensions();
+    init.check_for(cfg, w, h).map_err(track_err)?;
+    refine_within_bounds(cfg, refine, frame, &start_likelihood(cfg, frame), init)
 }
 
 /// Whether the ellipse's size is held ([`TrackerConfig::size_hold`]) on the frame after one

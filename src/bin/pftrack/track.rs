@@ -582,7 +582,7 @@ fn flag_config(a: &TrackArgs, hfov: Option<f64>) -> anyhow::Result<TrackerConfig
         ..Default::default()
     });
     cfg.sift_upsample_below = (!a.sift_always_upsample).then_some(a.sift_upsample_below);
-    cfg.init_refine = a.refine_init.then(pftrack::tracker::InitRefine::default);
+    cfg.init_refine = a.refine_init.then(InitRefine::default);
     cfg.motion_scale = a.motion_scale;
     if a.no_interframe_consensus {
         cfg.interframe_consensus = None;
