@@ -15,7 +15,7 @@ use pftrack::likelihood::{Backend, create_engine};
 use pftrack::output::{Overlay, VideoWriter, default_scale, render_overlay, write_png};
 use pftrack::synth::frame_name;
 use pftrack::tracker::{
-    ColourUpdate, Estimate, Init, InitRefine, MAX_WEIGHT, Mode, Tracker, TrackerConfig,
+    ColourUpdate, Estimate, Init, InitRefine, MAX_WEIGHT, Mode, TrackError, Tracker, TrackerConfig,
     refined_start,
 };
 
@@ -871,8 +871,8 @@ pub fn apply_edge_threshold(cfg: &mut TrackerConfig, t: Option<f64>) -> anyhow::
 }
 
 /// The library settings the command line's flags set, each with its flag and what the
-/// command line offers where the library would take `None`; the first whose name a
-/// configuration error mentions is the one it is about.
+/// command line offers where the library would take `None`; a configuration error is
+/// about the one its [`TrackError::BadConfig`]'s `setting` names.
 const FLAG_OF_SETTING: [(&str, &str, &str); 12] = [
     (
         "fit_centre_sigma",
@@ -915,7 +915,7 @@ const FLAG_OF_SETTING: [(&str, &str, &str); 12] = [
         "--sift-always-upsample keeps one SIFT setting for every size",
     ),
     (
-        "contrast weight",
+        "contrast",
         "--contrast-weight",
         "--contrast-weight 0 weighs without the contrast term",
     ),
@@ -929,18 +929,16 @@ const FLAG_OF_SETTING: [(&str, &str, &str); 12] = [
 ];
 
 /// A configuration error in the command line's terms: the flag behind the setting first,
-/// and the flag that turns the part off in place of the library's "set it to None".
-fn flag_error(msg: &str) -> String {
-    let Some((_, flag, off)) = FLAG_OF_SETTING
-        .iter()
-        .find(|(setting, _, _)| msg.contains(setting))
-    else {
-        return msg.to_string();
+/// and the flag that turns the part off in place of the library's "set it to None". An
+/// error about a setting no flag sets (only `--config` does) is the library's own.
+fn flag_error(e: &TrackError) -> String {
+    let TrackError::BadConfig { setting, why, .. } = e else {
+        return e.to_string();
     };
-    let head = msg.split_once("; set ").map_or(msg, |(h, _)| h);
-    let head = head
-        .strip_prefix("invalid tracker configuration: ")
-        .unwrap_or(head);
+    let Some((_, flag, off)) = FLAG_OF_SETTING.iter().find(|(s, _, _)| s == setting) else {
+        return e.to_string();
+    };
+    let head = why.split_once("; set ").map_or(why.as_str(), |(h, _)| h);
     if off.is_empty() {
         format!("{flag}: {head}")
     } else {
@@ -1178,9 +1176,7 @@ fn configure(a: &TrackArgs, synth_init: Option<&Path>) -> anyhow::Result<(Init, 
                 e.to_string().replace(" None", " null")
             )
         })?,
-        None => cfg
-            .check()
-            .map_err(|e| anyhow::anyhow!(flag_error(&e.to_string())))?,
+        None => cfg.check().map_err(|e| anyhow::anyhow!(flag_error(&e)))?,
     }
     Ok((init, cfg))
 }
