@@ -5,8 +5,10 @@
 # variants by their means over 16 seeds or more, and only by more than two standard errors.
 #
 #   scripts/eval_seeds.sh real  [options] [-- TRACK_ARGS...]   girl and car4, success AUC
-#       and lost frames; on a copy whose truth marks the target absent (a box of no size:
-#       examples/perturb.rs vanish), the share of those frames the track flags lost
+#       and lost frames (how many of them on the target), the confidence's AUROC telling
+#       frames on the target from those off it; on a copy whose truth marks the target
+#       absent (a box of no size: examples/perturb.rs vanish), the share of those frames
+#       the track flags lost
 #   scripts/eval_seeds.sh synth [options] [-- TRACK_ARGS...]   synthetic scenarios, angle RMSE
 #   scripts/eval_seeds.sh tre   [options] [-- TRACK_ARGS...]   girl and car4 started at
 #       --segments K frames spread over each (OTB's temporal robustness evaluation: segment i
@@ -243,6 +245,16 @@ elif [ "$mode" = real ]; then
         printf '       per seed: %s\n' "$(for v in $per; do printf '%.3f ' "$v"; done)"
         l=$(for s in $seeds; do field "$out/$q-$s.json" lost; done | mean_or_dash)
         printf '       lost frames a seed (the target shown): %s\n' "$l"
+        # How far the tracker's own signals can be trusted: the lost flag on and off the
+        # target (IoU 0.5), and how well the confidence tells the two apart.
+        lo=$(for s in $seeds; do field "$out/$q-$s.json" lost_on_target; done | mean_or_dash)
+        off=$(for s in $seeds; do
+            f=$out/$q-$s.json
+            echo "$(field "$f" evaluated) $(field "$f" on_target)"
+        done | awk '{ print $1 - $2 }' | mean_or_dash)
+        printf '       of them on the target (IoU >= 0.5): %s; frames off it a seed: %s\n' "$lo" "$off"
+        u=$(for s in $seeds; do field "$out/$q-$s.json" score_auroc; done | stats)
+        printf '       score AUROC (frames on the target against those off it): %s\n' "$u"
         # Where the truth marks the target absent: how often the track said so.
         a=$(field "$out/$q-$(set -- $seeds; echo "$1").json" absent)
         if [ "${a:-0}" != 0 ]; then

@@ -44,6 +44,15 @@
 //! a tracker should raise: [`Report::absent_lost`] counts the absent frames it was raised on
 //! (a target that vanished or left the frame, and a track that says so or goes on as if it
 //! were there).
+//!
+//! How far the tracker's own signals can be trusted, over the evaluated frames, each of which
+//! is on the target (IoU `≥` [`ON_TARGET_IOU`], OTB's usual success bar) or off it:
+//! - the confidence's AUROC ([`Report::score_auroc`]): the chance that a frame on the target,
+//!   drawn at random, has a higher `score` than a frame off it (ties count a half), 1 for a
+//!   confidence that a bar separates perfectly, 0.5 for one that says nothing;
+//! - the lost flag on and off the target ([`Report::lost_on_target`]): a flag raised on the
+//!   target is a false alarm, and the frames off it that are not flagged are the drift the
+//!   flag missed.
 
 use std::collections::BTreeMap;
 use std::fmt::Write as _;
@@ -58,6 +67,10 @@ use crate::io::{FormatError, PoseRecord};
 
 /// Centre-error threshold of the precision score (pixels).
 pub const PRECISION_THRESHOLD_PX: f64 = 20.0;
+
+/// The IoU from which an estimate is on the target, for judging the tracker's confidence and
+/// lost flag ([`Report::score_auroc`], [`Report::on_target`]): OTB's conventional success.
+pub const ON_TARGET_IOU: f64 = 0.5;
 
 /// Least standard deviation of the truth's angle about an axis (degrees) for that axis to
 /// have a gain ([`Report::angle_gain`]): about a still axis the slope measures only noise.
@@ -356,6 +369,16 @@ pub struct Report {
     pub lost: Option<usize>,
     /// Mean `score` over evaluated frames, when the estimate has a `score` column.
     pub mean_score: Option<f64>,
+    /// Evaluated frames on the target: IoU at least [`ON_TARGET_IOU`]. The others are off it.
+    pub on_target: usize,
+    /// Of the [`Report::lost`] frames, those on the target (false alarms), when the estimate
+    /// has a `lost` column. The rest of the lost frames are off it.
+    pub lost_on_target: Option<usize>,
+    /// How well the `score` tells the frames on the target from those off it: the area under
+    /// the ROC curve, the chance that a frame on it drawn at random scores higher than one off
+    /// it (ties counted a half). `None` without a `score` column, or where every evaluated
+    /// frame is on the target or every one off it.
+    pub score_auroc: Option<f64>,
 }
 
 /// The 21 IoU thresholds of the success plot.
@@ -453,6 +476,8 @@ pub fn evaluate_from(truth: &Truth, est: &[PoseRecord], from: usize) -> Result<R
     let mut turn_errs = Vec::with_capacity(n);
     let (mut lost, mut any_lost_col) = (0usize, false);
     let (mut score_sum, mut score_n) = (0.0f64, 0usize);
+    let (mut on_scores, mut off_scores) = (Vec::new(), Vec::new());
+    let (mut on_target, mut lost_on_target) = (0usize, 0usize);
     let unwrapped = unwrapped_truth_deg(&tf);
     for t in tf.iter().filter(|t| !t.absent) {
         let Some(r) = by_frame.get(&t.frame) else {
@@ -463,7 +488,10 @@ pub fn evaluate_from(truth: &Truth, est: &[PoseRecord], from: usize) -> Result<R
         let (tcx, tcy) = t.centre;
         centre_errs.push((s.cx - tcx).hypot(s.cy - tcy));
         // Clamped: rounding can put the IoU of identical boxes a hair above 1.
-        ious.push(pose_box(r).iou(&t.bbox).clamp(0.0, 1.0));
+        let iou = pose_box(r).iou(&t.bbox).clamp(0.0, 1.0);
+        ious.push(iou);
+        let on = iou >= ON_TARGET_IOU;
+        on_target += usize::from(on);
         if let Some(angles) = t.angles {
             let swing = unwrapped.get(&t.frame);
             for (k, e) in [s.rx, s.ry, s.rz].into_iter().enumerate() {
@@ -483,10 +511,16 @@ pub fn evaluate_from(truth: &Truth, est: &[PoseRecord], from: usize) -> Result<R
         if let Some(l) = r.lost {
             any_lost_col = true;
             lost += usize::from(l);
+            lost_on_target += usize::from(l && on);
         }
         if let Some(sc) = r.score {
             score_sum += sc;
             score_n += 1;
+            if on {
+                on_scores.push(sc);
+            } else {
+                off_scores.push(sc);
+            }
         }
     }
     // Where the target is absent, only whether the tracker says so.
@@ -554,7 +588,32 @@ pub fn evaluate_from(truth: &Truth, est: &[PoseRecord], from: usize) -> Result<R
         mean_iou: ious.iter().sum::<f64>() / m,
         lost: any_lost_col.then_some(lost),
         mean_score: (score_n > 0).then(|| score_sum / score_n as f64),
+        on_target,
+        lost_on_target: any_lost_col.then_some(lost_on_target),
+        score_auroc: auroc(&on_scores, &off_scores),
     })
+}
+
+/// The area under the ROC curve of a score telling `pos` from `neg`: the share of the pairs
+/// (one of each) in which the one from `pos` scores higher, ties counted a half (the
+/// Mann-Whitney statistic over `|pos| · |neg|`). `None` where either is empty or a score is
+/// not finite.
+pub fn auroc(pos: &[f64], neg: &[f64]) -> Option<f64> {
+    if pos.is_empty() || neg.is_empty() || pos.iter().chain(neg).any(|v| !v.is_finite()) {
+        return None;
+    }
+    let mut neg = neg.to_vec();
+    neg.sort_by(f64::total_cmp);
+    // For each positive: the negatives below it, and half those equal to it.
+    let wins: f64 = pos
+        .iter()
+        .map(|&p| {
+            let below = neg.partition_point(|&v| v < p);
+            let up_to = neg.partition_point(|&v| v <= p);
+            below as f64 + 0.5 * (up_to - below) as f64
+        })
+        .sum();
+    Some(wins / (pos.len() as f64 * neg.len() as f64))
 }
 
 impl Report {
@@ -653,11 +712,38 @@ impl Report {
                 None => format!("{:.4}", self.mean_iou),
             },
         );
+        let off = self.evaluated - self.on_target;
         if let Some(l) = self.lost {
-            row(&mut s, "lost frames", l.to_string());
+            let split = match self.lost_on_target {
+                Some(on) if l > 0 => format!(
+                    " ({on} on the target, {} of the {off} off it)",
+                    l - on
+                ),
+                _ => String::new(),
+            };
+            row(&mut s, "lost frames", format!("{l}{split}"));
         }
         if let Some(sc) = self.mean_score {
             row(&mut s, "mean score", format!("{sc:.4}"));
+        }
+        if self.mean_score.is_some() {
+            let bar = ON_TARGET_IOU;
+            row(
+                &mut s,
+                "score AUROC",
+                match self.score_auroc {
+                    Some(a) => format!(
+                        "{a:.4}  (the score telling the {} frames on the target, IoU >= {bar}, \
+                         from the {off} off it)",
+                        self.on_target
+                    ),
+                    None => format!(
+                        "-  (every evaluated frame is {} the target, IoU {} {bar})",
+                        if off == 0 { "on" } else { "off" },
+                        if off == 0 { ">=" } else { "<" }
+                    ),
+                },
+            );
         }
         if let (Some(r), Some(m)) = (self.angle_rmse_deg, self.angle_mae_deg) {
             let g = self.angle_gain.unwrap_or_default();
@@ -905,5 +991,63 @@ mod tests {
         assert_eq!(r.missing_frames, vec![2]);
         let plain = evaluate(&truth, &[rec(0, 1.0, 0.0)]).unwrap();
         assert_eq!((plain.lost, plain.mean_score), (None, None));
+    }
+
+    #[test]
+    fn auroc_known_answers() {
+        // Perfectly separated either way, and a score that says nothing.
+        assert_eq!(auroc(&[0.9, 0.8], &[0.1, 0.2, 0.3]), Some(1.0));
+        assert_eq!(auroc(&[0.1, 0.2], &[0.8, 0.9]), Some(0.0));
+        assert_eq!(auroc(&[0.5, 0.5], &[0.5]), Some(0.5));
+        // By hand: pairs (pos, neg) over {0.2, 0.6, 0.9} x {0.1, 0.6, 0.7}: 0.2 beats 0.1
+        // (1); 0.6 beats 0.1, ties 0.6 (1.5); 0.9 beats all three (3). 5.5 of 9.
+        assert_eq!(auroc(&[0.2, 0.6, 0.9], &[0.7, 0.1, 0.6]), Some(5.5 / 9.0));
+        // Symmetric: swapping the classes gives one minus it.
+        let (p, n) = ([0.3, 0.35, 0.8, 0.1], [0.3, 0.5, 0.05]);
+        let (a, b) = (auroc(&p, &n).unwrap(), auroc(&n, &p).unwrap());
+        assert!((a + b - 1.0).abs() < 1e-15, "{a} {b}");
+        assert_eq!(auroc(&[], &[0.5]), None);
+        assert_eq!(auroc(&[0.5], &[]), None);
+        assert_eq!(auroc(&[f64::NAN], &[0.5]), None);
+    }
+
+    #[test]
+    fn the_score_and_the_lost_flag_are_judged_on_and_off_the_target() {
+        // Truth boxes 20x30 at cx = 50; estimates on it (IoU 1), 10 px to its side (IoU 1/3:
+        // off the target) or far from it (IoU 0).
+        let truth = Truth::Poses((0..6).map(|f| rec(f, 50.0, 0.0)).collect());
+        let cxs = [50.0, 50.0, 60.0, 200.0, 50.0, 200.0];
+        let scores = [0.9, 0.7, 0.8, 0.2, 0.6, 0.75];
+        let lost = [false, true, false, true, false, false];
+        let est: Vec<PoseRecord> = (0..6)
+            .map(|f| PoseRecord {
+                score: Some(scores[f]),
+                lost: Some(lost[f]),
+                ..rec(f, cxs[f], 0.0)
+            })
+            .collect();
+        let r = evaluate(&truth, &est).unwrap();
+        assert_eq!(r.on_target, 3);
+        assert_eq!((r.lost, r.lost_on_target), (Some(2), Some(1)));
+        // On: 0.9, 0.7, 0.6; off: 0.8, 0.2, 0.75. Wins: 0.9 beats 3, 0.7 beats 1, 0.6 beats 1.
+        assert_eq!(r.score_auroc, Some(5.0 / 9.0));
+        let table = r.to_table();
+        assert!(table.contains("2 (1 on the target, 1 of the 3 off it)"), "{table}");
+        assert!(table.contains("score AUROC       0.5556"), "{table}");
+        let json = serde_json::to_string(&r).unwrap();
+        assert!(
+            json.contains("\"on_target\":3")
+                && json.contains("\"lost_on_target\":1")
+                && json.contains("\"score_auroc\":0.5555"),
+            "{json}"
+        );
+        // Every frame on the target: no AUROC, and the table says why.
+        let on = evaluate(&truth, &est[..2]).unwrap();
+        assert_eq!((on.on_target, on.score_auroc), (2, None));
+        assert!(on.to_table().contains("every evaluated frame is on the target"));
+        // No columns: nothing judged.
+        let plain = evaluate(&truth, &[rec(0, 50.0, 0.0)]).unwrap();
+        assert_eq!((plain.lost_on_target, plain.score_auroc), (None, None));
+        assert!(!plain.to_table().contains("AUROC"));
     }
 }
