@@ -2531,6 +2531,51 @@ fn cli_track_learns_the_relief_on_request() {
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
+/// `track --still-share S` proposes a share of the particles around the previous estimate:
+/// the track differs from the default's (which `--still-share 0` gives exactly), is the one
+/// the settings file that says the same gives, and a share outside [0, 1) is refused.
+#[test]
+fn cli_track_proposes_a_share_around_the_previous_estimate_on_request() {
+    let dir = tmp_dir("still");
+    let seq = dir.join("seq");
+    let s = seq.to_str().unwrap();
+    pftrack_ok(&["synth", s, "--scenario", "pan", "--frames", "12"]);
+    let csv = |name: &str| dir.join(name).to_str().unwrap().to_string();
+    let run = |extra: &[&str], out: &str| {
+        let mut args = vec!["track", s, "--backend", "cpu", "-o", out];
+        args.extend_from_slice(extra);
+        pftrack_ok(&args);
+        std::fs::read(out).unwrap()
+    };
+    let plain = run(&[], &csv("plain.csv"));
+    assert_eq!(plain, run(&["--still-share", "0"], &csv("zero.csv")));
+    let still = run(&["--still-share", "0.2"], &csv("still.csv"));
+    assert_ne!(plain, still);
+    let file = dir.join("still.json");
+    std::fs::write(&file, r#"{"filter": {"still_share": 0.2}}"#).unwrap();
+    assert_eq!(
+        still,
+        run(&["--config", file.to_str().unwrap()], &csv("file.csv"))
+    );
+    let unwritten = dir.join("none.csv");
+    let u = unwritten.to_str().unwrap();
+    for bad in ["1", "-0.1", "inf", "NaN"] {
+        assert_one_line_error(
+            &["track", s, "--still-share", bad, "-o", u],
+            "--still-share must lie in [0, 1)",
+            &unwritten,
+        );
+    }
+    let bad_file = dir.join("bad.json");
+    std::fs::write(&bad_file, r#"{"filter": {"still_share": 1.5}}"#).unwrap();
+    let out = pftrack(&["track", s, "--config", bad_file.to_str().unwrap(), "-o", u]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    assert!(err.contains("still_share 1.5"), "{err}");
+    assert!(!unwritten.exists());
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
 /// `track --config FILE` takes the tracker's settings from JSON: the same track as the flags
 /// that say the same, a misspelt or out-of-range setting refused naming the file, and no
 /// tuning flag beside it.

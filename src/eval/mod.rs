@@ -715,10 +715,9 @@ impl Report {
         let off = self.evaluated - self.on_target;
         if let Some(l) = self.lost {
             let split = match self.lost_on_target {
-                Some(on) if l > 0 => format!(
-                    " ({on} on the target, {} of the {off} off it)",
-                    l - on
-                ),
+                Some(on) if l > 0 => {
+                    format!(" ({on} on the target, {} of the {off} off it)", l - on)
+                }
                 _ => String::new(),
             };
             row(&mut s, "lost frames", format!("{l}{split}"));
@@ -1032,7 +1031,10 @@ mod tests {
         // On: 0.9, 0.7, 0.6; off: 0.8, 0.2, 0.75. Wins: 0.9 beats 3, 0.7 beats 1, 0.6 beats 1.
         assert_eq!(r.score_auroc, Some(5.0 / 9.0));
         let table = r.to_table();
-        assert!(table.contains("2 (1 on the target, 1 of the 3 off it)"), "{table}");
+        assert!(
+            table.contains("2 (1 on the target, 1 of the 3 off it)"),
+            "{table}"
+        );
         assert!(table.contains("score AUROC       0.5556"), "{table}");
         let json = serde_json::to_string(&r).unwrap();
         assert!(
@@ -1044,7 +1046,10 @@ mod tests {
         // Every frame on the target: no AUROC, and the table says why.
         let on = evaluate(&truth, &est[..2]).unwrap();
         assert_eq!((on.on_target, on.score_auroc), (2, None));
-        assert!(on.to_table().contains("every evaluated frame is on the target"));
+        assert!(
+            on.to_table()
+                .contains("every evaluated frame is on the target")
+        );
         // No columns: nothing judged.
         let plain = evaluate(&truth, &[rec(0, 50.0, 0.0)]).unwrap();
         assert_eq!((plain.lost_on_target, plain.score_auroc), (None, None));
