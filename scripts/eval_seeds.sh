@@ -253,8 +253,12 @@ elif [ "$mode" = real ]; then
             echo "$(field "$f" evaluated) $(field "$f" on_target)"
         done | awk '{ print $1 - $2 }' | mean_or_dash)
         printf '       of them on the target (IoU >= 0.5): %s; frames off it a seed: %s\n' "$lo" "$off"
-        u=$(for s in $seeds; do field "$out/$q-$s.json" score_auroc; done | stats)
-        printf '       score AUROC (frames on the target against those off it): %s\n' "$u"
+        # Seeds whose every frame is on the target have none: the mean is over the others.
+        au=$(for s in $seeds; do field "$out/$q-$s.json" score_auroc; done)
+        u=$(echo "$au" | { grep . || true; } | stats)
+        n=$(echo "$au" | { grep -c . || true; })
+        printf '       score AUROC (frames on the target against those off it): %s (%s of %s seeds)\n' \
+            "$u" "$n" "$(echo $seeds | wc -w)"
         # Where the truth marks the target absent: how often the track said so.
         a=$(field "$out/$q-$(set -- $seeds; echo "$1").json" absent)
         if [ "${a:-0}" != 0 ]; then

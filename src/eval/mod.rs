@@ -376,8 +376,9 @@ pub struct Report {
     pub lost_on_target: Option<usize>,
     /// How well the `score` tells the frames on the target from those off it: the area under
     /// the ROC curve, the chance that a frame on it drawn at random scores higher than one off
-    /// it (ties counted a half). `None` without a `score` column, or where every evaluated
-    /// frame is on the target or every one off it.
+    /// it (ties counted a half). `None` without a `score` column, where every evaluated
+    /// frame is on the target or every one off it, or where a score is not finite (which a
+    /// pose CSV refuses, but a program's records may hold).
     pub score_auroc: Option<f64>,
 }
 
@@ -715,6 +716,7 @@ impl Report {
         let off = self.evaluated - self.on_target;
         if let Some(l) = self.lost {
             let split = match self.lost_on_target {
+                Some(_) if l > 0 && off == 0 => " (all on the target)".to_string(),
                 Some(on) if l > 0 => {
                     format!(" ({on} on the target, {} of the {off} off it)", l - on)
                 }
@@ -736,11 +738,13 @@ impl Report {
                          from the {off} off it)",
                         self.on_target
                     ),
-                    None => format!(
-                        "-  (every evaluated frame is {} the target, IoU {} {bar})",
-                        if off == 0 { "on" } else { "off" },
-                        if off == 0 { ">=" } else { "<" }
-                    ),
+                    None if off == 0 => {
+                        format!("-  (every evaluated frame is on the target, IoU >= {bar})")
+                    }
+                    None if self.on_target == 0 => {
+                        format!("-  (every evaluated frame is off the target, IoU < {bar})")
+                    }
+                    None => "-  (a score that is not a number)".to_string(),
                 },
             );
         }
@@ -1046,10 +1050,18 @@ mod tests {
         // Every frame on the target: no AUROC, and the table says why.
         let on = evaluate(&truth, &est[..2]).unwrap();
         assert_eq!((on.on_target, on.score_auroc), (2, None));
+        let table = on.to_table();
         assert!(
-            on.to_table()
-                .contains("every evaluated frame is on the target")
+            table.contains("every evaluated frame is on the target"),
+            "{table}"
         );
+        assert!(table.contains("1 (all on the target)"), "{table}");
+        // A score that is not a number: no AUROC, and not blamed on the frames.
+        let mut nan = est.clone();
+        nan[0].score = Some(f64::NAN);
+        let n = evaluate(&truth, &nan).unwrap();
+        assert_eq!(n.score_auroc, None);
+        assert!(n.to_table().contains("a score that is not a number"));
         // No columns: nothing judged.
         let plain = evaluate(&truth, &[rec(0, 50.0, 0.0)]).unwrap();
         assert_eq!((plain.lost_on_target, plain.score_auroc), (None, None));

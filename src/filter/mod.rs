@@ -221,8 +221,9 @@ pub struct FilterParams {
     /// frame set by [`ParticleFilter::set_frame`].
     #[serde(with = "unbounded")]
     pub max_axis: f64,
-    /// Share of the proposals drawn around the previous state itself, `x_{k-1}` with the same
-    /// Σ_G, instead of around `x_{k-1} + Δx` (the rotation candidates as for the others): a
+    /// Share of the proposals drawn with the previous state's centre and semi-axes, with the
+    /// same Σ_G, instead of those of `x_{k-1} + Δx` (the rotation candidates as for the
+    /// others, so only the translation and scale are held back): a
     /// defensive mixture, so that one wrong motion measurement (block matching fooled by a
     /// shadow, a keyframe fit thrown off by a few features) cannot carry every particle away
     /// from a target that did not move so. The weights take the mixture's density as the
@@ -1195,11 +1196,11 @@ mod tests {
     #[test]
     fn proposals_that_stay_add_no_lag() {
         // Weighed by the mixture's density, the proposals drawn around the previous state
-        // hold the estimate back no more than the random walk's prior does (about 0.03 px
-        // here): over 50 seeds of 30 steps of (2, -1) px, the mean error is within 0.15 px.
-        // Weighed as if drawn around the moved state, they would pull it back towards where
-        // the target was.
-        for still in [0.0, 0.2] {
+        // hold the estimate back little more than the random walk's prior does: over 50
+        // seeds of 30 steps of (2, -1) px, the mean error is 0.04 px at share 0, 0.06 at 0.2
+        // and 0.07 at 0.5, within 0.12 px. Weighed as if drawn around the moved state, they
+        // pull it back towards where the target was: 0.19 and 0.39 px.
+        for still in [0.0, 0.2, 0.5] {
             let (mut sx, mut sy, mut n) = (0.0, 0.0, 0.0);
             for seed in 0..50 {
                 let p = FilterParams {
@@ -1224,7 +1225,7 @@ mod tests {
                 }
             }
             let (mx, my) = (sx / n, sy / n);
-            assert!(mx.abs() < 0.15 && my.abs() < 0.15, "{still}: {mx} {my}");
+            assert!(mx.abs() < 0.12 && my.abs() < 0.12, "{still}: {mx} {my}");
         }
     }
 

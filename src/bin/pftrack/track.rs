@@ -79,11 +79,12 @@ pub struct TrackArgs {
     /// Number of particles.
     #[arg(long, default_value_t = 200)]
     pub particles: usize,
-    /// Share of the particles proposed around the previous estimate instead of where block
-    /// matching and the keyframe fits moved it (0 to under 1; 0 by default, as in the
-    /// paper): a guard against one wrong motion measurement, for footage at a low frame rate
-    /// or with jumps (0.2: car4 with every fourth frame, success AUC 0.40 -> 0.55), at some
-    /// cost to the angles on smooth footage (see `FilterParams::still_share`).
+    /// Share of the particles proposed at their previous centre and size instead of where
+    /// block matching and the keyframe fits moved them (their rotation still as measured; 0
+    /// to under 1, 0 by default, as in the paper): a guard against one wrong motion
+    /// measurement, for footage at a low frame rate or with jumps (0.2: car4 with every
+    /// fourth frame, success AUC 0.40 -> 0.55), at some cost to the angles on smooth footage
+    /// (see `FilterParams::still_share`).
     #[arg(long, value_name = "S", allow_hyphen_values = true)]
     pub still_share: Option<f64>,
     /// Seed of the filter (runs are reproducible for a seed on the CPU).
@@ -886,16 +887,11 @@ pub fn apply_edge_threshold(cfg: &mut TrackerConfig, t: Option<f64>) -> anyhow::
 /// The library settings the command line's flags set, each with its flag and what the
 /// command line offers where the library would take `None`; a configuration error is
 /// about the one its [`TrackError::BadConfig`]'s `setting` names.
-const FLAG_OF_SETTING: [(&str, &str, &str); 12] = [
+const FLAG_OF_SETTING: [(&str, &str, &str); 11] = [
     (
         "fit_centre_sigma",
         "--fit-centre-sigma",
         "--no-fit-centre-prior leaves the fits' centre free",
-    ),
-    (
-        "fit_pixel_sigma",
-        "--fit-centre-sigma",
-        "--no-fit-prior fits without the prior",
     ),
     (
         "colour_update",
