@@ -201,6 +201,10 @@ impl StateSigma {
     }
 }
 
+/// The shares [`FilterParams::still_share`] may take: from 0 (the paper's proposal) to under
+/// 1 (some proposals must follow the motion).
+pub const STILL_SHARE_RANGE: std::ops::Range<f64> = 0.0..1.0;
+
 /// Settings of the filter.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
 #[serde(default, deny_unknown_fields)]
@@ -293,7 +297,7 @@ impl FilterParams {
                 )));
             }
         }
-        if !(self.still_share.is_finite() && (0.0..1.0).contains(&self.still_share)) {
+        if !STILL_SHARE_RANGE.contains(&self.still_share) {
             return Err(FilterError::BadParams(format!(
                 "still_share {} must lie in [0, 1): the share of proposals drawn around the \
                  previous state instead of where the motion moved it",
@@ -641,6 +645,7 @@ impl ParticleFilter {
         };
         let still = self.params.still_share;
         let mut terms = Vec::with_capacity(2 * cands.len());
+        let mut turns = Vec::with_capacity(cands.len());
         std::mem::swap(&mut self.parents, &mut self.particles);
         for i in 0..self.parents.len() {
             let parent = self.parents[i];
@@ -691,15 +696,21 @@ impl ParticleFilter {
             }
             // ln q: the mixture over the rotation candidates (and the moved and the still
             // means) given this parent.
+            // The turn from each candidate's mean, the same for both means.
+            turns.clear();
+            turns.extend(
+                cands
+                    .iter()
+                    .map(|(_, r)| log_so3(&(x.rot * (r * parent.rot).transpose()))),
+            );
             terms.clear();
             for (share, m) in [(1.0 - still, moved), (still, stay)] {
                 if share <= 0.0 {
                     continue;
                 }
                 let d = [x.cx - m[0], x.cy - m[1], x.a - m[2], x.b - m[3]];
-                for (p, r) in &cands {
-                    let w = log_so3(&(x.rot * (r * parent.rot).transpose()));
-                    terms.push(share.ln() + p.ln() + ln_density(&d, &w, &sg));
+                for ((p, _), w) in cands.iter().zip(&turns) {
+                    terms.push(share.ln() + p.ln() + ln_density(&d, w, &sg));
                 }
             }
             let ln_q = log_sum_exp(&terms);

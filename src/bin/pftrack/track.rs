@@ -577,8 +577,13 @@ fn flag_config(a: &TrackArgs, hfov: Option<f64>) -> anyhow::Result<TrackerConfig
     }
     apply_relief_sigma(&mut cfg, a.relief_sigma)?;
     if let Some(s) = a.still_share {
-        if !(s.is_finite() && (0.0..1.0).contains(&s)) {
-            bail!("--still-share must lie in [0, 1), got {s}");
+        let range = pftrack::filter::STILL_SHARE_RANGE;
+        if !range.contains(&s) {
+            bail!(
+                "--still-share must lie in [{}, {}), got {s}",
+                range.start,
+                range.end
+            );
         }
         cfg.filter.still_share = s;
     }
