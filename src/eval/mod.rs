@@ -476,8 +476,8 @@ pub fn evaluate_from(truth: &Truth, est: &[PoseRecord], from: usize) -> Result<R
     let mut swings: [Vec<(f64, f64)>; 3] = Default::default();
     let mut turn_errs = Vec::with_capacity(n);
     let (mut lost, mut any_lost_col) = (0usize, false);
-    let (mut score_sum, mut score_n) = (0.0f64, 0usize);
-    let (mut on_scores, mut off_scores) = (Vec::new(), Vec::new());
+    // Each evaluated frame's score, and whether the estimate is on the target there.
+    let mut scores: Vec<(f64, bool)> = Vec::new();
     let (mut on_target, mut lost_on_target) = (0usize, 0usize);
     let unwrapped = unwrapped_truth_deg(&tf);
     for t in tf.iter().filter(|t| !t.absent) {
@@ -515,13 +515,7 @@ pub fn evaluate_from(truth: &Truth, est: &[PoseRecord], from: usize) -> Result<R
             lost_on_target += usize::from(l && on);
         }
         if let Some(sc) = r.score {
-            score_sum += sc;
-            score_n += 1;
-            if on {
-                on_scores.push(sc);
-            } else {
-                off_scores.push(sc);
-            }
+            scores.push((sc, on));
         }
     }
     // Where the target is absent, only whether the tracker says so.
@@ -588,10 +582,20 @@ pub fn evaluate_from(truth: &Truth, est: &[PoseRecord], from: usize) -> Result<R
         success_rates: rates,
         mean_iou: ious.iter().sum::<f64>() / m,
         lost: any_lost_col.then_some(lost),
-        mean_score: (score_n > 0).then(|| score_sum / score_n as f64),
+        mean_score: (!scores.is_empty())
+            .then(|| scores.iter().map(|(sc, _)| sc).sum::<f64>() / scores.len() as f64),
         on_target,
         lost_on_target: any_lost_col.then_some(lost_on_target),
-        score_auroc: auroc(&on_scores, &off_scores),
+        score_auroc: {
+            let of = |side: bool| -> Vec<f64> {
+                scores
+                    .iter()
+                    .filter(|(_, on)| *on == side)
+                    .map(|(sc, _)| *sc)
+                    .collect()
+            };
+            auroc(&of(true), &of(false))
+        },
     })
 }
 
