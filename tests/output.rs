@@ -420,6 +420,10 @@ fn png_round_trip_and_errors() {
     write_png(&path, &img).unwrap();
     let back = image::open(&path).unwrap().to_rgb8();
     assert_eq!(back, img);
+    // The length counted without a file is the file's.
+    let len = std::fs::metadata(&path).unwrap().len();
+    assert_eq!(pftrack::output::png_len(&img).unwrap(), len);
+    assert!(len > 100, "{len}");
     // No temporary file left behind.
     let leftovers: Vec<_> = std::fs::read_dir(path.parent().unwrap())
         .unwrap()

@@ -47,6 +47,25 @@ pub fn write_png(path: &Path, img: &RgbImage) -> Result<(), OutputError> {
     Ok(())
 }
 
+/// How many bytes [`write_png`] writes for `img`: the image encoded as it would be, into a
+/// counter instead of a file (to size a run's output before writing it).
+pub fn png_len(img: &RgbImage) -> Result<u64, image::ImageError> {
+    /// A sink that keeps only the count of what it is given.
+    struct Count(u64);
+    impl std::io::Write for Count {
+        fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
+            self.0 += buf.len() as u64;
+            Ok(buf.len())
+        }
+        fn flush(&mut self) -> std::io::Result<()> {
+            Ok(())
+        }
+    }
+    let mut count = Count(0);
+    img.write_with_encoder(PngEncoder::new(&mut count))?;
+    Ok(count.0)
+}
+
 /// Encodes `img` as PNG into `file`, left for its caller to commit (when it writes several
 /// files that appear together).
 pub fn encode_png(file: &mut AtomicFile, img: &RgbImage) -> Result<(), OutputError> {

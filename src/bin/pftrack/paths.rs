@@ -162,6 +162,32 @@ pub fn track_outputs(
     Ok(())
 }
 
+/// The bytes free to an unprivileged writer on the file system that `p` will be written to
+/// (its nearest existing folder's); `None` where that cannot be read (or off Unix).
+pub fn free_bytes(p: &Path) -> Option<u64> {
+    #[cfg(unix)]
+    {
+        use std::os::unix::ffi::OsStrExt;
+        let at = resolved_ahead(p)?;
+        let existing = at.ancestors().find(|a| a.is_dir())?;
+        let name = std::ffi::CString::new(existing.as_os_str().as_bytes()).ok()?;
+        // SAFETY: `name` is a NUL-terminated path, and `stat` a plain struct statvfs fills.
+        let stat = unsafe {
+            let mut stat: libc::statvfs = std::mem::zeroed();
+            (libc::statvfs(name.as_ptr(), &mut stat) == 0).then_some(stat)?
+        };
+        // The fields' widths differ between platforms (u32 on some 32-bit ones).
+        #[allow(clippy::useless_conversion)]
+        let (blocks, size) = (u64::from(stat.f_bavail), u64::from(stat.f_frsize));
+        Some(blocks.saturating_mul(size))
+    }
+    #[cfg(not(unix))]
+    {
+        let _ = p;
+        None
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -220,5 +246,19 @@ mod tests {
             assert!(track_outputs(&frames, &[&init], Some(&to_init), None).is_err());
         }
         std::fs::remove_dir_all(&d).unwrap();
+    }
+
+    #[cfg(unix)]
+    #[test]
+    fn free_space_is_read_where_a_path_will_be() {
+        let tmp = std::env::temp_dir();
+        let here = free_bytes(&tmp).unwrap();
+        assert!(here > 0);
+        // A folder not made yet is on its nearest existing folder's file system.
+        let ahead = free_bytes(&tmp.join("pftrack-not-made/a/../b")).unwrap();
+        let differ = here.abs_diff(ahead);
+        assert!(differ < 64 << 20, "{here} {ahead}");
+        // Relative paths are taken from the working folder.
+        assert!(free_bytes(Path::new("not-made-either")).is_some());
     }
 }

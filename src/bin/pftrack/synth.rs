@@ -1,11 +1,12 @@
 //! `pftrack synth`: renders a synthetic sequence with exact ground truth.
 
 use std::io::IsTerminal;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
-use anyhow::Context;
+use anyhow::{Context, bail};
 use clap::Args;
-use pftrack::synth::{Scenario, SynthConfig, parse_size, write_sequence};
+use pftrack::output::png_len;
+use pftrack::synth::{Renderer, Scenario, SynthConfig, parse_size, write_sequence};
 
 /// Arguments of `pftrack synth`.
 #[derive(Debug, Args)]
@@ -35,6 +36,51 @@ pub struct SynthArgs {
     pub seed: u64,
 }
 
+/// Refuses a sequence whose frames would not fit in the `free` bytes where `dir` is, before
+/// rendering any of it (instead of failing when the disk is full, hours in). Where even the
+/// frames' raw pixels would fit it passes at once; otherwise the first and the last frame
+/// are rendered and encoded, and the larger PNG, times the frames, is taken as the need.
+fn check_room(cfg: &SynthConfig, dir: &Path, free: Option<u64>) -> anyhow::Result<()> {
+    let Some(free) = free else {
+        return Ok(());
+    };
+    let frames = cfg.frames as u64;
+    // A PNG of noisy pixels is the raw pixels, a filter byte a row and a little framing.
+    let raw = (u64::from(cfg.width) * 3 + 1) * u64::from(cfg.height) + 4096;
+    if raw.saturating_mul(frames) <= free {
+        return Ok(());
+    }
+    let renderer = Renderer::new(cfg)?;
+    let mut packed = 0;
+    for k in [0, cfg.frames - 1] {
+        packed = packed.max(png_len(&renderer.render_image(k)).context("sizing the frames")?);
+    }
+    let need = packed.saturating_mul(frames);
+    if need > free {
+        bail!(
+            "{} frames of {}x{} would take about {} ({} a frame as PNG), more than the {} \
+             free where {} is: ask for fewer --frames or a smaller --size",
+            cfg.frames,
+            cfg.width,
+            cfg.height,
+            bytes(need),
+            bytes(packed),
+            bytes(free),
+            dir.display()
+        );
+    }
+    Ok(())
+}
+
+/// A number of bytes for a person: in GB from 1 GB, in MB below.
+fn bytes(b: u64) -> String {
+    if b >= 1_000_000_000 {
+        format!("{:.1} GB", b as f64 / 1e9)
+    } else {
+        format!("{:.1} MB", b as f64 / 1e6)
+    }
+}
+
 /// Runs the command.
 pub fn run(args: SynthArgs) -> anyhow::Result<()> {
     let scenario = args.scenario;
@@ -47,6 +93,7 @@ pub fn run(args: SynthArgs) -> anyhow::Result<()> {
         cfg.frames = n;
     }
     cfg.validate()?;
+    check_room(&cfg, &args.dir, crate::paths::free_bytes(&args.dir))?;
     let summary = write_sequence(&cfg, &args.dir, std::io::stderr().is_terminal())
         .with_context(|| format!("rendering {} into {}", scenario, args.dir.display()))?;
     let e = summary.init;
@@ -78,4 +125,43 @@ pub fn run(args: SynthArgs) -> anyhow::Result<()> {
         e.b
     )?;
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_sequence_larger_than_the_free_space_is_refused_before_rendering() {
+        let mut cfg = SynthConfig::new(Scenario::Nod);
+        (cfg.width, cfg.height, cfg.frames) = (80, 60, 10);
+        let dir = Path::new("/somewhere/seq");
+        let raw = (80 * 3 + 1) * 60 + 4096;
+        let png = (0..10)
+            .map(|k| png_len(&Renderer::new(&cfg).unwrap().render_image(k)).unwrap())
+            .max()
+            .unwrap();
+        assert!(png < raw, "{png} {raw}");
+        // Unknown space, or room for the raw pixels: passes.
+        assert!(check_room(&cfg, dir, None).is_ok());
+        assert!(check_room(&cfg, dir, Some(10 * raw)).is_ok());
+        // Room for the frames as PNG but not as raw pixels: passes after sizing them.
+        assert!(check_room(&cfg, dir, Some(10 * png + 1000)).is_ok());
+        // Too little: one line naming the need, the space and the way out.
+        let e = check_room(&cfg, dir, Some(5 * png))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.starts_with("10 frames of 80x60 would take about 0.1 MB (0.0 MB a frame as PNG)")
+                && e.contains("MB free where /somewhere/seq is")
+                && e.ends_with("ask for fewer --frames or a smaller --size")
+                && !e.contains('\n'),
+            "{e}"
+        );
+        // A single frame is sized by itself.
+        cfg.frames = 1;
+        assert!(check_room(&cfg, dir, Some(png / 2)).is_err());
+        assert_eq!(bytes(999_999_999), "1000.0 MB");
+        assert_eq!(bytes(48_900_000_000), "48.9 GB");
+    }
 }
