@@ -2478,6 +2478,19 @@ fn cli_out_dash_is_standard_output() {
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
+/// Runs `pftrack track SEQ --backend cpu -o OUT EXTRA...`, checks that it succeeded, and
+/// returns the poses written and what it said on standard error.
+fn track_on_cpu(seq: &str, out: &Path, extra: &[&str]) -> (Vec<u8>, String) {
+    let o = out.to_str().unwrap();
+    let mut args = vec!["track", seq, "--backend", "cpu", "-o", o];
+    args.extend_from_slice(extra);
+    let said = pftrack_ok(&args).stderr;
+    (
+        std::fs::read(out).unwrap(),
+        String::from_utf8_lossy(&said).into_owned(),
+    )
+}
+
 /// `track --relief-sigma S` learns the object's relief over the keyframes' adjustments: on a
 /// turning box the track differs from the default's, and is the one the settings file that
 /// says the same gives; a σ out of its range is refused, and so is the flag beside
@@ -2489,19 +2502,9 @@ fn cli_track_learns_the_relief_on_request() {
     let s = seq.to_str().unwrap();
     // The car turns from 45 % of the frames on: enough views for adjustments by the end.
     pftrack_ok(&["synth", s, "--scenario", "car", "--frames", "80"]);
-    let csv = |name: &str| dir.join(name).to_str().unwrap().to_string();
-    // The poses written and what was said on standard error.
-    let run = |extra: &[&str], out: &str| {
-        let mut args = vec!["track", s, "--backend", "cpu", "-o", out];
-        args.extend_from_slice(extra);
-        let said = pftrack_ok(&args).stderr;
-        (
-            std::fs::read(out).unwrap(),
-            String::from_utf8_lossy(&said).into_owned(),
-        )
-    };
-    let (plain, plain_said) = run(&[], &csv("plain.csv"));
-    let (learnt, said) = run(&["--relief-sigma", "1"], &csv("learnt.csv"));
+    let run = |extra: &[&str], name: &str| track_on_cpu(s, &dir.join(name), extra);
+    let (plain, plain_said) = run(&[], "plain.csv");
+    let (learnt, said) = run(&["--relief-sigma", "1"], "learnt.csv");
     assert_ne!(plain, learnt);
     // The factor learnt is said: the box is flatter than the ellipsoid it is lifted on.
     let k: f64 = said
@@ -2514,7 +2517,7 @@ fn cli_track_learns_the_relief_on_request() {
     assert!(!plain_said.contains("relief learnt"), "{plain_said}");
     let file = dir.join("relief.json");
     std::fs::write(&file, r#"{"bundle": {"params": {"relief_sigma": 1.0}}}"#).unwrap();
-    let (from_file, _) = run(&["--config", file.to_str().unwrap()], &csv("file.csv"));
+    let (from_file, _) = run(&["--config", file.to_str().unwrap()], "file.csv");
     assert_eq!(learnt, from_file);
     let unwritten = dir.join("none.csv");
     let u = unwritten.to_str().unwrap();
@@ -2540,22 +2543,16 @@ fn cli_track_proposes_a_share_around_the_previous_estimate_on_request() {
     let seq = dir.join("seq");
     let s = seq.to_str().unwrap();
     pftrack_ok(&["synth", s, "--scenario", "pan", "--frames", "12"]);
-    let csv = |name: &str| dir.join(name).to_str().unwrap().to_string();
-    let run = |extra: &[&str], out: &str| {
-        let mut args = vec!["track", s, "--backend", "cpu", "-o", out];
-        args.extend_from_slice(extra);
-        pftrack_ok(&args);
-        std::fs::read(out).unwrap()
-    };
-    let plain = run(&[], &csv("plain.csv"));
-    assert_eq!(plain, run(&["--still-share", "0"], &csv("zero.csv")));
-    let still = run(&["--still-share", "0.2"], &csv("still.csv"));
+    let run = |extra: &[&str], name: &str| track_on_cpu(s, &dir.join(name), extra).0;
+    let plain = run(&[], "plain.csv");
+    assert_eq!(plain, run(&["--still-share", "0"], "zero.csv"));
+    let still = run(&["--still-share", "0.2"], "still.csv");
     assert_ne!(plain, still);
     let file = dir.join("still.json");
     std::fs::write(&file, r#"{"filter": {"still_share": 0.2}}"#).unwrap();
     assert_eq!(
         still,
-        run(&["--config", file.to_str().unwrap()], &csv("file.csv"))
+        run(&["--config", file.to_str().unwrap()], "file.csv")
     );
     let unwritten = dir.join("none.csv");
     let u = unwritten.to_str().unwrap();
