@@ -107,6 +107,11 @@ fn mutate_json(rng: &mut StdRng, v: &mut serde_json::Value) {
             }
         }
         Value::Array(a) => a.iter_mut().for_each(|x| mutate_json(rng, x)),
+        // A whole number stays one (a float there would only be refused as JSON).
+        Value::Number(n) if n.is_u64() && rng.random_bool(0.03) => {
+            let c = [0u64, 1, 2, 3, 7, 100, 1 << 20, 1 << 32, u64::MAX];
+            *v = serde_json::json!(c[rng.random_range(0..c.len())]);
+        }
         Value::Number(_) if rng.random_bool(0.03) => {
             let c = [
                 0.0, -1.0, 1e308, -1e308, 1e-300, 0.5, 2.0, 1e6, 1e9, 3.0, 100.0,

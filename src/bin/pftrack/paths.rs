@@ -162,9 +162,20 @@ pub fn track_outputs(
     Ok(())
 }
 
-/// The bytes free to an unprivileged writer on the file system that `p` will be written to
-/// (its nearest existing folder's); `None` where that cannot be read (or off Unix).
-pub fn free_bytes(p: &Path) -> Option<u64> {
+/// The room left on a file system to an unprivileged writer.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Room {
+    /// Bytes free.
+    pub bytes: u64,
+    /// The size of the blocks files take their space in (at least 1).
+    pub block: u64,
+    /// Files that can still be made, where the file system counts them.
+    pub files: Option<u64>,
+}
+
+/// The room on the file system that `p` will be written to (its nearest existing folder's,
+/// through links); `None` where that cannot be read (or off Unix).
+pub fn room(p: &Path) -> Option<Room> {
     #[cfg(unix)]
     {
         use std::os::unix::ffi::OsStrExt;
@@ -178,8 +189,18 @@ pub fn free_bytes(p: &Path) -> Option<u64> {
         };
         // The fields' widths differ between platforms (u32 on some 32-bit ones).
         #[allow(clippy::useless_conversion)]
-        let (blocks, size) = (u64::from(stat.f_bavail), u64::from(stat.f_frsize));
-        Some(blocks.saturating_mul(size))
+        let (blocks, size, files, favail) = (
+            u64::from(stat.f_bavail),
+            u64::from(stat.f_frsize),
+            u64::from(stat.f_files),
+            u64::from(stat.f_favail),
+        );
+        Some(Room {
+            bytes: blocks.saturating_mul(size),
+            block: size.max(1),
+            // A file system that keeps no count of files gives 0 for all of them.
+            files: (files > 0).then_some(favail),
+        })
     }
     #[cfg(not(unix))]
     {
@@ -251,14 +272,34 @@ mod tests {
     #[cfg(unix)]
     #[test]
     fn free_space_is_read_where_a_path_will_be() {
-        let tmp = std::env::temp_dir();
-        let here = free_bytes(&tmp).unwrap();
-        assert!(here > 0);
+        let d = std::env::temp_dir().join(format!("pftrack-room-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&d);
+        std::fs::create_dir_all(&d).unwrap();
+        let here = room(&d).unwrap();
+        assert!(here.bytes > 0 && here.block > 0, "{here:?}");
         // A folder not made yet is on its nearest existing folder's file system.
-        let ahead = free_bytes(&tmp.join("pftrack-not-made/a/../b")).unwrap();
-        let differ = here.abs_diff(ahead);
-        assert!(differ < 64 << 20, "{here} {ahead}");
+        let ahead = room(&d.join("not-made/a/../b")).unwrap();
+        assert!(
+            here.bytes.abs_diff(ahead.bytes) < 64 << 20,
+            "{here:?} {ahead:?}"
+        );
+        assert_eq!(here.block, ahead.block);
+        // Through a link, the file system it leads to: /dev/shm (a tmpfs) where it is one
+        // with another amount free.
+        let shm = Path::new("/dev/shm");
+        if let Some(there) = room(shm).filter(|r| r.bytes.abs_diff(here.bytes) > 1 << 30) {
+            let link = d.join("to-shm");
+            std::os::unix::fs::symlink(shm, &link).unwrap();
+            let through = room(&link.join("frames")).unwrap();
+            assert!(
+                through.bytes.abs_diff(there.bytes) < 64 << 20,
+                "{through:?} {there:?}"
+            );
+        } else {
+            eprintln!("skipped the link case: no /dev/shm apart from the temporary folder");
+        }
         // Relative paths are taken from the working folder.
-        assert!(free_bytes(Path::new("not-made-either")).is_some());
+        assert!(room(Path::new("not-made-either")).is_some());
+        std::fs::remove_dir_all(&d).unwrap();
     }
 }

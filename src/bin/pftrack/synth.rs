@@ -6,6 +6,8 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, bail};
 use clap::Args;
 use pftrack::output::png_len;
+
+use crate::paths::Room;
 use pftrack::synth::{Renderer, Scenario, SynthConfig, parse_size, write_sequence};
 
 /// Arguments of `pftrack synth`.
@@ -36,48 +38,65 @@ pub struct SynthArgs {
     pub seed: u64,
 }
 
-/// Refuses a sequence whose frames would not fit in the `free` bytes where `dir` is, before
-/// rendering any of it (instead of failing when the disk is full, hours in). Where even the
-/// frames' raw pixels would fit it passes at once; otherwise the first and the last frame
-/// are rendered and encoded, and the larger PNG, times the frames, is taken as the need.
-fn check_room(cfg: &SynthConfig, dir: &Path, free: Option<u64>) -> anyhow::Result<()> {
-    let Some(free) = free else {
+/// Refuses a sequence whose frames would not fit in the `room` left where they go (`DIR/frames`,
+/// named `dir` in the message), before rendering any of it, instead of failing when the disk
+/// is full, hours in. Each frame takes whole blocks, and 2 % more is asked for the truth, the
+/// staging and whatever else is written meanwhile. Where even the frames' raw pixels would
+/// fit it passes at once; otherwise the first, middle and last frames are rendered and
+/// encoded, and the largest PNG is taken for every frame. Also refused: more frames than
+/// files the file system can still make.
+fn check_room(cfg: &SynthConfig, dir: &Path, room: Option<Room>) -> anyhow::Result<()> {
+    let Some(room) = room else {
         return Ok(());
     };
     let frames = cfg.frames as u64;
+    // The frames, the truth, the init file and the staging folder.
+    if let Some(files) = room.files.filter(|&f| f < frames + 3) {
+        bail!(
+            "{} frames would need {} files, more than the {files} the file system where {} is \
+             can still make: ask for fewer --frames",
+            cfg.frames,
+            frames + 3,
+            dir.display()
+        );
+    }
+    let on_disk = |len: u64| len.div_ceil(room.block).saturating_mul(room.block);
+    let need = |len: u64| {
+        let all = on_disk(len).saturating_mul(frames);
+        all.saturating_add(all / 50)
+    };
     // A PNG of noisy pixels is the raw pixels, a filter byte a row and a little framing.
     let raw = (u64::from(cfg.width) * 3 + 1) * u64::from(cfg.height) + 4096;
-    if raw.saturating_mul(frames) <= free {
+    if need(raw) <= room.bytes {
         return Ok(());
     }
     let renderer = Renderer::new(cfg)?;
     let mut packed = 0;
-    for k in [0, cfg.frames - 1] {
+    for k in [0, cfg.frames / 2, cfg.frames - 1] {
         packed = packed.max(png_len(&renderer.render_image(k)).context("sizing the frames")?);
     }
-    let need = packed.saturating_mul(frames);
-    if need > free {
+    if need(packed) > room.bytes {
         bail!(
             "{} frames of {}x{} would take about {} ({} a frame as PNG), more than the {} \
              free where {} is: ask for fewer --frames or a smaller --size",
             cfg.frames,
             cfg.width,
             cfg.height,
-            bytes(need),
+            bytes(need(packed)),
             bytes(packed),
-            bytes(free),
+            bytes(room.bytes),
             dir.display()
         );
     }
     Ok(())
 }
 
-/// A number of bytes for a person: in GB from 1 GB, in MB below.
+/// A number of bytes for a person: in GB from 1 GB, in MB from 1 MB, else in kB.
 fn bytes(b: u64) -> String {
-    if b >= 1_000_000_000 {
-        format!("{:.1} GB", b as f64 / 1e9)
-    } else {
-        format!("{:.1} MB", b as f64 / 1e6)
+    match b {
+        1_000_000_000.. => format!("{:.1} GB", b as f64 / 1e9),
+        1_000_000.. => format!("{:.1} MB", b as f64 / 1e6),
+        _ => format!("{:.1} kB", b as f64 / 1e3),
     }
 }
 
@@ -93,7 +112,9 @@ pub fn run(args: SynthArgs) -> anyhow::Result<()> {
         cfg.frames = n;
     }
     cfg.validate()?;
-    check_room(&cfg, &args.dir, crate::paths::free_bytes(&args.dir))?;
+    // The frames go into DIR/frames, wherever a link there leads.
+    let frames_dir = args.dir.join("frames");
+    check_room(&cfg, &args.dir, crate::paths::room(&frames_dir))?;
     let summary = write_sequence(&cfg, &args.dir, std::io::stderr().is_terminal())
         .with_context(|| format!("rendering {} into {}", scenario, args.dir.display()))?;
     let e = summary.init;
@@ -136,32 +157,59 @@ mod tests {
         let mut cfg = SynthConfig::new(Scenario::Nod);
         (cfg.width, cfg.height, cfg.frames) = (80, 60, 10);
         let dir = Path::new("/somewhere/seq");
-        let raw = (80 * 3 + 1) * 60 + 4096;
+        let renderer = Renderer::new(&cfg).unwrap();
         let png = (0..10)
-            .map(|k| png_len(&Renderer::new(&cfg).unwrap().render_image(k)).unwrap())
+            .map(|k| png_len(&renderer.render_image(k)).unwrap())
             .max()
             .unwrap();
-        assert!(png < raw, "{png} {raw}");
-        // Unknown space, or room for the raw pixels: passes.
+        let raw = (80 * 3 + 1) * 60 + 4096;
+        assert!(png < raw && png > 4096, "{png} {raw}");
+        let room = |bytes: u64, block: u64| {
+            Some(Room {
+                bytes,
+                block,
+                files: Some(1000),
+            })
+        };
+        // Unknown room, or room for the raw pixels: passes.
         assert!(check_room(&cfg, dir, None).is_ok());
-        assert!(check_room(&cfg, dir, Some(10 * raw)).is_ok());
-        // Room for the frames as PNG but not as raw pixels: passes after sizing them.
-        assert!(check_room(&cfg, dir, Some(10 * png + 1000)).is_ok());
-        // Too little: one line naming the need, the space and the way out.
-        let e = check_room(&cfg, dir, Some(5 * png))
+        assert!(check_room(&cfg, dir, room(11 * raw, 1)).is_ok());
+        // Room for the frames as PNG but not as raw pixels: passes after sizing them, with
+        // the margin; not without it.
+        assert!(check_room(&cfg, dir, room(10 * png * 51 / 50 + 10, 1)).is_ok());
+        let e = check_room(&cfg, dir, room(10 * png, 1))
             .unwrap_err()
             .to_string();
         assert!(
-            e.starts_with("10 frames of 80x60 would take about 0.1 MB (0.0 MB a frame as PNG)")
-                && e.contains("MB free where /somewhere/seq is")
-                && e.ends_with("ask for fewer --frames or a smaller --size")
+            e.starts_with("10 frames of 80x60 would take about ")
+                && e.contains(" kB a frame as PNG), more than the ")
+                && e.contains(" kB free where /somewhere/seq is: ask for fewer --frames")
                 && !e.contains('\n'),
             "{e}"
         );
+        // Each frame takes whole blocks: with 1 MiB blocks ten frames need 10 MiB and more.
+        assert!(check_room(&cfg, dir, room(10 * png * 2, 1 << 20)).is_err());
+        assert!(check_room(&cfg, dir, room(11 << 20, 1 << 20)).is_ok());
+        // Files: the frames and three more.
+        let files = |n| {
+            Some(Room {
+                bytes: u64::MAX,
+                block: 4096,
+                files: Some(n),
+            })
+        };
+        assert!(check_room(&cfg, dir, files(13)).is_ok());
+        let e = check_room(&cfg, dir, files(12)).unwrap_err().to_string();
+        assert_eq!(
+            e,
+            "10 frames would need 13 files, more than the 12 the file system where \
+             /somewhere/seq is can still make: ask for fewer --frames"
+        );
         // A single frame is sized by itself.
         cfg.frames = 1;
-        assert!(check_room(&cfg, dir, Some(png / 2)).is_err());
+        assert!(check_room(&cfg, dir, room(png / 2, 1)).is_err());
         assert_eq!(bytes(999_999_999), "1000.0 MB");
         assert_eq!(bytes(48_900_000_000), "48.9 GB");
+        assert_eq!(bytes(4_200), "4.2 kB");
     }
 }
