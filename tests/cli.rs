@@ -3164,3 +3164,79 @@ fn cli_a_signal_while_a_video_is_passed_over_ends_its_decode() {
     );
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+/// `track` ends by saying how its own signals went: the mean confidence, and the frames it
+/// flagged lost as runs of the input's frame numbers (so a user sees where to look without
+/// reading the CSV). On a turning head it never loses the target; on frames of one flat grey
+/// it flags the frames from its start on, numbered as the input numbers them.
+#[test]
+fn cli_track_says_its_mean_confidence_and_where_it_was_lost() {
+    let dir = tmp_dir("signals");
+    let seq = dir.join("seq");
+    let s = seq.to_str().unwrap();
+    pftrack_ok(&["synth", s, "--scenario", "nod", "--frames", "8"]);
+    let (poses, said) = track_on_cpu(s, &dir.join("nod.csv"), &[]);
+    let rows = read_pose_csv(&dir.join("nod.csv")).unwrap();
+    assert!(
+        rows.iter().all(|r| r.lost == Some(false)),
+        "{}",
+        String::from_utf8_lossy(&poses)
+    );
+    let mean = rows.iter().map(|r| r.score.unwrap()).sum::<f64>() / rows.len() as f64;
+    let lines: Vec<&str> = said.lines().collect();
+    let at = lines
+        .iter()
+        .position(|l| l.starts_with("pftrack: tracked 8 frames"))
+        .unwrap_or_else(|| panic!("{said}"));
+    assert_eq!(
+        lines[at + 1],
+        format!("pftrack: mean confidence {mean:.2}; never flagged lost")
+    );
+    // Flat grey frames, tracked from frame 2 of 12.
+    let flat = dir.join("flat");
+    std::fs::create_dir_all(&flat).unwrap();
+    for k in 0..12 {
+        image::RgbImage::from_pixel(64, 48, image::Rgb([128, 128, 128]))
+            .save(flat.join(format!("{k:03}.png")))
+            .unwrap();
+    }
+    let out = dir.join("flat.csv");
+    let o = out.to_str().unwrap();
+    let f = flat.to_str().unwrap();
+    let said = pftrack_ok(&[
+        "track",
+        f,
+        "--init-box",
+        "20,12,24,24",
+        "--start-frame",
+        "2",
+        "--backend",
+        "cpu",
+        "-o",
+        o,
+    ])
+    .stderr;
+    let said = String::from_utf8_lossy(&said);
+    let rows = read_pose_csv(&out).unwrap();
+    let lost: Vec<usize> = rows
+        .iter()
+        .filter(|r| r.lost == Some(true))
+        .map(|r| r.frame)
+        .collect();
+    assert!(!lost.is_empty() && lost.last() == Some(&11), "{lost:?}");
+    // One run to the end, as the rows flag it.
+    assert!(lost.windows(2).all(|w| w[1] == w[0] + 1), "{lost:?}");
+    let line = said
+        .lines()
+        .find(|l| l.starts_with("pftrack: mean confidence "))
+        .unwrap_or_else(|| panic!("{said}"));
+    assert!(
+        line.ends_with(&format!(
+            "; flagged lost on {} frames: {}-11",
+            lost.len(),
+            lost[0]
+        )),
+        "{line}"
+    );
+    std::fs::remove_dir_all(&dir).unwrap();
+}

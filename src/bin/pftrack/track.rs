@@ -1045,6 +1045,7 @@ pub fn run(mut a: TrackArgs) -> anyhow::Result<()> {
         frames: written,
         moves,
         video,
+        signals,
     } = run_loop(
         &a,
         &mut source,
@@ -1075,7 +1076,13 @@ pub fn run(mut a: TrackArgs) -> anyhow::Result<()> {
             );
         }
     }
-    report(&a, &tracker, &source, start, written, &video_note);
+    report(
+        &a,
+        &tracker,
+        &source,
+        (start, written, &signals),
+        &video_note,
+    );
     Ok(())
 }
 
@@ -1323,14 +1330,15 @@ fn open_at_start(
     })
 }
 
-/// What `track` says at its end: what was tracked and where it went, the relief learnt, and
-/// the warnings of the whole track (a short video, frames relit, frames without SIFT).
+/// What `track` says at its end: what was tracked and where it went, the mean confidence and
+/// the frames flagged lost, the relief learnt, and the warnings of the whole track (a short
+/// video, frames relit, frames without SIFT). The tuple is the first frame, the frames written
+/// and their signals.
 fn report(
     a: &TrackArgs,
     tracker: &Tracker,
     source: &frames::FrameSource,
-    start: usize,
-    written: usize,
+    (start, written, signals): (usize, usize, &Signals),
     video_note: &str,
 ) {
     let cfg = tracker.config();
@@ -1355,6 +1363,7 @@ fn report(
             .map(|p| format!(", poses in {}", p.display()))
             .unwrap_or_default()
     );
+    errln!("pftrack: {}", signals.line());
     if tracker
         .config()
         .bundle
@@ -1547,6 +1556,68 @@ struct Tracked {
     frames: usize,
     moves: Vec<(PathBuf, PathBuf)>,
     video: Option<VideoWriter>,
+    signals: Signals,
+}
+
+/// The tracker's own signals over a whole track, for its last line: the mean confidence and
+/// the frames flagged lost, as runs of the input's frame numbers.
+#[derive(Debug, Default)]
+struct Signals {
+    frames: usize,
+    confidence: f64,
+    /// First and last frame of each run of lost frames.
+    lost: Vec<(usize, usize)>,
+}
+
+impl Signals {
+    /// Most runs of lost frames the line names.
+    const RUNS_NAMED: usize = 8;
+
+    /// Counts frame `frame` (the input's number; frames come in order).
+    fn add(&mut self, frame: usize, confidence: f64, lost: bool) {
+        self.frames += 1;
+        self.confidence += confidence;
+        if lost {
+            match self.lost.last_mut() {
+                Some((_, last)) if *last + 1 == frame => *last = frame,
+                _ => self.lost.push((frame, frame)),
+            }
+        }
+    }
+
+    /// `mean confidence C; never flagged lost` or `...; flagged lost on N frames: A-B, C, ...`
+    /// (the first [`Self::RUNS_NAMED`] runs, then how many more).
+    fn line(&self) -> String {
+        let mean = self.confidence / self.frames.max(1) as f64;
+        if self.lost.is_empty() {
+            return format!("mean confidence {mean:.2}; never flagged lost");
+        }
+        let count: usize = self.lost.iter().map(|(a, b)| b - a + 1).sum();
+        let mut runs: Vec<String> = self
+            .lost
+            .iter()
+            .take(Self::RUNS_NAMED)
+            .map(|&(a, b)| {
+                if a == b {
+                    a.to_string()
+                } else {
+                    format!("{a}-{b}")
+                }
+            })
+            .collect();
+        let more = self.lost.len().saturating_sub(Self::RUNS_NAMED);
+        if more > 0 {
+            runs.push(format!(
+                "and {more} more run{}",
+                if more == 1 { "" } else { "s" }
+            ));
+        }
+        format!(
+            "mean confidence {mean:.2}; flagged lost on {count} frame{}: {}",
+            if count == 1 { "" } else { "s" },
+            runs.join(", ")
+        )
+    }
 }
 
 /// Tracks every frame, writes the poses and draws the frames; with `--stream`, an error says
@@ -1611,6 +1682,7 @@ fn track_all(
         None => None,
     };
     let mut stdout_rows = Vec::new();
+    let mut signals = Signals::default();
     if a.stream {
         outln!("{}", pftrack::io::pose_csv_header(true))?;
         crate::flush_stdout()?;
@@ -1621,6 +1693,7 @@ fn track_all(
         drawn.draw(e, frame, start)?;
         let mut r = to_input.record(&e.to_record());
         r.frame += start;
+        signals.add(r.frame, e.confidence, e.lost);
         match csv_out.as_mut() {
             Some(w) => w.write(&r)?,
             None if a.stream => {
@@ -1676,6 +1749,7 @@ fn track_all(
         frames: n,
         moves,
         video,
+        signals,
     })
 }
 
@@ -1714,6 +1788,42 @@ impl Drawn<'_> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The last line's signals: the mean confidence, and the lost frames as runs of the
+    /// input's numbers, the first eight named.
+    #[test]
+    fn the_signals_line_gives_the_mean_confidence_and_the_lost_runs() {
+        let mut s = Signals::default();
+        for f in 5..9 {
+            s.add(f, 0.5, false);
+        }
+        assert_eq!(s.line(), "mean confidence 0.50; never flagged lost");
+        s.add(9, 0.1, true);
+        assert_eq!(s.line(), "mean confidence 0.42; flagged lost on 1 frame: 9");
+        s.add(10, 0.1, true);
+        s.add(11, 0.9, false);
+        s.add(12, 0.2, true);
+        assert_eq!(s.frames, 8);
+        assert_eq!(
+            s.line(),
+            "mean confidence 0.41; flagged lost on 3 frames: 9-10, 12"
+        );
+        for f in (14..40).step_by(2) {
+            s.add(f, 0.0, true);
+        }
+        let line = s.line();
+        assert!(
+            line.ends_with(
+                "flagged lost on 16 frames: 9-10, 12, 14, 16, 18, 20, 22, 24, and 7 more runs"
+            ),
+            "{line}"
+        );
+        // No frame at all (a track always has its first): no division by zero.
+        assert_eq!(
+            Signals::default().line(),
+            "mean confidence 0.00; never flagged lost"
+        );
+    }
 
     /// A `--config` file is laid over the tracker's defaults field by field, and must be an
     /// object of settings of bounded size.
