@@ -1447,16 +1447,41 @@ fn skipped_frames_leave_the_rest_in_place() {
 
     // A video through ffmpeg.
     if have_ffmpeg() {
-        let mp4 = d.join("clip.mp4");
-        testsrc("64x48", 7, &["-c:v", "mpeg4"], &mp4);
         let tools = FfmpegTools::default();
-        let video = || FrameSource::from_video(&mp4, &opts, &tools).unwrap();
-        let all = collect(video()).unwrap();
-        assert_eq!(all.len(), 7);
-        let (skipped, place, rest, end) = after_skip(video(), 5);
-        assert_eq!((skipped, place, end), (5, 5, 7));
-        assert_eq!(rest, all[5..]);
-        assert_eq!(after_skip(video(), 10).0, 7);
+        // Past the end, a decode that converts nothing counts the frames: as many as a read
+        // gives, with B-frames (decoded out of order) and with uneven timestamps too.
+        for (name, extra) in [
+            ("clip.mp4", &["-c:v", "mpeg4"][..]),
+            ("bframes.mp4", &["-c:v", "mpeg4", "-bf", "2", "-g", "4"][..]),
+            (
+                "uneven.mkv",
+                &[
+                    "-vf",
+                    "setpts=N*N/TB",
+                    "-fps_mode",
+                    "passthrough",
+                    "-c:v",
+                    "mpeg4",
+                ][..],
+            ),
+        ] {
+            let video_path = d.join(name);
+            testsrc("64x48", 7, extra, &video_path);
+            let video = || FrameSource::from_video(&video_path, &opts, &tools).unwrap();
+            let all = collect(video()).unwrap();
+            assert_eq!(all.len(), 7, "{name}");
+            let (skipped, place, rest, end) = after_skip(video(), 5);
+            assert_eq!((skipped, place, end), (5, 5, 7), "{name}");
+            assert_eq!(rest, all[5..], "{name}");
+            for past in [7, 10, 1000] {
+                let (skipped, place, rest, end) = after_skip(video(), past);
+                assert_eq!(
+                    (skipped, place, rest.len(), end),
+                    (7, 7, 0, 7),
+                    "{name} {past}"
+                );
+            }
+        }
     }
     std::fs::remove_dir_all(&d).unwrap();
 }
