@@ -371,6 +371,9 @@ pub struct Report {
     pub mean_score: Option<f64>,
     /// Evaluated frames on the target: IoU at least [`ON_TARGET_IOU`]. The others are off it.
     pub on_target: usize,
+    /// Where the estimate is off the target (evaluated frames with IoU under
+    /// [`ON_TARGET_IOU`]): runs of consecutive truth frames, first and last ([`frame_runs`]).
+    pub off_target_runs: Vec<(usize, usize)>,
     /// Of the [`Report::lost`] frames, those on the target (false alarms), when the estimate
     /// has a `lost` column. The rest of the lost frames are off it.
     pub lost_on_target: Option<usize>,
@@ -380,6 +383,51 @@ pub struct Report {
     /// frame is on the target or every one off it, or where a score is not finite (which a
     /// pose CSV refuses, but a program's records may hold).
     pub score_auroc: Option<f64>,
+}
+
+/// Frames in ascending order gathered into runs of consecutive numbers, each its first and
+/// last: `[3, 4, 5, 9]` -> `[(3, 5), (9, 9)]`.
+pub fn frame_runs(frames: impl IntoIterator<Item = usize>) -> Vec<(usize, usize)> {
+    let mut runs: Vec<(usize, usize)> = Vec::new();
+    for f in frames {
+        match runs.last_mut() {
+            Some((_, last)) if last.checked_add(1) == Some(f) => *last = f,
+            _ => runs.push((f, f)),
+        }
+    }
+    runs
+}
+
+/// Runs of frames for a person: `N frames: 3-5, 9, ...`, the first `named` runs written out
+/// and then how many more (`and 4 more runs`); `none` where there are none.
+pub fn runs_text(runs: &[(usize, usize)], named: usize) -> String {
+    if runs.is_empty() {
+        return "none".to_string();
+    }
+    let count: usize = runs.iter().map(|(a, b)| b - a + 1).sum();
+    let mut parts: Vec<String> = runs
+        .iter()
+        .take(named)
+        .map(|&(a, b)| {
+            if a == b {
+                a.to_string()
+            } else {
+                format!("{a}-{b}")
+            }
+        })
+        .collect();
+    let more = runs.len().saturating_sub(named);
+    if more > 0 {
+        parts.push(format!(
+            "and {more} more run{}",
+            if more == 1 { "" } else { "s" }
+        ));
+    }
+    format!(
+        "{count} frame{}: {}",
+        if count == 1 { "" } else { "s" },
+        parts.join(", ")
+    )
 }
 
 /// The 21 IoU thresholds of the success plot.
@@ -479,6 +527,7 @@ pub fn evaluate_from(truth: &Truth, est: &[PoseRecord], from: usize) -> Result<R
     // Each evaluated frame's score, and whether the estimate is on the target there.
     let mut scores: Vec<(f64, bool)> = Vec::new();
     let (mut on_target, mut lost_on_target) = (0usize, 0usize);
+    let mut off_target = Vec::new();
     let unwrapped = unwrapped_truth_deg(&tf);
     for t in tf.iter().filter(|t| !t.absent) {
         let Some(r) = by_frame.get(&t.frame) else {
@@ -493,6 +542,9 @@ pub fn evaluate_from(truth: &Truth, est: &[PoseRecord], from: usize) -> Result<R
         ious.push(iou);
         let on = iou >= ON_TARGET_IOU;
         on_target += usize::from(on);
+        if !on {
+            off_target.push(t.frame);
+        }
         if let Some(angles) = t.angles {
             let swing = unwrapped.get(&t.frame);
             for (k, e) in [s.rx, s.ry, s.rz].into_iter().enumerate() {
@@ -585,6 +637,7 @@ pub fn evaluate_from(truth: &Truth, est: &[PoseRecord], from: usize) -> Result<R
         mean_score: (!scores.is_empty())
             .then(|| scores.iter().map(|(sc, _)| sc).sum::<f64>() / scores.len() as f64),
         on_target,
+        off_target_runs: frame_runs(off_target),
         lost_on_target: any_lost_col.then_some(lost_on_target),
         score_auroc: {
             let of = |side: bool| -> Vec<f64> {
@@ -718,6 +771,14 @@ impl Report {
             },
         );
         let off = self.evaluated - self.on_target;
+        row(
+            &mut s,
+            "off the target",
+            format!(
+                "{}  (IoU < {ON_TARGET_IOU})",
+                runs_text(&self.off_target_runs, 8)
+            ),
+        );
         if let Some(l) = self.lost {
             let split = match self.lost_on_target {
                 Some(_) if l > 0 && off == 0 => " (all on the target)".to_string(),
@@ -1001,6 +1062,28 @@ mod tests {
     }
 
     #[test]
+    fn frames_gather_into_runs_and_read_as_text() {
+        assert_eq!(frame_runs([3, 4, 5, 9]), vec![(3, 5), (9, 9)]);
+        assert_eq!(frame_runs([]), vec![]);
+        assert_eq!(
+            frame_runs([0, 2, 3, usize::MAX]),
+            vec![(0, 0), (2, 3), (usize::MAX, usize::MAX)]
+        );
+        assert_eq!(runs_text(&[], 8), "none");
+        assert_eq!(runs_text(&[(7, 7)], 8), "1 frame: 7");
+        assert_eq!(runs_text(&[(3, 5), (9, 9)], 8), "4 frames: 3-5, 9");
+        let many: Vec<_> = (0..12).map(|k| (10 * k, 10 * k + 1)).collect();
+        assert_eq!(
+            runs_text(&many, 2),
+            "24 frames: 0-1, 10-11, and 10 more runs"
+        );
+        assert_eq!(
+            runs_text(&many[..3], 2),
+            "6 frames: 0-1, 10-11, and 1 more run"
+        );
+    }
+
+    #[test]
     fn auroc_known_answers() {
         // Perfectly separated either way, and a score that says nothing.
         assert_eq!(auroc(&[0.9, 0.8], &[0.1, 0.2, 0.3]), Some(1.0));
@@ -1035,6 +1118,7 @@ mod tests {
             .collect();
         let r = evaluate(&truth, &est).unwrap();
         assert_eq!(r.on_target, 3);
+        assert_eq!(r.off_target_runs, vec![(2, 3), (5, 5)]);
         assert_eq!((r.lost, r.lost_on_target), (Some(2), Some(1)));
         // On: 0.9, 0.7, 0.6; off: 0.8, 0.2, 0.75. Wins: 0.9 beats 3, 0.7 beats 1, 0.6 beats 1.
         assert_eq!(r.score_auroc, Some(5.0 / 9.0));
@@ -1044,9 +1128,14 @@ mod tests {
             "{table}"
         );
         assert!(table.contains("score AUROC       0.5556"), "{table}");
+        assert!(
+            table.contains("off the target    3 frames: 2-3, 5  (IoU < 0.5)"),
+            "{table}"
+        );
         let json = serde_json::to_string(&r).unwrap();
         assert!(
-            json.contains("\"on_target\":3")
+            json.contains("\"off_target_runs\":[[2,3],[5,5]]")
+                && json.contains("\"on_target\":3")
                 && json.contains("\"lost_on_target\":1")
                 && json.contains("\"score_auroc\":0.5555"),
             "{json}"
@@ -1060,6 +1149,10 @@ mod tests {
             "{table}"
         );
         assert!(table.contains("1 (all on the target)"), "{table}");
+        assert!(
+            table.contains("off the target    none  (IoU < 0.5)"),
+            "{table}"
+        );
         // A score that is not a number: no AUROC, and not blamed on the frames.
         let mut nan = est.clone();
         nan[0].score = Some(f64::NAN);

@@ -1565,8 +1565,8 @@ struct Tracked {
 struct Signals {
     frames: usize,
     confidence: f64,
-    /// First and last frame of each run of lost frames.
-    lost: Vec<(usize, usize)>,
+    /// The input's numbers of the frames flagged lost, in order.
+    lost: Vec<usize>,
 }
 
 impl Signals {
@@ -1578,10 +1578,7 @@ impl Signals {
         self.frames += 1;
         self.confidence += confidence;
         if lost {
-            match self.lost.last_mut() {
-                Some((_, last)) if *last + 1 == frame => *last = frame,
-                _ => self.lost.push((frame, frame)),
-            }
+            self.lost.push(frame);
         }
     }
 
@@ -1592,30 +1589,10 @@ impl Signals {
         if self.lost.is_empty() {
             return format!("mean confidence {mean:.2}; never flagged lost");
         }
-        let count: usize = self.lost.iter().map(|(a, b)| b - a + 1).sum();
-        let mut runs: Vec<String> = self
-            .lost
-            .iter()
-            .take(Self::RUNS_NAMED)
-            .map(|&(a, b)| {
-                if a == b {
-                    a.to_string()
-                } else {
-                    format!("{a}-{b}")
-                }
-            })
-            .collect();
-        let more = self.lost.len().saturating_sub(Self::RUNS_NAMED);
-        if more > 0 {
-            runs.push(format!(
-                "and {more} more run{}",
-                if more == 1 { "" } else { "s" }
-            ));
-        }
+        let runs = pftrack::eval::frame_runs(self.lost.iter().copied());
         format!(
-            "mean confidence {mean:.2}; flagged lost on {count} frame{}: {}",
-            if count == 1 { "" } else { "s" },
-            runs.join(", ")
+            "mean confidence {mean:.2}; flagged lost on {}",
+            pftrack::eval::runs_text(&runs, Self::RUNS_NAMED)
         )
     }
 }
