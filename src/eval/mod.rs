@@ -371,8 +371,10 @@ pub struct Report {
     pub mean_score: Option<f64>,
     /// Evaluated frames on the target: IoU at least [`ON_TARGET_IOU`]. The others are off it.
     pub on_target: usize,
-    /// Where the estimate is off the target (evaluated frames with IoU under
-    /// [`ON_TARGET_IOU`]): runs of consecutive truth frames, first and last ([`frame_runs`]).
+    /// Where the estimate is off the target: the evaluated frames (those with an estimate;
+    /// [`Report::missing_frames`] apart, and absent ones not scored) with IoU under
+    /// [`ON_TARGET_IOU`], as runs of consecutive frame numbers, first and last
+    /// ([`frame_runs`]). A missing frame between two off the target splits their run.
     pub off_target_runs: Vec<(usize, usize)>,
     /// Of the [`Report::lost`] frames, those on the target (false alarms), when the estimate
     /// has a `lost` column. The rest of the lost frames are off it.
@@ -388,23 +390,33 @@ pub struct Report {
 /// Frames in ascending order gathered into runs of consecutive numbers, each its first and
 /// last: `[3, 4, 5, 9]` -> `[(3, 5), (9, 9)]`.
 pub fn frame_runs(frames: impl IntoIterator<Item = usize>) -> Vec<(usize, usize)> {
-    let mut runs: Vec<(usize, usize)> = Vec::new();
+    let mut runs = Vec::new();
     for f in frames {
-        match runs.last_mut() {
-            Some((_, last)) if last.checked_add(1) == Some(f) => *last = f,
-            _ => runs.push((f, f)),
-        }
+        extend_runs(&mut runs, f);
     }
     runs
 }
 
+/// Adds `frame` to `runs` (see [`frame_runs`]): it lengthens the last run where it follows
+/// it, and starts a new one otherwise. For frames that arrive in order, one at a time.
+pub fn extend_runs(runs: &mut Vec<(usize, usize)>, frame: usize) {
+    match runs.last_mut() {
+        Some((_, last)) if last.checked_add(1) == Some(frame) => *last = frame,
+        _ => runs.push((frame, frame)),
+    }
+}
+
 /// Runs of frames for a person: `N frames: 3-5, 9, ...`, the first `named` runs written out
-/// and then how many more (`and 4 more runs`); `none` where there are none.
+/// and then how many more (`and 4 more runs`); `none` where there are none. A run is its
+/// first and last frame, as [`frame_runs`] gives them (a run given backwards counts as one
+/// frame; the count saturates).
 pub fn runs_text(runs: &[(usize, usize)], named: usize) -> String {
     if runs.is_empty() {
         return "none".to_string();
     }
-    let count: usize = runs.iter().map(|(a, b)| b - a + 1).sum();
+    let count = runs.iter().fold(0usize, |n, &(a, b)| {
+        n.saturating_add(b.saturating_sub(a).saturating_add(1))
+    });
     let mut parts: Vec<String> = runs
         .iter()
         .take(named)
@@ -637,7 +649,12 @@ pub fn evaluate_from(truth: &Truth, est: &[PoseRecord], from: usize) -> Result<R
         mean_score: (!scores.is_empty())
             .then(|| scores.iter().map(|(sc, _)| sc).sum::<f64>() / scores.len() as f64),
         on_target,
-        off_target_runs: frame_runs(off_target),
+        off_target_runs: {
+            // A truth built by a program may come in any order.
+            off_target.sort_unstable();
+            off_target.dedup();
+            frame_runs(off_target)
+        },
         lost_on_target: any_lost_col.then_some(lost_on_target),
         score_auroc: {
             let of = |side: bool| -> Vec<f64> {
@@ -775,7 +792,7 @@ impl Report {
             &mut s,
             "off the target",
             format!(
-                "{}  (IoU < {ON_TARGET_IOU})",
+                "{}  (evaluated, IoU < {ON_TARGET_IOU})",
                 runs_text(&self.off_target_runs, 8)
             ),
         );
@@ -1081,6 +1098,17 @@ mod tests {
             runs_text(&many[..3], 2),
             "6 frames: 0-1, 10-11, and 1 more run"
         );
+        // Given by hand, backwards or the whole range: no overflow.
+        assert_eq!(runs_text(&[(5, 3)], 8), "1 frame: 5-3");
+        assert_eq!(
+            runs_text(&[(0, usize::MAX), (0, 1)], 8),
+            format!("{} frames: 0-{}, 0-1", usize::MAX, usize::MAX)
+        );
+        let mut runs = Vec::new();
+        for f in [4, 5, 7] {
+            extend_runs(&mut runs, f);
+        }
+        assert_eq!(runs, vec![(4, 5), (7, 7)]);
     }
 
     #[test]
@@ -1119,6 +1147,10 @@ mod tests {
         let r = evaluate(&truth, &est).unwrap();
         assert_eq!(r.on_target, 3);
         assert_eq!(r.off_target_runs, vec![(2, 3), (5, 5)]);
+        // A truth a program built backwards: the same runs.
+        let backwards = Truth::Poses((0..6).rev().map(|f| rec(f, 50.0, 0.0)).collect());
+        let b = evaluate(&backwards, &est).unwrap();
+        assert_eq!(b.off_target_runs, r.off_target_runs);
         assert_eq!((r.lost, r.lost_on_target), (Some(2), Some(1)));
         // On: 0.9, 0.7, 0.6; off: 0.8, 0.2, 0.75. Wins: 0.9 beats 3, 0.7 beats 1, 0.6 beats 1.
         assert_eq!(r.score_auroc, Some(5.0 / 9.0));
@@ -1129,7 +1161,7 @@ mod tests {
         );
         assert!(table.contains("score AUROC       0.5556"), "{table}");
         assert!(
-            table.contains("off the target    3 frames: 2-3, 5  (IoU < 0.5)"),
+            table.contains("off the target    3 frames: 2-3, 5  (evaluated, IoU < 0.5)"),
             "{table}"
         );
         let json = serde_json::to_string(&r).unwrap();
@@ -1150,7 +1182,7 @@ mod tests {
         );
         assert!(table.contains("1 (all on the target)"), "{table}");
         assert!(
-            table.contains("off the target    none  (IoU < 0.5)"),
+            table.contains("off the target    none  (evaluated, IoU < 0.5)"),
             "{table}"
         );
         // A score that is not a number: no AUROC, and not blamed on the frames.

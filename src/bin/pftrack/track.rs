@@ -1565,8 +1565,8 @@ struct Tracked {
 struct Signals {
     frames: usize,
     confidence: f64,
-    /// The input's numbers of the frames flagged lost, in order.
-    lost: Vec<usize>,
+    /// The frames flagged lost, as runs of the input's numbers (first and last).
+    lost: Vec<(usize, usize)>,
 }
 
 impl Signals {
@@ -1578,7 +1578,7 @@ impl Signals {
         self.frames += 1;
         self.confidence += confidence;
         if lost {
-            self.lost.push(frame);
+            pftrack::eval::extend_runs(&mut self.lost, frame);
         }
     }
 
@@ -1589,10 +1589,9 @@ impl Signals {
         if self.lost.is_empty() {
             return format!("mean confidence {mean:.2}; never flagged lost");
         }
-        let runs = pftrack::eval::frame_runs(self.lost.iter().copied());
         format!(
             "mean confidence {mean:.2}; flagged lost on {}",
-            pftrack::eval::runs_text(&runs, Self::RUNS_NAMED)
+            pftrack::eval::runs_text(&self.lost, Self::RUNS_NAMED)
         )
     }
 }
