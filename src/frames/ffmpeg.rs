@@ -337,15 +337,29 @@ fn spawn_decoder(
     // RGB and the pipe (which cost about four times the decode at 720p). The filter counts the
     // frames the decoder gives, as the pipe's reader does with every frame passed through.
     let select = (start > 0).then(|| ["-vf".to_string(), format!("select=gte(n\\,{start})")]);
+    let rgb = ["-f", "rawvideo", "-pix_fmt", "rgb24", "-"].map(String::from);
+    let output: Vec<String> = select.into_iter().flatten().chain(rgb).collect();
+    spawn_decode(ffmpeg, path, legacy_sync, rotate, &output)
+}
+
+/// Starts `ffmpeg` decoding `path`'s first video stream as it is timed (`passthrough`), turned
+/// as its display rotation says where `rotate`, else as stored, into the `output` given
+/// (its options and its name), with its stdout piped and its stderr's tail kept.
+fn spawn_decode(
+    ffmpeg: &Path,
+    path: &Path,
+    legacy_sync: bool,
+    rotate: bool,
+    output: &[String],
+) -> Result<Decoder, FrameError> {
     let mut child = Command::new(ffmpeg)
         .args(["-v", "error", "-nostdin"])
         .args((!rotate).then_some("-noautorotate"))
         .arg("-i")
         .arg(file_arg(path))
         .args(["-map", "0:v:0"])
-        .args(select.into_iter().flatten())
         .args(passthrough_args(legacy_sync))
-        .args(["-f", "rawvideo", "-pix_fmt", "rgb24", "-"])
+        .args(output)
         .stdin(Stdio::null())
         .stdout(Stdio::piped())
         .stderr(Stdio::piped())
@@ -511,26 +525,15 @@ impl FfmpegSource {
     /// decode fails, says anything on stderr, or reports no count; the caller then reads
     /// through.
     fn count_frames(&self) -> Result<Option<usize>, FrameError> {
-        let mut child = Command::new(&self.ffmpeg)
-            .args(["-v", "error", "-nostdin", "-nostats"])
-            .args((!self.rotate).then_some("-noautorotate"))
-            .arg("-i")
-            .arg(file_arg(&self.path))
-            .args(["-map", "0:v:0"])
-            .args(passthrough_args(self.legacy_sync))
-            .args(["-progress", "pipe:1", "-f", "null", "-"])
-            .stdin(Stdio::null())
-            .stdout(Stdio::piped())
-            .stderr(Stdio::piped())
-            .spawn()
-            .map_err(|e| spawn_error(&self.ffmpeg, &self.path, e))?;
-        let (Some(stdout), Some(stderr)) = (child.stdout.take(), child.stderr.take()) else {
-            end(&mut child);
-            return Ok(None);
-        };
+        let output = ["-nostats", "-progress", "pipe:1", "-f", "null", "-"].map(String::from);
         // Killed with the program's interrupt clean-up, as the decode is.
-        let process = Process::new(child);
-        let said = drain_tail(stderr);
+        let (process, stdout, said) = spawn_decode(
+            &self.ffmpeg,
+            &self.path,
+            self.legacy_sync,
+            self.rotate,
+            &output,
+        )?;
         let progress = drain_tail(stdout);
         let status = process.wait().map_err(|e| FrameError::io(&self.path, e))?;
         let (said, progress) = (said.join().ok(), progress.join().ok());

@@ -6,9 +6,9 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, bail};
 use clap::Args;
 use pftrack::output::png_len;
+use pftrack::synth::{Renderer, Scenario, SynthConfig, parse_size, write_sequence};
 
 use crate::paths::Room;
-use pftrack::synth::{Renderer, Scenario, SynthConfig, parse_size, write_sequence};
 
 /// Arguments of `pftrack synth`.
 #[derive(Debug, Args)]
