@@ -3201,22 +3201,8 @@ fn cli_track_says_its_mean_confidence_and_where_it_was_lost() {
             .unwrap();
     }
     let out = dir.join("flat.csv");
-    let o = out.to_str().unwrap();
-    let f = flat.to_str().unwrap();
-    let said = pftrack_ok(&[
-        "track",
-        f,
-        "--init-box",
-        "20,12,24,24",
-        "--start-frame",
-        "2",
-        "--backend",
-        "cpu",
-        "-o",
-        o,
-    ])
-    .stderr;
-    let said = String::from_utf8_lossy(&said);
+    let start = ["--init-box", "20,12,24,24", "--start-frame", "2"];
+    let (_, said) = track_on_cpu(flat.to_str().unwrap(), &out, &start);
     let rows = read_pose_csv(&out).unwrap();
     let lost: Vec<usize> = rows
         .iter()

@@ -297,11 +297,12 @@ impl FilterParams {
                 )));
             }
         }
-        if !STILL_SHARE_RANGE.contains(&self.still_share) {
+        let range = STILL_SHARE_RANGE;
+        if !range.contains(&self.still_share) {
             return Err(FilterError::BadParams(format!(
-                "still_share {} must lie in [0, 1): the share of proposals drawn around the \
+                "still_share {} must lie in [{}, {}): the share of proposals drawn around the \
                  previous state instead of where the motion moved it",
-                self.still_share
+                self.still_share, range.start, range.end
             )));
         }
         if !(self.resample_below.is_finite() && self.resample_below >= 0.0) {
