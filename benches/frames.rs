@@ -111,6 +111,18 @@ fn resize(c: &mut Criterion) {
         });
     }
     g.finish();
+    // What a source resizes with: the mean over each pixel's footprint where it shrinks
+    // (1280x960 to 640x480 is `track`'s working size for such frames).
+    let mut g = c.benchmark_group("frames/resize");
+    for (name, (sw, sh), (dw, dh)) in [
+        ("640x480_to_160x120", (640, 480), (160, 120)),
+        ("1280x960_to_640x480", (1280, 960), (640, 480)),
+        ("1920x1080_to_640x360", (1920, 1080), (640, 360)),
+    ] {
+        let img = test_frame(sw, sh);
+        g.bench_function(name, |b| b.iter(|| black_box(frames::resize(&img, dw, dh))));
+    }
+    g.finish();
 }
 
 criterion_group! {

@@ -103,8 +103,35 @@ fn resize_applies_to_every_frame() {
     assert!(src.describe().contains("resized to 64x40"));
     let f0 = src.next().unwrap().unwrap();
     let direct = image::open(dir.join("0001.jpg")).unwrap().into_rgb8();
-    assert_eq!(f0, resize_bilinear(&direct, 64, 40));
+    assert_eq!(f0, frames::resize(&direct, 64, 40));
     assert!(src.take(20).all(|f| f.unwrap().dimensions() == (64, 40)));
+}
+
+/// A size set after the source is open applies to the frames delivered from then on; a bad
+/// one is refused and leaves the source as it was; `None` goes back to the stored size.
+#[test]
+fn a_resize_set_after_opening_applies_from_then_on() {
+    let Some(dir) = data("girl/img") else { return };
+    let mut src = frames::open(&dir, &SourceOptions::default()).unwrap();
+    let f0 = src.next().unwrap().unwrap();
+    assert_eq!(f0.dimensions(), (128, 96));
+    for bad in [(0, 5), (1 << 20, 1 << 20)] {
+        assert!(matches!(
+            src.set_resize(Some(bad)),
+            Err(FrameError::BadSize { .. })
+        ));
+        assert_eq!(src.size(), (128, 96));
+    }
+    src.set_resize(Some((40, 30))).unwrap();
+    assert_eq!((src.size(), src.native_size()), ((40, 30), (128, 96)));
+    assert!(src.describe().contains("resized to 40x30"));
+    let f1 = src.next().unwrap().unwrap();
+    let direct = image::open(dir.join("0002.jpg")).unwrap().into_rgb8();
+    assert_eq!(f1, frames::resize(&direct, 40, 30));
+    // Shrunk by more than two, every pixel counts: not what bilinear sampling gives.
+    assert_ne!(f1, resize_bilinear(&direct, 40, 30));
+    src.set_resize(None).unwrap();
+    assert_eq!(src.next().unwrap().unwrap().dimensions(), (128, 96));
 }
 
 /// Writes a small image whose every pixel is `v`.

@@ -40,7 +40,7 @@ use std::path::Path;
 
 pub use ffmpeg::FfmpegTools;
 pub use gray::GrayF32;
-pub use resize::{Rescale, resize_bilinear};
+pub use resize::{Rescale, WORKING_SEMI_AXIS, WORKING_SIDE, resize, resize_bilinear, working_size};
 pub use view::{FrameView, PixelFormat};
 pub use y4m::{Y4mHeader, Y4mReader};
 
@@ -183,7 +183,8 @@ impl FrameError {
 /// How to read a source.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub struct SourceOptions {
-    /// Resize every frame to `(width, height)` (bilinear, [`resize_bilinear`]).
+    /// Resize every frame to `(width, height)` ([`resize()`]: the mean over each pixel's
+    /// footprint along an axis that shrinks, bilinear along one that grows).
     pub resize: Option<(u32, u32)>,
 }
 
@@ -555,6 +556,27 @@ impl FrameSource {
         self.native
     }
 
+    /// Resizes the frames delivered from now on to `size` ([`resize()`]), or delivers them at
+    /// the stored size with `None`: for a size chosen once the first frame's target is known
+    /// ([`working_size`]), on a source that cannot be opened again (standard input). A size
+    /// of no pixels or past [`parse_size`]'s bounds is refused, as [`open`] refuses it, and
+    /// the source left as it was.
+    pub fn set_resize(&mut self, size: Option<(u32, u32)>) -> Result<(), FrameError> {
+        let opts = SourceOptions { resize: size };
+        check_resize(&opts)?;
+        let out = size.unwrap_or(self.native);
+        if u64::from(out.0) * u64::from(out.1) > y4m::MAX_PIXELS {
+            return Err(FrameError::TooLarge {
+                path: self.path.clone(),
+                size: out,
+                limit: y4m::MAX_PIXELS,
+                resizable: true,
+            });
+        }
+        self.out = out;
+        Ok(())
+    }
+
     /// The number of frames, when known in advance (image count; y4m estimate from the file
     /// size; the container's count for ffmpeg). Only a hint: the stream decides.
     pub fn len_hint(&self) -> Option<usize> {
@@ -792,7 +814,7 @@ impl Iterator for FrameSource {
         let read = self.next_native();
         match self.advance(read) {
             Ok(Some(f)) if self.out == self.native => Some(Ok(f)),
-            Ok(Some(f)) => Some(Ok(resize_bilinear(&f, self.out.0, self.out.1))),
+            Ok(Some(f)) => Some(Ok(resize(&f, self.out.0, self.out.1))),
             Ok(None) => None,
             Err(e) => Some(Err(e)),
         }
