@@ -5,7 +5,8 @@
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 
-use pftrack::io::{read_init, read_pose_csv};
+use pftrack::geometry::Ellipse;
+use pftrack::io::{PoseRecord, read_init, read_pose_csv};
 use pftrack::synth::{Renderer, Scenario, SynthConfig};
 
 /// A fresh temporary directory path `name` (not created).
@@ -938,6 +939,38 @@ fn cli_a_failed_track_leaves_no_render() {
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
+/// Checks a track against its synthetic truth, in the input's pixels: a row for every frame,
+/// row 0 the start as given, and the centre within `(mean, largest)` pixels of the truth's.
+fn assert_started_and_followed(
+    rows: &[PoseRecord],
+    init: &Ellipse,
+    truth: &[PoseRecord],
+    (mean_px, max_px): (f64, f64),
+    what: &str,
+) {
+    assert_eq!(rows.len(), truth.len(), "{what}");
+    let s = rows[0].state;
+    for (x, y) in [
+        (s.cx, init.cx),
+        (s.cy, init.cy),
+        (s.a, init.a),
+        (s.b, init.b),
+    ] {
+        assert!((x - y).abs() < 1e-5, "{what}: row 0 {x} vs start {y}");
+    }
+    let errors: Vec<f64> = rows
+        .iter()
+        .zip(truth)
+        .map(|(r, t)| (r.state.cx - t.state.cx).hypot(r.state.cy - t.state.cy))
+        .collect();
+    let mean = errors.iter().sum::<f64>() / errors.len() as f64;
+    let max = errors.iter().fold(0.0f64, |m, &e| m.max(e));
+    assert!(
+        mean < mean_px && max < max_px,
+        "{what}: centre error mean {mean}, max {max} px"
+    );
+}
+
 /// `--resize` tracks on the resized frames but takes the start and writes the poses in the
 /// input's own pixels: row 0 is the start as given, and the track stays on the truth, which
 /// `synth` wrote in the input's pixels.
@@ -963,28 +996,8 @@ fn cli_resize_keeps_the_start_and_poses_in_the_input_pixels() {
             render.to_str().unwrap(),
         ]);
         let rows = read_pose_csv(&csv).unwrap();
-        assert_eq!(rows.len(), truth.len());
-        let s = rows[0].state;
-        for (x, y) in [
-            (s.cx, init.cx),
-            (s.cy, init.cy),
-            (s.a, init.a),
-            (s.b, init.b),
-        ] {
-            assert!((x - y).abs() < 1e-5, "{size}: row 0 {x} vs start {y}");
-        }
         // Measured 2026-12-05: mean 0.8-1.4 px, largest 2.1-4.4 px, over the four sizes.
-        let errors: Vec<f64> = rows
-            .iter()
-            .zip(&truth)
-            .map(|(r, t)| (r.state.cx - t.state.cx).hypot(r.state.cy - t.state.cy))
-            .collect();
-        let mean = errors.iter().sum::<f64>() / errors.len() as f64;
-        let max = errors.iter().fold(0.0f64, |m, &e| m.max(e));
-        assert!(
-            mean < 2.0 && max < 6.0,
-            "{size}: centre error mean {mean}, max {max} px"
-        );
+        assert_started_and_followed(&rows, &init, &truth, (2.0, 6.0), size);
         // Drawn from the resized frames.
         let (w, _) = pftrack::frames::parse_size(size).unwrap();
         let img = image::open(render.join("00000.png")).unwrap();
@@ -1017,6 +1030,83 @@ fn cli_resize_keeps_the_start_and_poses_in_the_input_pixels() {
         "{}",
         e.theta.to_degrees()
     );
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// Frames longer than 640 px are tracked shrunk toward 640 px (`frames::working_size`) when
+/// no `--resize` is given: the line says at which size, the start and the poses stay in the
+/// input's pixels, and the track stays on the truth; `--full-size` tracks them as they are,
+/// and cannot be given with `--resize`.
+#[test]
+fn cli_large_frames_are_tracked_at_a_working_size() {
+    // The whole scenario in 60 frames: four times the default's motion a frame.
+    let dir = synth_dir("working", 60, "1280x960");
+    let d = dir.to_str().unwrap();
+    let truth = read_pose_csv(&dir.join("truth.csv")).unwrap();
+    let init = read_init(&dir.join("init.txt")).unwrap().ellipse;
+    let csv = dir.join("poses.csv");
+    let render = dir.join("render");
+    let o = pftrack_ok(&[
+        "track",
+        d,
+        "--backend",
+        "cpu",
+        "-o",
+        csv.to_str().unwrap(),
+        "--render",
+        render.to_str().unwrap(),
+    ]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        err.contains("tracked 60 frames at 640x480 (shrunk from 1280x960; --full-size keeps it)"),
+        "{err}"
+    );
+    let rows = read_pose_csv(&csv).unwrap();
+    // In the input's pixels. Measured 2026-12-07: mean 8.2 px, largest 36 px (the head's
+    // semi-axes are 148x198 px); tracked at 1280x960 (--full-size) 23 and 73 px, its
+    // motion a frame, in pixels, twice as far for the same search.
+    assert_started_and_followed(&rows, &init, &truth, (15.0, 50.0), "working size");
+    // Drawn from the frames tracked.
+    let img = image::open(render.join("00000.png")).unwrap();
+    let scale = pftrack::output::default_scale(640);
+    assert!(
+        img.width() >= 640 * scale && img.width() < 1280,
+        "{}",
+        img.width()
+    );
+    // As they are.
+    let o = pftrack_ok(&[
+        "track",
+        d,
+        "--backend",
+        "cpu",
+        "--full-size",
+        "--max-frames",
+        "2",
+        "-o",
+        csv.to_str().unwrap(),
+    ]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(err.contains("tracked 2 frames with cpu"), "{err}");
+    let rows = read_pose_csv(&csv).unwrap();
+    assert!((rows[0].state.a - init.a).abs() < 1e-5);
+    // A start too small to shrink for is tracked at full size, without a word.
+    let o = pftrack_ok(&[
+        "track",
+        d,
+        "--backend",
+        "cpu",
+        "--max-frames",
+        "2",
+        "--init-ellipse",
+        "640,480,50,60",
+        "-o",
+        csv.to_str().unwrap(),
+    ]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(err.contains("tracked 2 frames with cpu"), "{err}");
+    let o = pftrack(&["track", d, "--full-size", "--resize", "320x240"]);
+    assert_eq!(o.status.code(), Some(2));
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
