@@ -25,7 +25,9 @@
 #                      each scenario's own seed
 #   --scenarios "..."  synth only (default: nod pan roll combo depth car)
 #   --size WxH         synth only: the frame size the scenarios are rendered at (default:
-#                      synth's, 160x120); their renders go to DIR/synth/NAME-SEED-WxH
+#                      synth's, 160x120); their renders go to DIR/synth/NAME-SEED-WxH.
+#                      Frames longer than 800 px are tracked shrunk toward 640 px unless
+#                      `-- --full-size` is given (track's working size)
 #   --sequences "..."  real and tre only (default: girl car4)
 #   --data DIR         real footage (default: ../shared/data beside the repository)
 #   --jobs N           runs side by side (default 2), each on one rayon thread

@@ -1058,7 +1058,11 @@ fn cli_large_frames_are_tracked_at_a_working_size() {
     ]);
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(
-        err.contains("tracked 60 frames at 640x480 (shrunk from 1280x960; --full-size keeps it)"),
+        err.contains("tracked 60 frames at 640x480 (shrunk from 1280x960) with cpu")
+            && err.contains(
+                "note: tracking at 640x480, shrunk from 1280x960 (as accurate, and faster; \
+                 --full-size tracks at 1280x960)"
+            ),
         "{err}"
     );
     let rows = read_pose_csv(&csv).unwrap();
@@ -1105,6 +1109,39 @@ fn cli_large_frames_are_tracked_at_a_working_size() {
     ]);
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(err.contains("tracked 2 frames with cpu"), "{err}");
+    // A start the settings would refuse in the shrunk frames (a semi-axis of 30 px, 16 there,
+    // under a file's bound of 20) is tracked at full size rather than refused; with a bound
+    // of 12 it is shrunk as far as its 16 px allow.
+    let settings = dir.join("min_axis.json");
+    for (bound, at) in [
+        (20, "with cpu"),
+        (12, "at 684x513 (shrunk from 1280x960) with cpu"),
+    ] {
+        std::fs::write(
+            &settings,
+            format!(r#"{{"filter": {{"min_axis": {bound}}}}}"#),
+        )
+        .unwrap();
+        let o = pftrack_ok(&[
+            "track",
+            d,
+            "--backend",
+            "cpu",
+            "--max-frames",
+            "2",
+            "--init-ellipse",
+            "640,480,200,30",
+            "--config",
+            settings.to_str().unwrap(),
+            "-o",
+            csv.to_str().unwrap(),
+        ]);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(
+            err.contains(&format!("tracked 2 frames {at}")),
+            "{bound}: {err}"
+        );
+    }
     let o = pftrack(&["track", d, "--full-size", "--resize", "320x240"]);
     assert_eq!(o.status.code(), Some(2));
     std::fs::remove_dir_all(&dir).unwrap();

@@ -111,7 +111,15 @@ fn resize_applies_to_every_frame() {
 /// one is refused and leaves the source as it was; `None` goes back to the stored size.
 #[test]
 fn a_resize_set_after_opening_applies_from_then_on() {
-    let Some(dir) = data("girl/img") else { return };
+    // Three frames of fine texture, which bilinear sampling aliases.
+    let dir = scratch("set_resize");
+    for i in 0..3u32 {
+        let img = RgbImage::from_fn(128, 96, |x, y| {
+            let v = ((x * 37 + y * 101 + i * 13) % 7 * 40) as u8;
+            Rgb([v, 255 - v, (x ^ y) as u8])
+        });
+        img.save(dir.join(format!("{:04}.png", i + 1))).unwrap();
+    }
     let mut src = frames::open(&dir, &SourceOptions::default()).unwrap();
     let f0 = src.next().unwrap().unwrap();
     assert_eq!(f0.dimensions(), (128, 96));
@@ -126,12 +134,13 @@ fn a_resize_set_after_opening_applies_from_then_on() {
     assert_eq!((src.size(), src.native_size()), ((40, 30), (128, 96)));
     assert!(src.describe().contains("resized to 40x30"));
     let f1 = src.next().unwrap().unwrap();
-    let direct = image::open(dir.join("0002.jpg")).unwrap().into_rgb8();
+    let direct = image::open(dir.join("0002.png")).unwrap().into_rgb8();
     assert_eq!(f1, frames::resize(&direct, 40, 30));
     // Shrunk by more than two, every pixel counts: not what bilinear sampling gives.
     assert_ne!(f1, resize_bilinear(&direct, 40, 30));
     src.set_resize(None).unwrap();
     assert_eq!(src.next().unwrap().unwrap().dimensions(), (128, 96));
+    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 /// Writes a small image whose every pixel is `v`.

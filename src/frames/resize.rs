@@ -26,6 +26,10 @@ use crate::io::PoseRecord;
 /// semi-axes scale and its orientation stays; otherwise a turned ellipse's axes turn too.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Rescale {
+    /// The sizes mapped from, as numbers.
+    from: (f64, f64),
+    /// The sizes mapped to.
+    to: (f64, f64),
     sx: f64,
     sy: f64,
 }
@@ -33,30 +37,45 @@ pub struct Rescale {
 impl Rescale {
     /// The map from a `from` frame (width, height) to the `to` frame; sizes of 0 map as 1.
     pub fn new(from: (u32, u32), to: (u32, u32)) -> Self {
-        let ratio = |t: u32, f: u32| t.max(1) as f64 / f.max(1) as f64;
+        let side = |v: u32| f64::from(v.max(1));
+        Self::between((side(from.0), side(from.1)), (side(to.0), side(to.1)))
+    }
+
+    fn between(from: (f64, f64), to: (f64, f64)) -> Self {
         Self {
-            sx: ratio(to.0, from.0),
-            sy: ratio(to.1, from.1),
+            from,
+            to,
+            sx: to.0 / from.0,
+            sy: to.1 / from.1,
         }
     }
 
     /// The map back.
     pub fn inverse(&self) -> Self {
-        Self {
-            sx: 1.0 / self.sx,
-            sy: 1.0 / self.sy,
-        }
+        Self::between(self.to, self.from)
     }
 
     /// Whether the map leaves every position where it is.
     pub fn is_identity(&self) -> bool {
-        self.sx == 1.0 && self.sy == 1.0
+        self.from == self.to
     }
 
     /// Where pixel position `(x, y)` lands (exactly where it was along an axis of scale 1).
+    /// Computed as `(x + 0.5) · dw / sw − 0.5`, the product first: the frame's edges and the
+    /// centres of its first and last pixels land exactly on the other frame's, so a position
+    /// inside one frame is inside the other.
     pub fn point(&self, x: f64, y: f64) -> (f64, f64) {
-        let map = |v: f64, s: f64| if s == 1.0 { v } else { (v + 0.5) * s - 0.5 };
-        (map(x, self.sx), map(y, self.sy))
+        let map = |v: f64, from: f64, to: f64| {
+            if from == to {
+                v
+            } else {
+                (v + 0.5) * to / from - 0.5
+            }
+        };
+        (
+            map(x, self.from.0, self.to.0),
+            map(y, self.from.1, self.to.1),
+        )
     }
 
     /// The image of the ellipse: its centre mapped, and the ellipse its two semi-axes (now
@@ -147,12 +166,17 @@ pub const WORKING_SIDE: u32 = 640;
 /// The larger semi-axis, in pixels, [`working_size`] leaves a target at least.
 pub const WORKING_SEMI_AXIS: f64 = 64.0;
 
+/// The smaller semi-axis, in pixels, [`working_size`] leaves a target at least.
+pub const WORKING_MIN_SEMI_AXIS: f64 = 16.0;
+
 /// The size to track frames of size `frame` at, where a smaller one serves as well: frames
-/// longer than [`WORKING_SIDE`] pixels on their longer side, shrunk ([`resize()`]) toward it, as
-/// far as the target (`target`, its larger semi-axis) keeps [`WORKING_SEMI_AXIS`] pixels;
-/// `None` where the frames are tracked as they are: no longer than that, a target no larger,
-/// or a shrink by less than a fifth. The proportions are kept, each side rounded to whole
-/// pixels.
+/// longer than [`WORKING_SIDE`] pixels on their longer side, shrunk ([`resize()`]) toward it,
+/// as far as the target (`target`) keeps a larger semi-axis of [`WORKING_SEMI_AXIS`] pixels
+/// and a smaller one of [`WORKING_MIN_SEMI_AXIS`]; `None` where the frames are tracked as they
+/// are: no longer than that, a target no larger, or a shrink by less than a fifth (frames up
+/// to 800 px long are never shrunk). The frame's proportions are kept exactly where its sides
+/// allow it within a step of 64 px (1920x1080 shrinks by multiples of 16x9), else each side
+/// is rounded up to whole pixels.
 ///
 /// The tracker's cost grows with the target's area (its colour histograms, block matching and
 /// SIFT all cover it), and its accuracy stops growing well below these sizes: on the
@@ -163,20 +187,36 @@ pub const WORKING_SEMI_AXIS: f64 = 64.0;
 /// many pixels as footage [`WORKING_SIDE`] pixels wide gives it.
 pub fn working_size(frame: (u32, u32), target: &Ellipse) -> Option<(u32, u32)> {
     let (w, h) = frame;
-    let longer = w.max(h);
-    let semi = target.a.abs().max(target.b.abs());
-    let finite = target.a.is_finite() && target.b.is_finite();
-    if longer <= WORKING_SIDE || !finite || semi <= WORKING_SEMI_AXIS {
+    let (a, b) = (target.a.abs(), target.b.abs());
+    if w == 0 || h == 0 || !(a.is_finite() && b.is_finite() && a > 0.0 && b > 0.0) {
         return None;
     }
-    let k = (f64::from(WORKING_SIDE) / f64::from(longer)).max(WORKING_SEMI_AXIS / semi);
+    let k = (f64::from(WORKING_SIDE) / f64::from(w.max(h)))
+        .max(WORKING_SEMI_AXIS / a.max(b))
+        .max(WORKING_MIN_SEMI_AXIS / a.min(b));
     // Shrinking by less than a fifth saves little, and still blurs every pixel a little.
     if k > 0.8 {
         return None;
     }
-    let side = |v: u32| ((f64::from(v) * k).round() as u32).max(1);
-    let size = (side(w), side(h));
-    (size != frame).then_some(size)
+    // Rounded up, so that no bound above is passed.
+    let up = |v: f64| (v - 1e-9).ceil().max(1.0) as u32;
+    let g = gcd(w, h);
+    let (p, q) = (w / g, h / g);
+    let size = if p.max(q) <= 64 {
+        let n = up(f64::from(g) * k);
+        (n * p, n * q)
+    } else {
+        (up(f64::from(w) * k), up(f64::from(h) * k))
+    };
+    (size.0 <= w && size.1 <= h && size != frame).then_some(size)
+}
+
+/// The greatest common divisor.
+fn gcd(mut a: u32, mut b: u32) -> u32 {
+    while b != 0 {
+        (a, b) = (b, a % b);
+    }
+    a
 }
 
 /// One output coordinate's two source taps and the weight of the second, `[0, 1]`.
@@ -267,16 +307,11 @@ pub fn resize(img: &RgbImage, w: u32, h: u32) -> RgbImage {
     let yf = footprints(sh, h);
     let src = img.as_raw();
     let (row_len, out_len) = (sw as usize * 3, w as usize * 3);
-    // Along x first, kept in f32, only for the source rows some output row reads.
-    let mut across = vec![0f32; sh as usize * out_len];
-    let mut needed = vec![false; sh as usize];
-    for f in &yf {
-        needed[f.first..f.first + f.weights.len()].fill(true);
-    }
-    for (y, row) in across.chunks_exact_mut(out_len).enumerate() {
-        if !needed[y] {
-            continue;
-        }
+    // Along x first, in f32, a source row at a time as the output rows read them; the last
+    // two kept, since successive output rows share at most the row between their footprints
+    // (shrinking) or both of their rows (growing): memory of two output rows, not of the
+    // source's height.
+    let across = |y: usize, row: &mut [f32]| {
         let s = &src[y * row_len..(y + 1) * row_len];
         for (px, f) in row.chunks_exact_mut(3).zip(&xf) {
             let taps = &s[f.first * 3..(f.first + f.weights.len()) * 3];
@@ -288,15 +323,34 @@ pub fn resize(img: &RgbImage, w: u32, h: u32) -> RgbImage {
             }
             px.copy_from_slice(&v);
         }
-    }
+    };
+    let mut kept: [(usize, Vec<f32>); 2] = [
+        (usize::MAX, vec![0f32; out_len]),
+        (usize::MAX, vec![0f32; out_len]),
+    ];
     // Then along y, a whole row at a time.
     let dst: &mut [u8] = &mut out;
     let mut acc = vec![0f32; out_len];
     for (drow, f) in dst.chunks_exact_mut(out_len).zip(&yf) {
         acc.fill(0.0);
         for (k, &wt) in f.weights.iter().enumerate() {
-            let r = &across[(f.first + k) * out_len..(f.first + k + 1) * out_len];
-            for (a, &v) in acc.iter_mut().zip(r) {
+            let y = f.first + k;
+            let slot = match kept.iter().position(|(at, _)| *at == y) {
+                Some(i) => i,
+                None => {
+                    // An empty place first; else, the rows coming in order, the one kept
+                    // from further up goes.
+                    let i = match (kept[0].0, kept[1].0) {
+                        (usize::MAX, _) => 0,
+                        (_, usize::MAX) => 1,
+                        (a, b) => usize::from(b < a),
+                    };
+                    across(y, &mut kept[i].1);
+                    kept[i].0 = y;
+                    i
+                }
+            };
+            for (a, &v) in acc.iter_mut().zip(&kept[slot].1) {
                 *a += v * wt;
             }
         }
@@ -441,6 +495,36 @@ mod tests {
         );
     }
 
+    /// The frame's edges and its first and last pixels' centres land exactly on the other
+    /// frame's, so a start inside one frame is inside the other (1079.5 of 1080 rows had
+    /// mapped past 860.5 of 861 when the ratio was taken first).
+    #[test]
+    fn the_frames_bounds_map_exactly() {
+        for n in 1..=2000u32 {
+            for m in [
+                1,
+                2,
+                3,
+                360,
+                602,
+                641,
+                737,
+                861,
+                1080,
+                1081,
+                4320,
+                n / 3 + 1,
+            ] {
+                let r = Rescale::new((n, n), (m, m));
+                let (n, m) = (f64::from(n), f64::from(m));
+                for (v, want) in [(-0.5, -0.5), (n - 0.5, m - 0.5)] {
+                    assert_eq!(r.point(v, v), (want, want), "{n} -> {m}");
+                    assert_eq!(r.inverse().point(want, want), (v, v), "{m} -> {n}");
+                }
+            }
+        }
+    }
+
     #[test]
     fn identity_size_is_identity() {
         let img = RgbImage::from_fn(17, 9, |x, y| {
@@ -507,7 +591,7 @@ mod tests {
     }
 
     #[test]
-    fn resize_keeps_bilinear_where_no_axis_shrinks_by_more_than_half() {
+    fn resize_is_bilinear_where_growing_keeping_the_size_or_halving() {
         let img = textured(40, 30);
         // Growing, the same size, halving, and growing along one axis while halving the
         // other: bilinear exactly (halving's footprint is the two pixels bilinear averages).
@@ -531,6 +615,30 @@ mod tests {
                     (f64::from(p[c]) - want).abs() <= 0.5 + 1e-4,
                     "({x}, {y}) channel {c}: {} against the mean {want}",
                     p[c]
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn shrinking_one_axis_and_growing_the_other() {
+        // Columns of a pattern, alike down every row: shrunk by three along x and grown along
+        // y, every row holds the means of three columns.
+        let img = RgbImage::from_fn(12, 5, |x, _| image::Rgb([(x * 20) as u8, (x * x) as u8, 7]));
+        let r = resize(&img, 4, 9);
+        for (x, y, p) in r.enumerate_pixels() {
+            let mean = |c: usize| {
+                (0..3)
+                    .map(|i| f64::from(img.get_pixel(3 * x + i, 0)[c]))
+                    .sum::<f64>()
+                    / 3.0
+            };
+            for c in 0..3 {
+                assert!(
+                    (f64::from(p[c]) - mean(c)).abs() <= 0.5 + 1e-4,
+                    "({x}, {y}) channel {c}: {} against {}",
+                    p[c],
+                    mean(c)
                 );
             }
         }
@@ -616,56 +724,75 @@ mod tests {
             working_size((1080, 1920), &target(-200.0, 300.0)),
             Some((360, 640))
         );
-        // Only as far as the target keeps 64 px: 100 px in 1920x1080 shrinks by 0.64.
+        // Only as far as the target keeps 64 px: 100 px in 1920x1080 shrinks by 0.64, to the
+        // next 16x9 multiple above.
         assert_eq!(
             working_size((1920, 1080), &target(100.0, 80.0)),
-            Some((1229, 691))
+            Some((1232, 693))
+        );
+        // And 16 px across: a long thin target shrinks less.
+        assert_eq!(
+            working_size((1920, 1080), &target(200.0, 30.0)),
+            Some((1024, 576))
+        );
+        // Proportions that take no small step: each side rounded up.
+        assert_eq!(
+            working_size((1366, 768), &target(300.0, 200.0)),
+            Some((640, 360))
         );
         // Down to a shrink by a fifth, and no less.
         assert_eq!(
-            working_size((1920, 1080), &target(80.0, 1.0)),
+            working_size((1920, 1080), &target(80.0, 20.0)),
             Some((1536, 864))
         );
         assert_eq!(
-            working_size((800, 600), &target(300.0, 1.0)),
+            working_size((800, 600), &target(300.0, 100.0)),
             Some((640, 480))
         );
-        // Not at all: frames no longer than 640 px, a target of 64 px or less, or none.
+        // Not at all: frames no longer than a fifth past 640 px, a target of 64 px or less
+        // or under 20 px across, or none.
         for (frame, t) in [
             ((640, 480), target(300.0, 200.0)),
             ((480, 640), target(300.0, 200.0)),
+            ((799, 600), target(300.0, 200.0)),
             ((1920, 1080), target(64.0, 30.0)),
+            ((1920, 1080), target(79.0, 60.0)),
+            ((1920, 1080), target(300.0, 5.0)),
+            ((1920, 1080), target(300.0, 19.0)),
             ((1920, 1080), target(f64::NAN, 300.0)),
             ((1920, 1080), target(f64::INFINITY, 300.0)),
-            ((641, 10), target(64.05, 1.0)),
-            ((1920, 1080), target(79.0, 1.0)),
-            ((799, 600), target(300.0, 1.0)),
+            ((1920, 1080), target(300.0, 0.0)),
+            ((0, 1080), target(300.0, 200.0)),
         ] {
             assert_eq!(working_size(frame, &t), None, "{frame:?} {t:?}");
         }
-        // The shrink keeps the target's larger semi-axis at 64 px at least, and the frame's
-        // longer side at 640 px at least, and the proportions within a pixel's rounding.
-        for (w, h) in [
+        // The shrink keeps the target's semi-axes at 64 and 16 px at least, the frame's longer
+        // side at 640 px at least, and the proportions within a pixel's rounding.
+        let frames = [
             (641u32, 1u32),
             (1000, 999),
             (4000, 3),
             (3840, 2160),
             (7680, 4320),
-        ] {
+        ];
+        for (w, h) in frames
+            .into_iter()
+            .chain([(1366, 768), (2048, 858), (65535, 2)])
+        {
             for semi in [65.0, 100.0, 333.3, 5000.0] {
-                let Some((sw, sh)) = working_size((w, h), &target(semi, 1.0)) else {
+                let Some((sw, sh)) = working_size((w, h), &target(semi, semi / 4.0)) else {
                     continue;
                 };
                 let k = f64::from(sw) / f64::from(w);
                 assert!(
-                    sw.max(sh) >= 640 && semi * k >= 63.9,
+                    sw.max(sh) >= 640 && semi * k >= 63.99 && semi / 4.0 * k >= 15.99,
                     "{w}x{h} {semi}: {sw}x{sh}"
                 );
                 assert!(
                     (f64::from(sh) - f64::from(h) * k).abs() <= 1.0,
                     "{w}x{h}: {sw}x{sh}"
                 );
-                assert!(sw < w || sh < h);
+                assert!(sw <= w && sh <= h && (sw, sh) != (w, h));
             }
         }
     }

@@ -333,10 +333,14 @@ pub struct TrackArgs {
         ]
     )]
     pub config: Option<PathBuf>,
-    /// Resize every frame to WxH first. The start (--init-*) is read, and the poses are
-    /// written, in the input's own pixels; the rendered frames (--render) are the resized ones.
-    /// Without it, frames longer than 640 px are tracked shrunk toward 640 px, as far as the
-    /// start keeps a semi-axis of 64 px (as fast, and as accurate, as at full size).
+    /// Resize every frame to WxH first (shrinking, each pixel the mean of those it covers).
+    /// The start (--init-*) is read, and the poses are written, in the input's own pixels;
+    /// the rendered frames (--render) are the resized ones, and settings in pixels (a
+    /// --config file's filter bounds and noise, --fit-centre-sigma, --sift-upsample-below)
+    /// are of the resized frames. Without it, frames longer than 800 px are tracked shrunk
+    /// toward 640 px on their longer side, as far as the start keeps semi-axes of 64 and 16
+    /// px (faster, and as accurate as at full size), and not where the settings would refuse
+    /// the start there.
     #[arg(
         long,
         value_name = "WxH",
@@ -345,8 +349,8 @@ pub struct TrackArgs {
         conflicts_with = "full_size"
     )]
     pub resize: Option<String>,
-    /// Track the frames at the input's own size, however large (frames longer than 640 px
-    /// are otherwise tracked shrunk: see --resize).
+    /// Track the frames at the input's own size (frames longer than 800 px are otherwise
+    /// tracked shrunk: see --resize; over 2^25 pixels, --resize is still needed).
     #[arg(long)]
     pub full_size: bool,
     /// Start tracking at frame N of the input (counting from 0; the frames before it are
@@ -381,7 +385,9 @@ pub struct TrackArgs {
     /// this track's last are removed. A folder holding frames that no render of pftrack's
     /// left (no `.pftrack-render` in it) is refused. Frames under 320 px wide are drawn
     /// scaled up to at least 320, at most 4 times (160x120 twice, 128x96 three times); all
-    /// at one size, so `ffmpeg -i DIR/%05d.png` makes a video of them.
+    /// at one size, so `ffmpeg -i DIR/%05d.png` makes a video of them. The frames drawn are
+    /// those tracked: shrunk where the input's are (see --resize; --full-size draws them at
+    /// the input's size).
     #[arg(long, value_name = "DIR")]
     pub render: Option<PathBuf>,
     /// Write the frames as --render draws them (the ellipse, the bars, the angles) as one
@@ -1048,6 +1054,13 @@ pub fn run(mut a: TrackArgs) -> anyhow::Result<()> {
         .map(|p| VideoWriter::create(p, a.render_fps, &frames::FfmpegTools::default()))
         .transpose()?;
     let mut tracker = Tracker::with_engine(cfg, engine, &first, init)?;
+    let ((w, h), (nw, nh)) = (source.size(), source.native_size());
+    if a.resize.is_none() && (w, h) != (nw, nh) {
+        errln!(
+            "pftrack: note: tracking at {w}x{h}, shrunk from {nw}x{nh} (as accurate, and \
+             faster; --full-size tracks at {nw}x{nh})"
+        );
+    }
     if let Some(note) = loose {
         errln!("pftrack: note: {note}");
     }
@@ -1294,10 +1307,15 @@ fn open_at_start(
     // see it.
     let (nw, nh) = source.native_size();
     init.check(nw, nh)?;
-    // Large frames are tracked at a working size where the start allows it (`--resize`
-    // chooses one, `--full-size` keeps the input's).
+    // Large frames are tracked at a working size (`frames::working_size`) unless `--resize`
+    // chooses one or `--full-size` keeps the input's. A size chosen for speed must not fail
+    // a run: where the settings refuse the start there (a bound in pixels, such as a
+    // settings file's filter.min_axis), the frames are tracked as they are.
     let shrunk = match (&a.resize, a.full_size) {
-        (None, false) => frames::working_size((nw, nh), &init.ellipse),
+        (None, false) => frames::working_size((nw, nh), &init.ellipse).filter(|&(w, h)| {
+            let ellipse = Rescale::new((nw, nh), (w, h)).ellipse(&init.ellipse);
+            Init { ellipse, ..init }.check_for(cfg, w, h).is_ok()
+        }),
         _ => None,
     };
     if shrunk.is_some() {
@@ -1310,16 +1328,10 @@ fn open_at_start(
         ..init
     };
     let checked = init.check_for(cfg, w, h);
-    if to_frames.is_identity() {
+    if a.resize.is_none() || to_frames.is_identity() {
         checked?;
     } else {
-        checked.with_context(|| match shrunk {
-            Some(_) => format!(
-                "the start in the frames shrunk to {w}x{h} to track them (--full-size keeps \
-                 the input's size)"
-            ),
-            None => format!("the start resized to {w}x{h} (--resize)"),
-        })?;
+        checked.with_context(|| format!("the start resized to {w}x{h} (--resize)"))?;
     }
     // What the frames' layout misleads (interlaced fields, pixels not square), once the
     // start is known to be good.
@@ -1379,7 +1391,7 @@ fn report(
     let size = match (source.size(), source.native_size()) {
         (out, native) if out == native => String::new(),
         ((w, h), (nw, nh)) if a.resize.is_none() => {
-            format!(" at {w}x{h} (shrunk from {nw}x{nh}; --full-size keeps it)")
+            format!(" at {w}x{h} (shrunk from {nw}x{nh})")
         }
         ((w, h), _) => format!(" at {w}x{h}"),
     };
