@@ -1033,7 +1033,7 @@ fn cli_resize_keeps_the_start_and_poses_in_the_input_pixels() {
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
-/// Frames longer than 640 px are tracked shrunk toward 640 px (`frames::working_size`) when
+/// Frames longer than 800 px are tracked shrunk toward 640 px (`frames::working_size`) when
 /// no `--resize` is given: the line says at which size, the start and the poses stay in the
 /// input's pixels, and the track stays on the truth; `--full-size` tracks them as they are,
 /// and cannot be given with `--resize`.

@@ -40,7 +40,10 @@ use std::path::Path;
 
 pub use ffmpeg::FfmpegTools;
 pub use gray::GrayF32;
-pub use resize::{Rescale, WORKING_SEMI_AXIS, WORKING_SIDE, resize, resize_bilinear, working_size};
+pub use resize::{
+    Rescale, WORKING_MIN_SEMI_AXIS, WORKING_SEMI_AXIS, WORKING_SIDE, resize, resize_bilinear,
+    working_size,
+};
 pub use view::{FrameView, PixelFormat};
 pub use y4m::{Y4mHeader, Y4mReader};
 

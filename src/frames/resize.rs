@@ -173,10 +173,10 @@ pub const WORKING_MIN_SEMI_AXIS: f64 = 16.0;
 /// longer than [`WORKING_SIDE`] pixels on their longer side, shrunk ([`resize()`]) toward it,
 /// as far as the target (`target`) keeps a larger semi-axis of [`WORKING_SEMI_AXIS`] pixels
 /// and a smaller one of [`WORKING_MIN_SEMI_AXIS`]; `None` where the frames are tracked as they
-/// are: no longer than that, a target no larger, or a shrink by less than a fifth (frames up
-/// to 800 px long are never shrunk). The frame's proportions are kept exactly where its sides
-/// allow it within a step of 64 px (1920x1080 shrinks by multiples of 16x9), else each side
-/// is rounded up to whole pixels.
+/// are: no longer than that, a target no larger, or a shrink of the longer side by a fifth or
+/// less (frames up to 800 px long are never shrunk). The frame's proportions are kept exactly
+/// where its sides allow it within a step of 64 px and a shrink by more than a fifth
+/// (1920x1080 shrinks by multiples of 16x9), else each side is rounded up to whole pixels.
 ///
 /// The tracker's cost grows with the target's area (its colour histograms, block matching and
 /// SIFT all cover it), and its accuracy stops growing well below these sizes: on the
@@ -194,21 +194,21 @@ pub fn working_size(frame: (u32, u32), target: &Ellipse) -> Option<(u32, u32)> {
     let k = (f64::from(WORKING_SIDE) / f64::from(w.max(h)))
         .max(WORKING_SEMI_AXIS / a.max(b))
         .max(WORKING_MIN_SEMI_AXIS / a.min(b));
-    // Shrinking by less than a fifth saves little, and still blurs every pixel a little.
-    if k > 0.8 {
-        return None;
-    }
     // Rounded up, so that no bound above is passed.
     let up = |v: f64| (v - 1e-9).ceil().max(1.0) as u32;
+    // Shrinking by a fifth or less saves little, and still blurs every pixel a little: the
+    // longer side must lose more than a fifth.
+    let enough = |(sw, sh): (u32, u32)| 5 * u64::from(sw.max(sh)) < 4 * u64::from(w.max(h));
     let g = gcd(w, h);
     let (p, q) = (w / g, h / g);
-    let size = if p.max(q) <= 64 {
-        let n = up(f64::from(g) * k);
-        (n * p, n * q)
-    } else {
-        (up(f64::from(w) * k), up(f64::from(h) * k))
-    };
-    (size.0 <= w && size.1 <= h && size != frame).then_some(size)
+    let exact = (p.max(q) <= 64)
+        .then(|| {
+            let n = up(f64::from(g) * k);
+            (n * p, n * q)
+        })
+        .filter(|&s| enough(s));
+    let size = exact.unwrap_or_else(|| (up(f64::from(w) * k), up(f64::from(h) * k)));
+    (enough(size) && size.0 <= w && size.1 <= h).then_some(size)
 }
 
 /// The greatest common divisor.
@@ -644,6 +644,42 @@ mod tests {
         }
     }
 
+    /// Against the footprints' weights applied in f64, pixel by pixel, on texture that varies
+    /// down the image too: output rows that share a source row (shrinking by a factor that is
+    /// not whole, growing) read the same filtered row.
+    #[test]
+    fn resize_is_the_footprints_weighted_sum() {
+        for ((sw, sh), (w, h)) in [
+            ((30, 30), (7, 7)),
+            ((5, 1000), (5, 3)),
+            ((4, 1), (4, 5)),
+            ((40, 30), (13, 45)),
+            ((40, 30), (97, 11)),
+            ((33, 47), (20, 29)),
+        ] {
+            let img = textured(sw, sh);
+            let r = resize(&img, w, h);
+            let (xf, yf) = (footprints(sw, w), footprints(sh, h));
+            for (x, y, p) in r.enumerate_pixels() {
+                let (fx, fy) = (&xf[x as usize], &yf[y as usize]);
+                for c in 0..3 {
+                    let mut want = 0.0;
+                    for (j, &wy) in fy.weights.iter().enumerate() {
+                        for (i, &wx) in fx.weights.iter().enumerate() {
+                            let v = img.get_pixel((fx.first + i) as u32, (fy.first + j) as u32)[c];
+                            want += f64::from(wy) * f64::from(wx) * f64::from(v);
+                        }
+                    }
+                    assert!(
+                        (f64::from(p[c]) - want).abs() <= 0.5 + 1e-3,
+                        "{sw}x{sh} -> {w}x{h} ({x}, {y}) channel {c}: {} against {want}",
+                        p[c]
+                    );
+                }
+            }
+        }
+    }
+
     #[test]
     fn shrinking_averages_texture_that_bilinear_aliases() {
         // One lit column in every four: shrunk by four, every pixel holds a quarter of it,
@@ -740,18 +776,28 @@ mod tests {
             working_size((1366, 768), &target(300.0, 200.0)),
             Some((640, 360))
         );
-        // Down to a shrink by a fifth, and no less.
+        // Only for a shrink by more than a fifth; where the proportions' step would leave
+        // less (896x882 steps by 64x63: 768x756 for an 80 px target), each side rounded up.
         assert_eq!(
-            working_size((1920, 1080), &target(80.0, 20.0)),
-            Some((1536, 864))
+            working_size((1920, 1080), &target(81.0, 30.0)),
+            Some((1520, 855))
         );
         assert_eq!(
-            working_size((800, 600), &target(300.0, 100.0)),
+            working_size((801, 600), &target(300.0, 100.0)),
             Some((640, 480))
         );
-        // Not at all: frames no longer than a fifth past 640 px, a target of 64 px or less
-        // or under 20 px across, or none.
+        assert_eq!(
+            working_size((896, 882), &target(90.0, 90.0)),
+            Some((640, 630))
+        );
+        // Not at all: frames no longer than a fifth past 640 px, a target of 80 px or less
+        // or 20 px or less across, or none.
         for (frame, t) in [
+            ((800, 600), target(300.0, 100.0)),
+            ((1920, 1080), target(80.0, 30.0)),
+            ((1920, 1080), target(300.0, 20.0)),
+            ((896, 882), target(80.0, 80.0)),
+            ((832, 637), target(80.0, 80.0)),
             ((640, 480), target(300.0, 200.0)),
             ((480, 640), target(300.0, 200.0)),
             ((799, 600), target(300.0, 200.0)),
@@ -779,13 +825,16 @@ mod tests {
             .into_iter()
             .chain([(1366, 768), (2048, 858), (65535, 2)])
         {
-            for semi in [65.0, 100.0, 333.3, 5000.0] {
-                let Some((sw, sh)) = working_size((w, h), &target(semi, semi / 4.0)) else {
+            for (semi, across) in [65.0, 100.0, 333.3, 5000.0]
+                .into_iter()
+                .flat_map(|s| [(s, s / 4.0), (s, s / 8.0)])
+            {
+                let Some((sw, sh)) = working_size((w, h), &target(semi, across)) else {
                     continue;
                 };
                 let k = f64::from(sw) / f64::from(w);
                 assert!(
-                    sw.max(sh) >= 640 && semi * k >= 63.99 && semi / 4.0 * k >= 15.99,
+                    sw.max(sh) >= 640 && semi * k >= 63.99 && across * k >= 15.99,
                     "{w}x{h} {semi}: {sw}x{sh}"
                 );
                 assert!(
