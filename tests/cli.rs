@@ -1113,9 +1113,11 @@ fn cli_large_frames_are_tracked_at_a_working_size() {
     // under a file's bound of 20) is tracked at full size rather than refused; with a bound
     // of 12 it is shrunk as far as its 16 px allow.
     let settings = dir.join("min_axis.json");
-    for (bound, at) in [
-        (20, "with cpu"),
-        (12, "at 684x513 (shrunk from 1280x960) with cpu"),
+    let kept = "note: tracking at the input's 1280x960: the settings refuse the start in the \
+                frames shrunk to 684x513";
+    for (bound, at, note) in [
+        (20, "with cpu", true),
+        (12, "at 684x513 (shrunk from 1280x960) with cpu", false),
     ] {
         std::fs::write(
             &settings,
@@ -1141,6 +1143,7 @@ fn cli_large_frames_are_tracked_at_a_working_size() {
             err.contains(&format!("tracked 2 frames {at}")),
             "{bound}: {err}"
         );
+        assert_eq!(err.contains(kept), note, "{bound}: {err}");
     }
     let o = pftrack(&["track", d, "--full-size", "--resize", "320x240"]);
     assert_eq!(o.status.code(), Some(2));

@@ -1039,6 +1039,7 @@ pub fn run(mut a: TrackArgs) -> anyhow::Result<()> {
         init,
         to_frames,
         start,
+        unshrunk,
     } = open_at_start(&a, &frames_path, init, &cfg)?;
     // Said once the track has started, so that an error before it stays the only line.
     let loose = loose_start_note(&a, &cfg, &first, &init);
@@ -1059,6 +1060,13 @@ pub fn run(mut a: TrackArgs) -> anyhow::Result<()> {
         errln!(
             "pftrack: note: tracking at {w}x{h}, shrunk from {nw}x{nh} (as accurate, and \
              faster; --full-size tracks at {nw}x{nh})"
+        );
+    }
+    if let Some((sw, sh)) = unshrunk {
+        errln!(
+            "pftrack: note: tracking at the input's {nw}x{nh}: the settings refuse the start \
+             in the frames shrunk to {sw}x{sh}, which would track as accurately and faster \
+             (their bounds in pixels are the tracked frames')"
         );
     }
     if let Some(note) = loose {
@@ -1286,6 +1294,9 @@ struct Opened {
     to_frames: Rescale,
     /// The first frame's index in the input (`--start-frame`).
     start: usize,
+    /// The working size the frames were not shrunk to, the settings refusing the start
+    /// there.
+    unshrunk: Option<(u32, u32)>,
 }
 
 /// Opens the input, checks the start against it (first in the input's pixels, as given, then
@@ -1311,16 +1322,19 @@ fn open_at_start(
     // chooses one or `--full-size` keeps the input's. A size chosen for speed must not fail
     // a run: where the settings refuse the start there (a bound in pixels, such as a
     // settings file's filter.min_axis), the frames are tracked as they are.
-    let shrunk = match (&a.resize, a.full_size) {
-        (None, false) => frames::working_size((nw, nh), &init.ellipse).filter(|&(w, h)| {
-            let ellipse = Rescale::new((nw, nh), (w, h)).ellipse(&init.ellipse);
-            Init { ellipse, ..init }.check_for(cfg, w, h).is_ok()
-        }),
+    let working = match (&a.resize, a.full_size) {
+        (None, false) => frames::working_size((nw, nh), &init.ellipse),
         _ => None,
     };
+    let shrunk = working.filter(|&(w, h)| {
+        let ellipse = Rescale::new((nw, nh), (w, h)).ellipse(&init.ellipse);
+        Init { ellipse, ..init }.check_for(cfg, w, h).is_ok()
+    });
     if shrunk.is_some() {
         source.set_resize(shrunk)?;
     }
+    // Said once the track has started, as the working size is.
+    let unshrunk = working.filter(|_| shrunk.is_none());
     let (w, h) = source.size();
     let to_frames = Rescale::new((nw, nh), (w, h));
     let init = Init {
@@ -1367,6 +1381,7 @@ fn open_at_start(
         init,
         to_frames,
         start,
+        unshrunk,
     })
 }
 
