@@ -99,30 +99,38 @@ fn y4m(c: &mut Criterion) {
 }
 
 fn resize(c: &mut Criterion) {
-    let mut g = c.benchmark_group("frames/resize_bilinear");
-    for (name, (sw, sh), (dw, dh)) in [
-        ("640x480_to_160x120", (640, 480), (160, 120)),
-        ("360x240_to_128x96", (360, 240), (128, 96)),
-        ("176x144_to_352x288", (176, 144), (352, 288)),
-    ] {
-        let img = test_frame(sw, sh);
-        g.bench_function(name, |b| {
-            b.iter(|| black_box(resize_bilinear(&img, dw, dh)))
-        });
+    type Resize = fn(&image::RgbImage, u32, u32) -> image::RgbImage;
+    type Case = (&'static str, (u32, u32), (u32, u32));
+    let groups: [(&str, Resize, [Case; 3]); 2] = [
+        (
+            "frames/resize_bilinear",
+            resize_bilinear,
+            [
+                ("640x480_to_160x120", (640, 480), (160, 120)),
+                ("360x240_to_128x96", (360, 240), (128, 96)),
+                ("176x144_to_352x288", (176, 144), (352, 288)),
+            ],
+        ),
+        // What a source resizes with: the mean over each pixel's footprint where it shrinks
+        // (1280x960 to 640x480 is `track`'s working size for such frames).
+        (
+            "frames/resize",
+            frames::resize,
+            [
+                ("640x480_to_160x120", (640, 480), (160, 120)),
+                ("1280x960_to_640x480", (1280, 960), (640, 480)),
+                ("1920x1080_to_640x360", (1920, 1080), (640, 360)),
+            ],
+        ),
+    ];
+    for (group, resize, cases) in groups {
+        let mut g = c.benchmark_group(group);
+        for (name, (sw, sh), (dw, dh)) in cases {
+            let img = test_frame(sw, sh);
+            g.bench_function(name, |b| b.iter(|| black_box(resize(&img, dw, dh))));
+        }
+        g.finish();
     }
-    g.finish();
-    // What a source resizes with: the mean over each pixel's footprint where it shrinks
-    // (1280x960 to 640x480 is `track`'s working size for such frames).
-    let mut g = c.benchmark_group("frames/resize");
-    for (name, (sw, sh), (dw, dh)) in [
-        ("640x480_to_160x120", (640, 480), (160, 120)),
-        ("1280x960_to_640x480", (1280, 960), (640, 480)),
-        ("1920x1080_to_640x360", (1920, 1080), (640, 360)),
-    ] {
-        let img = test_frame(sw, sh);
-        g.bench_function(name, |b| b.iter(|| black_box(frames::resize(&img, dw, dh))));
-    }
-    g.finish();
 }
 
 criterion_group! {

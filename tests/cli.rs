@@ -1046,17 +1046,7 @@ fn cli_large_frames_are_tracked_at_a_working_size() {
     let init = read_init(&dir.join("init.txt")).unwrap().ellipse;
     let csv = dir.join("poses.csv");
     let render = dir.join("render");
-    let o = pftrack_ok(&[
-        "track",
-        d,
-        "--backend",
-        "cpu",
-        "-o",
-        csv.to_str().unwrap(),
-        "--render",
-        render.to_str().unwrap(),
-    ]);
-    let err = String::from_utf8_lossy(&o.stderr);
+    let (_, err) = track_on_cpu(d, &csv, &["--render", render.to_str().unwrap()]);
     assert!(
         err.contains("tracked 60 frames at 640x480 (shrunk from 1280x960) with cpu")
             && err.contains(
@@ -1079,35 +1069,13 @@ fn cli_large_frames_are_tracked_at_a_working_size() {
         img.width()
     );
     // As they are.
-    let o = pftrack_ok(&[
-        "track",
-        d,
-        "--backend",
-        "cpu",
-        "--full-size",
-        "--max-frames",
-        "2",
-        "-o",
-        csv.to_str().unwrap(),
-    ]);
-    let err = String::from_utf8_lossy(&o.stderr);
+    let (_, err) = track_on_cpu(d, &csv, &["--full-size", "--max-frames", "2"]);
     assert!(err.contains("tracked 2 frames with cpu"), "{err}");
     let rows = read_pose_csv(&csv).unwrap();
     assert!((rows[0].state.a - init.a).abs() < 1e-5);
     // A start too small to shrink for is tracked at full size, without a word.
-    let o = pftrack_ok(&[
-        "track",
-        d,
-        "--backend",
-        "cpu",
-        "--max-frames",
-        "2",
-        "--init-ellipse",
-        "640,480,50,60",
-        "-o",
-        csv.to_str().unwrap(),
-    ]);
-    let err = String::from_utf8_lossy(&o.stderr);
+    let small = ["--max-frames", "2", "--init-ellipse", "640,480,50,60"];
+    let (_, err) = track_on_cpu(d, &csv, &small);
     assert!(err.contains("tracked 2 frames with cpu"), "{err}");
     // A start the settings would refuse in the shrunk frames (a semi-axis of 30 px, 16 there,
     // under a file's bound of 20) is tracked at full size rather than refused; with a bound
@@ -1124,21 +1092,18 @@ fn cli_large_frames_are_tracked_at_a_working_size() {
             format!(r#"{{"filter": {{"min_axis": {bound}}}}}"#),
         )
         .unwrap();
-        let o = pftrack_ok(&[
-            "track",
+        let (_, err) = track_on_cpu(
             d,
-            "--backend",
-            "cpu",
-            "--max-frames",
-            "2",
-            "--init-ellipse",
-            "640,480,200,30",
-            "--config",
-            settings.to_str().unwrap(),
-            "-o",
-            csv.to_str().unwrap(),
-        ]);
-        let err = String::from_utf8_lossy(&o.stderr);
+            &csv,
+            &[
+                "--max-frames",
+                "2",
+                "--init-ellipse",
+                "640,480,200,30",
+                "--config",
+                settings.to_str().unwrap(),
+            ],
+        );
         assert!(
             err.contains(&format!("tracked 2 frames {at}")),
             "{bound}: {err}"

@@ -456,25 +456,21 @@ impl FrameSource {
         native: (u32, u32),
         opts: &SourceOptions,
     ) -> Result<Self, FrameError> {
-        let out = opts.resize.unwrap_or(native);
-        let pixels = |(w, h): (u32, u32)| u64::from(w) * u64::from(h);
-        let too_large = |size, limit, resizable| FrameError::TooLarge {
-            path: path.display().to_string(),
-            size,
-            limit,
-            resizable,
-        };
-        if pixels(native) > y4m::MAX_DECODE_PIXELS {
-            return Err(too_large(native, y4m::MAX_DECODE_PIXELS, false));
+        let path = path.display().to_string();
+        if u64::from(native.0) * u64::from(native.1) > y4m::MAX_DECODE_PIXELS {
+            return Err(FrameError::TooLarge {
+                path,
+                size: native,
+                limit: y4m::MAX_DECODE_PIXELS,
+                resizable: false,
+            });
         }
-        if pixels(out) > y4m::MAX_PIXELS {
-            return Err(too_large(out, y4m::MAX_PIXELS, opts.resize.is_none()));
-        }
+        let out = delivered_size(&path, native, opts.resize)?;
         Ok(Self {
             inner,
-            path: path.display().to_string(),
+            path,
             native,
-            out: opts.resize.unwrap_or(native),
+            out,
             produced: 0,
             done: false,
             ended: false,
@@ -565,18 +561,8 @@ impl FrameSource {
     /// of no pixels or past [`parse_size`]'s bounds is refused, as [`open`] refuses it, and
     /// the source left as it was.
     pub fn set_resize(&mut self, size: Option<(u32, u32)>) -> Result<(), FrameError> {
-        let opts = SourceOptions { resize: size };
-        check_resize(&opts)?;
-        let out = size.unwrap_or(self.native);
-        if u64::from(out.0) * u64::from(out.1) > y4m::MAX_PIXELS {
-            return Err(FrameError::TooLarge {
-                path: self.path.clone(),
-                size: out,
-                limit: y4m::MAX_PIXELS,
-                resizable: true,
-            });
-        }
-        self.out = out;
+        check_resize(&SourceOptions { resize: size })?;
+        self.out = delivered_size(&self.path, self.native, size)?;
         Ok(())
     }
 
@@ -786,6 +772,25 @@ impl FrameSource {
             Inner::Ffmpeg(f) => f.next_frame(),
         }
     }
+}
+
+/// The size frames stored at `native` size are delivered at under `resize`: an error past
+/// [`y4m::MAX_PIXELS`] (one a resize would mend where none was asked for).
+fn delivered_size(
+    path: &str,
+    native: (u32, u32),
+    resize: Option<(u32, u32)>,
+) -> Result<(u32, u32), FrameError> {
+    let out = resize.unwrap_or(native);
+    if u64::from(out.0) * u64::from(out.1) > y4m::MAX_PIXELS {
+        return Err(FrameError::TooLarge {
+            path: path.to_string(),
+            size: out,
+            limit: y4m::MAX_PIXELS,
+            resizable: resize.is_none(),
+        });
+    }
+    Ok(out)
 }
 
 fn check_resize(opts: &SourceOptions) -> Result<(), FrameError> {

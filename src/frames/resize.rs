@@ -30,8 +30,6 @@ pub struct Rescale {
     from: (f64, f64),
     /// The sizes mapped to.
     to: (f64, f64),
-    sx: f64,
-    sy: f64,
 }
 
 impl Rescale {
@@ -42,12 +40,17 @@ impl Rescale {
     }
 
     fn between(from: (f64, f64), to: (f64, f64)) -> Self {
-        Self {
-            from,
-            to,
-            sx: to.0 / from.0,
-            sy: to.1 / from.1,
-        }
+        Self { from, to }
+    }
+
+    /// The scale along x.
+    fn sx(&self) -> f64 {
+        self.to.0 / self.from.0
+    }
+
+    /// The scale along y.
+    fn sy(&self) -> f64 {
+        self.to.1 / self.from.1
     }
 
     /// The map back.
@@ -83,8 +86,9 @@ impl Rescale {
     /// `a`, and the orientation within a quarter turn of the old one.
     pub fn ellipse(&self, e: &Ellipse) -> Ellipse {
         let (cx, cy) = self.point(e.cx, e.cy);
-        let (a, b, theta) = if self.sx == self.sy {
-            (e.a * self.sx, e.b * self.sx, e.theta)
+        let (sx, sy) = (self.sx(), self.sy());
+        let (a, b, theta) = if sx == sy {
+            (e.a * sx, e.b * sx, e.theta)
         } else {
             self.axes(e.a, e.b, e.theta)
         };
@@ -100,17 +104,13 @@ impl Rescale {
     /// The semi-axes and orientation of the image of an ellipse of semi-axes `a`, `b` turned
     /// by `theta`.
     fn axes(&self, a: f64, b: f64, theta: f64) -> (f64, f64, f64) {
+        let (sx, sy) = (self.sx(), self.sy());
         let (s, c) = theta.sin_cos();
         // The images of the two semi-axes, the columns of S R(θ) diag(a, b).
-        let m = nalgebra::Matrix2::new(
-            self.sx * c * a,
-            -self.sx * s * b,
-            self.sy * s * a,
-            self.sy * c * b,
-        );
+        let m = nalgebra::Matrix2::new(sx * c * a, -sx * s * b, sy * s * a, sy * c * b);
         let svd = m.svd(true, false);
         let Some(u) = svd.u else {
-            return (a * self.sx, b * self.sy, theta);
+            return (a * sx, b * sy, theta);
         };
         let (s0, s1) = (svd.singular_values[0], svd.singular_values[1]);
         if (s0 - s1).abs() <= 1e-12 * s0.max(s1) {
@@ -251,26 +251,29 @@ struct Footprint {
     weights: Vec<f32>,
 }
 
+/// The bilinear footprints of every output coordinate for a `src → dst` resize along one
+/// axis: [`taps`]' two, or one where the second is clamped onto the first at the border
+/// (it carries no weight there).
+fn bilinear_footprints(src: u32, dst: u32) -> Vec<Footprint> {
+    taps(src, dst)
+        .into_iter()
+        .map(|t| Footprint {
+            first: t.i0,
+            weights: if t.i1 == t.i0 {
+                vec![1.0]
+            } else {
+                vec![1.0 - t.w1, t.w1]
+            },
+        })
+        .collect()
+}
+
 /// The footprints of every output coordinate for a `src → dst` resize along one axis: the
 /// mean over `[x · src / dst, (x + 1) · src / dst)` where the axis shrinks, else bilinear
-/// ([`taps`]).
+/// ([`bilinear_footprints`]).
 fn footprints(src: u32, dst: u32) -> Vec<Footprint> {
     if dst >= src {
-        return taps(src, dst)
-            .into_iter()
-            .map(|t| Footprint {
-                first: t.i0,
-                weights: vec![1.0 - t.w1, t.w1],
-            })
-            .map(|mut f| {
-                // The second tap clamped onto the first at the border carries no weight.
-                if f.first + 1 >= src as usize {
-                    f.weights.truncate(1);
-                    f.weights[0] = 1.0;
-                }
-                f
-            })
-            .collect();
+        return bilinear_footprints(src, dst);
     }
     let scale = src as f64 / dst as f64;
     (0..dst)
@@ -295,6 +298,19 @@ fn footprints(src: u32, dst: u32) -> Vec<Footprint> {
 /// docs). The same size gives the same image; an empty source or target size gives an empty
 /// image of the target size.
 pub fn resize(img: &RgbImage, w: u32, h: u32) -> RgbImage {
+    resample(img, w, h, footprints)
+}
+
+/// Resizes `img` to `w × h` by bilinear interpolation, pixel-centre aligned (see the module
+/// docs). An empty source or target size gives an empty image of the target size.
+pub fn resize_bilinear(img: &RgbImage, w: u32, h: u32) -> RgbImage {
+    resample(img, w, h, bilinear_footprints)
+}
+
+/// Resamples `img` to `w × h` separably, each axis by the footprints `along` gives it: along
+/// x first, then y, in f32, rounded once at the end. The same size gives the same image (both
+/// footprints are then the pixel itself).
+fn resample(img: &RgbImage, w: u32, h: u32, along: fn(u32, u32) -> Vec<Footprint>) -> RgbImage {
     let (sw, sh) = img.dimensions();
     if (sw, sh) == (w, h) {
         return img.clone();
@@ -303,8 +319,8 @@ pub fn resize(img: &RgbImage, w: u32, h: u32) -> RgbImage {
     if sw == 0 || sh == 0 || w == 0 || h == 0 {
         return out;
     }
-    let xf = footprints(sw, w);
-    let yf = footprints(sh, h);
+    let xf = along(sw, w);
+    let yf = along(sh, h);
     let src = img.as_raw();
     let (row_len, out_len) = (sw as usize * 3, w as usize * 3);
     // Along x first, in f32, a source row at a time as the output rows read them; the last
@@ -356,40 +372,6 @@ pub fn resize(img: &RgbImage, w: u32, h: u32) -> RgbImage {
         }
         for (d, &a) in drow.iter_mut().zip(&acc) {
             *d = (a + 0.5).clamp(0.0, 255.0) as u8;
-        }
-    }
-    out
-}
-
-/// Resizes `img` to `w × h` by bilinear interpolation, pixel-centre aligned (see the module
-/// docs). An empty source or target size gives an empty image of the target size.
-pub fn resize_bilinear(img: &RgbImage, w: u32, h: u32) -> RgbImage {
-    let (sw, sh) = img.dimensions();
-    let mut out = RgbImage::new(w, h);
-    if sw == 0 || sh == 0 || w == 0 || h == 0 {
-        return out;
-    }
-    let xt = taps(sw, w);
-    let yt = taps(sh, h);
-    let src = img.as_raw();
-    let row_len = sw as usize * 3;
-    let dst: &mut [u8] = &mut out;
-    for (y, ty) in yt.iter().enumerate() {
-        let r0 = &src[ty.i0 * row_len..(ty.i0 + 1) * row_len];
-        let r1 = &src[ty.i1 * row_len..(ty.i1 + 1) * row_len];
-        let drow = &mut dst[y * w as usize * 3..(y + 1) * w as usize * 3];
-        let wy1 = ty.w1;
-        let wy0 = 1.0 - wy1;
-        for (px, tx) in drow.chunks_exact_mut(3).zip(&xt) {
-            let wx1 = tx.w1;
-            let wx0 = 1.0 - wx1;
-            let (a, b) = (tx.i0 * 3, tx.i1 * 3);
-            for c in 0..3 {
-                let top = r0[a + c] as f32 * wx0 + r0[b + c] as f32 * wx1;
-                let bot = r1[a + c] as f32 * wx0 + r1[b + c] as f32 * wx1;
-                let v = top * wy0 + bot * wy1;
-                px[c] = (v + 0.5).clamp(0.0, 255.0) as u8;
-            }
         }
     }
     out
