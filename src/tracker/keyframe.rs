@@ -180,7 +180,11 @@ fn accepted_fit_on(
     let which: Vec<usize> = (0..pairs.len()).filter(|&j| fit.inliers[j]).collect();
     let inliers: Vec<FeaturePair> = which.iter().map(|&j| pairs[j]).collect();
     let step = angle_between(&fit.rot, rot0);
-    if inliers.len() < ctx.min_inliers || fit.residual > ctx.max_residual || step > ctx.max_step {
+    // Written so that a residual or step that is not a number fails the test.
+    if inliers.len() < ctx.min_inliers
+        || !(fit.residual.is_finite() && fit.residual <= ctx.max_residual)
+        || !(step.is_finite() && step <= ctx.max_step)
+    {
         return None;
     }
     Some((fit, inliers, which))
