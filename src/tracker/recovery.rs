@@ -422,6 +422,7 @@ impl Tracker {
             .best_fit(&features, &ctx, KEYFRAMES, std::f64::consts::PI);
         // Its features place it when they fit; a candidate the template recognised stands
         // where it was found when they do not (a small target has too few for a fit).
+        let fitted = fit.is_some();
         let Some(placed) = fit.map(|k| k.placed()).or(recognised.then_some(found)) else {
             return Ok(None);
         };
@@ -433,9 +434,10 @@ impl Tracker {
             return Ok(None);
         }
         // The frame will report the target found, so its confidence is the found target's
-        // own (its features measured the rotation), not the lost track's; one evaluation
-        // gives the colour test and the confidence.
-        let (rho, c) = self.own_confidence(&input, lp, &placed, true)?;
+        // own, not the lost track's, lowered as any is where no features measured the
+        // rotation (a candidate the templates alone recognised stands in the trusted pose);
+        // one evaluation gives the colour test and the confidence.
+        let (rho, c) = self.own_confidence(&input, lp, &placed, fitted)?;
         Ok(reacquired(&self.cfg, rho, c).then_some((placed, c)))
     }
 }

@@ -423,17 +423,26 @@ impl Tracker {
             || confidence < self.cfg.found_above
             || keyframe_fitted
             || self.recognised_at(gray, &as_trusted);
-        let was_lost = self.lost;
+        let (was_lost, low_before) = (self.lost, self.low_count);
         (self.low_count, self.lost) =
             lost_state(&self.cfg, self.low_count, self.lost, confidence, recognised);
         if was_lost && !self.lost && !keyframe_fitted {
             // Found again by its templates, laid in the trusted pose: the target is in that
             // pose, not in the walked one, which the template would otherwise learn and the
-            // next trusted frame take as the pose to look for it in.
+            // next trusted frame take as the pose to look for it in. The ellipse so laid
+            // turns with the trusted roll, so it is the one scored: found only where it is
+            // as confident as a found target must be, and reported with its own confidence
+            // (the particles' was of the walked pose's ellipse, which is not output).
             let found = self.filter.bounded(&as_trusted);
-            self.filter.reset(&found);
-            est = found;
-            jumped = true;
+            let (_, c) = self.own_confidence(input, lp, &found, m.rotation_measured())?;
+            if c >= self.cfg.found_above {
+                self.filter.reset(&found);
+                est = found;
+                confidence = c;
+                jumped = true;
+            } else {
+                (self.low_count, self.lost) = (low_before, true);
+            }
         }
         if self.low_count >= self.cfg.lost_after
             && let Some((found, c)) = self.reacquire(frame, gray, &as_trusted)?
