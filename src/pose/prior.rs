@@ -244,6 +244,63 @@ impl Ellipsoid {
         }
     }
 
+    /// The outline its object would show facing the camera (the `reference` of
+    /// [`Ellipsoid::posed`]), for a start seen as `seen` in the pose `rot`: semi-axes `A`, `B`
+    /// such that the ellipsoid `(A, B, depth_ratio · sqrt(A B))` turned by `rot · Rz(theta0)`
+    /// has an orthographic outline `seen.a`, `seen.b` wide along `seen`'s own axes, and
+    /// orientation `theta0` (the start's `theta` less its roll). A start turned in tilt or pan
+    /// shows the outline turned: a head 18 x 24 px panned 60 degrees is seen about 20 x 24,
+    /// which taken as facing would make the object model wider than the head and bound the
+    /// aspect about it. Where `rot` neither tilts nor pans (its third column is the camera's
+    /// axis), `seen` itself with orientation `theta0`; so too where the outline cannot be
+    /// matched (an iteration that does not settle, values not finite).
+    pub fn frontal_outline(
+        seen: &Ellipse,
+        theta0: f64,
+        depth_ratio: f64,
+        rot: &Matrix3<f64>,
+    ) -> Ellipse {
+        let facing = Ellipse {
+            theta: theta0,
+            ..*seen
+        };
+        if rot[(0, 2)] == 0.0 && rot[(1, 2)] == 0.0 {
+            return facing;
+        }
+        let orientation = rot * crate::geometry::rot_z(theta0);
+        let (s, c) = seen.theta.sin_cos();
+        let axes = [Vector2::new(c, s), Vector2::new(-s, c)];
+        // Half the outline's extent along an image direction `e`: `sqrt(eᵀ S e)`, with `S`
+        // the outline's matrix, the ellipsoid's `O diag(A², B², D²) Oᵀ` projected.
+        let extents = |a: f64, b: f64| {
+            let d = depth_ratio * (a * b).sqrt();
+            let semi = [a, b, d];
+            axes.map(|e| {
+                (0..3)
+                    .map(|k| {
+                        let along = e.x * orientation[(0, k)] + e.y * orientation[(1, k)];
+                        (along * semi[k]).powi(2)
+                    })
+                    .sum::<f64>()
+                    .sqrt()
+            })
+        };
+        let (mut a, mut b) = (seen.a, seen.b);
+        for _ in 0..200 {
+            let [ea, eb] = extents(a, b);
+            let (ka, kb) = (seen.a / ea, seen.b / eb);
+            if !(ka.is_finite() && kb.is_finite() && ka > 0.0 && kb > 0.0) {
+                return facing;
+            }
+            a *= ka;
+            b *= kb;
+            if (ka - 1.0).abs() < 1e-12 && (kb - 1.0).abs() < 1e-12 {
+                return Ellipse { a, b, ..facing };
+            }
+        }
+        facing
+    }
+
     /// The range `(min/max, max/min)` of the semi-axes' ratios: the aspect `a / b` of any
     /// orthographic outline of the ellipsoid lies in it, whatever its rotation, and so does
     /// the ratio of the outline's extents along any two perpendicular image axes (the
@@ -680,6 +737,87 @@ pub fn fit_points(
 mod tests {
     use super::*;
     use crate::geometry::{Euler, angle_between};
+
+    /// The outline a start turned in tilt and pan shows, measured by brute force (the widest
+    /// reach of points on the turned ellipsoid's surface along the seen ellipse's axes, which
+    /// the SPEC turns by `theta0 + rz`), gives back the object's own outline facing the
+    /// camera; a start that neither tilts nor pans is its own.
+    #[test]
+    fn the_frontal_outline_of_a_turned_start_is_the_objects_own() {
+        let reach = |semi: [f64; 3], orientation: &Matrix3<f64>, e: Vector2<f64>| {
+            let mut best = 0.0f64;
+            for i in 0..=400 {
+                let polar = std::f64::consts::PI * i as f64 / 400.0;
+                for j in 0..800 {
+                    let az = std::f64::consts::TAU * j as f64 / 800.0;
+                    let u = Vector3::new(
+                        polar.sin() * az.cos() * semi[0],
+                        polar.sin() * az.sin() * semi[1],
+                        polar.cos() * semi[2],
+                    );
+                    let x = orientation * u;
+                    best = best.max(e.x * x.x + e.y * x.y);
+                }
+            }
+            best
+        };
+        let (a0, b0, theta0): (f64, f64, f64) = (18.0, 24.0, 0.3);
+        for (depth_ratio, [rx, ry, rz]) in [
+            (1.0, [0.0, 60.0, 0.0]),
+            (1.0, [25.0, -40.0, 15.0]),
+            (0.5, [-30.0, 20.0, -70.0]),
+            (1.6, [10.0, 80.0, 5.0]),
+        ] {
+            let rot = Euler::from_degrees(rx, ry, rz).matrix();
+            let orientation = rot * crate::geometry::rot_z(theta0);
+            let semi = [a0, b0, depth_ratio * (a0 * b0).sqrt()];
+            let theta = theta0 + rz.to_radians();
+            let (s, c) = theta.sin_cos();
+            let seen = Ellipse {
+                cx: 60.0,
+                cy: 50.0,
+                a: reach(semi, &orientation, Vector2::new(c, s)),
+                b: reach(semi, &orientation, Vector2::new(-s, c)),
+                theta,
+            };
+            let f = Ellipsoid::frontal_outline(&seen, theta0, depth_ratio, &rot);
+            // The reach is sampled: within a part in 1e4.
+            assert!(
+                (f.a / a0 - 1.0).abs() < 1e-4 && (f.b / b0 - 1.0).abs() < 1e-4,
+                "{rx} {ry} {rz}: {f:?} from {seen:?}"
+            );
+            assert_eq!((f.cx, f.cy, f.theta), (seen.cx, seen.cy, theta0));
+        }
+        // Panned 60 degrees, the 18 px wide head is seen about 20.1 px wide (the review's case).
+        let panned = Euler::from_degrees(0.0, 60.0, 0.0).matrix();
+        let d = (18.0f64 * 24.0).sqrt();
+        let seen = Ellipse::new(
+            0.0,
+            0.0,
+            (18.0f64.powi(2) * 0.25 + d * d * 0.75).sqrt(),
+            24.0,
+        );
+        assert!((seen.a - 20.1).abs() < 0.05, "{seen:?}");
+        let f = Ellipsoid::frontal_outline(&seen, 0.0, 1.0, &panned);
+        assert!(
+            (f.a - 18.0).abs() < 1e-9 && (f.b - 24.0).abs() < 1e-9,
+            "{f:?}"
+        );
+        // Rolled only: the start is its own outline, bit for bit.
+        let rolled = Euler::from_degrees(0.0, 0.0, 40.0).matrix();
+        let seen = Ellipse {
+            theta: 0.9,
+            ..Ellipse::new(5.0, 6.0, 7.0, 9.0)
+        };
+        let f = Ellipsoid::frontal_outline(&seen, 0.9 - 40f64.to_radians(), 1.0, &rolled);
+        assert_eq!(
+            f,
+            Ellipse {
+                theta: 0.9 - 40f64.to_radians(),
+                ..seen
+            }
+        );
+    }
 
     #[test]
     fn every_outline_of_the_model_keeps_to_its_aspect_range() {

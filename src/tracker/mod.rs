@@ -374,11 +374,13 @@ pub struct Tracker {
     anchor_correlations: Vec<f32>,
 }
 
-/// The aspects `a / b` the object model of a track starting in `init` can show, widened by
-/// `slack` ([`TrackerConfig::aspect_slack`]); `None` without slack or for a degenerate model.
-fn aspect_range(init: &Ellipse, depth_ratio: f64, slack: Option<f64>) -> Option<AspectRange> {
+/// The aspects `a / b` the object model of outline `reference` facing the camera can show,
+/// widened by `slack` ([`TrackerConfig::aspect_slack`]); `None` without slack or for a
+/// degenerate model.
+fn aspect_range(reference: &Ellipse, depth_ratio: f64, slack: Option<f64>) -> Option<AspectRange> {
     let k = slack?;
-    let (lo, hi) = crate::pose::prior::Ellipsoid::facing(init, depth_ratio).outline_aspect_range();
+    let (lo, hi) =
+        crate::pose::prior::Ellipsoid::facing(reference, depth_ratio).outline_aspect_range();
     AspectRange::new(lo / k, hi * k)
 }
 
@@ -610,9 +612,18 @@ impl Tracker {
         self.send_contrast_table()?;
         let state = PoseState::from_parts(&init.ellipse, init.pose);
         let hyp = Hypothesis::from_state(&state);
+        // The object model's reference outline: the one the object shows facing the camera,
+        // unrolled, since the model is turned by the pose (roll included) on top of it. A
+        // start turned in tilt or pan shows it turned.
+        self.reference = crate::pose::prior::Ellipsoid::frontal_outline(
+            &init.ellipse,
+            self.theta0,
+            self.likelihood.depth_ratio as f64,
+            &hyp.rot,
+        );
         self.filter.set_frame(w, h);
         self.filter.set_aspect_range(aspect_range(
-            &init.ellipse,
+            &self.reference,
             self.likelihood.depth_ratio as f64,
             self.cfg.aspect_slack,
         ));
@@ -652,12 +663,6 @@ impl Tracker {
         self.totals.clear();
         let region = search_region(&init.ellipse, w, h);
         self.prev_features = self.detect_features(&init.ellipse, &self.prev_gray, region)?;
-        // The object model's reference outline: the start's ellipse unrolled, since the model
-        // is turned by the pose (roll included) on top of it.
-        self.reference = Ellipse {
-            theta: self.theta0,
-            ..init.ellipse
-        };
         let model = self.model(&hyp.rot, &init.ellipse);
         self.keyframes.tick(index);
         self.keyframes
