@@ -98,9 +98,10 @@ fn perturbed() -> Vec<PoseRecord> {
 /// - rx: error 3° everywhere (175° + 3° wraps past 180° for the last frames: still 3°);
 /// - centre error 2 px in 5 frames, 0 in 4: mean 10/9 px; all within 20 px, but the missing
 ///   frame fails: precision 9/10;
-/// - IoU of a 20×30 box shifted 2 px: (18·30)/(2·600 − 540) = 540/660 = 9/11 ≈ 0.818;
-///   success rate 9/10 for t = 0 … 0.80 (17 thresholds), 4/10 for t = 0.85, 0.90, 0.95
-///   (only the unshifted frames), 0 at t = 1; AUC = (17·0.9 + 3·0.4)/21 = 16.5/21.
+/// - the box scored is the 10×15 ellipse's turned by `rz` = 10°, `W = 2 sqrt(10² cos² 10° +
+///   15² sin² 10°)` ≈ 20.37 px wide; its IoU shifted 2 px along x is `(W − 2) / (W + 2)` ≈
+///   0.821; success rate 9/10 for t = 0 … 0.80 (17 thresholds), 4/10 for t = 0.85, 0.90,
+///   0.95 (only the unshifted frames), 0 at t = 1; AUC = (17·0.9 + 3·0.4)/21 = 16.5/21.
 fn check_perturbed(r: &Report) {
     assert_eq!(
         (r.truth_frames, r.evaluated, r.missing, r.ignored),
@@ -124,7 +125,41 @@ fn check_perturbed(r: &Report) {
         close(v, want, &format!("success at t = {}", k as f64 / 20.0));
     }
     close(r.success_auc, 16.5 / 21.0, "auc");
-    close(r.mean_iou, (5.0 * 9.0 / 11.0 + 4.0) / 9.0, "mean iou");
+    let (s, c) = rad(10.0).sin_cos();
+    let w = 2.0 * (100.0 * c * c + 225.0 * s * s).sqrt();
+    close(
+        r.mean_iou,
+        (5.0 * (w - 2.0) / (w + 2.0) + 4.0) / 9.0,
+        "mean iou",
+    );
+}
+
+/// The box scored is the ellipse's turned by its orientation: the truth's ellipse written
+/// with `a` and `b` swapped and turned a quarter turn (`theta`, as a start at 90 degrees gives)
+/// is the same ellipse, and scores as the truth does; with its orientation ignored it had
+/// scored an IoU of 2/3 at every frame.
+#[test]
+fn an_estimate_is_scored_by_its_ellipse_turned() {
+    let truth = Truth::Poses(truth_records());
+    let est: Vec<PoseRecord> = truth_records()
+        .into_iter()
+        .map(|mut r| {
+            let (a, b) = (r.state.a, r.state.b);
+            (r.state.a, r.state.b) = (b, a);
+            r.theta = Some(r.state.rz + rad(90.0));
+            r
+        })
+        .collect();
+    let r = evaluate(&truth, &est).unwrap();
+    assert!((r.mean_iou - 1.0).abs() < 1e-9, "{}", r.mean_iou);
+    assert_eq!(r.success_auc, AUC_MAX);
+    // Without `theta` the orientation is `rz`: the same ellipse turned back a quarter turn.
+    let flat: Vec<PoseRecord> = est
+        .into_iter()
+        .map(|r| PoseRecord { theta: None, ..r })
+        .collect();
+    let r = evaluate(&truth, &flat).unwrap();
+    assert!(r.mean_iou < 0.7, "{}", r.mean_iou);
 }
 
 #[test]

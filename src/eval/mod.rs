@@ -18,8 +18,10 @@
 //!   single figure of the whole turn's error where the per-axis errors are three;
 //! - centre error: distance between the estimated centre `(cx, cy)` and the truth centre
 //!   (pose centre, or box centre), mean over the evaluated frames;
-//! - IoU between the estimate's box `state.ellipse(0).to_box() = (cx − a, cy − b, 2a, 2b)` and
-//!   the truth box (the same construction for a pose truth).
+//! - IoU between the estimate's box, the axis-aligned bounding box of its ellipse turned by
+//!   its orientation (the CSV's `theta`, or `rz` where a file has no `theta`), and the truth
+//!   box (the same construction for a pose truth). At orientation 0 that box is
+//!   `(cx − a, cy − b, 2a, 2b)`, the box whose inscribed ellipse a box start gives.
 //!
 //! Over all truth frames (OTB protocol; those from a first frame on with [`evaluate_from`],
 //! OTB's temporal robustness evaluation), where a frame with no estimate is a failure (centre
@@ -227,9 +229,12 @@ struct TruthFrame {
     absent: bool,
 }
 
-/// The box a pose record is scored by: `state.ellipse(0).to_box()`.
+/// The box a pose record is scored by: the axis-aligned bounding box of its ellipse, turned
+/// by its orientation ([`PoseRecord::ellipse`]). (Scored with the orientation ignored, a track
+/// started at 90 degrees, its `a` and `b` swapped, had a third of its success AUC taken away
+/// while on the target.)
 pub fn pose_box(r: &PoseRecord) -> BoxRect {
-    r.state.ellipse(0.0).to_box()
+    r.ellipse().bounding_box()
 }
 
 /// Reads ground truth: a pose CSV when the first non-blank line starts with `frame`, otherwise

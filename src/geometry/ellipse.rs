@@ -46,14 +46,15 @@ impl BoxRect {
         self.w.max(0.0) * self.h.max(0.0)
     }
 
-    /// Intersection over union with another box, 0 when either is empty.
+    /// Intersection over union with another box, 0 when either is empty. The areas are
+    /// measured between the corners, as the intersection is, so a box against itself gives
+    /// exactly 1 (with `w` its area, `(x + w) − x` rounds off `w`).
     pub fn iou(&self, o: &BoxRect) -> f64 {
-        let x0 = self.x.max(o.x);
-        let y0 = self.y.max(o.y);
-        let x1 = (self.x + self.w).min(o.x + o.w);
-        let y1 = (self.y + self.h).min(o.y + o.h);
-        let inter = (x1 - x0).max(0.0) * (y1 - y0).max(0.0);
-        let union = self.area() + o.area() - inter;
+        let corners = |b: &BoxRect| (b.x, b.y, b.x + b.w, b.y + b.h);
+        let ((ax0, ay0, ax1, ay1), (bx0, by0, bx1, by1)) = (corners(self), corners(o));
+        let area = |x0: f64, y0: f64, x1: f64, y1: f64| (x1 - x0).max(0.0) * (y1 - y0).max(0.0);
+        let inter = area(ax0.max(bx0), ay0.max(by0), ax1.min(bx1), ay1.min(by1));
+        let union = area(ax0, ay0, ax1, ay1) + area(bx0, by0, bx1, by1) - inter;
         if union <= 0.0 { 0.0 } else { inter / union }
     }
 
@@ -81,7 +82,8 @@ impl Ellipse {
     }
 
     /// The box whose inscribed ellipse is this one with its orientation ignored:
-    /// `(cx - a, cy - b, 2a, 2b)`. This is the box the evaluation scores (OTB protocol).
+    /// `(cx - a, cy - b, 2a, 2b)`, the inverse of [`Ellipse::from_box`]. (The evaluation
+    /// scores [`Ellipse::bounding_box`], which is this box at orientation 0.)
     pub fn to_box(&self) -> BoxRect {
         BoxRect::new(
             self.cx - self.a,
