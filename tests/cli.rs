@@ -682,7 +682,7 @@ fn cli_usage_errors_exit_2_and_others_1() {
     let otb = dir.join("otb.txt");
     std::fs::write(&otb, "0,0,0,0\n1,1,5,5\n").unwrap();
     let o = otb.to_str().unwrap();
-    let cases: [(&[&str], i32, &str); 14] = [
+    let cases: [(&[&str], i32, &str); 15] = [
         (&["track", f, "--backend", "cpu"], 2, "no initial ellipse"),
         (&["synth", s, "--size", "80x"], 2, "WIDTHxHEIGHT"),
         // A negative size got clap's "unexpected argument '-8'".
@@ -701,7 +701,20 @@ fn cli_usage_errors_exit_2_and_others_1() {
         (
             &["track", f, "--init-ellipse", "16,12,60,8"],
             1,
-            "invalid start",
+            "--init-ellipse: invalid start",
+        ),
+        // The start's error names where it came from.
+        (
+            &[
+                "track",
+                f,
+                "--init-box",
+                "8,6,10,8",
+                "--init-pose",
+                "400,0,0",
+            ],
+            1,
+            "--init-box and --init-pose: invalid start: initial pose 400",
         ),
         // 1e-300 degrees was taken (and printed in 300 digits).
         (
@@ -1376,6 +1389,19 @@ fn cli_stream_writes_each_row_as_its_frame_is_tracked() {
     assert_eq!(out.status.code(), Some(1), "{err}");
     assert!(err.contains("--stream") && err.contains("--out"), "{err}");
     assert!(!csv.exists());
+
+    // Standard output that takes nothing fails on the header, which is said as such: the
+    // message had said "after the header" of a header never written.
+    if let Ok(full) = std::fs::OpenOptions::new().write(true).open("/dev/full") {
+        let out = Command::new(env!("CARGO_BIN_EXE_pftrack"))
+            .args(["track", seq, "--backend", "cpu", "--stream"])
+            .stdout(full)
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(1), "{err}");
+        assert!(err.contains("before the pose CSV's header"), "{err}");
+    }
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
@@ -2920,6 +2946,36 @@ fn cli_track_reads_a_synth_folder_without_its_init_and_refuses_render_to_stdout(
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("ground truth"));
     assert_eq!(std::fs::read(&truth).unwrap(), before);
+    // So is it when its `frames` folder is read, with a start from a flag or from the
+    // sequence's `init.txt` (a copy made here, as `synth` writes it): the truth had been
+    // replaced by the track's poses.
+    let frames = dir.join("frames");
+    let f = frames.to_str().unwrap();
+    let t = truth.to_str().unwrap();
+    let init = dir.join("init.txt");
+    std::fs::write(&init, "32,24,10,8\n").unwrap();
+    for start in [
+        ["--init-box", "20,14,24,20"],
+        ["--init-file", init.to_str().unwrap()],
+    ] {
+        let args = [
+            "track",
+            f,
+            start[0],
+            start[1],
+            "--backend",
+            "cpu",
+            "--out",
+            t,
+        ];
+        let out = pftrack(&args);
+        assert!(!out.status.success(), "{args:?}");
+        assert!(
+            String::from_utf8_lossy(&out.stderr).contains("ground truth"),
+            "{args:?}"
+        );
+        assert_eq!(std::fs::read(&truth).unwrap(), before);
+    }
     std::fs::remove_dir_all(&dir).unwrap();
 }
 

@@ -1,5 +1,6 @@
 //! The `pftrack` command line. Each subcommand lives in its own module; errors are printed as
-//! one line (with their context chain) and exit with status 1.
+//! one line (with their context chain) and exit with status 1, or 2 for a command line that is
+//! malformed or lacks what the command needs.
 //!
 //! Output goes through [`outln!`] and [`out!`], which return an error where `println!` would
 //! panic (standard output on a full disk, `> /dev/full`); a reader that closed the pipe

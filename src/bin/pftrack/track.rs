@@ -470,16 +470,48 @@ pub fn initial_ellipse(
 }
 
 /// The refusal of a synthetic sequence's init file `init` (its frame 0's start) as the start of
-/// frame `start`.
+/// frame `start`; `--init-truth` is suggested where the sequence's truth is there to read.
 fn frame_zero_init(start: usize, init: &Path) -> anyhow::Error {
+    let truth = init.with_file_name("truth.csv");
+    let from_truth = if truth.is_file() {
+        format!(
+            "--init-truth {} reads it from the sequence's truth, or ",
+            truth.display()
+        )
+    } else {
+        String::new()
+    };
     crate::UsageError(format!(
         "--start-frame {start}: {} gives the start of frame 0; give the start of frame {start} \
-         (--init-truth {} reads it from the sequence's truth, or one of --init-ellipse, \
-         --init-box, --init-points)",
+         ({from_truth}one of --init-ellipse, --init-box, --init-points)",
         init.display(),
-        init.with_file_name("truth.csv").display()
     ))
     .into()
+}
+
+/// Where the start came from, for its errors: the option (with its file) that gave the
+/// ellipse, or the sequence's init file, and `--init-pose` where it gave the pose.
+fn start_source(a: &TrackArgs, synth_init: Option<&Path>) -> String {
+    let file = |flag: &str, p: &Path| format!("{flag} {}", p.display());
+    let ellipse = if a.init_ellipse.is_some() {
+        "--init-ellipse".to_string()
+    } else if a.init_box.is_some() {
+        "--init-box".to_string()
+    } else if a.init_points.is_some() {
+        "--init-points".to_string()
+    } else if let Some(p) = &a.init_file {
+        file("--init-file", p)
+    } else if let Some(p) = &a.init_truth {
+        format!("{}, frame {}", file("--init-truth", p), a.start_frame)
+    } else if let Some(p) = synth_init {
+        p.display().to_string()
+    } else {
+        "no option".to_string()
+    };
+    match a.init_pose {
+        Some(_) => format!("{ellipse} and --init-pose"),
+        None => ellipse,
+    }
 }
 
 /// The initial ellipse of the option given (`None` for none), with the camera when it is an
@@ -1040,7 +1072,13 @@ pub fn run(mut a: TrackArgs) -> anyhow::Result<()> {
         to_frames,
         start,
         unshrunk,
-    } = open_at_start(&a, &frames_path, init, &cfg)?;
+    } = open_at_start(
+        &a,
+        &frames_path,
+        init,
+        &cfg,
+        &start_source(&a, synth_init.as_deref()),
+    )?;
     // Said once the track has started, so that an error before it stays the only line.
     let loose = loose_start_note(&a, &cfg, &first, &init);
     let (engine, notice) = create_engine(a.backend)?;
@@ -1173,14 +1211,23 @@ fn check_outputs(
         // The container and the frame rate too, before any work.
         VideoWriter::check(v, a.render_fps)?;
     }
-    // A folder written by `synth` (its `frames` read, with or without its init file): its
-    // ground truth is not read by the track, but is what the track is scored against.
-    let truth = match synth_init {
-        Some(init) => Some(init.with_file_name("truth.csv")),
-        None => (frames_path != a.input).then(|| a.input.join("truth.csv")),
-    };
-    if let (Some(o), Some(truth)) = (a.out.as_deref(), truth)
-        && crate::paths::same(o, &truth)
+    // A folder written by `synth` (its `frames` read, with or without its init file, or its
+    // `frames` folder named with its `init.txt`): its ground truth is not read by the track,
+    // but is what the track is scored against.
+    let synth_file = |p: &Path, name: &str| p.file_name().is_some_and(|n| n == name);
+    let truths = [
+        synth_init.map(|init| init.with_file_name("truth.csv")),
+        (frames_path != a.input).then(|| a.input.join("truth.csv")),
+        synth_file(frames_path, "frames")
+            .then(|| frames_path.parent().map(|d| d.join("truth.csv")))
+            .flatten(),
+        a.init_file
+            .as_deref()
+            .filter(|f| synth_file(f, "init.txt"))
+            .map(|f| f.with_file_name("truth.csv")),
+    ];
+    if let Some(o) = a.out.as_deref()
+        && truths.iter().flatten().any(|t| crate::paths::same(o, t))
     {
         bail!(
             "--out {} is the sequence's ground truth: it would be overwritten",
@@ -1308,6 +1355,7 @@ fn open_at_start(
     frames_path: &Path,
     init: Init,
     cfg: &TrackerConfig,
+    given_by: &str,
 ) -> anyhow::Result<Opened> {
     let resize = a.resize.as_deref().map(frames::parse_size).transpose()?;
     // Its errors name the input themselves.
@@ -1317,7 +1365,7 @@ fn open_at_start(
     // the only line printed: first in the input's pixels, as given, then as the tracker will
     // see it.
     let (nw, nh) = source.native_size();
-    init.check(nw, nh)?;
+    init.check(nw, nh).with_context(|| given_by.to_string())?;
     // Large frames are tracked at a working size (`frames::working_size`) unless `--resize`
     // chooses one or `--full-size` keeps the input's. A size chosen for speed must not fail
     // a run: where the settings refuse the start there (a bound in pixels, such as a
@@ -1343,9 +1391,9 @@ fn open_at_start(
     };
     let checked = init.check_for(cfg, w, h);
     if a.resize.is_none() || to_frames.is_identity() {
-        checked?;
+        checked.with_context(|| given_by.to_string())?;
     } else {
-        checked.with_context(|| format!("the start resized to {w}x{h} (--resize)"))?;
+        checked.with_context(|| format!("{given_by}, resized to {w}x{h} (--resize)"))?;
     }
     // What the frames' layout misleads (interlaced fields, pixels not square), once the
     // start is known to be good.
@@ -1563,7 +1611,8 @@ impl RenderStaging {
     /// removes the frames of an earlier, longer render into the same folder that follow this
     /// track's last (`frame_name(n)` for `n` from `frames` on, as long as they run), which a
     /// reader of the sequence (`ffmpeg -i DIR/%05d.png`) would take as part of this track.
-    /// Nothing else in the folder is touched. Returns how many were removed.
+    /// Nothing else in the folder is touched. Returns how many were removed; one that cannot be
+    /// removed is warned of, and it and those after it stay.
     fn finish(mut self, moves: Vec<(PathBuf, PathBuf)>, frames: usize) -> anyhow::Result<usize> {
         // All moved, or (on an error) none more, before an interrupt may clean up.
         let move_all = || -> anyhow::Result<()> {
@@ -1574,15 +1623,23 @@ impl RenderStaging {
             Ok(())
         };
         self.stage.commit(move_all)?;
+        // The track and its frames are in place by now (the poses committed before): an
+        // earlier render's frame that cannot be removed is said, not made the run's failure,
+        // which would present the outputs written as those of a failed run.
         let mut removed = 0;
         for n in frames.. {
             let stale = self.dir.join(frame_name(n));
             if !std::fs::symlink_metadata(&stale).is_ok_and(|m| m.is_file()) {
                 break;
             }
-            std::fs::remove_file(&stale).with_context(|| {
-                format!("removing {}, an earlier render's frame", stale.display())
-            })?;
+            if let Err(e) = std::fs::remove_file(&stale) {
+                errln!(
+                    "pftrack: warning: {} and the frames after it, an earlier render's past \
+                     this track's {frames}, stay: removing it: {e}",
+                    stale.display()
+                );
+                break;
+            }
             removed += 1;
         }
         Ok(removed)
@@ -1669,7 +1726,8 @@ fn run_loop(
     drawn: Drawn<'_>,
     to_input: Rescale,
 ) -> anyhow::Result<Tracked> {
-    let mut streamed = 0usize;
+    // With --stream: the rows written, or `None` before the header is.
+    let mut streamed: Option<usize> = None;
     let drawing = drawn.render.is_some() || drawn.video.is_some();
     let result = track_all(a, source, tracker, first, drawn, to_input, &mut streamed);
     result.map_err(|e| {
@@ -1686,8 +1744,9 @@ fn run_loop(
         }
         match streamed {
             _ if !a.stream => e,
-            0 => e.context("before any pose row, after the header (--stream)"),
-            k => e.context(format!(
+            None => e.context("before the pose CSV's header (--stream)"),
+            Some(0) => e.context("before any pose row, after the header (--stream)"),
+            Some(k) => e.context(format!(
                 "after the pose rows of frames {} to {} (written to standard output as they \
                  came, --stream)",
                 a.start_frame,
@@ -1697,7 +1756,8 @@ fn run_loop(
     })
 }
 
-/// [`run_loop`]'s work; `streamed` counts the rows written with `--stream`.
+/// [`run_loop`]'s work; `streamed` counts the rows written with `--stream`, once the header
+/// is.
 fn track_all(
     a: &TrackArgs,
     source: &mut frames::FrameSource,
@@ -1705,7 +1765,7 @@ fn track_all(
     first: &image::RgbImage,
     mut drawn: Drawn<'_>,
     to_input: Rescale,
-    streamed: &mut usize,
+    streamed: &mut Option<usize>,
 ) -> anyhow::Result<Tracked> {
     let render = drawn.render;
     let limit = a.max_frames.unwrap_or(usize::MAX);
@@ -1725,6 +1785,7 @@ fn track_all(
     if a.stream {
         outln!("{}", pftrack::io::pose_csv_header(true))?;
         crate::flush_stdout()?;
+        *streamed = Some(0);
     }
     let mut emit = |e: &Estimate, frame: &image::RgbImage| -> anyhow::Result<()> {
         // Drawn first: a render that fails is the failure of this frame, whose row then is
@@ -1738,7 +1799,7 @@ fn track_all(
             None if a.stream => {
                 outln!("{}", pftrack::io::format_pose_row(&r, true))?;
                 crate::flush_stdout()?;
-                *streamed += 1;
+                *streamed = Some(streamed.map_or(1, |k| k + 1));
             }
             None => stdout_rows.push(r),
         }
