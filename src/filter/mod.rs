@@ -800,6 +800,11 @@ impl ParticleFilter {
         self.aspect = range;
     }
 
+    /// The aspect range the proposals are held to ([`Self::set_aspect_range`]).
+    pub fn aspect_range(&self) -> Option<AspectRange> {
+        self.aspect
+    }
+
     /// Holds the proposals' semi-axes to `range` (`None`: no bound), each brought to the
     /// nearer end of its bounds, before the aspect range ([`Self::set_aspect_range`]) and
     /// the semi-axis bounds. The tracker sets it while it is unsure of the target
