@@ -137,7 +137,7 @@ fn check_perturbed(r: &Report) {
 /// The box scored is the ellipse's turned by its orientation: the truth's ellipse written
 /// with `a` and `b` swapped and turned a quarter turn (`theta`, as a start at 90 degrees gives)
 /// is the same ellipse, and scores as the truth does; with its orientation ignored it had
-/// scored an IoU of 2/3 at every frame.
+/// scored an IoU of a half at every frame.
 #[test]
 fn an_estimate_is_scored_by_its_ellipse_turned() {
     let truth = Truth::Poses(truth_records());
