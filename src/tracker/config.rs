@@ -463,7 +463,8 @@ pub struct TrackerConfig {
     /// read as lost at confidence 0 while the estimate was on it.
     pub grey_luma: bool,
     /// Holds the ellipse to the shapes the object model can show: its aspect `a / b` stays
-    /// within the range of the outlines of the first frame's ellipsoid (semi-axes `a`, `b` and
+    /// within the range of the outlines of the object's ellipsoid (semi-axes `a`, `b` of its
+    /// outline facing the camera, the first frame's where the start neither tilts nor pans, and
     /// `depth_ratio · sqrt(a b)`, [`crate::pose::prior::Ellipsoid::outline_aspect_range`]),
     /// widened by this factor (at least 1; [`crate::filter::ParticleFilter::set_aspect_range`]).
     /// `None` leaves the aspect free, as the paper does. 1 by default, the model's own range,

@@ -310,7 +310,12 @@ pub struct Tracker {
     filter: ParticleFilter,
     size: (u32, u32),
     theta0: f64,
+    /// The outline the object shows facing the camera, unrolled: the object model's
+    /// ([`crate::pose::prior::Ellipsoid::frontal_outline`] of the start).
     reference: Ellipse,
+    /// The start's ellipse as seen, unrolled: the size and aspect the recovery searches and
+    /// re-anchors at (the same as `reference` for a start that neither tilts nor pans).
+    first_outline: Ellipse,
     frame: usize,
     prev_gray: GrayF32,
     /// Undoes sudden changes of light ([`TrackerConfig::exposure_jump`]); `None` when off.
@@ -494,6 +499,7 @@ impl Tracker {
             size: first_frame.dimensions(),
             theta0: 0.0,
             reference: Ellipse::default(),
+            first_outline: Ellipse::default(),
             frame: 0,
             prev_gray: GrayF32::default(),
             exposure: None,
@@ -615,6 +621,10 @@ impl Tracker {
         // The object model's reference outline: the one the object shows facing the camera,
         // unrolled, since the model is turned by the pose (roll included) on top of it. A
         // start turned in tilt or pan shows it turned.
+        self.first_outline = Ellipse {
+            theta: self.theta0,
+            ..init.ellipse
+        };
         self.reference = crate::pose::prior::Ellipsoid::frontal_outline(
             &init.ellipse,
             self.theta0,
@@ -979,8 +989,9 @@ impl Tracker {
         )
     }
 
-    /// The object model in a view with estimated rotation `rot` and ellipse `view`: the first
-    /// frame's ellipse, as deep as the likelihood's depth ratio says, turned by `rot`.
+    /// The object model in a view with estimated rotation `rot` and ellipse `view`: the
+    /// object's outline facing the camera (the first frame's ellipse, for a start that neither
+    /// tilts nor pans), as deep as the likelihood's depth ratio says, turned by `rot`.
     fn model(&self, rot: &Matrix3<f64>, view: &Ellipse) -> crate::pose::prior::Ellipsoid {
         crate::pose::prior::Ellipsoid::posed(
             &self.reference,
@@ -1455,7 +1466,7 @@ mod tests {
     }
 
     /// The first frame of the synthetic `nod` and its true ellipse.
-    fn nod_first() -> (image::RgbImage, Ellipse) {
+    pub(super) fn nod_first() -> (image::RgbImage, Ellipse) {
         let r = crate::synth::Renderer::new(&crate::synth::SynthConfig::new(
             crate::synth::Scenario::Nod,
         ))

@@ -155,7 +155,7 @@ impl Tracker {
         };
         // The estimate's area at the first ellipse's aspect, in full precision: an estimate of
         // the first ellipse's size keeps it exactly.
-        let (area, aspect) = (est.a * est.b, self.reference.a / self.reference.b);
+        let (area, aspect) = (est.a * est.b, self.first_outline.a / self.first_outline.b);
         Some(Hypothesis {
             cx: f64::from(p.cx),
             cy: f64::from(p.cy),
@@ -316,7 +316,7 @@ impl Tracker {
         est: &Hypothesis,
     ) -> crate::Result<Option<(Hypothesis, f64)>> {
         let (w, h) = self.size;
-        let cands = search_grid(&self.reference, w, h, &Euler::from_matrix(&est.rot));
+        let cands = search_grid(&self.first_outline, w, h, &Euler::from_matrix(&est.rot));
         let (lp, input) = self.search_terms(frame);
         let mut out = Vec::new();
         // The grid covers the frame, so its size has no bound the filter's count sets: in
@@ -371,7 +371,7 @@ impl Tracker {
     fn search_terms<'a>(&self, frame: &'a image::RgbImage) -> (LikelihoodParams, FrameInput<'a>) {
         let mut lp = self.likelihood;
         lp.terms = TERM_COLOUR;
-        self.enable_contrast(&mut lp, self.reference.a * self.reference.b);
+        self.enable_contrast(&mut lp, self.first_outline.a * self.first_outline.b);
         let input = FrameInput {
             image: frame,
             features: &[],
@@ -594,7 +594,7 @@ fn placed_within(placed: &Ellipse, searched: &Ellipse, region: &BoxRect) -> bool
 
 #[cfg(test)]
 mod tests {
-    use super::super::tests::{in_place, nod_tracker};
+    use super::super::tests::{in_place, nod_first, nod_tracker};
     use super::*;
     use crate::geometry::angle_between;
     use nalgebra::Matrix3;
@@ -743,6 +743,27 @@ mod tests {
             ..TrackerConfig::default()
         });
         assert!(t_off.reanchor(&gray_off, &off, 1.0).is_none());
+        // Started turned, the first view is found at the outline seen at the start, in its
+        // pose (not at the object's frontal outline, the model's reference).
+        let (first, _) = nod_first();
+        let turned = Euler::new(0.2, 0.5, 0.0);
+        let t = Tracker::new(
+            TrackerConfig::default(),
+            &first,
+            super::super::Init {
+                ellipse: init,
+                pose: turned,
+            },
+        )
+        .unwrap();
+        assert!((t.reference.b / t.reference.a - init.b / init.a).abs() > 0.01);
+        let off = Hypothesis {
+            rot: turned.matrix() * Euler::new(0.35, 0.35, 0.26).matrix(),
+            ..off
+        };
+        let found = t.reanchor(&gray, &off, 1.0).expect("re-anchored");
+        assert!(angle_between(&found.rot, &turned.matrix()) < 1e-6);
+        assert!((found.b / found.a - init.b / init.a).abs() < 1e-6);
     }
 
     #[test]
