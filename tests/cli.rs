@@ -682,7 +682,7 @@ fn cli_usage_errors_exit_2_and_others_1() {
     let otb = dir.join("otb.txt");
     std::fs::write(&otb, "0,0,0,0\n1,1,5,5\n").unwrap();
     let o = otb.to_str().unwrap();
-    let cases: [(&[&str], i32, &str); 15] = [
+    let cases: [(&[&str], i32, &str); 16] = [
         (&["track", f, "--backend", "cpu"], 2, "no initial ellipse"),
         (&["synth", s, "--size", "80x"], 2, "WIDTHxHEIGHT"),
         // A negative size got clap's "unexpected argument '-8'".
@@ -703,7 +703,19 @@ fn cli_usage_errors_exit_2_and_others_1() {
             1,
             "--init-ellipse: invalid start",
         ),
-        // The start's error names where it came from.
+        // The start's error names the option that gave the value refused.
+        (
+            &[
+                "track",
+                f,
+                "--init-box",
+                "8,6,80,8",
+                "--init-pose",
+                "10,0,0",
+            ],
+            1,
+            "--init-box: invalid start",
+        ),
         (
             &[
                 "track",
@@ -714,7 +726,7 @@ fn cli_usage_errors_exit_2_and_others_1() {
                 "400,0,0",
             ],
             1,
-            "--init-box and --init-pose: invalid start: initial pose 400",
+            "--init-pose: invalid start: initial pose 400",
         ),
         // 1e-300 degrees was taken (and printed in 300 digits).
         (
@@ -2976,6 +2988,37 @@ fn cli_track_reads_a_synth_folder_without_its_init_and_refuses_render_to_stdout(
         );
         assert_eq!(std::fs::read(&truth).unwrap(), before);
     }
+    // Named as the folder read from inside it, `.`.
+    let out = Command::new(env!("CARGO_BIN_EXE_pftrack"))
+        .current_dir(&frames)
+        .args([
+            "track",
+            ".",
+            "--init-box",
+            "20,14,24,20",
+            "--backend",
+            "cpu",
+        ])
+        .args(["--out", "../truth.csv"])
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("ground truth"));
+    assert_eq!(std::fs::read(&truth).unwrap(), before);
+    // Where there is no truth beside them, a `frames` folder and an `init.txt` are any
+    // others: the file is written.
+    std::fs::remove_file(&truth).unwrap();
+    pftrack_ok(&[
+        "track",
+        f,
+        "--init-file",
+        init.to_str().unwrap(),
+        "--backend",
+        "cpu",
+        "--out",
+        t,
+    ]);
+    assert_eq!(read_pose_csv(&truth).unwrap().len(), 3);
     std::fs::remove_dir_all(&dir).unwrap();
 }
 

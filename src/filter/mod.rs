@@ -657,8 +657,9 @@ impl ParticleFilter {
     pub fn propose(&mut self, motion: &Motion, spread: f64) {
         let sg = self.params.proposal.scaled(spread.max(1e-6));
         let sp = self.params.dynamics;
-        // A measurement that is not a number carries no motion: a candidate with a NaN would
-        // turn every particle into NaN, which no weight or mean recovers from.
+        // A measurement that is not a finite number carries no motion: a candidate with a NaN
+        // (or a share that is not finite) would turn every particle into NaN, which no weight
+        // or mean recovers from.
         let usable =
             |(p, r): &&(f64, Matrix3<f64>)| p.is_finite() && r.iter().all(|v| v.is_finite());
         let total_p: f64 = motion

@@ -15,8 +15,8 @@ use pftrack::likelihood::{Backend, create_engine};
 use pftrack::output::{Overlay, VideoWriter, default_scale, render_overlay, write_png};
 use pftrack::synth::frame_name;
 use pftrack::tracker::{
-    ColourUpdate, Estimate, Init, InitRefine, MAX_WEIGHT, Mode, TrackError, Tracker, TrackerConfig,
-    refined_start,
+    ColourUpdate, Estimate, Init, InitFault, InitRefine, MAX_WEIGHT, Mode, TrackError, Tracker,
+    TrackerConfig, refined_start,
 };
 
 use crate::values;
@@ -490,27 +490,56 @@ fn frame_zero_init(start: usize, init: &Path) -> anyhow::Error {
 }
 
 /// Where the start came from, for its errors: the option (with its file) that gave the
-/// ellipse, or the sequence's init file, and `--init-pose` where it gave the pose.
-fn start_source(a: &TrackArgs, synth_init: Option<&Path>) -> String {
-    let file = |flag: &str, p: &Path| format!("{flag} {}", p.display());
-    let ellipse = if a.init_ellipse.is_some() {
-        "--init-ellipse".to_string()
-    } else if a.init_box.is_some() {
-        "--init-box".to_string()
-    } else if a.init_points.is_some() {
-        "--init-points".to_string()
-    } else if let Some(p) = &a.init_file {
-        file("--init-file", p)
-    } else if let Some(p) = &a.init_truth {
-        format!("{}, frame {}", file("--init-truth", p), a.start_frame)
-    } else if let Some(p) = synth_init {
-        p.display().to_string()
-    } else {
-        "no option".to_string()
-    };
-    match a.init_pose {
-        Some(_) => format!("{ellipse} and --init-pose"),
-        None => ellipse,
+/// ellipse, or the sequence's init file; and what gave the pose.
+struct StartSource {
+    ellipse: String,
+    /// `--init-pose`, or `--init-truth`'s row where it gave the pose; `None` for the default
+    /// (frontal) pose.
+    pose: Option<String>,
+}
+
+impl StartSource {
+    fn of(a: &TrackArgs, synth_init: Option<&Path>) -> Self {
+        let file = |flag: &str, p: &Path| format!("{flag} {}", p.display());
+        let truth_row = a
+            .init_truth
+            .as_deref()
+            .map(|p| format!("{}, frame {}", file("--init-truth", p), a.start_frame));
+        let ellipse = if a.init_ellipse.is_some() {
+            "--init-ellipse".to_string()
+        } else if a.init_box.is_some() {
+            "--init-box".to_string()
+        } else if a.init_points.is_some() {
+            "--init-points".to_string()
+        } else if let Some(p) = &a.init_file {
+            file("--init-file", p)
+        } else if let Some(t) = &truth_row {
+            t.clone()
+        } else if let Some(p) = synth_init {
+            p.display().to_string()
+        } else {
+            "no option".to_string()
+        };
+        let pose = match a.init_pose {
+            Some(_) => Some("--init-pose".to_string()),
+            None => truth_row,
+        };
+        Self { ellipse, pose }
+    }
+
+    /// The refusal of the start, named by the option that gave the value refused.
+    fn name(&self, e: TrackError) -> anyhow::Error {
+        let by = match (&e, &self.pose) {
+            (
+                TrackError::BadInit {
+                    fault: InitFault::PoseOutOfRange,
+                    ..
+                },
+                Some(pose),
+            ) => pose,
+            _ => &self.ellipse,
+        };
+        anyhow::Error::new(e).context(by.clone())
     }
 }
 
@@ -1077,7 +1106,7 @@ pub fn run(mut a: TrackArgs) -> anyhow::Result<()> {
         &frames_path,
         init,
         &cfg,
-        &start_source(&a, synth_init.as_deref()),
+        &StartSource::of(&a, synth_init.as_deref()),
     )?;
     // Said once the track has started, so that an error before it stays the only line.
     let loose = loose_start_note(&a, &cfg, &first, &init);
@@ -1213,21 +1242,29 @@ fn check_outputs(
     }
     // A folder written by `synth` (its `frames` read, with or without its init file, or its
     // `frames` folder named with its `init.txt`): its ground truth is not read by the track,
-    // but is what the track is scored against.
+    // but is what the track is scored against. Beside a `frames` folder or an `init.txt`, a
+    // `truth.csv` that is there.
     let synth_file = |p: &Path, name: &str| p.file_name().is_some_and(|n| n == name);
-    let truths = [
-        synth_init.map(|init| init.with_file_name("truth.csv")),
-        (frames_path != a.input).then(|| a.input.join("truth.csv")),
-        synth_file(frames_path, "frames")
-            .then(|| frames_path.parent().map(|d| d.join("truth.csv")))
-            .flatten(),
+    let frames_dir = std::fs::canonicalize(frames_path).ok();
+    let beside = [
+        frames_dir
+            .as_deref()
+            .filter(|f| synth_file(f, "frames"))
+            .and_then(Path::parent)
+            .map(|d| d.join("truth.csv")),
         a.init_file
             .as_deref()
             .filter(|f| synth_file(f, "init.txt"))
             .map(|f| f.with_file_name("truth.csv")),
     ];
+    let truths = [
+        synth_init.map(|init| init.with_file_name("truth.csv")),
+        (frames_path != a.input).then(|| a.input.join("truth.csv")),
+    ]
+    .into_iter()
+    .chain(beside.into_iter().map(|t| t.filter(|t| t.is_file())));
     if let Some(o) = a.out.as_deref()
-        && truths.iter().flatten().any(|t| crate::paths::same(o, t))
+        && truths.flatten().any(|t| crate::paths::same(o, &t))
     {
         bail!(
             "--out {} is the sequence's ground truth: it would be overwritten",
@@ -1355,7 +1392,7 @@ fn open_at_start(
     frames_path: &Path,
     init: Init,
     cfg: &TrackerConfig,
-    given_by: &str,
+    given_by: &StartSource,
 ) -> anyhow::Result<Opened> {
     let resize = a.resize.as_deref().map(frames::parse_size).transpose()?;
     // Its errors name the input themselves.
@@ -1365,7 +1402,7 @@ fn open_at_start(
     // the only line printed: first in the input's pixels, as given, then as the tracker will
     // see it.
     let (nw, nh) = source.native_size();
-    init.check(nw, nh).with_context(|| given_by.to_string())?;
+    init.check(nw, nh).map_err(|e| given_by.name(e))?;
     // Large frames are tracked at a working size (`frames::working_size`) unless `--resize`
     // chooses one or `--full-size` keeps the input's. A size chosen for speed must not fail
     // a run: where the settings refuse the start there (a bound in pixels, such as a
@@ -1389,11 +1426,11 @@ fn open_at_start(
         ellipse: to_frames.ellipse(&init.ellipse),
         ..init
     };
-    let checked = init.check_for(cfg, w, h);
+    let checked = init.check_for(cfg, w, h).map_err(|e| given_by.name(e));
     if a.resize.is_none() || to_frames.is_identity() {
-        checked.with_context(|| given_by.to_string())?;
+        checked?;
     } else {
-        checked.with_context(|| format!("{given_by}, resized to {w}x{h} (--resize)"))?;
+        checked.with_context(|| format!("the start resized to {w}x{h} (--resize)"))?;
     }
     // What the frames' layout misleads (interlaced fields, pixels not square), once the
     // start is known to be good.
