@@ -432,9 +432,11 @@ impl Tracker {
             // next trusted frame take as the pose to look for it in. The ellipse so laid
             // turns with the trusted roll, so it is the one scored: found only where it is
             // as confident as a found target must be, and reported with its own confidence
-            // (the particles' was of the walked pose's ellipse, which is not output).
+            // (the particles' was of the walked pose's ellipse, which is not output). No
+            // features measured that pose (no keyframe fit; a fit to the previous frame
+            // measured the walked one), so its confidence is lowered as any such frame's.
             let found = self.filter.bounded(&as_trusted);
-            let (_, c) = self.own_confidence(input, lp, &found, m.rotation_measured())?;
+            let (_, c) = self.own_confidence(input, lp, &found, false)?;
             if c >= self.cfg.found_above {
                 self.filter.reset(&found);
                 est = found;
