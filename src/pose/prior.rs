@@ -283,7 +283,7 @@ impl Ellipsoid {
             [0, 1, 2].map(|k| (e.x * orientation[(0, k)] + e.y * orientation[(1, k)]).powi(2))
         });
         let (want_a, want_b) = (seen.a.ln(), seen.b.ln());
-        if !(want_a.is_finite() && want_b.is_finite() && depth_ratio > 0.0) {
+        if !(want_a.is_finite() && want_b.is_finite() && depth_ratio >= 0.0) {
             return facing;
         }
         // Half the outline's extent along an axis `e` is `sqrt(Σ_k (e · O_k)² s_k²)`, with
@@ -783,6 +783,8 @@ mod tests {
             (1.0, [25.0, -40.0, 15.0]),
             (0.5, [-30.0, 20.0, -70.0]),
             (1.6, [10.0, 80.0, 5.0]),
+            // A flat disc (depth ratio 0, which the settings allow) panned 60 degrees.
+            (0.0, [0.0, 60.0, 0.0]),
         ] {
             let rot = Euler::from_degrees(rx, ry, rz).matrix();
             let orientation = rot * crate::geometry::rot_z(theta0);

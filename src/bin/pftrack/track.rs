@@ -1262,7 +1262,8 @@ fn check_outputs(
         (frames_path != a.input).then(|| a.input.join("truth.csv")),
     ]
     .into_iter()
-    .chain(beside.into_iter().map(|t| t.filter(|t| t.is_file())));
+    .chain(beside)
+    .map(|t| t.filter(|t| t.is_file()));
     if let Some(o) = a.out.as_deref()
         && truths.flatten().any(|t| crate::paths::same(o, &t))
     {
